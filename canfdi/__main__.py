@@ -1,0 +1,5 @@
+import sys
+
+from canfdi.cli import main
+
+sys.exit(main())

@@ -1,0 +1,85 @@
+"""The residual bank of the DC motor: structure, isolability and estimability facts."""
+
+import numpy as np
+
+from canfdi.core.design import DesignOptions, design_bank, design_to_dict
+from canfdi.core.parity import identity_stack, parity_matrices
+from tests.dc_motor import dc_motor
+
+NAMES_IN = ["V"]
+NAMES_OUT = ["i_f", "i_a", "i_f_plus_i_a", "omega_r"]
+
+
+def _design(**kw):
+    opts = DesignOptions(measurement_std=np.full(4, 0.01), **kw)
+    return design_bank(dc_motor(), NAMES_IN, NAMES_OUT, opts)
+
+
+def test_default_windows_are_the_smallest_admissible():
+    d = _design()
+    assert d.actuator_window == 1
+    assert d.sensor_window == 1  # the largest of the per-sensor minima (1, 1, 1, 0)
+    assert [r.min_window for r in d.sensors] == [1, 1, 1, 0]
+
+
+def test_fixed_window_and_noise_gain():
+    d = _design(sensor_window=4)
+    assert d.sensor_window == 4
+    V = d.sensor_matrix()
+    assert V.shape == (4, 20)
+    # Unit vectors and white measurement noise 0.01: residual noise std is exactly 0.01.
+    np.testing.assert_allclose([r.noise_std for r in d.sensors], 0.01, rtol=1e-12)
+    np.testing.assert_allclose(d.gain[1:, 1:], V @ identity_stack(4, 4), atol=1e-12)
+
+
+def test_process_noise_raises_residual_noise():
+    quiet = design_bank(dc_motor(), NAMES_IN, NAMES_OUT,
+                        DesignOptions(measurement_std=np.full(4, 0.01)))
+    noisy = design_bank(dc_motor(), NAMES_IN, NAMES_OUT,
+                        DesignOptions(measurement_std=np.full(4, 0.01),
+                                      process_std=np.array([0.1, 0.0, 0.0])))
+    v = noisy.actuators[0].vector.vector
+    pm = parity_matrices(noisy.model, 1)
+    assert noisy.actuators[0].noise_std > quiet.actuators[0].noise_std
+    # i_f's process noise reaches y(k) through C; check the variance by hand for s = 1.
+    Hx = np.zeros((8, 6))
+    Hx[4:, :3] = noisy.model.C
+    want = v @ (np.eye(8) * 1e-4 + Hx @ np.diag([0.01, 0, 0, 0, 0, 0]) @ Hx.T) @ v
+    assert abs(noisy.actuators[0].noise_std ** 2 - want) < 1e-15
+    assert pm.H0.shape == (8, 3)
+
+
+def test_isolability_and_estimability_of_the_dc_motor_sensors():
+    d = _design(sensor_window=4)
+    out = design_to_dict(d)
+    det = {(e["kind"], e["index"]): e for e in out["detectability"]}
+    # omega_r: no residual decoupled from w responds to it.
+    assert det[("sensor", 3)]["detectable"] is False
+    assert det[("sensor", 3)]["residuals"] == []
+    # i_a and i_f + i_a enter every residual only through their difference (i_a carries the
+    # unknown phi1): same signature, and neither bias is estimable on its own.
+    assert det[("sensor", 1)]["confused_with"] == ["i_f_plus_i_a"]
+    assert det[("sensor", 1)]["identifiable"] is False
+    assert det[("sensor", 2)]["identifiable"] is False
+    assert det[("sensor", 0)]["identifiable"] is True and det[("sensor", 0)]["isolable"]
+    Phi = d.sensor_matrix() @ identity_stack(4, 4)
+    np.testing.assert_allclose(Phi[:, 1], -Phi[:, 2], atol=1e-12)
+
+
+def test_json_contract_fields():
+    out = design_to_dict(_design())
+    for key in ("actuators", "sensors"):
+        for e in out[key]:
+            for field in ("index", "name", "window", "exists", "vector", "sensitivity", "reason"):
+                assert field in e
+    for e in out["detectability"]:
+        for field in ("kind", "index", "name", "detectable", "strongly_detectable"):
+            assert field in e
+    assert [e["index"] for e in out["sensors"]] == [0, 1, 2, 3]
+
+
+def test_window_comparison_shows_larger_windows_gain_sensitivity():
+    d = _design()
+    act = next(c for c in d.window_comparison if c["kind"] == "actuator")
+    ratios = [w["fault_to_noise"] for w in act["by_window"]]
+    assert ratios == sorted(ratios) and ratios[-1] > ratios[0]
