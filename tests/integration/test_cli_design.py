@@ -19,7 +19,7 @@ def test_design_json_dc_motor():
     assert out["windows"] == {"actuator": 1, "sensor": 4}
     assert out["actuators"][0]["exists"] and out["actuators"][0]["window"] == 1
     assert len(out["actuators"][0]["vector"]) == 8
-    speed = [e for e in out["detectability"] if e["kind"] == "sensor" and e["index"] == 3][0]
+    speed = next(e for e in out["detectability"] if e["kind"] == "sensor" and e["index"] == 3)
     assert speed["detectable"] is False and speed["reason"]
 
 

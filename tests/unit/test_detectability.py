@@ -49,7 +49,7 @@ def test_dc_motor_sensor_4_not_detectable_with_w_decoupled():
     s = _sensors(results)
     assert [s[j].detectable for j in range(3)] == [True, True, True]
     assert not s[3].detectable and "Theorem 2" in s[3].reason
-    act = [d for kind, _, d in results if kind == "actuator"][0]
+    act = next(d for kind, _, d in results if kind == "actuator")
     assert act.detectable and act.strongly_detectable
 
 

@@ -1,0 +1,868 @@
+"""Residual evaluation: fixed thresholds and the two-sided Page-Hinkley (CUSUM) test.
+
+Two decision rules turn residuals into alarms:
+
+* the fixed threshold of eq. 8 of Chan et al. (2006), ``|r| >= r_h`` means faulty, with
+  ``r_h`` chosen from the residual's noise level and a false-alarm probability per sample;
+* the two-sided Page-Hinkley stopping rule (Basseville & Nikiforov 1993, "Detection of
+  Abrupt Changes", Sections 2.2 and 5.2), which accumulates small persistent deviations
+  that a per-sample threshold would miss.
+
+Every rule comes as a pure function (a step function with explicit state and a batch
+function over a whole record, sharing the same arithmetic) and as a thin streaming class
+with ``update(x) -> alarms`` and ``reset()``. The Page-Hinkley design helpers use
+Siegmund's approximation of the average run length, so thresholds can be chosen for a
+false-alarm interval and a detection delay; `calibrate_threshold` replaces it by an
+empirical calibration where the residuals are correlated in time.
+
+References
+----------
+M. Basseville and I. V. Nikiforov, *Detection of Abrupt Changes: Theory and Application*,
+Prentice Hall, 1993.
+D. Siegmund, *Sequential Analysis: Tests and Confidence Intervals*, Springer, 1985.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import optimize, stats
+
+__all__ = [
+    "Alarm",
+    "PageHinkley",
+    "PageHinkleyResult",
+    "ThresholdDetector",
+    "alarms_to_events",
+    "arl_one_sided",
+    "arl_two_sided",
+    "calibrate_threshold",
+    "false_alarm_interval",
+    "mean_detection_delay",
+    "page_hinkley_batch",
+    "page_hinkley_step",
+    "threshold_alarms",
+    "threshold_for_false_alarm_interval",
+    "threshold_from_false_alarm",
+]
+
+# Siegmund's correction b = h + 2 * rho * sigma: rho = -zeta(1/2) / sqrt(2 pi) ~ 0.583 is the
+# expected overshoot of a Gaussian random walk over a far boundary, which the continuous
+# (Brownian) run-length formula ignores.
+SIEGMUND_OVERSHOOT = 1.166
+
+# Cumulative sums are restarted at least this often so that their magnitude (which drifts by
+# -delta per sample) cannot eat the precision of g = S_k - min_j S_j on long records.
+_MAX_BLOCK = 4096
+_MIN_WINDOW = 16
+
+# Below |2 mu b| < this the closed-form ARL cancels catastrophically; a series is used.
+_SERIES_LIMIT = 0.1
+_SERIES_TERMS = 10
+
+
+# --------------------------------------------------------------------------------------
+# records
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Alarm:
+    """One alarm of one residual at one sample.
+
+    Attributes
+    ----------
+    sample : int
+        Sample index (offset by ``start_sample`` of `alarms_to_events`).
+    residual : int
+        Column index of the residual in alarm.
+    direction : int
+        +1 for an upward change (or a threshold violation), -1 for a downward change.
+    """
+
+    sample: int
+    residual: int
+    direction: int
+
+
+@dataclass(frozen=True)
+class PageHinkleyResult:
+    """Output of `page_hinkley_batch`.
+
+    Attributes
+    ----------
+    g_up : ndarray, shape (N, m)
+        Upward statistic g+ after each sample.
+    g_down : ndarray, shape (N, m)
+        Downward statistic g- after each sample.
+    alarms : ndarray of int8, shape (N, m)
+        +1 (upward change), -1 (downward change) or 0 at each sample.
+    state : ndarray, shape (m, 2)
+        Final (g+, g-) per residual, to pass as ``state`` to the next chunk. With
+        ``restart_on_alarm`` a residual that alarmed on the last sample has a zero state.
+    """
+
+    g_up: NDArray[np.float64]
+    g_down: NDArray[np.float64]
+    alarms: NDArray[np.int8]
+    state: NDArray[np.float64]
+
+
+def alarms_to_events(alarms: ArrayLike, start_sample: int = 0) -> list[Alarm]:
+    """List the nonzero entries of an alarm array as `Alarm` records.
+
+    Parameters
+    ----------
+    alarms : array_like of int or bool, shape (N, m)
+        Alarm array as returned by `page_hinkley_batch` (signs) or `threshold_alarms`
+        (booleans, reported with direction +1).
+    start_sample : int, optional
+        Sample index of the first row, so that chunks of a long record report absolute
+        sample numbers.
+
+    Returns
+    -------
+    list of Alarm
+        Ordered by sample, then residual.
+    """
+    a = np.asarray(alarms)
+    if a.ndim != 2:
+        raise ValueError(f"alarms: expected a 2-D array (N, m), got shape {a.shape}")
+    if a.dtype == np.bool_:
+        a = a.astype(np.int8)
+    elif not np.issubdtype(a.dtype, np.integer):
+        raise ValueError(f"alarms: expected an integer or boolean array, got {a.dtype}")
+    start = int(start_sample)
+    rows, cols = np.nonzero(a)
+    signs = np.sign(a[rows, cols])
+    return [
+        Alarm(sample=int(s) + start, residual=int(r), direction=int(d))
+        for s, r, d in zip(rows, cols, signs, strict=True)
+    ]
+
+
+# --------------------------------------------------------------------------------------
+# argument checks
+# --------------------------------------------------------------------------------------
+
+
+def _as_2d(x: ArrayLike, name: str) -> NDArray[np.float64]:
+    arr = np.asarray(x, dtype=np.float64)
+    if arr.ndim != 2:
+        raise ValueError(f"{name}: expected a 2-D array (N, m), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: must be finite")
+    return arr
+
+
+def _as_row(x: ArrayLike, m: int, name: str) -> NDArray[np.float64]:
+    arr = np.asarray(x, dtype=np.float64)
+    if arr.shape != (m,):
+        raise ValueError(f"{name}: expected shape ({m},), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: must be finite")
+    return arr
+
+
+def _per_residual(
+    value: ArrayLike, m: int, name: str, *, positive: bool = False, nonnegative: bool = False
+) -> NDArray[np.float64]:
+    """Broadcast a scalar or (m,) parameter to shape (m,) and check its sign."""
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim > 1 or (arr.ndim == 1 and arr.shape[0] != m):
+        raise ValueError(f"{name}: expected a scalar or shape ({m},), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: must be finite")
+    if positive and np.any(arr <= 0):
+        raise ValueError(f"{name}: must be > 0")
+    if nonnegative and np.any(arr < 0):
+        raise ValueError(f"{name}: must be >= 0")
+    return np.broadcast_to(arr, (m,)).copy()
+
+
+def _check_state(state: ArrayLike | None, m: int, name: str = "state") -> NDArray[np.float64]:
+    if state is None:
+        return np.zeros((m, 2))
+    arr = np.asarray(state, dtype=np.float64)
+    if arr.shape != (m, 2):
+        raise ValueError(f"{name}: expected shape ({m}, 2), got {arr.shape}")
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise ValueError(f"{name}: statistics must be finite and >= 0")
+    return arr.copy()
+
+
+def _scalar_or_array(arr: NDArray[np.float64]) -> NDArray[np.float64] | float:
+    return float(arr) if arr.ndim == 0 else arr
+
+
+# --------------------------------------------------------------------------------------
+# fixed threshold (Chan et al. 2006, eq. 8)
+# --------------------------------------------------------------------------------------
+
+
+def threshold_from_false_alarm(sigma: ArrayLike, p_fa: float) -> NDArray[np.float64] | float:
+    """Threshold r_h giving a false-alarm probability ``p_fa`` per sample on white noise.
+
+    For a zero-mean Gaussian residual of standard deviation sigma,
+    ``P(|r| >= r_h) = p_fa`` gives ``r_h = sigma * Phi^{-1}(1 - p_fa / 2)``.
+
+    Parameters
+    ----------
+    sigma : float or array_like, shape (m,)
+        Noise standard deviation of each residual, > 0.
+    p_fa : float
+        Target false-alarm probability per sample and residual, in (0, 1).
+
+    Returns
+    -------
+    float or ndarray, shape (m,)
+        Threshold r_h, same shape as ``sigma``.
+    """
+    s = np.asarray(sigma, dtype=np.float64)
+    if s.ndim > 1:
+        raise ValueError(f"sigma: expected a scalar or a 1-D array, got shape {s.shape}")
+    if not np.all(np.isfinite(s)) or np.any(s <= 0):
+        raise ValueError("sigma: must be finite and > 0")
+    p = float(p_fa)
+    if not 0.0 < p < 1.0:
+        raise ValueError(f"p_fa: must be in (0, 1), got {p_fa!r}")
+    # isf(p/2) rather than ppf(1 - p/2): no loss of the small tail probability to rounding.
+    return _scalar_or_array(s * stats.norm.isf(p / 2.0))
+
+
+def threshold_alarms(r: ArrayLike, r_h: ArrayLike) -> NDArray[np.bool_]:
+    """Apply eq. 8 of Chan et al. (2006): residual i is faulty where ``|r_i| >= r_h``.
+
+    Parameters
+    ----------
+    r : array_like, shape (N, m)
+        Residuals, one column per residual.
+    r_h : float or array_like, shape (m,)
+        Threshold of each residual, > 0.
+
+    Returns
+    -------
+    ndarray of bool, shape (N, m)
+        True where the residual is in alarm.
+    """
+    rr = _as_2d(r, "r")
+    th = _per_residual(r_h, rr.shape[1], "r_h", positive=True)
+    return np.abs(rr) >= th
+
+
+class ThresholdDetector:
+    """Streaming form of `threshold_alarms`.
+
+    Parameters
+    ----------
+    threshold : float or array_like, shape (m,)
+        Threshold r_h of each residual, > 0.
+    """
+
+    def __init__(self, threshold: ArrayLike) -> None:
+        th = np.asarray(threshold, dtype=np.float64)
+        if th.ndim > 1:
+            raise ValueError(f"threshold: expected a scalar or 1-D array, got {th.shape}")
+        if not np.all(np.isfinite(th)) or np.any(th <= 0):
+            raise ValueError("threshold: must be finite and > 0")
+        self.threshold = th
+
+    def update(self, r_row: ArrayLike) -> NDArray[np.intp]:
+        """Evaluate one sample.
+
+        Parameters
+        ----------
+        r_row : array_like, shape (m,)
+            Residuals at this sample.
+
+        Returns
+        -------
+        ndarray of intp, shape (k,)
+            Indices of the residuals in alarm, ascending.
+        """
+        row = np.atleast_1d(np.asarray(r_row, dtype=np.float64))
+        if row.ndim != 1:
+            raise ValueError(f"r_row: expected a 1-D array (m,), got shape {row.shape}")
+        # same comparison as the batch form, so both give identical alarms
+        return np.flatnonzero(threshold_alarms(row[None, :], self.threshold)[0])
+
+    def reset(self) -> None:
+        """Do nothing: the rule has no memory (kept for a uniform detector interface)."""
+
+
+# --------------------------------------------------------------------------------------
+# Page-Hinkley / CUSUM
+# --------------------------------------------------------------------------------------
+
+
+def _lindley(z: NDArray[np.float64], g0: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Closed form of g_k = max(0, g_{k-1} + z_k) from g_0 = g0, for z of shape (n, m).
+
+    Unrolling the recursion, g_k = max(g0 + S_k, max_{0<=j<=k} (S_k - S_j)) with
+    S_k = z_1 + ... + z_k and S_0 = 0: either the statistic never hit zero (first term) or
+    it last restarted from zero after sample j (second term).
+    """
+    s = np.cumsum(z, axis=0)
+    running_min = np.minimum(np.minimum.accumulate(s, axis=0), 0.0)
+    return np.maximum(g0 + s, s - running_min)
+
+
+def _ph_block(
+    u: NDArray[np.float64], delta: NDArray[np.float64], g0: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    # the increments are formed exactly as in page_hinkley_step so both agree to rounding
+    return _lindley(u - delta, g0[:, 0]), _lindley(-u - delta, g0[:, 1])
+
+
+def _direction(
+    g_up: NDArray[np.float64], g_down: NDArray[np.float64], h: NDArray[np.float64]
+) -> NDArray[np.int8]:
+    # Both statistics can exceed h together (a large jump reversing a long drift); the
+    # larger one names the change, ties go upward.
+    in_alarm = (g_up >= h) | (g_down >= h)
+    sign = np.where(g_up >= g_down, 1, -1).astype(np.int8)
+    return np.where(in_alarm, sign, np.int8(0)).astype(np.int8)
+
+
+def page_hinkley_step(
+    state: ArrayLike,
+    x: ArrayLike,
+    delta: ArrayLike,
+    h: ArrayLike,
+    *,
+    mu0: ArrayLike = 0.0,
+    sigma: ArrayLike = 1.0,
+) -> tuple[NDArray[np.float64], NDArray[np.int8]]:
+    """Advance the two-sided Page-Hinkley test by one sample.
+
+    With u = (x - mu0) / sigma,
+    ``g+ = max(0, g+ + u - delta)``, ``g- = max(0, g- - u - delta)``; a residual is in
+    alarm while either statistic is >= h. Nothing is reset on an alarm: the caller decides
+    (pass a zero state to restart).
+
+    Parameters
+    ----------
+    state : array_like, shape (m, 2)
+        (g+, g-) per residual before this sample, >= 0.
+    x : array_like, shape (m,)
+        Residuals at this sample.
+    delta : float or array_like, shape (m,)
+        Drift, half the smallest change to detect, in units of sigma, >= 0.
+    h : float or array_like, shape (m,)
+        Alarm threshold in units of sigma, > 0.
+    mu0 : float or array_like, shape (m,), optional
+        Known fault-free mean of the residual.
+    sigma : float or array_like, shape (m,), optional
+        Known fault-free standard deviation of the residual, > 0.
+
+    Returns
+    -------
+    state : ndarray, shape (m, 2)
+        (g+, g-) after this sample (a new array; the input is not modified).
+    alarm : ndarray of int8, shape (m,)
+        +1 (upward change), -1 (downward change) or 0.
+    """
+    xr = np.atleast_1d(np.asarray(x, dtype=np.float64))
+    if xr.ndim != 1:
+        raise ValueError(f"x: expected a 1-D array (m,), got shape {xr.shape}")
+    m = xr.shape[0]
+    xr = _as_row(xr, m, "x")
+    st = _check_state(state, m)
+    d = _per_residual(delta, m, "delta", nonnegative=True)
+    hh = _per_residual(h, m, "h", positive=True)
+    mu = _per_residual(mu0, m, "mu0")
+    sg = _per_residual(sigma, m, "sigma", positive=True)
+    u = (xr - mu) / sg
+    g_up = np.maximum(0.0, st[:, 0] + (u - d))
+    g_down = np.maximum(0.0, st[:, 1] + (-u - d))
+    return np.stack([g_up, g_down], axis=1), _direction(g_up, g_down, hh)
+
+
+def _run_plain(
+    u: NDArray[np.float64],
+    delta: NDArray[np.float64],
+    h: NDArray[np.float64],
+    g0: NDArray[np.float64],
+) -> PageHinkleyResult:
+    n, m = u.shape
+    g_up = np.empty((n, m))
+    g_down = np.empty((n, m))
+    state = g0
+    for start in range(0, n, _MAX_BLOCK):
+        stop = min(start + _MAX_BLOCK, n)
+        gp, gm = _ph_block(u[start:stop], delta, state)
+        g_up[start:stop] = gp
+        g_down[start:stop] = gm
+        state = np.stack([gp[-1], gm[-1]], axis=1)
+    return PageHinkleyResult(g_up, g_down, _direction(g_up, g_down, h), state.copy())
+
+
+def _run_restarts(
+    u: NDArray[np.float64],
+    delta: NDArray[np.float64],
+    h: NDArray[np.float64],
+    g0: NDArray[np.float64],
+    *,
+    store: bool = True,
+    max_alarms: NDArray[np.float64] | None = None,
+) -> tuple[PageHinkleyResult | None, NDArray[np.int64]]:
+    """Run with a zero restart right after every alarm, looping over alarms, not samples.
+
+    Each pass evaluates, for every residual still running, a window that starts at its own
+    current position (gathered with fancy indexing), keeps the samples up to and including
+    its first alarm, and restarts there. The window adapts to the spacing of the alarms.
+    With ``max_alarms``, a residual stops as soon as its count exceeds it (all the caller
+    needs to know during a calibration).
+    """
+    n, m = u.shape
+    g_up = np.empty((n, m)) if store else None
+    g_down = np.empty((n, m)) if store else None
+    alarms = np.zeros((n, m), dtype=np.int8) if store else None
+    counts = np.zeros(m, dtype=np.int64)
+    pos = np.zeros(m, dtype=np.intp)
+    state = g0.copy()
+    active = np.arange(m) if n > 0 else np.arange(0)
+    window = _MIN_WINDOW
+    while active.size:
+        w = max(1, min(window, n))
+        offsets = np.arange(w)[:, None]
+        rows = pos[active] + offsets
+        valid = rows < n
+        rows = np.minimum(rows, n - 1)
+        gp, gm = _ph_block(u[rows, active], delta[active], state[active])
+        sign = _direction(gp, gm, h[active])
+        hit = (sign != 0) & valid
+        found = hit.any(axis=0)
+        seg_len = np.where(found, hit.argmax(axis=0) + 1, valid.sum(axis=0))
+        keep_rows = offsets < seg_len
+        if store:
+            r_idx = rows[keep_rows]
+            c_idx = np.broadcast_to(active, rows.shape)[keep_rows]
+            g_up[r_idx, c_idx] = gp[keep_rows]
+            g_down[r_idx, c_idx] = gm[keep_rows]
+            alarms[r_idx, c_idx] = sign[keep_rows]
+        cols = np.arange(active.size)
+        last = seg_len - 1
+        new_state = np.stack([gp[last, cols], gm[last, cols]], axis=1)
+        new_state[found] = 0.0
+        state[active] = new_state
+        pos[active] += seg_len
+        counts[active] += found
+        keep = pos[active] < n
+        if max_alarms is not None:
+            keep &= counts[active] <= max_alarms[active]
+        if found.all():
+            # Residuals alarming often need short windows (a long one is mostly discarded).
+            window = int(min(_MAX_BLOCK, max(_MIN_WINDOW, 2 * int(seg_len.max()))))
+        else:
+            window = min(_MAX_BLOCK, 2 * w)
+        active = active[keep]
+    if not store:
+        return None, counts
+    return PageHinkleyResult(g_up, g_down, alarms, state), counts
+
+
+def page_hinkley_batch(
+    x: ArrayLike,
+    delta: ArrayLike,
+    h: ArrayLike,
+    mu0: ArrayLike = 0.0,
+    sigma: ArrayLike = 1.0,
+    state: ArrayLike | None = None,
+    restart_on_alarm: bool = False,
+) -> PageHinkleyResult:
+    """Run the two-sided Page-Hinkley test over a whole record.
+
+    Same arithmetic as `page_hinkley_step` applied sample by sample, vectorised with
+    cumulative sums: between restarts, ``g_k = max(g_0 + S_k, S_k - min_{0<=j<=k} S_j)``
+    with ``S`` the cumulative sum of the increments and ``S_0 = 0``. Calling it on
+    consecutive chunks, passing ``result.state`` along, gives the same result as one call.
+
+    Parameters
+    ----------
+    x : array_like, shape (N, m)
+        Residuals, one column per residual.
+    delta : float or array_like, shape (m,)
+        Drift, half the smallest change to detect, in units of sigma, >= 0.
+    h : float or array_like, shape (m,)
+        Alarm threshold in units of sigma, > 0.
+    mu0 : float or array_like, shape (m,), optional
+        Known fault-free mean of the residual (not estimated from the data).
+    sigma : float or array_like, shape (m,), optional
+        Known fault-free standard deviation of the residual, > 0.
+    state : array_like, shape (m, 2), optional
+        Initial (g+, g-) per residual, >= 0; zeros by default.
+    restart_on_alarm : bool, optional
+        If True, a residual's statistics restart from zero right after each of its alarms,
+        as a streaming user calling ``PageHinkley.reset([i])`` after each alarm would get;
+        every alarm is then a single sample. If False (default) the statistics keep
+        running, so a persistent change keeps the residual in alarm.
+
+    Returns
+    -------
+    PageHinkleyResult
+        Trajectories ``g_up`` and ``g_down`` (N, m), ``alarms`` (N, m) int8 and the final
+        ``state`` (m, 2).
+    """
+    xx = _as_2d(x, "x")
+    m = xx.shape[1]
+    d = _per_residual(delta, m, "delta", nonnegative=True)
+    hh = _per_residual(h, m, "h", positive=True)
+    mu = _per_residual(mu0, m, "mu0")
+    sg = _per_residual(sigma, m, "sigma", positive=True)
+    g0 = _check_state(state, m)
+    u = (xx - mu) / sg
+    if restart_on_alarm:
+        result, _ = _run_restarts(u, d, hh, g0)
+        assert result is not None
+        return result
+    return _run_plain(u, d, hh, g0)
+
+
+class PageHinkley:
+    """Streaming two-sided Page-Hinkley test with a known reference mean.
+
+    Unlike self-resetting implementations with a running mean, the reference ``mu0`` is
+    fixed and nothing is reset on an alarm: the statistics keep running (so a persistent
+    change stays in alarm) until the caller calls `reset`.
+
+    Parameters
+    ----------
+    delta : float or array_like, shape (m,)
+        Drift, half the smallest change to detect, in units of sigma, >= 0.
+    h : float or array_like, shape (m,)
+        Alarm threshold in units of sigma, > 0.
+    mu0 : float or array_like, shape (m,), optional
+        Known fault-free mean of each residual.
+    sigma : float or array_like, shape (m,), optional
+        Known fault-free standard deviation of each residual, > 0.
+    n_residuals : int, optional
+        Number m of residuals monitored together.
+    """
+
+    def __init__(
+        self,
+        delta: ArrayLike,
+        h: ArrayLike,
+        mu0: ArrayLike = 0.0,
+        sigma: ArrayLike = 1.0,
+        n_residuals: int = 1,
+    ) -> None:
+        if int(n_residuals) != n_residuals or n_residuals < 1:
+            raise ValueError(f"n_residuals: must be a positive integer, got {n_residuals!r}")
+        m = int(n_residuals)
+        self.n_residuals = m
+        self.delta = _per_residual(delta, m, "delta", nonnegative=True)
+        self.h = _per_residual(h, m, "h", positive=True)
+        self.mu0 = _per_residual(mu0, m, "mu0")
+        self.sigma = _per_residual(sigma, m, "sigma", positive=True)
+        self._state = np.zeros((m, 2))
+        self._latched = np.zeros(m, dtype=np.int8)
+
+    @property
+    def statistics(self) -> NDArray[np.float64]:
+        """ndarray, shape (m, 2): current (g+, g-) per residual (a copy)."""
+        return self._state.copy()
+
+    @property
+    def alarm_state(self) -> NDArray[np.int8]:
+        """ndarray of int8, shape (m,): direction of the first alarm since the last reset.
+
+        0 where the residual has not alarmed; it stays set even if the statistic later
+        falls back under h, until `reset` clears it.
+        """
+        return self._latched.copy()
+
+    def update(self, x_row: ArrayLike) -> NDArray[np.int8]:
+        """Feed one sample.
+
+        Parameters
+        ----------
+        x_row : array_like, shape (m,)
+            Residuals at this sample.
+
+        Returns
+        -------
+        ndarray of int8, shape (m,)
+            +1 (upward change), -1 (downward change) or 0 per residual.
+        """
+        row = np.atleast_1d(np.asarray(x_row, dtype=np.float64))
+        if row.shape != (self.n_residuals,):
+            raise ValueError(f"x_row: expected shape ({self.n_residuals},), got {row.shape}")
+        self._state, alarm = page_hinkley_step(
+            self._state, row, self.delta, self.h, mu0=self.mu0, sigma=self.sigma
+        )
+        self._latched = np.where(self._latched == 0, alarm, self._latched).astype(np.int8)
+        return alarm
+
+    def reset(self, indices: ArrayLike | None = None) -> None:
+        """Zero the statistics and the alarm state.
+
+        Parameters
+        ----------
+        indices : array_like of int, shape (k,), optional
+            Residuals to reset; all of them by default.
+        """
+        if indices is None:
+            self._state[:] = 0.0
+            self._latched[:] = 0
+            return
+        idx = np.atleast_1d(np.asarray(indices))
+        if idx.ndim != 1 or (idx.size and not np.issubdtype(idx.dtype, np.integer)):
+            raise ValueError("indices: expected a 1-D array of integers")
+        if idx.size and (idx.min() < -self.n_residuals or idx.max() >= self.n_residuals):
+            raise ValueError(f"indices: out of range for {self.n_residuals} residuals")
+        self._state[idx] = 0.0
+        self._latched[idx] = 0
+
+
+# --------------------------------------------------------------------------------------
+# design: Siegmund's approximation of the average run length
+# --------------------------------------------------------------------------------------
+
+
+def arl_one_sided(mu: ArrayLike, h: ArrayLike) -> NDArray[np.float64] | float:
+    """Siegmund's approximation of the average run length of a one-sided CUSUM.
+
+    For g_k = max(0, g_{k-1} + z_k) with Gaussian increments z_k of mean ``mu`` and unit
+    variance, stopped at the first k with g_k >= h (Basseville & Nikiforov 1993, Section
+    5.2.2; Siegmund 1985)::
+
+        ARL(mu) = (exp(-2 mu b) + 2 mu b - 1) / (2 mu^2),   b = h + 1.166,
+
+    and ARL(0) = b^2. Near mu = 0 a Taylor series replaces the closed form, which cancels.
+
+    Parameters
+    ----------
+    mu : float or array_like
+        Increment mean in units of sigma: ``change - delta`` after a change (the detection
+        delay), ``-delta`` before it (the false-alarm interval).
+    h : float or array_like
+        Threshold in units of sigma, >= 0; broadcast against ``mu``.
+
+    Returns
+    -------
+    float or ndarray
+        Mean number of samples to the alarm, counting the alarm sample, from a zero
+        statistic; broadcast shape of ``mu`` and ``h``. ``inf`` where it overflows.
+    """
+    mm = np.asarray(mu, dtype=np.float64)
+    hh = np.asarray(h, dtype=np.float64)
+    if not np.all(np.isfinite(mm)):
+        raise ValueError("mu: must be finite")
+    if not np.all(np.isfinite(hh)) or np.any(hh < 0):
+        raise ValueError("h: must be finite and >= 0")
+    mm, hh = np.broadcast_arrays(mm, hh)
+    b = hh + SIEGMUND_OVERSHOOT
+    t = 2.0 * mm * b
+    small = np.abs(t) < _SERIES_LIMIT
+    # (exp(-t) + t - 1) / (t^2 / 2) = sum_n 2 (-t)^n / (n + 2)!, n >= 0
+    series = np.zeros_like(t)
+    for n in range(_SERIES_TERMS - 1, -1, -1):
+        series = series * (-t) + 2.0 / _factorial(n + 2)
+    mu_safe = np.where(small, 1.0, mm)
+    with np.errstate(over="ignore"):
+        closed = (np.exp(-np.where(small, 0.0, t)) + t - 1.0) / (2.0 * mu_safe**2)
+    arl = np.where(small, b**2 * series, closed)
+    return _scalar_or_array(arl)
+
+
+def _factorial(n: int) -> float:
+    out = 1.0
+    for k in range(2, n + 1):
+        out *= k
+    return out
+
+
+def arl_two_sided(arl_up: ArrayLike, arl_down: ArrayLike) -> NDArray[np.float64] | float:
+    """Average run length of two one-sided CUSUMs run together (first alarm of either).
+
+    Uses the standard combination 1/ARL = 1/ARL_up + 1/ARL_down (Basseville & Nikiforov
+    1993, Section 5.2), exact when the two statistics are never positive together and a
+    close approximation for Gaussian increments with delta > 0.
+
+    Parameters
+    ----------
+    arl_up, arl_down : float or array_like
+        One-sided average run lengths, > 0 (``inf`` allowed); broadcast together.
+
+    Returns
+    -------
+    float or ndarray
+        Two-sided average run length, broadcast shape.
+    """
+    up = np.asarray(arl_up, dtype=np.float64)
+    down = np.asarray(arl_down, dtype=np.float64)
+    if np.any(np.isnan(up)) or np.any(up <= 0):
+        raise ValueError("arl_up: must be > 0")
+    if np.any(np.isnan(down)) or np.any(down <= 0):
+        raise ValueError("arl_down: must be > 0")
+    with np.errstate(divide="ignore"):
+        return _scalar_or_array(1.0 / (1.0 / up + 1.0 / down))
+
+
+def _check_delta(delta: ArrayLike) -> NDArray[np.float64]:
+    d = np.asarray(delta, dtype=np.float64)
+    if not np.all(np.isfinite(d)) or np.any(d < 0):
+        raise ValueError("delta: must be finite and >= 0")
+    return d
+
+
+def mean_detection_delay(
+    change: ArrayLike, delta: ArrayLike, h: ArrayLike
+) -> NDArray[np.float64] | float:
+    """Mean detection delay of the Page-Hinkley test for a step change (Siegmund).
+
+    The worst-case delay: the statistic towards the change is zero when it occurs, so the
+    delay is the one-sided ARL with increment mean ``|change| - delta``.
+
+    Parameters
+    ----------
+    change : float or array_like
+        Size of the step in units of sigma (either sign).
+    delta : float or array_like
+        Drift in units of sigma, >= 0.
+    h : float or array_like
+        Threshold in units of sigma, >= 0.
+
+    Returns
+    -------
+    float or ndarray
+        Mean number of samples from the change to the alarm, counting the alarm sample.
+    """
+    c = np.asarray(change, dtype=np.float64)
+    if not np.all(np.isfinite(c)):
+        raise ValueError("change: must be finite")
+    return arl_one_sided(np.abs(c) - _check_delta(delta), h)
+
+
+def false_alarm_interval(delta: ArrayLike, h: ArrayLike) -> NDArray[np.float64] | float:
+    """Mean time between false alarms (ARL0) of the symmetric two-sided test (Siegmund).
+
+    Parameters
+    ----------
+    delta : float or array_like
+        Drift in units of sigma, >= 0.
+    h : float or array_like
+        Threshold in units of sigma, >= 0.
+
+    Returns
+    -------
+    float or ndarray
+        Two-sided ARL0 in samples, for white Gaussian residuals with the known mean.
+    """
+    one = arl_one_sided(-_check_delta(delta), h)
+    return arl_two_sided(one, one)
+
+
+def threshold_for_false_alarm_interval(delta: float, arl0: float) -> float:
+    """Threshold h whose two-sided false-alarm interval is ``arl0`` (inverts Siegmund).
+
+    Parameters
+    ----------
+    delta : float
+        Drift in units of sigma, >= 0.
+    arl0 : float
+        Target mean time between false alarms in samples; must exceed the value at h = 0.
+
+    Returns
+    -------
+    float
+        Threshold h in units of sigma, valid for white Gaussian residuals only (see
+        `calibrate_threshold` for correlated ones).
+    """
+    d = float(_check_delta(delta))
+    target = float(arl0)
+    if not np.isfinite(target) or target <= 0:
+        raise ValueError(f"arl0: must be finite and > 0, got {arl0!r}")
+    floor = float(false_alarm_interval(d, 0.0))
+    if target <= floor:
+        raise ValueError(f"arl0: must exceed {floor:.4g}, the false-alarm interval at h = 0")
+
+    # ARL0 grows exponentially in h, so match logarithms for a well-scaled root.
+    def excess(h: float) -> float:
+        return float(np.log(false_alarm_interval(d, h)) - np.log(target))
+
+    hi = 1.0
+    while excess(hi) < 0:
+        hi *= 2.0
+    return float(optimize.brentq(excess, 0.0, hi, xtol=1e-12, rtol=1e-12))
+
+
+def calibrate_threshold(
+    x_fault_free: ArrayLike,
+    delta: ArrayLike,
+    target_arl0: float,
+    *,
+    tol: float = 1e-3,
+) -> NDArray[np.float64]:
+    """Empirical Page-Hinkley threshold per residual from a fault-free record.
+
+    Residuals of parity equations computed over a window of samples are correlated in
+    time (consecutive windows share samples), so their partial sums wander further than
+    white noise of the same variance and `threshold_for_false_alarm_interval` underestimates
+    h. Here, for each residual, h is the smallest threshold (to ``tol``) for which the
+    two-sided test with a restart after each alarm gives at most ``N / target_arl0`` alarms
+    on the record, found by bisection with `page_hinkley_batch` semantics. The alarm count
+    is non-increasing in h up to the reshuffling of restart instants, so the result is the
+    smallest such h up to that noise.
+
+    Parameters
+    ----------
+    x_fault_free : array_like, shape (N, m)
+        Fault-free residuals already normalised to zero mean and unit variance. N should
+        be many times ``target_arl0`` for the count to be meaningful.
+    delta : float or array_like, shape (m,)
+        Drift in units of sigma, >= 0.
+    target_arl0 : float
+        Wanted mean number of samples between false alarms, > 0.
+    tol : float, optional
+        Absolute tolerance on h, > 0.
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        Threshold h per residual, in units of sigma.
+    """
+    x = _as_2d(x_fault_free, "x_fault_free")
+    n, m = x.shape
+    if n == 0:
+        raise ValueError("x_fault_free: empty record")
+    d = _per_residual(delta, m, "delta", nonnegative=True)
+    target = float(target_arl0)
+    if not np.isfinite(target) or target <= 0:
+        raise ValueError(f"target_arl0: must be finite and > 0, got {target_arl0!r}")
+    if not np.isfinite(tol) or tol <= 0:
+        raise ValueError(f"tol: must be finite and > 0, got {tol!r}")
+    allowed = np.full(m, n / target)
+    zeros = np.zeros((m, 2))
+
+    def meets(h: NDArray[np.float64]) -> NDArray[np.bool_]:
+        _, counts = _run_restarts(x, d, h, zeros, store=False, max_alarms=allowed)
+        return counts <= allowed
+
+    # The white-noise design is a good first guess; correlated residuals push h above it.
+    start = np.array(
+        [
+            threshold_for_false_alarm_interval(di, target)
+            if target > false_alarm_interval(di, 0.0)
+            else tol
+            for di in d
+        ]
+    )
+    lo = np.zeros(m)
+    hi = np.maximum(start, tol)
+    ok = meets(hi)
+    # Terminates: once h exceeds the largest possible partial sum no alarm is left.
+    while not ok.all():
+        lo = np.where(ok, lo, hi)
+        hi = np.where(ok, hi, 2.0 * hi)
+        ok = meets(hi)
+    while np.any(hi - lo > tol):
+        mid = 0.5 * (lo + hi)
+        ok = meets(mid)
+        hi = np.where(ok, mid, hi)
+        lo = np.where(ok, lo, mid)
+    return hi
