@@ -86,7 +86,8 @@ def render_text(name: str, design: Design) -> str:
                     f"{_fmt(e['sensitivity']):>13}{_fmt(e['noise_std']):>11}"
                     f"{_fmt(e['fault_to_noise']):>13}  {note}")
             else:
-                lines.append(f"  {label:<24}{e['window']:>3}{'-':>7}  NO VECTOR: {e['reason']}")
+                lines.append(f"  {label:<24}{e['window']:>3}{_fmt(e['min_window'], 'd'):>7}"
+                             f"  NO VECTOR: {e['reason']}")
     lines += ["", "Faults (unknown inputs decoupled; seed 002 Theorems 2 and 3)"]
     lines.append(f"  {'fault':<24}{'detect':>8}{'strong':>8}{'isolable':>10}{'estimable':>11}"
                  f"{'best f/n':>10}  residuals / notes")

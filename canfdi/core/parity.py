@@ -201,72 +201,62 @@ def _constraint_residual(v: np.ndarray, H: np.ndarray) -> float:
     return float(np.linalg.norm(v @ H) / scale) if scale > 0 else 0.0
 
 
+def _from_space(kind: str, i: int, s: int, N: np.ndarray, M: np.ndarray, H_check: np.ndarray,
+                rows: int, gain_floor: float, no_space: str, no_gain: str) -> ParityVector:
+    """The best vector of the admissible space N for the fault matrix M, or why there is none."""
+    rank = rows - N.shape[1]
+    common = dict(kind=kind, index=i, s=s, null_dim=N.shape[1], rank=rank, rows=rows)
+    none = dict(exists=False, vector=None, gain=None, sensitivity=0.0, decoupling_residual=None)
+    if N.shape[1] == 0:
+        return ParityVector(reason=no_space.format(rank=rank, rows=rows, s=s), **none, **common)
+    v, gain, sens = _best_vector(N, M)
+    if sens <= gain_floor:
+        return ParityVector(reason=no_gain.format(dim=N.shape[1], s=s), **none, **common)
+    return ParityVector(exists=True, vector=v, gain=gain, sensitivity=sens,
+                        decoupling_residual=_constraint_residual(v, H_check), reason=None,
+                        **common)
+
+
 def design_actuator(model: StateSpace, i: int, s: int) -> ParityVector:
     """Fully decoupled parity vector for actuator i at window order s (eq. 13, Theorem 3)."""
     if not 0 <= i < model.p:
         raise ValueError(f"i: actuator index must be in [0, {model.p}), got {i}")
     pm = parity_matrices(model, s)
     cols = actuator_columns(model.p, s, i)
-    Hci = np.delete(pm.Hc, cols, axis=1)
-    Hstar = np.hstack([pm.H0, pm.Hw, pm.Hpsi, Hci])
-    N = left_null_space(Hstar)
-    rank = Hstar.shape[0] - N.shape[1]
+    Hstar = np.hstack([pm.H0, pm.Hw, pm.Hpsi, np.delete(pm.Hc, cols, axis=1)])
     M = pm.Hc[:, cols]
-    common = dict(kind="actuator", index=i, s=s, null_dim=N.shape[1], rank=rank,
-                  rows=Hstar.shape[0])
-    if N.shape[1] == 0:
-        return ParityVector(
-            exists=False, vector=None, gain=None, sensitivity=0.0, decoupling_residual=None,
-            reason=(f"Theorem 1: [H0 Hw Hpsi Hci] has rank {rank} = its {Hstar.shape[0]} rows "
-                    f"at s={s}, so no nonzero v decouples state, unknown inputs and other "
-                    "actuators"),
-            **common)
-    v, gain, sens = _best_vector(N, M)
-    if sens <= GAIN_RTOL * max(np.linalg.norm(M, 2), 1e-300):
-        return ParityVector(
-            exists=False, vector=None, gain=None, sensitivity=0.0, decoupling_residual=None,
-            reason=(f"Theorem 3: all {N.shape[1]} decoupled vectors at s={s} have v^T Hc = 0: "
-                    "actuator's effect on the window is hidden by the decoupling"),
-            **common)
-    return ParityVector(exists=True, vector=v, gain=gain, sensitivity=sens,
-                        decoupling_residual=_constraint_residual(v, Hstar), reason=None, **common)
+    return _from_space(
+        "actuator", i, s, left_null_space(Hstar), M, Hstar, Hstar.shape[0],
+        gain_floor=GAIN_RTOL * max(np.linalg.norm(M, 2), 1e-300),
+        no_space=("Theorem 1: [H0 Hw Hpsi Hci] has rank {rank} = its {rows} rows at s={s}, so "
+                  "no nonzero v decouples state, unknown inputs and other actuators"),
+        no_gain=("Theorem 3: all {dim} decoupled vectors at s={s} have v^T Hc = 0: the "
+                 "actuator's effect on the window is hidden by the decoupling"),
+    )
 
 
 def design_sensor(model: StateSpace, i: int, s: int) -> ParityVector:
     """Fully decoupled parity vector blind to sensor i at window order s (eq. 20, Theorem 2)."""
     if not 0 <= i < model.q:
         raise ValueError(f"i: sensor index must be in [0, {model.q}), got {i}")
-    keep = np.ones(model.q, dtype=bool)
-    keep[i] = False
     rows_i = sensor_rows(model.q, s, i)
     pm = parity_matrices(model, s)
+    Hfull = np.hstack([pm.H0, pm.Hw, pm.Hpsi])
     # Starred matrices of Theorem 2: sensor i's rows removed (they are zero once C_i, G_i are used).
-    Hstar = np.delete(np.hstack([pm.H0, pm.Hw, pm.Hpsi]), rows_i, axis=0)
+    Hstar = np.delete(Hfull, rows_i, axis=0)
     N_red = left_null_space(Hstar)
-    rank = Hstar.shape[0] - N_red.shape[1]
     # Embed back into the full window with zeros on sensor i's rows.
     N = np.zeros(((s + 1) * model.q, N_red.shape[1]))
     N[np.delete(np.arange((s + 1) * model.q), rows_i)] = N_red
-    M = identity_stack(model.q, s)
-    common = dict(kind="sensor", index=i, s=s, null_dim=N.shape[1], rank=rank,
-                  rows=Hstar.shape[0])
-    if N.shape[1] == 0:
-        return ParityVector(
-            exists=False, vector=None, gain=None, sensitivity=0.0, decoupling_residual=None,
-            reason=(f"Theorem 2: [H0i Hwi Hpsii] without sensor {i}'s rows has rank {rank} = "
-                    f"its {Hstar.shape[0]} rows at s={s}: the other sensors hold no redundancy "
-                    "free of the state and unknown inputs"),
-            **common)
-    v, gain, sens = _best_vector(N, M)
-    if sens <= GAIN_RTOL:
-        return ParityVector(
-            exists=False, vector=None, gain=None, sensitivity=0.0, decoupling_residual=None,
-            reason=(f"decoupled vectors exist at s={s} but none responds to a constant bias on "
-                    "any sensor (v^T I* = 0)"),
-            **common)
-    Hfull = np.hstack([pm.H0, pm.Hw, pm.Hpsi])
-    return ParityVector(exists=True, vector=v, gain=gain, sensitivity=sens,
-                        decoupling_residual=_constraint_residual(v, Hfull), reason=None, **common)
+    return _from_space(
+        "sensor", i, s, N, identity_stack(model.q, s), Hfull, Hstar.shape[0],
+        gain_floor=GAIN_RTOL,
+        no_space=(f"Theorem 2: [H0i Hwi Hpsii] without sensor {i}'s rows has rank {{rank}} = "
+                  "its {rows} rows at s={s}: the other sensors hold no redundancy free of the "
+                  "state and unknown inputs"),
+        no_gain=("decoupled vectors exist at s={s} but none responds to a constant bias on any "
+                 "sensor (v^T I* = 0)"),
+    )
 
 
 def smallest_window(design, model: StateSpace, i: int, s_max: int) -> ParityVector:
