@@ -1,0 +1,351 @@
+"""Every DBC file in dbc/ against the conventions of dbc/README.md.
+
+The files are globbed, so a new plant's DBC is checked as soon as it lands.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import cantools
+import numpy as np
+import pytest
+from cantools.database.can import Database, Message, Signal
+
+from canfdi import dbc as dbc_package
+from canfdi import e2e
+
+REPO = Path(__file__).resolve().parents[2]
+DBC_DIR = REPO / "dbc"
+DBC_FILES = sorted(DBC_DIR.glob("*.dbc"))
+README = DBC_DIR / "README.md"
+
+# name: (frame_id, dlc, cycle_time (None: event-driven), {signal: (start, length, signed, float,
+# minimum, maximum, choices)}) -- the monitor block of dbc/README.md.
+KIND = {0: "none", 1: "actuator", 2: "sensor"}
+HEADER = {"CRC": (0, 8, False, False, 0, 255, None), "Counter": (8, 8, False, False, 0, 255, None)}
+FLOAT = (32, 32, True, True, -3.4e38, 3.4e38, None)
+MONITOR = {
+    "FDI_FAULT": (0x080, 8, None, {
+        **HEADER,
+        "Kind": (16, 2, False, False, 0, 2, KIND),
+        "State": (18, 2, False, False, 0, 3,
+                  {0: "cleared", 1: "detected", 2: "isolated", 3: "accepted"}),
+        "Index": (24, 8, False, False, 0, 255, None),
+        "Sample": (32, 32, False, False, 0, 2**32 - 1, None),
+    }),
+    "FDI_ESTIMATE": (0x081, 8, None, {
+        **HEADER,
+        "Kind": (16, 2, False, False, 0, 2, KIND),
+        "Param": (18, 4, False, False, 0, 5, {0: "eta", 1: "lambda", 2: "bias", 3: "eta_std",
+                                             4: "lambda_std", 5: "bias_std"}),
+        "Index": (24, 8, False, False, 0, 255, None),
+        "Value": FLOAT,
+    }),
+    "FDI_STATUS": (0x082, 8, 1000, {
+        **HEADER,
+        "State": (16, 4, False, False, 0, 4, {0: "starting", 1: "monitoring", 2: "diagnosing",
+                                             3: "degraded", 4: "bus_error"}),
+        "ActiveFaults": (20, 4, False, False, 0, 15, None),
+        "Samples": (24, 24, False, False, 0, 2**24 - 1, None),
+        "InvalidFrames": (48, 16, False, False, 0, 2**16 - 1, None),
+    }),
+    "FDI_RESIDUAL": (0x083, 8, None, {
+        **HEADER,
+        "Index": (16, 8, False, False, 0, 255, None),
+        "Alarm": (24, 2, False, False, 0, 2, {0: "none", 1: "up", 2: "down"}),
+        "Value": FLOAT,
+    }),
+}
+
+def _stem(path: Path) -> str:
+    return path.stem
+
+
+@pytest.fixture(scope="module", params=DBC_FILES, ids=_stem)
+def dbc_file(request: pytest.FixtureRequest) -> Path:
+    return request.param
+
+
+@pytest.fixture(scope="module")
+def db(dbc_file: Path) -> Database:
+    return cantools.database.load_file(dbc_file, strict=True)
+
+
+def _choices(sig: Signal) -> dict[int, str] | None:
+    return None if sig.choices is None else {int(k): str(v) for k, v in sig.choices.items()}
+
+
+def _signal_layout(sig: Signal) -> tuple:
+    return (sig.name, sig.start, sig.length, sig.byte_order, sig.is_signed, sig.is_float,
+            sig.scale, sig.offset, sig.minimum, sig.maximum, sig.unit, _choices(sig), sig.comment)
+
+
+def _message_layout(msg: Message) -> tuple:
+    return (msg.name, msg.frame_id, msg.is_extended_frame, msg.length, msg.senders,
+            msg.cycle_time, msg.send_type, msg.comment,
+            tuple(_signal_layout(s) for s in msg.signals))
+
+
+def _is_drive(msg: Message) -> bool:
+    return msg.name.startswith("DRIVE_")
+
+
+def test_there_is_a_dbc_file() -> None:
+    assert [p.name for p in DBC_FILES if p.name == "motor_drive.dbc"] == ["motor_drive.dbc"]
+
+
+def test_cantools_dump_cli_accepts_the_file(dbc_file: Path) -> None:
+    result = subprocess.run([sys.executable, "-m", "cantools", "dump", str(dbc_file)],
+                            capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 0, result.stderr
+    assert "FDI_FAULT" in result.stdout
+
+
+def test_nodes_and_message_names(db: Database) -> None:
+    assert sorted(node.name for node in db.nodes) == ["DRIVE", "FDI"]
+    assert all(node.comment for node in db.nodes)
+    for msg in db.messages:
+        assert msg.name.startswith(("DRIVE_", "FDI_")), msg.name
+
+
+def test_monitor_messages_follow_the_readme(db: Database) -> None:
+    for name, (frame_id, dlc, cycle_time, signals) in MONITOR.items():
+        msg = db.get_message_by_name(name)
+        assert (msg.frame_id, msg.length, msg.is_extended_frame) == (frame_id, dlc, False), name
+        assert msg.cycle_time == cycle_time, name
+        assert msg.send_type == ("Cyclic" if cycle_time else "Event"), name
+        got = {s.name: (s.start, s.length, s.is_signed, s.is_float, s.minimum, s.maximum,
+                        _choices(s)) for s in msg.signals}
+        assert got == signals, name
+        for sig in msg.signals:
+            assert (sig.byte_order, sig.scale, sig.offset) == ("little_endian", 1, 0), sig.name
+    assert sorted(m.name for m in db.messages if not _is_drive(m)) == sorted(MONITOR)
+
+
+def test_monitor_messages_are_identical_in_every_file() -> None:
+    layouts = {}
+    for path in DBC_FILES:
+        database = cantools.database.load_file(path, strict=True)
+        layouts[path.name] = [_message_layout(database.get_message_by_name(n)) for n in MONITOR]
+    reference = layouts["motor_drive.dbc"]
+    for name, layout in layouts.items():
+        assert layout == reference, name
+
+
+def _readme_dbc_lines() -> list[str]:
+    blocks = re.findall(r"^```dbc\n(.*?)^```", README.read_text(), flags=re.M | re.S)
+    assert blocks, "dbc/README.md has no ```dbc blocks"
+    return [line.strip() for block in blocks for line in block.splitlines() if line.strip()]
+
+
+def test_readme_monitor_block_is_in_the_file_verbatim(dbc_file: Path) -> None:
+    lines = {line.strip() for line in dbc_file.read_text().splitlines()}
+    missing = [line for line in _readme_dbc_lines() if line not in lines]
+    assert not missing, f"{dbc_file.name} lacks these README lines: {missing[:5]}"
+
+
+def test_every_message_starts_with_the_e2e_header(db: Database) -> None:
+    for msg in db.messages:
+        by_name = {s.name: s for s in msg.signals}
+        for name, start in (("CRC", 0), ("Counter", 8)):
+            sig = by_name[name]
+            assert (sig.start, sig.length, sig.byte_order, sig.is_signed, sig.is_float,
+                    sig.scale, sig.offset) == (start, 8, "little_endian", False, False, 1, 0), (
+                msg.name, name)
+
+
+def test_ids_dlc_and_signal_conventions(db: Database) -> None:
+    drive = [m for m in db.messages if _is_drive(m)]
+    assert drive
+    assert max(MONITOR[n][0] for n in MONITOR) < min(m.frame_id for m in drive)
+    for msg in db.messages:
+        assert not msg.is_extended_frame and not msg.is_multiplexed(), msg.name
+        assert msg.frame_id <= e2e.MAX_ARBITRATION_ID and 2 <= msg.length <= 8, msg.name
+        assert msg.comment, msg.name
+        assert "GenMsgCycleTime" in msg.dbc.attributes, msg.name
+        for sig in msg.signals:
+            assert sig.byte_order == "little_endian", (msg.name, sig.name)
+            assert sig.comment, (msg.name, sig.name)
+            assert (sig.start + sig.length) <= 8 * msg.length, (msg.name, sig.name)
+    for msg in drive:
+        assert msg.length in (4, 8), msg.name
+        assert msg.send_type == "Cyclic" and msg.cycle_time, msg.name
+        for sig in msg.signals:
+            if sig.name in HEADER:
+                continue
+            assert (sig.length, sig.is_signed, sig.is_float, sig.offset) == (16, True, False, 0), (
+                msg.name, sig.name)
+            assert sig.start in (16, 32, 48), (msg.name, sig.name)
+            assert sig.receivers == ["FDI"], (msg.name, sig.name)
+    assert len({m.cycle_time for m in drive}) == 1, "drive messages share the control period"
+
+
+def test_senders(db: Database) -> None:
+    for msg in db.messages:
+        assert msg.senders == (["DRIVE"] if _is_drive(msg) else ["FDI"]), msg.name
+
+
+def test_no_two_ids_of_a_file_are_confusable_under_the_crc(db: Database) -> None:
+    """A frame replayed under another ID of the same bus must fail the E2E check."""
+    assert e2e.confusable_ids([msg.frame_id for msg in db.messages]) == []
+
+
+def _raw_limits(sig: Signal) -> tuple[int, int]:
+    if sig.is_signed:
+        return -(2 ** (sig.length - 1)), 2 ** (sig.length - 1) - 1
+    return 0, 2**sig.length - 1
+
+
+def _physical_limits(sig: Signal) -> tuple[float, float]:
+    raw_lo, raw_hi = _raw_limits(sig)
+    lo = sig.minimum if sig.minimum is not None else raw_lo * sig.scale + sig.offset
+    hi = sig.maximum if sig.maximum is not None else raw_hi * sig.scale + sig.offset
+    return lo, hi
+
+
+def _value(sig: Signal, rng: np.random.Generator, where: str) -> float:
+    """An in-range physical value on the signal's grid: the minimum, the maximum or random."""
+    if sig.is_float:
+        return float(np.float32({"min": -3.0e38, "max": 3.0e38}.get(where, rng.normal(0, 1e3))))
+    lo, hi = _physical_limits(sig)
+    raw_lo = int(np.ceil((lo - sig.offset) / sig.scale - 1e-9))
+    raw_hi = int(np.floor((hi - sig.offset) / sig.scale + 1e-9))
+    if where == "min":
+        raw = raw_lo
+    elif where == "max":
+        raw = raw_hi
+    else:
+        raw = int(rng.integers(raw_lo, raw_hi + 1))
+    # Clip: raw * scale can land one ulp outside a limit written in decimal.
+    return float(np.clip(raw * sig.scale + sig.offset, lo, hi))
+
+
+def test_encode_decode_round_trip_with_e2e(db: Database) -> None:
+    rng = np.random.default_rng(20240601)
+    for msg in db.messages:
+        for trial in range(50):
+            where = ("min", "max", "random")[min(trial, 2)]
+            values = {s.name: _value(s, rng, where) for s in msg.signals}
+            values["CRC"] = values["Counter"] = 0
+            counter = int(rng.integers(0, 10**6))
+            frame = e2e.protect(msg.frame_id, msg.encode(values), counter)
+            assert len(frame) == msg.length
+            assert e2e.check(msg.frame_id, frame), msg.name
+            decoded = msg.decode(frame, decode_choices=False)
+            assert decoded["CRC"] == frame[0] and decoded["Counter"] == counter % 256
+            for sig in msg.signals:
+                if sig.name in HEADER:
+                    continue
+                got, want = decoded[sig.name], values[sig.name]
+                if sig.is_float:
+                    assert got == np.float32(want), (msg.name, sig.name)
+                else:
+                    assert abs(got - want) <= sig.scale / 2, (msg.name, sig.name, got, want)
+
+
+def test_a_corrupted_encoded_frame_fails_the_check(db: Database) -> None:
+    msg = next(m for m in db.messages if _is_drive(m))
+    frame = bytearray(e2e.protect(msg.frame_id, msg.encode(
+        {s.name: 0 for s in msg.signals}), 7))
+    frame[-1] ^= 0x01
+    assert not e2e.check(msg.frame_id, frame)
+
+
+# --- the plants' names and the scenarios' values ----------------------------------------------
+
+
+def _plants() -> list:
+    from firmware_sim.plants import PLANTS
+
+    return [factory() for factory in PLANTS.values()]
+
+
+def _drive_signals(database: Database) -> dict[str, Signal]:
+    return {s.name: s for m in database.messages if _is_drive(m) for s in m.signals
+            if s.name not in HEADER}
+
+
+def _database_of(plant) -> Database:
+    path = DBC_DIR / plant.dbc
+    if not path.is_file():
+        pytest.skip(f"{plant.dbc} (plant {plant.name}) has not landed in dbc/ yet")
+    return cantools.database.load_file(path, strict=True)
+
+
+@pytest.mark.parametrize("plant", _plants(), ids=lambda p: p.name)
+def test_drive_signals_are_the_plant_names(plant) -> None:
+    database = _database_of(plant)
+    signals = _drive_signals(database)
+    names = (*plant.input_names, *plant.output_names, *plant.reference_names)
+    assert sorted(signals) == sorted(names)
+    # Quantisation step at most the sensor noise (README rule b).
+    for name, sigma in zip(plant.output_names, plant.noise_defaults().measurement, strict=True):
+        assert signals[name].scale <= sigma * (1 + 1e-9), name
+    cycle_ms = round(plant.dt * 1000)
+    assert {m.cycle_time for m in database.messages if _is_drive(m)} == {cycle_ms}
+
+
+def _scenarios() -> list[Path]:
+    return sorted((REPO / "firmware_sim" / "scenarios").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("scenario_path", _scenarios(), ids=_stem)
+def test_scenario_values_stay_inside_the_signal_ranges(scenario_path: Path) -> None:
+    from firmware_sim.scenario import load_scenario
+    from firmware_sim.simulate import simulate
+
+    scenario = load_scenario(scenario_path)
+    plant = scenario.make_plant()
+    signals = _drive_signals(_database_of(plant))
+    run = simulate(scenario)
+    series = {
+        **{name: run.u_c[:, j] for j, name in enumerate(plant.input_names)},
+        **{name: run.z[:, j] for j, name in enumerate(plant.output_names)},
+        **{name: run.ref[:, j] for j, name in enumerate(plant.reference_names)},
+    }
+    for name, values in series.items():
+        lo, hi = _physical_limits(signals[name])
+        assert np.all(np.isfinite(values)), name
+        assert lo <= values.min() and values.max() <= hi, (
+            f"{scenario_path.name}: {name} spans {values.min():.4g} .. {values.max():.4g}, "
+            f"outside the DBC range {lo} .. {hi}")
+
+
+# --- canfdi.dbc and packaging -------------------------------------------------------------------
+
+
+def test_package_lists_the_files() -> None:
+    assert dbc_package.available() == [p.stem for p in DBC_FILES]
+    assert dbc_package.path("motor_drive") == dbc_package.path("motor_drive.dbc")
+    shipped = dbc_package.path("motor_drive")
+    assert shipped.read_bytes() == (DBC_DIR / "motor_drive.dbc").read_bytes()
+    assert isinstance(dbc_package.load("motor_drive"), Database)
+
+
+def test_package_names_what_is_available() -> None:
+    with pytest.raises(FileNotFoundError, match="motor_drive"):
+        dbc_package.path("no_such_bus")
+    for bad in ("", "../pyproject.toml", "dbc/motor_drive"):
+        with pytest.raises(ValueError, match="name"):
+            dbc_package.path(bad)
+
+
+def test_pyproject_ships_dbc_and_lists_every_package() -> None:
+    from setuptools import find_namespace_packages
+
+    config = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert config["package-dir"]["canfdi.dbc"] == "dbc"
+    assert {"*.dbc", "*.md"} <= set(config["package-data"]["canfdi.dbc"])
+    listed = set(config["packages"])
+    found = {
+        p for p in find_namespace_packages(where=str(REPO), include=["canfdi*", "firmware_sim*"])
+        if "__pycache__" not in p.split(".")
+    }
+    # The list is explicit (find cannot rename dbc/ to canfdi.dbc), so a new subpackage must be
+    # added by hand or it silently drops out of the wheel.
+    assert found | {"canfdi.dbc"} <= listed, sorted(found - listed)
