@@ -1,4 +1,4 @@
-"""`canfdi design CONFIG`: which faults are detectable, isolable, estimable, with which window."""
+"""`canfdi design CONFIG`: which faults are detectable, isolable, estimable; which window."""
 
 from __future__ import annotations
 
@@ -19,7 +19,8 @@ For each actuator: the parity vector that sees that actuator only (seed 001 eq. 
 1 and 3); for each sensor: the vector blind to that sensor (eq. 20, Theorem 2); windows are the
 smallest admissible unless the config fixes them. For each fault: detectable and strongly
 detectable with the unknown inputs decoupled (seed 002 Theorems 2, 3), which residuals respond
-(isolability), whether a sensor bias can be estimated on its own, and the fault-to-noise gap
+(isolability; faults with the same signature cannot be told apart), whether a sensor bias can
+be estimated jointly with all the others from the sensor bank (eq. 41), and the fault-to-noise gap
 (response to a unit constant fault over the residual's noise standard deviation) at several
 window orders so they can be compared.
 
@@ -89,11 +90,11 @@ def render_text(name: str, design: Design) -> str:
                 lines.append(f"  {label:<24}{e['window']:>3}{_fmt(e['min_window'], 'd'):>7}"
                              f"  NO VECTOR: {e['reason']}")
     lines += ["", "Faults (unknown inputs decoupled; seed 002 Theorems 2 and 3)"]
-    lines.append(f"  {'fault':<24}{'detect':>8}{'strong':>8}{'isolable':>10}{'estimable':>11}"
+    lines.append(f"  {'fault':<24}{'detect':>8}{'strong':>8}{'isolable':>10}{'joint est':>11}"
                  f"{'best f/n':>10}  residuals / notes")
     for e in d["detectability"]:
         label = f"{e['kind']} {e['index']} {e['name']}"
-        est = "-" if "identifiable" not in e else ("yes" if e["identifiable"] else "no")
+        est = "-" if "jointly_estimable" not in e else ("yes" if e["jointly_estimable"] else "no")
         notes = ", ".join(e["residuals"]) or "none"
         if e["confused_with"]:
             notes += f"; same signature as {', '.join(e['confused_with'])}"
@@ -104,9 +105,9 @@ def render_text(name: str, design: Design) -> str:
             f"{_fmt(e['best_fault_to_noise']):>10}  {notes}")
         if e["reason"]:
             lines.append(f"      {e['reason']}")
-        if e.get("identifiable") is False and e["strongly_detectable"]:
-            lines.append("      its bias reaches the sensor residuals only in a fixed combination "
-                         "with other sensors' biases: it cannot be estimated on its own")
+        if e.get("jointly_estimable") is False and e["strongly_detectable"]:
+            lines.append("      with all sensor biases estimated together (eq. 41) this one is "
+                         "tied to others; alone (single fault) it can be estimated")
     if "detectability_discrete" in d:
         lines += ["", "Discretised model (the one the monitor runs)"]
         for e in d["detectability_discrete"]:

@@ -33,7 +33,7 @@ __all__ = ["Design", "DesignOptions", "ResidualDesign", "design_bank", "design_t
 
 #: Gains below this fraction of the table's largest gain count as "does not respond".
 RESPONSE_RTOL = 1e-9
-#: A sensor fault is identifiable when its regressor column keeps this fraction of its norm
+#: A sensor bias is jointly estimable when its regressor column keeps this fraction of its norm
 #: after projecting out the other sensors' columns.
 IDENTIFIABLE_RTOL = 1e-6
 
@@ -136,11 +136,12 @@ class Design:
         width = 0 if self.actuator_window is None else (self.actuator_window + 1) * self.model.q
         return np.array(rows) if rows else np.zeros((0, width))
 
-    def sensor_identifiable(self) -> np.ndarray:
-        """(q,) bool: bias of sensor j can be estimated from the sensor bank (eq. 41).
+    def sensor_jointly_estimable(self) -> np.ndarray:
+        """(q,) bool: bias of sensor j can be estimated together with all others (eq. 41).
 
         Column j of Phi = V I* must keep a part outside the span of the other columns;
-        otherwise only a combination of biases reaches the residuals.
+        otherwise only a combination of biases reaches the residuals. (Under a single-fault
+        assumption a detectable bias is estimable whenever its column is nonzero.)
         """
         V = self.sensor_matrix()
         q = self.model.q
@@ -317,7 +318,7 @@ def design_to_dict(design: Design) -> dict:
     names = design.fault_names
     responds = design.responds
     confused = design.confused_with()
-    identifiable = design.sensor_identifiable()
+    jointly = design.sensor_jointly_estimable()
     p = design.model.p
 
     def detect_entry(kind: str, j: int, d: Detectability) -> dict:
@@ -338,7 +339,7 @@ def design_to_dict(design: Design) -> dict:
             "best_fault_to_noise": float(ratios.max()) if ratios.size else 0.0,
         }
         if kind == "sensor":
-            entry["identifiable"] = bool(identifiable[j])
+            entry["jointly_estimable"] = bool(jointly[j])
         return entry
 
     out = {

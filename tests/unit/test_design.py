@@ -57,11 +57,11 @@ def test_isolability_and_estimability_of_the_dc_motor_sensors():
     assert det[("sensor", 3)]["detectable"] is False
     assert det[("sensor", 3)]["residuals"] == []
     # i_a and i_f + i_a enter every residual only through their difference (i_a carries the
-    # unknown phi1): same signature, and neither bias is estimable on its own.
+    # unknown phi1): same signature, and neither bias is jointly estimable (eq. 41).
     assert det[("sensor", 1)]["confused_with"] == ["i_f_plus_i_a"]
-    assert det[("sensor", 1)]["identifiable"] is False
-    assert det[("sensor", 2)]["identifiable"] is False
-    assert det[("sensor", 0)]["identifiable"] is True and det[("sensor", 0)]["isolable"]
+    assert det[("sensor", 1)]["jointly_estimable"] is False
+    assert det[("sensor", 2)]["jointly_estimable"] is False
+    assert det[("sensor", 0)]["jointly_estimable"] is True and det[("sensor", 0)]["isolable"]
     Phi = d.sensor_matrix() @ identity_stack(4, 4)
     np.testing.assert_allclose(Phi[:, 1], -Phi[:, 2], atol=1e-12)
 
