@@ -11,9 +11,9 @@ import sys
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from canfdi import __version__
-from canfdi.cli import design
+from canfdi.cli import design, sim
 
-VERBS = {"design": design}
+VERBS = {"design": design, "sim": sim}
 
 
 def build_parser() -> argparse.ArgumentParser:

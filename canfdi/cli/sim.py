@@ -1,0 +1,129 @@
+"""`canfdi sim` (also `canfdi-sim`): play a scenario's drive on a CAN bus."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import signal
+import sys
+from pathlib import Path
+
+HELP = """\
+Run the plant emulator (firmware_sim) for a scenario and publish the drive's frames, encoded
+with the plant's DBC file (alive counter and CRC-8 in every frame), on a python-can bus.
+
+The default bus is python-can's in-process virtual bus, which only other code in the same
+process can hear: use --interface socketcan --channel vcan0 to reach other programs.
+
+Scenarios: a YAML file, or the name of a shipped one (firmware_sim/scenarios/), e.g.
+dc_motor_consecutive. Exit status: 0 done, 1 bus error, 2 bad scenario or arguments."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", required=True, metavar="FILE",
+                   help="scenario YAML, or a shipped scenario's name")
+    p.add_argument("--interface", default="virtual",
+                   help="python-can interface (default: virtual)")
+    p.add_argument("--channel", default="canfdi", help="bus channel (default: canfdi)")
+    p.add_argument("--bitrate", type=int, default=None,
+                   help="bitrate in bit/s, passed to interfaces that take one")
+    p.add_argument("--speed", type=float, default=1.0, metavar="N",
+                   help="N times real time; 0 = as fast as the bus takes frames (default: 1)")
+    p.add_argument("--duration", type=float, default=None, metavar="T",
+                   help="seconds of scenario time to run (default: the scenario's duration)")
+    p.add_argument("--truth", type=Path, metavar="FILE",
+                   help="write the injected faults as JSON to FILE before sending")
+    p.add_argument("--drop", type=float, default=0.0, metavar="P",
+                   help="drop each frame with probability P")
+    p.add_argument("--jitter", type=float, default=0.0, metavar="S",
+                   help="delay each sample's frames by up to S seconds (uniform)")
+    p.add_argument("--bad-crc", type=float, default=0.0, metavar="P",
+                   help="corrupt each frame's CRC with probability P")
+    p.add_argument("--wrong-dlc", type=float, default=0.0, metavar="P",
+                   help="send each frame one byte short (or long) with probability P")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("sim", help="play a scenario's drive on a CAN bus", description=HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(p)
+
+
+def _fail(message: str) -> int:
+    print(f"canfdi sim: {message}", file=sys.stderr)
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    import can
+
+    from firmware_sim.emitter import Disturbance, emit
+    from firmware_sim.scenario import ScenarioError, load_scenario
+
+    try:
+        scenario = load_scenario(args.scenario)
+    except ScenarioError as exc:
+        return _fail(f"scenario error: {exc}")
+    if args.speed < 0:
+        return _fail("--speed: must be >= 0")
+    if args.duration is not None and args.duration <= 0:
+        return _fail("--duration: must be > 0 seconds")
+    for name in ("drop", "bad_crc", "wrong_dlc"):
+        if not 0.0 <= getattr(args, name) <= 1.0:
+            return _fail(f"--{name.replace('_', '-')}: a probability in [0, 1]")
+    if args.jitter < 0:
+        return _fail("--jitter: must be >= 0 seconds")
+    disturbance = Disturbance(drop=args.drop, jitter=args.jitter, bad_crc=args.bad_crc,
+                              wrong_dlc=args.wrong_dlc, seed=scenario.seed)
+    plant = scenario.make_plant()
+    if args.truth:
+        truth = {"scenario": scenario.name, "plant": plant.name, "dt": plant.dt,
+                 "faults": [f.truth(plant.dt, plant.input_names if f.target == "actuator"
+                                    else plant.output_names) for f in scenario.faults]}
+        args.truth.write_text(json.dumps(truth, indent=2) + "\n")
+    kwargs = {"interface": args.interface, "channel": args.channel}
+    if args.bitrate is not None:
+        kwargs["bitrate"] = args.bitrate
+    try:
+        bus = can.Bus(**kwargs)
+    except (can.CanError, OSError, ValueError, ImportError) as exc:
+        print(f"canfdi sim: cannot open {args.interface} bus {args.channel!r}: {exc}",
+              file=sys.stderr)
+        return 1
+    total = round((args.duration or scenario.duration) / plant.dt)
+
+    def progress(chunk, stats) -> None:
+        if not args.quiet:
+            print(f"\rcanfdi sim: {scenario.name}: sample {stats.samples}/{total} "
+                  f"({100 * stats.samples / total:.0f}%), {stats.frames_sent} frames",
+                  end="", file=sys.stderr, flush=True)
+
+    async def main() -> object:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        return await emit(bus, scenario, speed=args.speed, duration=args.duration,
+                          disturbance=disturbance, on_block=progress, stop=stop)
+
+    try:
+        stats = asyncio.run(main())
+    except can.CanError as exc:
+        print(f"\ncanfdi sim: bus error: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        bus.shutdown()
+    if not args.quiet:
+        print(file=sys.stderr)
+    print(json.dumps({"scenario": scenario.name, **stats.as_dict()}))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the `canfdi-sim` console script."""
+    parser = argparse.ArgumentParser(prog="canfdi-sim", description=HELP,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    return run(parser.parse_args(argv))
