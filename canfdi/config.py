@@ -21,6 +21,27 @@ Layout::
       actuator_window: auto        # auto (smallest admissible) or an integer s >= 0
       sensor_window: auto
       max_window: 10
+    bus:                           # optional; how `canfdi run` and `capture` reach the drive
+      interface: virtual           # any python-can interface (socketcan, pcan, ...)
+      channel: canfdi
+      bitrate: null                # bit/s, passed to interfaces that take one
+      dbc: motor_drive             # a file of dbc/ by name, or a path (needed to run)
+      status_period: 1.0           # seconds between FDI_STATUS frames
+    detection:                     # optional; Page-Hinkley on each normalised residual
+      drift: 0.5                   # delta, in residual noise standard deviations
+      false_alarm_interval: 1.0e7  # samples between false alarms per residual (calibration)
+    identification:                # optional; see canfdi.core.diagnoser.DiagnoserSettings
+      min_samples: 30
+      max_samples: 2000
+      settle_rel_std: 0.004
+      isolation_margin: 50.0
+    recording:                     # optional; MCAP logs of `canfdi run`
+      directory: logs
+      rotate_mib: 256
+      rotate_minutes: 60
+
+The model's input and output names are the DBC signal names of the drive's commands and
+measurements (dbc/README.md); each must be in exactly one message sent by DRIVE.
 """
 
 from __future__ import annotations
@@ -35,7 +56,16 @@ import yaml
 from canfdi.core.design import DesignOptions
 from canfdi.core.model import ModelError, StateSpace
 
-__all__ = ["ConfigError", "MonitorConfig", "load_config", "parse_config"]
+__all__ = [
+    "BusConfig",
+    "ConfigError",
+    "DetectionConfig",
+    "IdentificationConfig",
+    "MonitorConfig",
+    "RecordingConfig",
+    "load_config",
+    "parse_config",
+]
 
 
 class ConfigError(ValueError):
@@ -44,6 +74,48 @@ class ConfigError(ValueError):
     def __init__(self, field: str, message: str) -> None:
         super().__init__(f"{field}: {message}")
         self.field = field
+
+
+_TOP_KEYS = {"name", "description", "model", "signals", "noise", "design", "bus", "detection",
+             "identification", "recording"}
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """Where the drive's frames are: python-can arguments and the DBC file."""
+
+    interface: str = "virtual"
+    channel: str = "canfdi"
+    bitrate: int | None = None
+    dbc: str | None = None
+    status_period: float = 1.0
+
+
+@dataclass(frozen=True)
+class DetectionConfig:
+    """Page-Hinkley settings: drift delta (noise stds) and the false-alarm interval (samples)."""
+
+    drift: float = 0.5
+    false_alarm_interval: float = 1.0e7
+
+
+@dataclass(frozen=True)
+class IdentificationConfig:
+    """When a hypothesis is accepted (see canfdi.core.diagnoser)."""
+
+    min_samples: int = 30
+    max_samples: int = 2000
+    settle_rel_std: float = 0.004
+    isolation_margin: float = 50.0
+
+
+@dataclass(frozen=True)
+class RecordingConfig:
+    """MCAP logging of `canfdi run`."""
+
+    directory: str = "logs"
+    rotate_mib: float = 256.0
+    rotate_minutes: float = 60.0
 
 
 @dataclass(frozen=True)
@@ -58,10 +130,11 @@ class MonitorConfig:
     unknown_inputs: list[str]
     unknown_outputs: list[str]
     design: DesignOptions
+    bus: BusConfig = BusConfig()
+    detection: DetectionConfig = DetectionConfig()
+    identification: IdentificationConfig = IdentificationConfig()
+    recording: RecordingConfig = RecordingConfig()
     path: Path | None = None
-
-
-_TOP_KEYS = {"name", "description", "model", "signals", "noise", "design"}
 
 
 def _check_keys(data: dict, allowed: set[str], where: str) -> None:
@@ -153,6 +226,24 @@ def parse_config(data: Any, path: Path | None = None) -> MonitorConfig:
         sensor_window=_window(design.get("sensor_window"), "design.sensor_window"),
         max_window=max_window, measurement_std=meas, process_std=proc,
     )
+    bus = _dataclass_section(data, "bus", BusConfig, {
+        "interface": (str, None), "channel": (str, None), "bitrate": (int, (1, None)),
+        "dbc": (str, None), "status_period": (float, (0.01, 3600.0)),
+    })
+    detection = _dataclass_section(data, "detection", DetectionConfig, {
+        "drift": (float, (0.0, 100.0)), "false_alarm_interval": (float, (10.0, 1e15)),
+    })
+    identification = _dataclass_section(data, "identification", IdentificationConfig, {
+        "min_samples": (int, (1, 10**7)), "max_samples": (int, (1, 10**7)),
+        "settle_rel_std": (float, (1e-9, 1.0)), "isolation_margin": (float, (0.0, 1e12)),
+    })
+    if identification.max_samples < identification.min_samples:
+        raise ConfigError("identification.max_samples",
+                          f"must be >= min_samples ({identification.min_samples})")
+    recording = _dataclass_section(data, "recording", RecordingConfig, {
+        "directory": (str, None), "rotate_mib": (float, (0.01, 1e7)),
+        "rotate_minutes": (float, (0.01, 1e7)),
+    })
     name = data.get("name", path.stem if path else "model")
     if not isinstance(name, str) or not name:
         raise ConfigError("name", "expected a non-empty string")
@@ -161,7 +252,47 @@ def parse_config(data: Any, path: Path | None = None) -> MonitorConfig:
         raise ConfigError("description", "expected a string")
     return MonitorConfig(name=name, description=description, model=model, inputs=inputs,
                          outputs=outputs, unknown_inputs=unknown_inputs,
-                         unknown_outputs=unknown_outputs, design=options, path=path)
+                         unknown_outputs=unknown_outputs, design=options, bus=bus,
+                         detection=detection, identification=identification,
+                         recording=recording, path=path)
+
+
+def _dataclass_section(data: dict, key: str, cls, spec: dict):
+    """Parse an optional flat section into ``cls``; spec maps field -> (type, (lo, hi) or None).
+
+    Ranges are inclusive; None as a bound means unbounded. Integers are accepted for floats.
+    """
+    section = _section(data, key)
+    _check_keys(section, set(spec), key)
+    values = {}
+    for name, (kind, bounds) in spec.items():
+        if name not in section or section[name] is None:
+            continue
+        value = section[name]
+        field = f"{key}.{name}"
+        if kind is str:
+            if not isinstance(value, str) or not value:
+                raise ConfigError(field, f"expected a non-empty string, got {value!r}")
+        elif kind is int:
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ConfigError(field, f"expected an integer, got {value!r}")
+        else:
+            if isinstance(value, str):
+                # PyYAML (YAML 1.1) reads 1.0e7 without a sign in the exponent as a string.
+                try:
+                    value = float(value)
+                except ValueError:
+                    raise ConfigError(field, f"expected a number, got {value!r}") from None
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ConfigError(field, f"expected a number, got {value!r}")
+            value = float(value)
+        if bounds is not None:
+            lo, hi = bounds
+            if (lo is not None and value < lo) or (hi is not None and value > hi):
+                raise ConfigError(field, f"must be in [{lo}, {hi if hi is not None else 'inf'}]"
+                                         f", got {value!r}")
+        values[name] = value
+    return cls(**values)
 
 
 def load_config(path: str | Path) -> MonitorConfig:
