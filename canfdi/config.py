@@ -31,9 +31,9 @@ Layout::
       drift: 0.5                   # delta, in residual noise standard deviations
       false_alarm_interval: 1.0e7  # samples between false alarms per residual (calibration)
     identification:                # optional; see canfdi.core.diagnoser.DiagnoserSettings
-      min_samples: 30
+      min_samples: 200
       max_samples: 2000
-      settle_rel_std: 0.004
+      settle_rel_std: 0.01
       isolation_margin: 50.0
     recording:                     # optional; MCAP logs of `canfdi run`
       directory: logs
@@ -103,9 +103,9 @@ class DetectionConfig:
 class IdentificationConfig:
     """When a hypothesis is accepted (see canfdi.core.diagnoser)."""
 
-    min_samples: int = 30
+    min_samples: int = 200
     max_samples: int = 2000
-    settle_rel_std: float = 0.004
+    settle_rel_std: float = 0.01
     isolation_margin: float = 50.0
 
 

@@ -11,9 +11,11 @@ import sys
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from canfdi import __version__
-from canfdi.cli import design, sim
+from canfdi.cli import capture, demo, design, replay, run, sim
 
-VERBS = {"design": design, "sim": sim}
+VERBS = {
+    "run": run, "demo": demo, "design": design, "sim": sim, "capture": capture, "replay": replay,
+}
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -26,8 +26,12 @@ x(k+1) = A x(k) + B u(k) + F w(k) with w(k) the "discrete versions" of phi1 and 
 why the decoupled parity residuals of the monitor are exactly zero apart from noise.
 
 The PI speed loop tracks omega_ref, a 100 rad/s level with +/-10 rad/s steps every 4 s, and
-adds a deterministic +/-2 V pseudo-random binary dither to the command so that the actuator's
-scale and bias can be told apart (with a constant command they are collinear in eq. 29).
+adds a deterministic +/-8 V pseudo-random binary dither to the command so that the actuator's
+scale and bias can be told apart (with a constant command they are collinear in eq. 29): the
+standard deviation of lambda's estimate scales with 1/std(u_c), and at +/-2 V an eta = 1.5,
+lambda = 5 fault needed far more than the 10 s between the consecutive scenario's faults to be
+known to a few per cent. The motor's inertia filters the 100 Hz dither to a speed ripple of
+about +/-0.3 rad/s.
 """
 
 from __future__ import annotations
@@ -75,7 +79,7 @@ class PiSpeedController(Controller):
 
     def __init__(self, params: DcMotorParameters, kp: float = 1.0, ki: float = 2.0,
                  level: float = 100.0, step: float = 10.0, step_period: float = 8.0,
-                 dither: float = 2.0, v_ff: float = 0.0, v_max: float = 300.0) -> None:
+                 dither: float = 8.0, v_ff: float = 0.0, v_max: float = 300.0) -> None:
         self.dt = params.dt
         self.kp, self.ki = kp, ki
         self.level, self.step, self.step_period = level, step, step_period

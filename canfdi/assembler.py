@@ -1,0 +1,721 @@
+"""From CAN frames to samples: the bus map (DBC -> model vectors) and the sample assembler.
+
+The bus contract (``dbc/README.md``, DESIGN.md "The bus contract"): in control period k the
+drive sends each of its DBC messages once, every one carrying the E2E header (CRC-8 in byte 0,
+alive counter ``k mod 256`` in byte 1). A sample k is complete when every drive message that
+carries a model signal has arrived for counter k with the right DLC and CRC; only complete
+samples reach the diagnoser, each with ``gap`` = samples lost or broken just before it.
+
+Two layers:
+
+* `BusMap` compiles the DBC once: which drive messages carry the model's inputs u and outputs z,
+  where each signal sits in the payload, the CRC register after each message's Data ID, and
+  which IDs are the monitor's own ``FDI_*`` frames. `BusMap.decode_frame` checks and decodes one
+  frame with integer shifts and masks (no cantools on the hot path); `BusMap.decode_frames` does
+  a whole log with numpy.
+* `SampleAssembler` is the streaming state machine: `SampleAssembler.push` takes one frame
+  (timestamps are passed in, nothing here reads a clock or does I/O) and returns its status and
+  the sample it completed. `assemble_batch` runs a recorded log through the same state machine
+  after a vectorised decode, so replay and live runs see identical samples and statistics.
+
+Frame statuses (``STATUS_NAMES``, int8 codes in the batch forms):
+
+=============== ============================================================================
+``ok``          a drive frame accepted into the pending sample
+``monitor``     a valid frame of the monitor's own ``FDI_*`` messages: known, not a sample's
+``unused``      a valid frame of a DBC message that carries no model signal (not a sample's)
+``unknown_id``  an 11-bit ID the DBC does not define
+``extended``    a 29-bit (extended) ID frame: the DBCs use 11-bit IDs only
+``remote``      a remote transmission request (no data)
+``error_frame`` a bus error frame
+``fd``          a CAN FD frame: the DBCs use classic CAN only
+``dlc``         wrong payload length for the message
+``crc``         E2E CRC mismatch (the payload, counter or ID was corrupted)
+``duplicate``   the same message and counter again while that sample is held
+``stale``       a counter older than the pending sample's (a late or replayed frame)
+=============== ============================================================================
+
+The first three are valid; every other status is counted by reason and never enters a sample.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from canfdi.codec import MessageLayout, compile_layout
+from canfdi.config import ConfigError, MonitorConfig
+from canfdi.core.records import Sample
+from canfdi.e2e import CRC8_XOROUT, crc8, data_id, e2e_check_batch
+
+if TYPE_CHECKING:
+    from cantools.database.can import Database
+
+__all__ = [
+    "FLAG_ERROR",
+    "FLAG_EXTENDED",
+    "FLAG_FD",
+    "FLAG_REMOTE",
+    "STATUS_CODES",
+    "STATUS_NAMES",
+    "VALID_STATUSES",
+    "AssembledLog",
+    "BusMap",
+    "SampleAssembler",
+    "assemble_batch",
+]
+
+STATUS_NAMES: tuple[str, ...] = (
+    "ok", "monitor", "unused", "unknown_id", "extended", "remote", "error_frame", "fd", "dlc",
+    "crc", "duplicate", "stale",
+)
+STATUS_CODES: dict[str, int] = {name: code for code, name in enumerate(STATUS_NAMES)}
+VALID_STATUSES: frozenset[str] = frozenset({"ok", "monitor", "unused"})
+_INVALID_NAMES = tuple(name for name in STATUS_NAMES if name not in VALID_STATUSES)
+
+(_OK, _MONITOR, _UNUSED, _UNKNOWN_ID, _EXTENDED, _REMOTE, _ERROR_FRAME, _FD, _DLC, _CRC,
+ _DUPLICATE, _STALE) = range(len(STATUS_NAMES))
+_N_VALID = 3  # codes below this are valid (ok, monitor, unused)
+
+# Bits of the per-frame ``flags`` of the batch forms (python-can's Message booleans).
+FLAG_EXTENDED = 1
+FLAG_REMOTE = 2
+FLAG_ERROR = 4
+FLAG_FD = 8
+
+_E2E_HEADER = {"CRC": (0, 8), "Counter": (8, 8)}
+_MAX_STD_ID = 0x7FF
+_COUNTER_MODULUS = 256
+_F32 = struct.Struct("<f")
+
+# Message kinds in the ID table; their codes double as the valid frame statuses.
+_KIND_DRIVE, _KIND_MONITOR, _KIND_UNUSED = _OK, _MONITOR, _UNUSED
+
+
+def _has_e2e_header(layout: MessageLayout) -> bool:
+    found = {sig.name: (sig.start, sig.length) for sig in layout.signals}
+    return all(found.get(name) == place for name, place in _E2E_HEADER.items())
+
+
+def _crc_seed(frame_id: int) -> int:
+    # The CRC register after the Data ID is a constant of the ID: precompute it so a frame's
+    # check only runs over its own payload bytes (crc8 returns the register XOR-ed out).
+    return crc8(data_id(frame_id)) ^ CRC8_XOROUT
+
+
+class BusMap:
+    """Where the model's inputs and outputs are on the bus, compiled from a DBC.
+
+    Build it with `from_config` or `from_dbc`. Attributes (read-only by convention):
+
+    dbc_label : str, the DBC's name or path, for messages.
+    input_names, output_names : (p,), (q,) model signal names, in the model's order.
+    layouts : (M,) compiled layouts of the used drive messages (those carrying at least one
+        model signal), in ascending ID order; a message's position is its *slot*.
+    slot_of : frame_id -> (slot, dlc) of the used drive messages.
+    fields : (M,) per slot, the (signal, vector 'u' or 'z', index) triples of its model
+        signals, in the order of the values `decode_frame` returns.
+    monitor_layouts : compiled layouts of the messages sent by FDI (the monitor's own frames).
+    monitor_ids : their IDs.
+    unused_ids : IDs of the other DBC messages (drive messages with no model signal, ...).
+    n_signals_max : width of the values array of `decode_frames` (most fields in one slot).
+    """
+
+    def __init__(
+        self,
+        dbc_label: str,
+        input_names: Sequence[str],
+        output_names: Sequence[str],
+        layouts: Sequence[MessageLayout],
+        fields: Sequence[Sequence[tuple[str, str, int]]],
+        monitor_layouts: Sequence[MessageLayout],
+        unused_layouts: Sequence[MessageLayout],
+    ) -> None:
+        self.dbc_label = dbc_label
+        self.input_names = tuple(input_names)
+        self.output_names = tuple(output_names)
+        self.layouts = tuple(layouts)
+        self.fields = tuple(tuple(f) for f in fields)
+        if len(self.fields) != len(self.layouts):
+            raise ValueError(f"fields: one entry per layout expected ({len(self.layouts)}), "
+                             f"got {len(self.fields)}")
+        self.slot_of = {lay.frame_id: (slot, lay.dlc) for slot, lay in enumerate(self.layouts)}
+        self.monitor_layouts = tuple(monitor_layouts)
+        self.monitor_ids = frozenset(lay.frame_id for lay in monitor_layouts)
+        self.unused_ids = frozenset(lay.frame_id for lay in unused_layouts)
+        self.n_signals_max = max((len(f) for f in self.fields), default=0)
+        p = len(self.input_names)
+        # Each slot's values land at these positions of the flat [u, z] buffer.
+        self._dests = tuple(tuple(j if vec == "u" else p + j for _, vec, j in f)
+                            for f in self.fields)
+        # One look-up per frame: id -> (kind, slot, dlc, crc seed or -1, decode program).
+        entries: dict[int, tuple] = {}
+        kinds = ((_KIND_MONITOR, monitor_layouts), (_KIND_UNUSED, unused_layouts))
+        for kind, group in kinds:
+            for lay in group:
+                seed = _crc_seed(lay.frame_id) if _has_e2e_header(lay) else -1
+                entries[lay.frame_id] = (kind, -1, lay.dlc, seed, ())
+        for slot, (lay, f) in enumerate(zip(self.layouts, self.fields, strict=True)):
+            program = []
+            for name, _, _ in f:
+                sig = lay.signal(name)
+                sign = 1 << (sig.length - 1) if sig.signed and not sig.is_float else 0
+                program.append((sig.start, sig.mask, sign, sig.scale, sig.offset, sig.is_float))
+            entries[lay.frame_id] = (_KIND_DRIVE, slot, lay.dlc, _crc_seed(lay.frame_id),
+                                     tuple(program))
+        self._entries = entries
+        # Dense tables over the 11-bit ID space for the vectorised decode.
+        self._kind_table = np.full(_MAX_STD_ID + 1, _UNKNOWN_ID, dtype=np.int8)
+        self._slot_table = np.full(_MAX_STD_ID + 1, -1, dtype=np.int16)
+        self._dlc_table = np.full(_MAX_STD_ID + 1, -1, dtype=np.int16)
+        self._protected_table = np.zeros(_MAX_STD_ID + 1, dtype=bool)
+        for frame_id, (kind, slot, dlc, seed, _) in entries.items():
+            self._kind_table[frame_id] = kind
+            self._slot_table[frame_id] = slot
+            self._dlc_table[frame_id] = dlc
+            self._protected_table[frame_id] = seed >= 0
+
+    @property
+    def p(self) -> int:
+        """Number of model inputs."""
+        return len(self.input_names)
+
+    @property
+    def q(self) -> int:
+        """Number of model outputs."""
+        return len(self.output_names)
+
+    def __repr__(self) -> str:
+        used = ", ".join(f"{lay.name}=0x{lay.frame_id:X}" for lay in self.layouts)
+        return f"BusMap({self.dbc_label}: {used}; p={self.p}, q={self.q})"
+
+    # -- construction -------------------------------------------------------------------------
+
+    @classmethod
+    def from_config(cls, config: MonitorConfig) -> BusMap:
+        """Load ``config.bus.dbc`` and map ``config.inputs`` and ``config.outputs`` onto it.
+
+        ``bus.dbc`` is the name of a DBC shipped in ``canfdi.dbc`` (``motor_drive``) or a path
+        to a DBC file, relative to the config file's directory (or the working directory when
+        the config has no path).
+
+        Raises
+        ------
+        ConfigError
+            ``bus.dbc`` when no DBC is configured, it cannot be found or loaded, or a drive
+            message lacks the E2E header; ``signals.inputs[i]`` / ``signals.outputs[j]`` when a
+            name is in no DRIVE message, or in more than one.
+        """
+        value = config.bus.dbc
+        if value is None:
+            raise ConfigError("bus.dbc", "a DBC file is needed to read the bus")
+        database, label = _load_dbc(value, config.path)
+        return cls.from_dbc(database, config.inputs, config.outputs, label)
+
+    @classmethod
+    def from_dbc(
+        cls,
+        database: Database,
+        input_names: Sequence[str],
+        output_names: Sequence[str],
+        dbc_label: str,
+    ) -> BusMap:
+        """Map model signal names onto a loaded cantools database.
+
+        Parameters
+        ----------
+        database : cantools CAN database (e.g. ``canfdi.dbc.load("motor_drive")``).
+        input_names : (p,) names of the model inputs u, each a signal of exactly one message
+            sent by DRIVE.
+        output_names : (q,) names of the model outputs z, likewise.
+        dbc_label : how to name the database in error messages (its name or path).
+
+        Returns
+        -------
+        BusMap
+
+        Raises
+        ------
+        ConfigError
+            As for `from_config`.
+        """
+        drive, monitor, unused = [], [], []
+        for message in sorted(database.messages, key=lambda m: m.frame_id):
+            senders = message.senders or []
+            try:
+                layout = compile_layout(message)
+            except ValueError as exc:
+                raise ConfigError("bus.dbc", f"{dbc_label}: {exc}") from None
+            if "DRIVE" in senders:
+                drive.append(layout)
+            elif "FDI" in senders:
+                monitor.append(layout)
+            else:
+                unused.append(layout)
+        where: dict[str, list[MessageLayout]] = {}
+        for layout in drive:
+            for sig in layout.signals:
+                if sig.name not in _E2E_HEADER:
+                    where.setdefault(sig.name, []).append(layout)
+        fields: dict[int, list[tuple[str, str, int]]] = {}
+        for vector, names, key in (("u", input_names, "inputs"), ("z", output_names, "outputs")):
+            for j, name in enumerate(names):
+                field = f"signals.{key}[{j}]"
+                found = where.get(name, [])
+                if name in _E2E_HEADER:
+                    raise ConfigError(field, f"'{name}' is the E2E header of every message of "
+                                             f"{dbc_label}, not a model signal")
+                if not found:
+                    raise ConfigError(field, f"no signal '{name}' in any DRIVE message of "
+                                             f"{dbc_label}")
+                if len(found) > 1:
+                    names_found = ", ".join(lay.name for lay in found)
+                    raise ConfigError(field, f"signal '{name}' is in {len(found)} DRIVE messages "
+                                             f"of {dbc_label} ({names_found}); it must be in "
+                                             "exactly one")
+                fields.setdefault(found[0].frame_id, []).append((name, vector, j))
+        used = [lay for lay in drive if lay.frame_id in fields]
+        for layout in used:
+            if not _has_e2e_header(layout):
+                raise ConfigError("bus.dbc", f"{dbc_label}: {layout.name} has no E2E header "
+                                             "(CRC at bits 0|8, Counter at 8|8); samples cannot "
+                                             "be assembled without it")
+        # Sorted by payload position so that values come out in the order of the message.
+        ordered = [sorted(fields[lay.frame_id], key=lambda f, lay=lay: lay.signal(f[0]).start)
+                   for lay in used]
+        unused += [lay for lay in drive if lay.frame_id not in fields]
+        return cls(dbc_label, input_names, output_names, used, ordered, monitor, unused)
+
+    # -- decoding -----------------------------------------------------------------------------
+
+    def decode_frame(
+        self, frame_id: int, data: bytes | bytearray
+    ) -> tuple[str, int, tuple[float, ...]]:
+        """Check and decode one classic 11-bit data frame.
+
+        Parameters
+        ----------
+        frame_id : arbitration ID.
+        data : (dlc,) payload.
+
+        Returns
+        -------
+        status : "ok", "monitor", "unused", "unknown_id", "dlc" or "crc".
+        slot : the message's slot for frames of a used drive message (also when "dlc" or
+            "crc"), else -1.
+        values : for "ok", the physical values of ``fields[slot]`` in that order; else ().
+        """
+        entry = self._entries.get(frame_id)
+        if entry is None:
+            return "unknown_id", -1, ()
+        kind, slot, dlc, seed, program = entry
+        if len(data) != dlc:
+            return "dlc", slot, ()
+        if seed >= 0 and crc8(data[1:], seed) != data[0]:
+            return "crc", slot, ()
+        if kind != _KIND_DRIVE:
+            return STATUS_NAMES[kind], -1, ()
+        # A payload shorter than 8 bytes reads as if zero-padded: from_bytes needs no padding.
+        word = int.from_bytes(data, "little")
+        values = []
+        for start, mask, sign, scale, offset, is_float in program:
+            raw = (word >> start) & mask
+            if is_float:
+                values.append(_F32.unpack(raw.to_bytes(4, "little"))[0])
+                continue
+            if raw & sign:
+                raw -= sign << 1
+            values.append(raw * scale + offset)
+        return "ok", slot, tuple(values)
+
+    def decode_frames(
+        self, ids: ArrayLike, dlc: ArrayLike, payloads: ArrayLike
+    ) -> tuple[NDArray[np.int8], NDArray[np.int16], NDArray[np.float64], NDArray[np.int16]]:
+        """`decode_frame` for a whole log at once (all frames taken as classic 11-bit data).
+
+        Parameters
+        ----------
+        ids : (N,) non-negative arbitration IDs; IDs above 0x7FF are "unknown_id".
+        dlc : (N,) payload lengths, >= 0.
+        payloads : (N, 8) uint8, zero- or garbage-padded beyond each frame's DLC.
+
+        Returns
+        -------
+        status : (N,) int8 codes into `STATUS_NAMES` (ok, monitor, unused, unknown_id, dlc,
+            crc).
+        slot : (N,) int16, as for `decode_frame` (-1 when not a used drive message).
+        values : (N, n_signals_max) float64; row i holds ``fields[slot[i]]``'s values for "ok"
+            frames, NaN elsewhere.
+        counters : (N,) int16, byte 1 of frames with a payload of 2 bytes or more, else -1.
+        """
+        ids = np.asarray(ids)
+        dlc = np.asarray(dlc)
+        payloads = np.asarray(payloads)
+        n = _check_log_shapes(ids, dlc, payloads)
+        known_id = ids <= _MAX_STD_ID
+        lookup = np.where(known_id, ids, 0).astype(np.intp)
+        kind = np.where(known_id, self._kind_table[lookup], _UNKNOWN_ID).astype(np.int8)
+        slot = np.where(known_id, self._slot_table[lookup], -1).astype(np.int16)
+        status = kind.copy()
+        known = kind != _UNKNOWN_ID
+        bad_dlc = known & (dlc != self._dlc_table[lookup])
+        status[bad_dlc] = _DLC
+        check = known & ~bad_dlc & self._protected_table[lookup]
+        rows = np.flatnonzero(check)
+        if rows.size:
+            crc_ok = e2e_check_batch(ids[rows], payloads[rows], dlc[rows])
+            status[rows[~crc_ok]] = _CRC
+        values = np.full((n, self.n_signals_max), np.nan)
+        for s, (layout, f) in enumerate(zip(self.layouts, self.fields, strict=True)):
+            rows = np.flatnonzero((status == _OK) & (slot == s))
+            if rows.size:
+                decoded = layout.decode(payloads[rows])
+                for col, (name, _, _) in enumerate(f):
+                    values[rows, col] = decoded[name]
+        counters = np.where(dlc >= 2, payloads[:, 1].astype(np.int16), np.int16(-1))
+        return status, slot, values, counters
+
+
+def _load_dbc(value: str, config_path: Path | None) -> tuple[Database, str]:
+    """The database named or pointed to by ``bus.dbc``, and a label for messages."""
+    import cantools
+
+    from canfdi import dbc as dbc_files
+
+    if Path(value).name == value and value.removesuffix(".dbc") in dbc_files.available():
+        return dbc_files.load(value), value.removesuffix(".dbc")
+    candidate = Path(value).expanduser()
+    if not candidate.is_absolute() and config_path is not None:
+        candidate = Path(config_path).parent / candidate
+    if not candidate.is_file():
+        shipped = ", ".join(dbc_files.available()) or "none"
+        raise ConfigError("bus.dbc", f"no DBC file {candidate} and no shipped DBC named "
+                                     f"{value!r} (shipped: {shipped})")
+    try:
+        database = cantools.database.load_file(candidate, database_format="dbc", strict=True)
+    except (OSError, ValueError, cantools.database.Error) as exc:
+        raise ConfigError("bus.dbc", f"cannot load {candidate}: {exc}") from None
+    return database, str(candidate)  # type: ignore[return-value]
+
+
+def _check_log_shapes(ids: np.ndarray, dlc: np.ndarray, payloads: np.ndarray) -> int:
+    if payloads.ndim != 2 or payloads.shape[1] != 8 or payloads.dtype != np.uint8:
+        raise ValueError(f"payloads must be an (N, 8) uint8 array, got shape {payloads.shape} "
+                         f"dtype {payloads.dtype}")
+    n = payloads.shape[0]
+    for name, array in (("ids", ids), ("dlc", dlc)):
+        if array.shape != (n,) or (n and not np.issubdtype(array.dtype, np.integer)):
+            raise ValueError(f"{name} must be an ({n},) integer array to match payloads, got "
+                             f"shape {array.shape} dtype {array.dtype}")
+        if n and array.min() < 0:
+            raise ValueError(f"{name} must be >= 0, got {array.min()} at index "
+                             f"{int(np.argmin(array))}")
+    return n
+
+
+class AssembledLog(NamedTuple):
+    """Samples and frame statuses of a batch of frames.
+
+    k : (M,) int64 unwrapped sample indices; timestamp_ns : (M,) int64, arrival of each
+    sample's completing frame; u : (M, p), z : (M, q) float64 in the model's order; gap : (M,)
+    int64 samples lost or broken before each; statuses : (N,) int8 codes into `STATUS_NAMES`,
+    one per frame; stats : the assembler's `SampleAssembler.stats` after the batch.
+    """
+
+    k: NDArray[np.int64]
+    timestamp_ns: NDArray[np.int64]
+    u: NDArray[np.float64]
+    z: NDArray[np.float64]
+    gap: NDArray[np.int64]
+    statuses: NDArray[np.int8]
+    stats: dict
+
+
+class SampleAssembler:
+    """Streaming assembly of samples from frames (pure: time comes in with each frame).
+
+    Parameters
+    ----------
+    bus_map : the compiled DBC mapping.
+    dt : control period in seconds (> 0); used only to unwrap the 8-bit counter across
+        outages longer than 128 periods.
+
+    Notes
+    -----
+    One sample is pending at a time. A valid drive frame's counter c is unwrapped against the
+    latest sample index K (its counter ``K mod 256``, last frame at time t0) as
+    ``k = K + d + 256 n`` with ``d = (c - K) mod 256`` and ``n = round((elapsed - d) / 256)``,
+    ``elapsed = (t - t0) / dt`` periods (clamped at 0), n >= -1: the candidate whose expected
+    arrival time is nearest. With little elapsed time this is the counter rule (a forward step
+    d <= 128 is a new sample, d in (128, 255] is stale); after an outage of more than 128
+    periods the timestamps say how many wraps the counter made. k < K is "stale", k == K joins
+    the pending sample (or is a "duplicate"), k > K closes the pending sample as broken if it
+    is incomplete and opens sample k.
+    """
+
+    def __init__(self, bus_map: BusMap, dt: float) -> None:
+        if not isinstance(dt, int | float) or not math.isfinite(dt) or dt <= 0:
+            raise ValueError(f"dt: the control period must be a finite number of seconds > 0, "
+                             f"got {dt!r}")
+        self.bus_map = bus_map
+        self.dt = float(dt)
+        self._dt_ns = self.dt * 1e9
+        self._p = bus_map.p
+        self._dests = bus_map._dests
+        self._full = (1 << len(bus_map.layouts)) - 1
+        # The pending sample: flat [u, z] values, slots seen (bit mask), open or closed.
+        self._buffer = [0.0] * (bus_map.p + bus_map.q)
+        self._seen = 0
+        self._open = False
+        self._k = -1  # latest sample index started (-1: no frame yet)
+        self._t_ref = 0  # arrival of the latest accepted frame, ns
+        self._last_complete = -1
+        self._last_gap = 0  # gap of the sample _accept just completed
+        self._counts = [0] * len(STATUS_NAMES)
+        self._complete = 0
+        self._broken = 0
+        self._missing = 0
+
+    @property
+    def stats(self) -> dict:
+        """Counters since construction.
+
+        Returns
+        -------
+        dict with frames_received, frames_valid, frames_invalid, invalid_by_reason (every
+        invalid status -> count, zeros included), samples_complete, samples_broken (started but
+        never completed, including one closed by `flush`), samples_missing (no valid frame at
+        all), duplicates.
+        """
+        counts = self._counts
+        invalid = {name: counts[STATUS_CODES[name]] for name in _INVALID_NAMES}
+        valid = sum(counts[:_N_VALID])
+        return {
+            "frames_received": valid + sum(invalid.values()),
+            "frames_valid": valid,
+            "frames_invalid": sum(invalid.values()),
+            "invalid_by_reason": invalid,
+            "samples_complete": self._complete,
+            "samples_broken": self._broken,
+            "samples_missing": self._missing,
+            "duplicates": counts[_DUPLICATE],
+        }
+
+    def push(
+        self,
+        timestamp_ns: int,
+        frame_id: int,
+        data: bytes | bytearray,
+        *,
+        is_extended: bool = False,
+        is_remote: bool = False,
+        is_error: bool = False,
+        is_fd: bool = False,
+    ) -> tuple[str, list[Sample]]:
+        """Take one received frame.
+
+        Parameters
+        ----------
+        timestamp_ns : arrival time, integer nanoseconds (any epoch, the same for all frames).
+        frame_id : arbitration ID.
+        data : (dlc,) payload.
+        is_extended, is_remote, is_error, is_fd : python-can's Message flags.
+
+        Returns
+        -------
+        status : one of `STATUS_NAMES`.
+        samples : the sample this frame completed ([] or one Sample).
+        """
+        if is_error:
+            code = _ERROR_FRAME
+        elif is_remote:
+            code = _REMOTE
+        elif is_fd:
+            code = _FD
+        elif is_extended:
+            code = _EXTENDED
+        else:
+            status, slot, values = self.bus_map.decode_frame(frame_id, data)
+            if status != "ok":
+                self._counts[STATUS_CODES[status]] += 1
+                return status, []
+            code = self._place(slot, data[1], timestamp_ns)
+            self._counts[code] += 1
+            if code == _OK:
+                buffer = self._buffer
+                for dest, value in zip(self._dests[slot], values, strict=True):
+                    buffer[dest] = value
+                if self._accept(slot):
+                    p = self._p
+                    sample = Sample(k=self._k, timestamp_ns=timestamp_ns,
+                                    u=np.array(buffer[:p]), z=np.array(buffer[p:]),
+                                    gap=self._last_gap)
+                    return "ok", [sample]
+            return STATUS_NAMES[code], []
+        self._counts[code] += 1
+        return STATUS_NAMES[code], []
+
+    def flush(self) -> None:
+        """End of stream: a pending incomplete sample is counted as broken."""
+        if self._open:
+            self._open = False
+            self._broken += 1
+
+    def push_batch(
+        self,
+        timestamps_ns: ArrayLike,
+        ids: ArrayLike,
+        dlc: ArrayLike,
+        payloads: ArrayLike,
+        flags: ArrayLike | None = None,
+    ) -> AssembledLog:
+        """`push` for a block of frames, in order, with a vectorised decode.
+
+        Parameters
+        ----------
+        timestamps_ns : (N,) int64 arrival times.
+        ids : (N,) arbitration IDs.
+        dlc : (N,) payload lengths.
+        payloads : (N, 8) uint8, padded beyond each DLC.
+        flags : (N,) ints, bit mask of `FLAG_EXTENDED`, `FLAG_REMOTE`, `FLAG_ERROR`, `FLAG_FD`;
+            default all 0.
+
+        Returns
+        -------
+        AssembledLog of the samples completed by these frames; the state carries over to the
+        next call exactly as if the frames had been pushed one by one (no `flush`).
+        """
+        timestamps_ns = np.asarray(timestamps_ns)
+        ids = np.asarray(ids)
+        dlc = np.asarray(dlc)
+        payloads = np.asarray(payloads)
+        n = _check_log_shapes(ids, dlc, payloads)
+        if timestamps_ns.shape != (n,) or (n and not np.issubdtype(timestamps_ns.dtype,
+                                                                    np.integer)):
+            raise ValueError(f"timestamps_ns must be an ({n},) integer array, got shape "
+                             f"{timestamps_ns.shape} dtype {timestamps_ns.dtype}")
+        status, slot, values, counters = self.bus_map.decode_frames(ids, dlc, payloads)
+        if flags is not None:
+            flags = np.asarray(flags)
+            if flags.shape != (n,) or (n and not np.issubdtype(flags.dtype, np.integer)):
+                raise ValueError(f"flags must be an ({n},) integer array, got shape "
+                                 f"{flags.shape} dtype {flags.dtype}")
+            # Same precedence as push: error, remote, FD, extended.
+            status = np.select(
+                [(flags & FLAG_ERROR) != 0, (flags & FLAG_REMOTE) != 0, (flags & FLAG_FD) != 0,
+                 (flags & FLAG_EXTENDED) != 0],
+                [_ERROR_FRAME, _REMOTE, _FD, _EXTENDED], status).astype(np.int8)
+        drive = np.flatnonzero(status == _OK)
+        ks: list[int] = []
+        times: list[int] = []
+        gaps: list[int] = []
+        rows: list[list[float]] = []
+        buffer, dests = self._buffer, self._dests
+        width = len(buffer)
+        # Only accepted drive frames need the sequential state machine; everything else is
+        # already decided by the vectorised decode and counted with one bincount below.
+        for i, s, c, t, vals in zip(drive.tolist(), slot[drive].tolist(),
+                                    counters[drive].tolist(), timestamps_ns[drive].tolist(),
+                                    values[drive].tolist(), strict=True):
+            code = self._place(s, c, t)
+            if code != _OK:
+                status[i] = code
+                continue
+            # Rows are NaN-padded to n_signals_max; zip stops at this slot's own fields.
+            for dest, value in zip(dests[s], vals, strict=False):
+                buffer[dest] = value
+            if self._accept(s):
+                ks.append(self._k)
+                times.append(t)
+                gaps.append(self._last_gap)
+                rows.append(buffer[:])
+        for code, count in enumerate(np.bincount(status, minlength=len(STATUS_NAMES))):
+            self._counts[code] += int(count)
+        flat = np.array(rows, dtype=float).reshape(len(rows), width)
+        p = self._p
+        return AssembledLog(k=np.array(ks, dtype=np.int64), timestamp_ns=np.array(times,
+                            dtype=np.int64), u=flat[:, :p], z=flat[:, p:],
+                            gap=np.array(gaps, dtype=np.int64), statuses=status,
+                            stats=self.stats)
+
+    # -- the state machine (shared by push and push_batch) ------------------------------------
+
+    def _place(self, slot: int, counter: int, t: int) -> int:
+        """Status code of a valid drive frame; on _OK the pending sample is the frame's."""
+        k_cur = self._k
+        if k_cur < 0:
+            # The first frame ever: its counter is its sample index.
+            k = counter
+        else:
+            d = (counter - k_cur) & 0xFF
+            elapsed = (t - self._t_ref) / self._dt_ns
+            if elapsed < 0.0:
+                elapsed = 0.0
+            # floor(x + 0.5): rounds halves up, so d = 128 with no elapsed time counts as
+            # forward; n >= -1 holds because elapsed >= 0 and d <= 255.
+            n = math.floor((elapsed - d) / _COUNTER_MODULUS + 0.5)
+            k = k_cur + d + _COUNTER_MODULUS * n
+            if k == k_cur:
+                if self._seen >> slot & 1:
+                    return _DUPLICATE
+                if not self._open:
+                    return _STALE
+                self._t_ref = t
+                return _OK
+            if k < k_cur:
+                return _STALE
+            if self._open:
+                self._broken += 1
+            self._missing += k - k_cur - 1
+        self._k = k
+        self._seen = 0
+        self._open = True
+        self._t_ref = t
+        return _OK
+
+    def _accept(self, slot: int) -> bool:
+        """Mark the slot seen (its values are in the buffer); True when that completes k."""
+        self._seen |= 1 << slot
+        if self._seen != self._full:
+            return False
+        self._open = False
+        last = self._last_complete
+        self._last_gap = 0 if last < 0 else self._k - last - 1
+        self._last_complete = self._k
+        self._complete += 1
+        return True
+
+
+def assemble_batch(
+    bus_map: BusMap,
+    dt: float,
+    timestamps_ns: ArrayLike,
+    ids: ArrayLike,
+    dlc: ArrayLike,
+    payloads: ArrayLike,
+    flags: ArrayLike | None = None,
+) -> AssembledLog:
+    """Assemble a whole recorded log (offline replay).
+
+    Parameters
+    ----------
+    bus_map : the compiled DBC mapping.
+    dt : control period, seconds.
+    timestamps_ns, ids, dlc, payloads, flags : as for `SampleAssembler.push_batch`.
+
+    Returns
+    -------
+    AssembledLog: the same samples, per-frame statuses and stats as pushing every frame to a
+    fresh `SampleAssembler` one by one and then calling `SampleAssembler.flush` (a sample left
+    incomplete at the end of the log counts as broken).
+    """
+    assembler = SampleAssembler(bus_map, dt)
+    log = assembler.push_batch(timestamps_ns, ids, dlc, payloads, flags)
+    assembler.flush()
+    return log._replace(stats=assembler.stats)

@@ -1,0 +1,88 @@
+"""Small pieces the verbs share: config loading with exit status 2, event lines, tables."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from canfdi.config import ConfigError, MonitorConfig, load_config
+from canfdi.core.records import FaultEvent
+
+__all__ = ["DEFAULT_CONFIG_DIR", "config_error", "format_event", "load_config_or_exit",
+           "open_recorder", "print_comparison"]
+
+DEFAULT_CONFIG_DIR = Path(__file__).resolve().parents[2] / "deploy" / "config"
+
+
+def load_config_or_exit(path: Path | str, verb: str) -> MonitorConfig | int:
+    """The config, or 2 after printing one line naming the bad field."""
+    try:
+        return load_config(path)
+    except ConfigError as exc:
+        return config_error(exc, verb)
+
+
+def config_error(exc: Exception, verb: str) -> int:
+    print(f"canfdi {verb}: config error: {exc}", file=sys.stderr)
+    return 2
+
+
+def open_recorder(path: Path, metadata: dict[str, str] | None = None, **kwargs):
+    """An MCAP recorder for ``path`` (parent directories created)."""
+    from canfdi.recorder import McapRecorder
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return McapRecorder(path, metadata=metadata, **kwargs)
+
+
+def _estimates(estimates: dict) -> str:
+    return ", ".join(f"{k}={v:.4g}" for k, v in estimates.items())
+
+
+def format_event(event: FaultEvent, dt: float) -> str:
+    """One line per diagnosis, as it happens."""
+    t = event.sample * dt
+    if event.kind == "detected":
+        return (f"  t={t:8.2f} s  k={event.sample:<7d} DETECTED   change near k="
+                f"{event.onset_sample} in {', '.join(event.residuals)}")
+    if event.kind == "accepted":
+        line = (f"  t={t:8.2f} s  k={event.sample:<7d} FAULT      {event.target} {event.index} "
+                f"({event.name}): {_estimates(event.estimates)}, onset k={event.onset_sample}")
+        if event.candidates:
+            alts = "; ".join(f"{c['name']} {_estimates(c['estimates'])}"
+                             for c in event.candidates)
+            line += f"\n{'':33}indistinguishable from the bus: {alts}"
+        return line
+    return f"  t={t:8.2f} s  k={event.sample:<7d} UNEXPLAINED change detected at k=" \
+           f"{event.detected_sample}: no single fault fits"
+
+
+def print_comparison(result: dict, truth: list[dict] | None) -> None:
+    """Injected faults against diagnosed ones, then the frame counters."""
+    print()
+    if truth is not None:
+        print("injected:")
+        if not truth:
+            print("  (none)")
+        for f in truth:
+            params = {k: f[k] for k in ("eta", "lambda", "bias", "rate", "scale", "value", "std")
+                      if k in f}
+            print(f"  {f['target']:<8} {f['index']} {f['name']:<14} {f['kind']:<10} "
+                  f"onset k={f['onset_sample']:<7d} {_estimates(params)}")
+    print("diagnosed:")
+    if not result["faults"]:
+        print("  (none)")
+    for f in result["faults"]:
+        twins = ""
+        if f["candidates"]:
+            twins = "  (or " + ", ".join(c["name"] for c in f["candidates"][1:]) + ")"
+        print(f"  {f['kind']:<8} {f['index']} {f['name']:<14} onset k={f['onset_sample']:<7d}"
+              f"detected k={f['detected_sample']:<7d} accepted k={f['accepted_sample']:<7d} "
+              f"{_estimates(f['estimate'])}{twins}")
+    for u in result.get("unexplained", []):
+        print(f"  unexplained change detected at k={u['detected_sample']}")
+    fr = result["frames"]
+    print(f"frames: {fr['received']} received, {fr['invalid']} invalid "
+          f"{ {k: v for k, v in fr['invalid_by_reason'].items() if v} or ''}; "
+          f"samples: {result['samples']} "
+          f"({fr['samples_broken']} broken, {fr['samples_missing']} missing)")

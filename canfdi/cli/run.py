@@ -1,0 +1,117 @@
+"""`canfdi run --config FILE`: the monitor on a live bus, until SIGTERM or SIGINT."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import signal
+import sys
+import time
+from pathlib import Path
+
+from canfdi.cli.common import config_error, format_event, load_config_or_exit, open_recorder
+
+HELP = """\
+Monitor a drive's CAN bus: decode its frames with the config's DBC, diagnose faults, send
+FDI_FAULT / FDI_ESTIMATE frames when a fault is accepted and FDI_STATUS every status period,
+and record everything in MCAP logs (rotated by size and age) under the recording directory.
+
+The bus comes from the config's bus: section (interface, channel, bitrate), overridable here.
+A lost bus is reopened with backoff. SIGTERM or SIGINT stops it in order: the bus is closed,
+the log flushed and closed, exit status 0. A bad config exits with status 2."""
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="monitor a live bus (the daemon)", description=HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--config", required=True, type=Path, metavar="FILE", help="monitor config")
+    p.add_argument("--interface", help="override bus.interface")
+    p.add_argument("--channel", help="override bus.channel")
+    p.add_argument("--bitrate", type=int, help="override bus.bitrate")
+    p.add_argument("--log-dir", type=Path, metavar="DIR",
+                   help="where MCAP logs go (default: recording.directory of the config)")
+    p.add_argument("-o", "--output", type=Path, metavar="FILE.mcap",
+                   help="log to this file (rotated segments get -0001, -0002, ...)")
+    p.add_argument("--no-record", action="store_true", help="do not write MCAP logs")
+    p.add_argument("--duration", type=float, metavar="T", help="stop after T seconds")
+    p.add_argument("--log-format", choices=("text", "json"), default="text",
+                   help="format of the service's log lines on stderr (default: text)")
+    p.add_argument("--quiet", action="store_true", help="do not print diagnoses on stdout")
+
+
+class _JsonFormatter(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        return json.dumps({"time": record.created, "level": record.levelname,
+                           "logger": record.name, "message": record.getMessage()})
+
+
+def setup_logging(fmt: str) -> None:
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_JsonFormatter() if fmt == "json" else logging.Formatter(
+        "%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(logging.INFO)
+
+
+def run(args: argparse.Namespace) -> int:
+    from canfdi.monitor import Monitor
+    from canfdi.service import MonitorService, open_bus
+
+    setup_logging(args.log_format)
+    config = load_config_or_exit(args.config, "run")
+    if isinstance(config, int):
+        return config
+    bus_cfg = config.bus
+    interface = args.interface or bus_cfg.interface
+    channel = args.channel or bus_cfg.channel
+    bitrate = args.bitrate if args.bitrate is not None else bus_cfg.bitrate
+    try:
+        monitor = Monitor(config)
+    except ValueError as exc:
+        return config_error(exc, "run")
+    recorder = None
+    if not args.no_record:
+        rec = config.recording
+        path = args.output or (args.log_dir or Path(rec.directory)) / (
+            f"{config.name}-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
+        try:
+            recorder = open_recorder(path, monitor.metadata(),
+                                     rotate_bytes=int(rec.rotate_mib * 2**20),
+                                     rotate_seconds=rec.rotate_minutes * 60.0)
+        except OSError as exc:
+            print(f"canfdi run: cannot write logs to {path}: {exc}", file=sys.stderr)
+            return 1
+        monitor.sink = recorder
+    log = logging.getLogger("canfdi.run")
+
+    def on_event(event) -> None:
+        log.info("event %s", json.dumps(event.as_dict()))
+        if not args.quiet:
+            print(format_event(event, monitor.dt), flush=True)
+
+    async def main():
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        if args.duration:
+            loop.call_later(args.duration, stop.set)
+        service = MonitorService(
+            monitor, lambda: open_bus(interface, channel, bitrate),
+            status_period=bus_cfg.status_period, on_event=on_event,
+            on_ready=lambda: log.info("monitoring %s %s", interface, channel))
+        return await service.run(stop)
+
+    try:
+        stats = asyncio.run(main())
+    finally:
+        if recorder is not None:
+            recorder.close()
+    summary = monitor.summary()
+    log.info("stopped: %s", json.dumps({"frames": stats.frames, "sent": stats.sent,
+                                        "bus_errors": stats.bus_errors,
+                                        "faults": len(summary["faults"])}))
+    return 0

@@ -1,0 +1,474 @@
+"""The per-sample diagnosis state machine: residuals -> detection -> identification -> isolation
+-> acceptance -> compensation and reset -> on to the next fault.
+
+MONITOR. Each sample's residuals (canfdi.core.residuals), normalised by their noise standard
+deviation, feed a two-sided Page-Hinkley test per residual (thresholds calibrated on fault-free
+residuals of the model for a stated false-alarm interval). An alarm at k_d starts a diagnosis.
+
+DIAGNOSE. Every fault hypothesis (each actuator: u = eta u_c + lambda, eq. 24; each sensor:
+z = y + b, eq. 34) predicts the residuals linearly in its parameters from the fault onset k_f on
+(canfdi.core.residuals' signatures), so each hypothesis is identified by recursive least squares
+in information form (P reset at the alarm, forgetting factor 1: the abrupt-fault setting of
+DESIGN.md), over all residuals at once. As seed 003 shifts its step to find k_f, each hypothesis
+is fitted for several onsets around the Page-Hinkley change point. From ``min_samples`` after the
+alarm the fits are compared by their least-squares cost J: the best hypothesis is accepted when
+every hypothesis outside its ambiguity group costs at least ``isolation_margin`` more (a
+log-likelihood-ratio margin on the normalised residuals) and its estimates have settled (standard
+deviation below ``settle_rel_std`` of their size). Hypotheses with the same residual signature
+(canfdi.core.design) fit equally well forever; the event then lists them all as candidates.
+No acceptance by ``max_samples``: an "unexplained" event and the detector restarts.
+
+ACCEPT. The estimate is folded into a compensation applied from k_f on (z_j - b, or
+u_j = eta u_cj + lambda), the residual window is rebuilt from compensated samples and the
+detector restarts (seed 003 Section 3.3), so a later fault on any channel is diagnosed on top of
+the ones already found, repaired or not.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from canfdi.core.design import Design
+from canfdi.core.detect import (
+    calibrate_threshold,
+    page_hinkley_step,
+    threshold_for_false_alarm_interval,
+)
+from canfdi.core.records import FaultEvent, Sample
+from canfdi.core.residuals import ResidualBank
+
+__all__ = ["Diagnoser", "DiagnoserSettings", "Hypothesis", "calibrate_thresholds"]
+
+MONITOR, DIAGNOSE = "monitor", "diagnose"
+
+
+@dataclass(frozen=True)
+class DiagnoserSettings:
+    """Detection and acceptance settings (the config's detection: and identification:).
+
+    drift : Page-Hinkley delta in residual noise standard deviations.
+    false_alarm_interval : samples between false alarms per residual the thresholds target.
+    min_samples, max_samples : samples after the alarm before a decision / before giving up.
+    settle_rel_std : accept when each estimate's standard deviation is below this fraction of
+        its size (an actuator's lambda: of max(|lambda|, 0.1 |eta - 1| mean|u_c|)).
+    isolation_margin : cost margin over every hypothesis outside the best one's group.
+    onset_before : onsets tried before the Page-Hinkley change point (all up to the alarm
+        after it), at most max_onsets in all.
+    prior_precision : P reset value is 1 / prior_precision (information form: J0 = this * I).
+    """
+
+    drift: float = 0.5
+    false_alarm_interval: float = 1.0e7
+    min_samples: int = 200
+    max_samples: int = 2000
+    settle_rel_std: float = 0.01
+    isolation_margin: float = 50.0
+    onset_before: int = 3
+    max_onsets: int = 16
+    prior_precision: float = 1e-8
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One fault hypothesis.
+
+    target : "actuator", "sensor", or "sensors" (biases on several sensors at once: seed 001
+        eq. 41, over a largest set of sensors whose signatures are linearly independent).
+    index, name : the channel (for "sensors": the first member).
+    members : the sensor indices of a "sensors" hypothesis.
+    """
+
+    target: str
+    index: int
+    name: str
+    members: tuple[int, ...] = ()
+
+    @property
+    def label(self) -> str:
+        return f"{self.target}:{self.name}"
+
+    @property
+    def n_params(self) -> int:
+        return {"actuator": 2, "sensor": 1}.get(self.target, len(self.members))
+
+
+def calibrate_thresholds(bank: ResidualBank, measurement_std: np.ndarray,
+                         process_std: np.ndarray | None, model, drift: float,
+                         interval: float, n: int = 100_000, seed: int = 0) -> np.ndarray:
+    """Page-Hinkley thresholds (m,) in noise-std units for a false-alarm interval (samples).
+
+    Parity residuals over a window are correlated in time, so the white-noise formula is wrong;
+    the thresholds are calibrated on ``n`` fault-free residuals generated from the model's noise
+    (seeded, so the design is reproducible) at two false-alarm intervals the record can show
+    (n/20 and n/200), and extrapolated log-linearly to ``interval``, as the run length of the
+    test grows exponentially with its threshold. Never below the white-noise (Siegmund) value.
+    Results are cached for the process (the same design calibrates once).
+    """
+    key = (bank.M.tobytes(), bank.sigma.tobytes(), np.asarray(measurement_std).tobytes(),
+           None if process_std is None else np.asarray(process_std).tobytes(),
+           model.A.tobytes(), model.C.tobytes(), drift, interval, n, seed)
+    if key not in _THRESHOLD_CACHE:
+        _THRESHOLD_CACHE[key] = _calibrate(bank, measurement_std, process_std, model, drift,
+                                           interval, n, seed)
+    return _THRESHOLD_CACHE[key].copy()
+
+
+_THRESHOLD_CACHE: dict[tuple, np.ndarray] = {}
+
+
+def _calibrate(bank: ResidualBank, measurement_std: np.ndarray, process_std: np.ndarray | None,
+               model, drift: float, interval: float, n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    length = n + bank.S
+    x = np.zeros((length, bank.q + bank.p))
+    x[:, : bank.q] = rng.standard_normal((length, bank.q)) * measurement_std
+    if process_std is not None and np.any(process_std):
+        state = np.zeros(model.n)
+        noise = rng.standard_normal((length, model.n)) * process_std
+        for k in range(length):
+            x[k, : bank.q] += model.C @ state
+            state = model.A @ state + noise[k]
+    rn = bank.batch(x) / bank.sigma
+    arl_hi, arl_lo = n / 20.0, n / 200.0
+    # Thresholds are tens of noise stds: 0.02 is far below what matters.
+    h_hi = np.asarray(calibrate_threshold(rn, drift, arl_hi, tol=0.02), dtype=float)
+    h_lo = np.asarray(calibrate_threshold(rn, drift, arl_lo, tol=0.02), dtype=float)
+    slope = np.maximum(h_hi - h_lo, 0.0) / np.log(arl_hi / arl_lo)
+    h = h_hi + slope * np.log(max(interval, arl_hi) / arl_hi)
+    white = threshold_for_false_alarm_interval(drift, interval)
+    return np.maximum(h, white)
+
+
+class Diagnoser:
+    """Streaming diagnoser: ``update(sample) -> events``.
+
+    Parameters
+    ----------
+    design : the residual bank's design (canfdi.core.design.design_bank).
+    settings : DiagnoserSettings.
+    thresholds : (m,) Page-Hinkley thresholds in noise-std units (calibrate_thresholds).
+    """
+
+    def __init__(self, design: Design, settings: DiagnoserSettings, thresholds: np.ndarray
+                 ) -> None:
+        self.design = design
+        self.settings = settings
+        self.bank = ResidualBank(design)
+        self.thresholds = np.asarray(thresholds, dtype=float).reshape(self.bank.m)
+        model = design.model
+        self.q, self.p = model.q, model.p
+        self.hypotheses = [Hypothesis("actuator", j, n) for j, n in
+                           enumerate(design.input_names)]
+        self.hypotheses += [Hypothesis("sensor", j, n) for j, n in enumerate(design.output_names)]
+        # Hypotheses no residual responds to can never be identified: leave them out.
+        responds = design.responds
+        keep = []
+        for h in self.hypotheses:
+            col = h.index if h.target == "actuator" else model.p + h.index
+            rows = [i for i, r in enumerate(design.actuators + design.sensors) if r.vector.exists]
+            if responds[rows, col].any():
+                keep.append(h)
+        self.hypotheses = keep
+        joint = self._independent_sensors([h.index for h in keep if h.target == "sensor"])
+        if len(joint) > 1:
+            self.hypotheses.append(Hypothesis("sensors", joint[0], "+".join(
+                design.output_names[j] for j in joint), members=tuple(joint)))
+        self.d = max(h.n_params for h in self.hypotheses)
+        # Hypotheses whose faults have the same residual signature (design.confused_with) fit
+        # the data equally well forever: they are reported together, never told apart.
+        confused = design.confused_with()
+        column = {h: (h.index if h.target == "actuator" else model.p + h.index)
+                  for h in self.hypotheses if h.target != "sensors"}
+        self._twins = {h: {g for g in column if column[g] in confused[column[h]]}
+                       for h in column}
+        for h in self.hypotheses:
+            self._twins.setdefault(h, set())
+        self.delta = settings.drift
+        n_onsets = settings.max_onsets
+        self._history: deque = deque(maxlen=self.bank.S + n_onsets + 8)
+        self._recent: deque = deque(maxlen=n_onsets + 8)
+        self.compensation: list[dict] = []
+        self.events: list[FaultEvent] = []
+        self.debug = False
+        self.reset()
+
+    def _independent_sensors(self, sensors: list[int]) -> list[int]:
+        """A largest subset, in index order, whose signatures are linearly independent."""
+        chosen: list[int] = []
+        basis = np.zeros((0, self.bank.Gz[0].size))
+        for j in sensors:
+            trial = np.vstack([basis, self.bank.Gz[j].ravel()])
+            if np.linalg.matrix_rank(trial, tol=1e-9 * np.abs(trial).max()) > len(chosen):
+                chosen.append(j)
+                basis = trial
+        return chosen
+
+    # -- state ---------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to monitoring with no compensation and empty windows."""
+        self.mode = MONITOR
+        self.bank.restart()
+        self._history.clear()
+        self._recent.clear()
+        self.compensation = []
+        self._restart_detector()
+        self._last_k: int | None = None
+        self.last_residuals: np.ndarray | None = None
+        self.last_normalized: np.ndarray | None = None
+
+    def _restart_detector(self, k: int = -1) -> None:
+        """Zero the Page-Hinkley statistics; a change point cannot predate sample k."""
+        m = self.bank.m
+        self.ph_state = np.zeros((m, 2))
+        self._last_zero = np.full((m, 2), k, dtype=np.int64)
+        self._diag = None
+
+    @property
+    def residual_names(self) -> list[str]:
+        return self.bank.names
+
+    @property
+    def statistics(self) -> np.ndarray:
+        """(m,) the larger Page-Hinkley statistic of each residual."""
+        return self.ph_state.max(axis=1)
+
+    # -- compensation ----------------------------------------------------------------------
+    def _compensate(self, k: int, z: np.ndarray, u: np.ndarray) -> np.ndarray:
+        x = np.empty(self.q + self.p)
+        x[: self.q] = z
+        x[self.q :] = u
+        for c in self.compensation:
+            if k < c["onset"]:
+                continue
+            if c["target"] == "sensor":
+                x[c["index"]] -= c["bias"]
+            else:
+                j = self.q + c["index"]
+                x[j] = c["eta"] * x[j] + c["lambda"]
+        return x
+
+    # -- the state machine -----------------------------------------------------------------
+    def update(self, sample: Sample) -> list[FaultEvent]:
+        """Process one sample; returns the events it caused (usually none)."""
+        k = sample.k
+        if self._last_k is not None and (sample.gap or k != self._last_k + 1):
+            self.bank.restart()
+            self._history.clear()
+            self._recent.clear()
+        self._last_k = k
+        self._history.append((k, np.asarray(sample.z, dtype=float).copy(),
+                              np.asarray(sample.u, dtype=float).copy()))
+        x = self._compensate(k, sample.z, sample.u)
+        r = self.bank.update(x[: self.q], x[self.q :])
+        self.last_residuals = r
+        if r is None:
+            self.last_normalized = None
+            return []
+        rn = r / self.bank.sigma
+        self.last_normalized = rn
+        window = self.bank.window.copy()
+        self._recent.append((k, window, rn))
+        if self.mode == MONITOR:
+            return self._monitor(k, sample.timestamp_ns, rn)
+        return self._diagnose(k, sample.timestamp_ns, window, rn)
+
+    def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
+        self.ph_state, alarm = page_hinkley_step(self.ph_state, rn, self.delta, self.thresholds)
+        self._last_zero[self.ph_state == 0.0] = k
+        if not alarm.any():
+            return []
+        alarming = np.flatnonzero(alarm)
+        col = np.where(alarm[alarming] > 0, 0, 1)
+        change_point = int(np.min(self._last_zero[alarming, col])) + 1
+        s = self.settings
+        first = self._recent[0][0]
+        # Noise may lift the statistic a little before the fault, so the change point can be
+        # early: try every onset from a few samples before it up to the alarm itself, at most
+        # max_onsets of them (the latest ones).
+        onsets = [kf for kf in range(change_point - s.onset_before, k + 1) if kf >= first]
+        onsets = onsets[-s.max_onsets:]
+        if not onsets:
+            onsets = [k]
+        self._start_diagnosis(k, onsets)
+        for kk, window, rnn in self._recent:
+            if kk >= min(onsets):
+                self._accumulate(kk, window, rnn)
+        event = FaultEvent(kind="detected", sample=k, timestamp_ns=t, detected_sample=k,
+                           onset_sample=change_point,
+                           residuals=tuple(self.bank.names[i] for i in alarming))
+        self.events.append(event)
+        return [event]
+
+    def _start_diagnosis(self, k: int, onsets: list[int]) -> None:
+        H, K = len(self.hypotheses), len(onsets)
+        self.mode = DIAGNOSE
+        self._diag = {
+            "k_d": k, "onsets": np.array(onsets), "n": 0,
+            "A": np.tile(np.eye(self.d) * self.settings.prior_precision, (H, K, 1, 1)),
+            "b": np.zeros((H, K, self.d)), "rr": 0.0, "u_abs": np.zeros(self.p),
+        }
+
+    def _regressors(self, k: int, window: np.ndarray) -> np.ndarray:
+        """(H, K, m, d) normalised regressors of every hypothesis and onset at sample k."""
+        d = self._diag
+        S = self.bank.S
+        positions = k - S + np.arange(S + 1)
+        mask = (positions[None, :] >= d["onsets"][:, None]).astype(float)  # (K, S+1)
+        m = self.bank.m
+        out = np.zeros((len(self.hypotheses), len(d["onsets"]), m, self.d))
+        for h_i, h in enumerate(self.hypotheses):
+            if h.target == "sensor":
+                out[h_i, :, :, 0] = (self.bank.Gz[h.index] @ mask.T).T
+            elif h.target == "sensors":
+                for c, j in enumerate(h.members):
+                    out[h_i, :, :, c] = (self.bank.Gz[j] @ mask.T).T
+            else:
+                G = self.bank.Gu[h.index]  # (m, S+1)
+                u = window[:, self.q + h.index]
+                out[h_i, :, :, 0] = (G @ (mask * u).T).T
+                out[h_i, :, :, 1] = (G @ mask.T).T
+        return out / self.bank.sigma[None, None, :, None]
+
+    def _accumulate(self, k: int, window: np.ndarray, rn: np.ndarray) -> None:
+        d = self._diag
+        phi = self._regressors(k, window)
+        d["A"] += np.einsum("hkmi,hkmj->hkij", phi, phi)
+        d["b"] += np.einsum("hkmi,m->hki", phi, rn)
+        d["rr"] += float(rn @ rn)
+        d["n"] += 1
+        d["u_abs"] += np.abs(window[-1, self.q :])
+
+    def _diagnose(self, k: int, t: int, window: np.ndarray, rn: np.ndarray
+                  ) -> list[FaultEvent]:
+        self._accumulate(k, window, rn)
+        d, s = self._diag, self.settings
+        since = k - d["k_d"]
+        if since < s.min_samples:
+            return []
+        theta = np.linalg.solve(d["A"], d["b"][..., None])[..., 0]  # (H, K, d)
+        cost = d["rr"] - np.einsum("hki,hki->hk", theta, d["b"])
+        best_onset = np.argmin(cost, axis=1)  # (H,)
+        # Each parameter beyond the first must earn twice the isolation margin, so a richer
+        # model never wins on the noise it fits (a likelihood-ratio test in effect).
+        penalty = np.array([2.0 * s.isolation_margin * (h.n_params - 1) for h in self.hypotheses])
+        cost_h = cost[np.arange(len(cost)), best_onset] + penalty
+        order = np.argsort(cost_h, kind="stable")
+        best = int(order[0])
+        h_best = self.hypotheses[best]
+        twins = self._twins[h_best]
+        outside = [i for i in order[1:] if self.hypotheses[i] not in twins]
+        margin_ok = all(cost_h[i] - cost_h[best] >= s.isolation_margin for i in outside)
+        kb = int(best_onset[best])
+        A = d["A"][best, kb]
+        P = np.linalg.inv(A)
+        dof = max(d["n"] * self.bank.m - h_best.n_params, 1)
+        scale = max(float(cost[best, kb]) / dof, 1e-300)
+        var = np.diag(P) * scale
+        th = theta[best, kb]
+        if h_best.target == "actuator":
+            # A pure scale fault has lambda = 0: judge lambda against a tenth of the offset the
+            # scale puts on the mean command when that is larger than lambda itself.
+            u_mean = d["u_abs"][h_best.index] / d["n"]
+            lam_scale = max(abs(th[1]), 0.1 * abs(th[0]) * u_mean)
+            settled = (np.sqrt(var[0]) <= s.settle_rel_std * abs(1.0 + th[0])
+                       and np.sqrt(var[1]) <= s.settle_rel_std * lam_scale)
+        else:
+            n_b = h_best.n_params
+            settled = bool(np.all(np.sqrt(var[:n_b]) <= s.settle_rel_std * np.abs(th[:n_b])))
+        if self.debug and since % 100 == 0:
+            print("dbg", k, [(self.hypotheses[i].label, round(float(cost_h[i]), 1)) for i in order],
+                  th, np.sqrt(var), margin_ok, settled)
+        if margin_ok and (settled or since >= s.max_samples):
+            return self._accept(k, t, best, kb, theta, var, best_onset, cost_h)
+        if since >= s.max_samples:
+            event = FaultEvent(kind="unexplained", sample=k, timestamp_ns=t,
+                               detected_sample=d["k_d"],
+                               candidates=tuple(self._describe(i, theta[i, best_onset[i]])
+                                                for i in order[:3]))
+            self.events.append(event)
+            self.mode = MONITOR
+            self._restart_detector(k)
+            return [event]
+        return []
+
+    def _describe(self, h_i: int, th: np.ndarray, var: np.ndarray | None = None) -> dict:
+        h = self.hypotheses[h_i]
+        if h.target == "actuator":
+            est = {"eta": float(1.0 + th[0]), "lambda": float(th[1])}
+            variances = {"eta": float(var[0]), "lambda": float(var[1])} if var is not None else {}
+        elif h.target == "sensor":
+            est = {"bias": float(th[0])}
+            variances = {"bias": float(var[0])} if var is not None else {}
+        else:
+            names = self.design.output_names
+            est = {names[j]: float(th[c]) for c, j in enumerate(h.members)}
+            variances = ({names[j]: float(var[c]) for c, j in enumerate(h.members)}
+                         if var is not None else {})
+        out = {"target": h.target, "index": h.index, "name": h.name, "estimates": est}
+        if var is not None:
+            out["variances"] = variances
+        return out
+
+    def _sensor_twins(self, j: int, bias: float) -> tuple[dict, ...]:
+        """Sensors whose bias shows in the residuals exactly like sensor j's, with the bias
+        that would explain the data (their signature is a multiple of sensor j's)."""
+        h = next((g for g in self.hypotheses if g.target == "sensor" and g.index == j), None)
+        if h is None or not self._twins[h]:
+            return ()
+        gj = self.bank.Gz[j].ravel()
+        out = [{"target": "sensor", "index": j, "name": self.design.output_names[j],
+                "estimates": {"bias": bias}}]
+        for g in sorted(self._twins[h], key=lambda g: g.index):
+            gt = self.bank.Gz[g.index].ravel()
+            ratio = float(gt @ gj) / float(gt @ gt)
+            out.append({"target": "sensor", "index": g.index, "name": g.name,
+                        "estimates": {"bias": bias * ratio}})
+        return tuple(out)
+
+    def _accept(self, k: int, t: int, best: int, kb: int, theta: np.ndarray, var: np.ndarray,
+                best_onset: np.ndarray, cost_h: np.ndarray) -> list[FaultEvent]:
+        d = self._diag
+        h = self.hypotheses[best]
+        onset = int(d["onsets"][kb])
+        th = theta[best, kb]
+        faults = []  # (target, index, estimates, variances, candidates)
+        if h.target == "actuator":
+            desc = self._describe(best, th, var)
+            faults.append(("actuator", h.index, desc["estimates"], desc["variances"], ()))
+        else:
+            members = h.members if h.target == "sensors" else (h.index,)
+            for c, j in enumerate(members):
+                # In a joint fit a member with no significant bias is healthy.
+                if h.target == "sensors" and abs(th[c]) <= 5.0 * np.sqrt(var[c]):
+                    continue
+                faults.append(("sensor", j, {"bias": float(th[c])}, {"bias": float(var[c])},
+                               self._sensor_twins(j, float(th[c]))))
+        events = []
+        for target, index, est, variances, candidates in faults:
+            names = self.design.input_names if target == "actuator" else self.design.output_names
+            event = FaultEvent(
+                kind="accepted", sample=k, timestamp_ns=t, target=target, index=index,
+                name=names[index], estimates=est, variances=variances, onset_sample=onset,
+                detected_sample=d["k_d"], accepted_sample=k, candidates=candidates,
+            )
+            entry = {"target": target, "index": index, "onset": onset}
+            entry.update(est)
+            self.compensation.append(entry)
+            events.append(event)
+        # Seed 003 Section 3.3: rebuild the window from compensated samples and restart.
+        tail = []
+        for kk, z, u in self._history:
+            if tail and kk != tail[-1][0] + 1:
+                tail = []
+            tail.append((kk, z, u))
+        x = np.array([self._compensate(kk, z, u) for kk, z, u in tail])
+        self.bank.restart()
+        self.bank.load(x)
+        self._recent.clear()
+        self.mode = MONITOR
+        self._restart_detector(k)
+        self.events.extend(events)
+        return events

@@ -1,0 +1,244 @@
+"""The asyncio shell around the Monitor: bus, bridge, fault frames, heartbeat, signals.
+
+python-can delivers frames from its own reader (a thread, or the loop's reader for socket
+buses); `BusBridge` puts frames AND bus errors on an asyncio.Queue (python-can's
+AsyncBufferedReader would wait forever on a dead bus). `MonitorService.run` consumes the queue,
+feeds the Monitor, sends its fault frames, sends FDI_STATUS every status period, reopens a lost
+bus with exponential backoff, and on stop closes the bus (the source) before the recorder (the
+sink), so the log holds everything that was received.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import can
+
+from canfdi.monitor import Monitor, OutFrame
+
+__all__ = ["BusBridge", "MonitorService", "ServiceStats", "open_bus"]
+
+log = logging.getLogger("canfdi.service")
+
+
+def open_bus(interface: str, channel: str, bitrate: int | None = None,
+             receive_own_messages: bool = False) -> can.BusABC:
+    """A python-can bus from explicit arguments (no python-can config files are consulted)."""
+    kwargs: dict = {"interface": interface, "channel": channel}
+    if bitrate is not None:
+        kwargs["bitrate"] = bitrate
+    if receive_own_messages:
+        kwargs["receive_own_messages"] = True
+    return can.Bus(**kwargs)
+
+
+class BusBridge(can.Listener):
+    """python-can listener that hands frames and errors to the event loop, thread-safely."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, queue: asyncio.Queue) -> None:
+        self.loop = loop
+        self.queue = queue
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.loop.call_soon_threadsafe(self.queue.put_nowait, msg)
+
+    def on_error(self, exc: Exception) -> None:
+        self.loop.call_soon_threadsafe(self.queue.put_nowait, exc)
+
+    def stop(self) -> None:
+        """Nothing to release: the queue belongs to the service."""
+
+
+@dataclass
+class ServiceStats:
+    """What the service did (for the log and the exit summary)."""
+
+    frames: int = 0
+    sent: int = 0
+    send_errors: int = 0
+    bus_errors: int = 0
+    reopen_attempts: int = 0
+    started: float = field(default_factory=time.monotonic)
+
+
+class MonitorService:
+    """Runs a Monitor on a live bus until ``stop`` is set.
+
+    Parameters
+    ----------
+    monitor : the frames-to-diagnoses pipeline.
+    bus_factory : opens the bus (called again to reopen it after a loss).
+    status_period : seconds between FDI_STATUS frames (0: none).
+    on_event : called with each FaultEvent (printing, live view).
+    on_ready : called once the bus is open and frames can flow (systemd READY=1).
+    on_tick : called at least every second from the loop (systemd watchdog pings).
+    max_backoff : longest wait between attempts to reopen a lost bus.
+    """
+
+    def __init__(self, monitor: Monitor, bus_factory: Callable[[], can.BusABC], *,
+                 status_period: float = 1.0, on_event: Callable | None = None,
+                 on_ready: Callable[[], None] | None = None,
+                 on_tick: Callable[[], None] | None = None, max_backoff: float = 10.0) -> None:
+        self.monitor = monitor
+        self.bus_factory = bus_factory
+        self.status_period = status_period
+        self.on_event = on_event
+        self.on_ready = on_ready
+        self.on_tick = on_tick
+        self.max_backoff = max_backoff
+        self.stats = ServiceStats()
+        self.bus: can.BusABC | None = None
+        self._notifier: can.Notifier | None = None
+        self._queue: asyncio.Queue | None = None
+        self._ready_sent = False
+        self.idle = asyncio.Event()
+
+    # -- bus lifecycle ----------------------------------------------------------------------
+    async def _open(self, stop: asyncio.Event) -> bool:
+        delay = 0.1
+        while not stop.is_set():
+            self.stats.reopen_attempts += 1
+            try:
+                self.bus = self.bus_factory()
+                loop = asyncio.get_running_loop()
+                self._notifier = can.Notifier(self.bus, [BusBridge(loop, self._queue)],
+                                              timeout=0.1, loop=loop)
+                log.info("bus open: %s", self.bus.channel_info)
+                if not self._ready_sent and self.on_ready is not None:
+                    self.on_ready()
+                self._ready_sent = True
+                return True
+            except (can.CanError, OSError, ValueError) as exc:
+                log.warning("cannot open bus (%s); retrying in %.1f s", exc, delay)
+                with contextlib.suppress(asyncio.TimeoutError):
+                    await asyncio.wait_for(stop.wait(), timeout=delay)
+                delay = min(delay * 2, self.max_backoff)
+        return False
+
+    def _close(self) -> None:
+        if self._notifier is not None:
+            with contextlib.suppress(Exception):
+                self._notifier.stop(timeout=1.0)
+            self._notifier = None
+        if self.bus is not None:
+            with contextlib.suppress(Exception):
+                self.bus.shutdown()
+            self.bus = None
+
+    def send(self, frames: list[OutFrame]) -> None:
+        """Send the monitor's frames; a failing send is counted and logged, never raised."""
+        sink = self.monitor.sink
+        for f in frames:
+            if self.bus is None:
+                self.stats.send_errors += 1
+                continue
+            msg = can.Message(arbitration_id=f.frame_id, data=f.data, is_extended_id=False)
+            try:
+                self.bus.send(msg, timeout=0.05)
+                self.stats.sent += 1
+                if sink is not None:
+                    sink.write_frame(time.time_ns(), f.frame_id, f.data, "sent", False)
+            except (can.CanError, OSError) as exc:
+                self.stats.send_errors += 1
+                log.warning("could not send frame 0x%X: %s", f.frame_id, exc)
+
+    # -- main loop --------------------------------------------------------------------------
+    async def run(self, stop: asyncio.Event) -> ServiceStats:
+        """Monitor until ``stop`` is set; returns the statistics."""
+        self._queue = asyncio.Queue()
+        status_task = asyncio.create_task(self._status_loop(stop))
+        try:
+            while not stop.is_set():
+                if self.bus is None and not await self._open(stop):
+                    break
+                lost = await self._consume(stop)
+                if lost:
+                    self.stats.bus_errors += 1
+                    self._close()
+        finally:
+            status_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await status_task
+            # Frames already received are still diagnosed and logged before the bus closes.
+            self._drain()
+            self._close()
+            self.monitor.finish()
+        return self.stats
+
+    def _handle(self, item) -> bool:
+        """Process one queue item; True when the bus was lost."""
+        if isinstance(item, Exception):
+            log.error("bus error: %s; reopening", item)
+            return True
+        ts = int(item.timestamp * 1e9) if item.timestamp else time.time_ns()
+        self.stats.frames += 1
+        replies = self.monitor.on_frame(
+            ts, item.arbitration_id, bytes(item.data), is_extended=item.is_extended_id,
+            is_remote=item.is_remote_frame, is_error=item.is_error_frame,
+            is_fd=getattr(item, "is_fd", False))
+        if replies:
+            self.send(replies)
+        return False
+
+    async def _consume(self, stop: asyncio.Event) -> bool:
+        queue = self._queue
+        stop_wait = asyncio.create_task(stop.wait())
+        n_events = len(self.monitor.events)
+        try:
+            while not stop.is_set():
+                if queue.empty():
+                    self.idle.set()
+                    get = asyncio.create_task(queue.get())
+                    done, _ = await asyncio.wait({get, stop_wait}, timeout=1.0,
+                                                 return_when=asyncio.FIRST_COMPLETED)
+                    if get not in done:
+                        get.cancel()
+                        if self.on_tick is not None:
+                            self.on_tick()
+                        continue
+                    item = get.result()
+                else:
+                    item = queue.get_nowait()
+                self.idle.clear()
+                if self._handle(item):
+                    return True
+                if len(self.monitor.events) != n_events:
+                    if self.on_event is not None:
+                        for event in self.monitor.events[n_events:]:
+                            self.on_event(event)
+                    n_events = len(self.monitor.events)
+                if self.stats.frames % 256 == 0:
+                    if self.on_tick is not None:
+                        self.on_tick()
+                    await asyncio.sleep(0)
+        finally:
+            stop_wait.cancel()
+        return False
+
+    def _drain(self) -> None:
+        queue = self._queue
+        n_events = len(self.monitor.events)
+        while queue is not None and not queue.empty():
+            item = queue.get_nowait()
+            if not isinstance(item, Exception):
+                self._handle(item)
+        if self.on_event is not None:
+            for event in self.monitor.events[n_events:]:
+                self.on_event(event)
+
+    async def _status_loop(self, stop: asyncio.Event) -> None:
+        if self.status_period <= 0:
+            return
+        while not stop.is_set():
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(stop.wait(), timeout=self.status_period)
+            if stop.is_set():
+                return
+            frame = self.monitor.status_frame()
+            if frame is not None and self.bus is not None:
+                self.send([frame])
