@@ -16,9 +16,11 @@ def test_design_json_dc_motor():
     res = _canfdi("design", "deploy/config/dc_motor.yaml", "--json")
     assert res.returncode == 0, res.stderr
     out = json.loads(res.stdout)
-    assert out["windows"] == {"actuator": 1, "sensor": 4}
-    assert out["actuators"][0]["exists"] and out["actuators"][0]["window"] == 1
-    assert len(out["actuators"][0]["vector"]) == 8
+    # The config fixes the actuator window at 8 (the smallest admissible is 1) and the sensors'
+    # at the paper's 4.
+    assert out["windows"] == {"actuator": 8, "sensor": 4}
+    assert out["actuators"][0]["exists"] and out["actuators"][0]["min_window"] == 1
+    assert len(out["actuators"][0]["vector"]) == 9 * 4
     speed = next(e for e in out["detectability"] if e["kind"] == "sensor" and e["index"] == 3)
     assert speed["detectable"] is False and speed["reason"]
 

@@ -1,0 +1,89 @@
+"""The diagnoser alone, on batch simulations (no bus)."""
+
+import numpy as np
+import pytest
+
+from canfdi.config import load_config
+from canfdi.core.records import Sample
+from canfdi.monitor import build_diagnoser
+from firmware_sim.scenario import parse_scenario
+from firmware_sim.simulate import simulate
+from tests.conftest import REPO
+
+CONFIG = load_config(REPO / "deploy" / "config" / "dc_motor.yaml")
+
+
+def _feed(diagnoser, run, gaps=()):
+    events = []
+    for i in range(len(run.k)):
+        if i in gaps:
+            continue
+        gap = 1 if (i - 1) in gaps else 0
+        events += diagnoser.update(Sample(k=int(run.k[i]), timestamp_ns=int(run.t[i] * 1e9),
+                                          u=run.u_c[i], z=run.z[i], gap=gap))
+    return events
+
+
+def _scenario(faults, noise=0.01, duration=20.0, seed=3):
+    return parse_scenario({"plant": "dc_motor", "duration": duration, "seed": seed,
+                           "noise": {"measurement": noise}, "faults": faults})
+
+
+@pytest.mark.parametrize(
+    ("fault", "expected"),
+    [
+        ({"target": "actuator", "index": 0, "onset": 10.0, "eta": 1.3, "lambda": -4.0},
+         {"eta": 1.3, "lambda": -4.0}),
+        ({"target": "actuator", "index": 0, "onset": 10.0, "eta": 0.7}, {"eta": 0.7}),
+        ({"target": "sensor", "index": 0, "onset": 10.0, "bias": -0.05}, {"bias": -0.05}),
+    ],
+)
+def test_identification_is_exact_on_noise_free_data(fault, expected):
+    """With no noise the residual model is exact: estimates to 1e-6, onset exact."""
+    run = simulate(_scenario([fault], noise=0.0))
+    diagnoser = build_diagnoser(CONFIG)
+    accepted = [e for e in _feed(diagnoser, run) if e.kind == "accepted"]
+    assert len(accepted) == 1
+    e = accepted[0]
+    assert (e.target, e.index, e.onset_sample) == (fault["target"], 0, 1000)
+    for key, value in expected.items():
+        assert e.estimates[key] == pytest.approx(value, abs=1e-6)
+
+
+def test_compensation_brings_residuals_back_to_noise_and_restarts_detector():
+    run = simulate(_scenario([{"target": "sensor", "index": 0, "onset": 5.0, "bias": 2.0}]))
+    diagnoser = build_diagnoser(CONFIG)
+    events = _feed(diagnoser, run)
+    assert [e.kind for e in events] == ["detected", "accepted"]
+    assert diagnoser.mode == "monitor" and diagnoser.compensation[0]["bias"] == pytest.approx(
+        2.0, rel=0.01)
+    # After compensation the residuals are noise again (|r| within a few stds).
+    assert np.max(np.abs(diagnoser.last_normalized)) < 6.0
+    assert np.all(diagnoser.statistics < diagnoser.thresholds)
+
+
+def test_a_gap_restarts_the_window_and_raises_no_alarm():
+    run = simulate(_scenario([], duration=10.0))
+    diagnoser = build_diagnoser(CONFIG)
+    events = _feed(diagnoser, run, gaps={300, 301, 302, 600})
+    assert events == []
+    # Right after a gap, S + 1 samples pass before residuals resume.
+    diagnoser2 = build_diagnoser(CONFIG)
+    S = diagnoser2.bank.S
+    for i in range(50):
+        diagnoser2.update(Sample(k=i, timestamp_ns=i, u=run.u_c[i], z=run.z[i]))
+    diagnoser2.update(Sample(k=60, timestamp_ns=60, u=run.u_c[60], z=run.z[60], gap=10))
+    assert diagnoser2.last_residuals is None
+    for i in range(61, 61 + S):
+        diagnoser2.update(Sample(k=i, timestamp_ns=i, u=run.u_c[i], z=run.z[i]))
+    assert diagnoser2.last_residuals is not None
+
+
+def test_thresholds_exceed_the_white_noise_design():
+    from canfdi.core.detect import threshold_for_false_alarm_interval
+
+    diagnoser = build_diagnoser(CONFIG)
+    white = threshold_for_false_alarm_interval(CONFIG.detection.drift,
+                                               CONFIG.detection.false_alarm_interval)
+    assert np.all(diagnoser.thresholds >= white)
+    assert diagnoser.thresholds.max() > white  # correlated residuals need more
