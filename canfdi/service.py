@@ -38,17 +38,29 @@ def open_bus(interface: str, channel: str, bitrate: int | None = None,
 
 
 class BusBridge(can.Listener):
-    """python-can listener that hands frames and errors to the event loop, thread-safely."""
+    """python-can listener that hands frames and errors to the event loop, thread-safely.
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, queue: asyncio.Queue) -> None:
+    Items are (generation, frame or exception): after a reopen, errors still queued from the
+    old bus must not close the new one. python-can's Notifier re-raises a reader error in its
+    thread when given an event loop, so it runs without one and this bridge does the hand-off.
+    """
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, queue: asyncio.Queue,
+                 generation: int) -> None:
         self.loop = loop
         self.queue = queue
+        self.generation = generation
+        self._errors = 0
 
     def on_message_received(self, msg: can.Message) -> None:
-        self.loop.call_soon_threadsafe(self.queue.put_nowait, msg)
+        self.loop.call_soon_threadsafe(self.queue.put_nowait, (self.generation, msg))
 
     def on_error(self, exc: Exception) -> None:
-        self.loop.call_soon_threadsafe(self.queue.put_nowait, exc)
+        self._errors += 1
+        if self._errors == 1:
+            self.loop.call_soon_threadsafe(self.queue.put_nowait, (self.generation, exc))
+        # A dead interface fails on every read: do not spin until the service closes it.
+        time.sleep(0.05)
 
     def stop(self) -> None:
         """Nothing to release: the queue belongs to the service."""
@@ -96,7 +108,7 @@ class MonitorService:
         self._notifier: can.Notifier | None = None
         self._queue: asyncio.Queue | None = None
         self._ready_sent = False
-        self.idle = asyncio.Event()
+        self._generation = 0
 
     # -- bus lifecycle ----------------------------------------------------------------------
     async def _open(self, stop: asyncio.Event) -> bool:
@@ -105,9 +117,9 @@ class MonitorService:
             self.stats.reopen_attempts += 1
             try:
                 self.bus = self.bus_factory()
-                loop = asyncio.get_running_loop()
-                self._notifier = can.Notifier(self.bus, [BusBridge(loop, self._queue)],
-                                              timeout=0.1, loop=loop)
+                self._generation += 1
+                bridge = BusBridge(asyncio.get_running_loop(), self._queue, self._generation)
+                self._notifier = can.Notifier(self.bus, [bridge], timeout=0.1)
                 log.info("bus open: %s", self.bus.channel_info)
                 if not self._ready_sent and self.on_ready is not None:
                     self.on_ready()
@@ -170,9 +182,12 @@ class MonitorService:
             self.monitor.finish()
         return self.stats
 
-    def _handle(self, item) -> bool:
-        """Process one queue item; True when the bus was lost."""
+    def _handle(self, entry) -> bool:
+        """Process one queue item; True when the current bus was lost."""
+        generation, item = entry
         if isinstance(item, Exception):
+            if generation != self._generation:
+                return False
             log.error("bus error: %s; reopening", item)
             return True
         ts = int(item.timestamp * 1e9) if item.timestamp else time.time_ns()
@@ -192,7 +207,6 @@ class MonitorService:
         try:
             while not stop.is_set():
                 if queue.empty():
-                    self.idle.set()
                     get = asyncio.create_task(queue.get())
                     done, _ = await asyncio.wait({get, stop_wait}, timeout=1.0,
                                                  return_when=asyncio.FIRST_COMPLETED)
@@ -204,7 +218,6 @@ class MonitorService:
                     item = get.result()
                 else:
                     item = queue.get_nowait()
-                self.idle.clear()
                 if self._handle(item):
                     return True
                 if len(self.monitor.events) != n_events:
@@ -224,9 +237,9 @@ class MonitorService:
         queue = self._queue
         n_events = len(self.monitor.events)
         while queue is not None and not queue.empty():
-            item = queue.get_nowait()
-            if not isinstance(item, Exception):
-                self._handle(item)
+            entry = queue.get_nowait()
+            if not isinstance(entry[1], Exception):
+                self._handle(entry)
         if self.on_event is not None:
             for event in self.monitor.events[n_events:]:
                 self.on_event(event)
