@@ -127,6 +127,8 @@ class MonitorService:
                 return True
             except (can.CanError, OSError, ValueError) as exc:
                 log.warning("cannot open bus (%s); retrying in %.1f s", exc, delay)
+                if self.on_tick is not None:
+                    self.on_tick()
                 with contextlib.suppress(asyncio.TimeoutError):
                     await asyncio.wait_for(stop.wait(), timeout=delay)
                 delay = min(delay * 2, self.max_backoff)
@@ -204,6 +206,7 @@ class MonitorService:
         queue = self._queue
         stop_wait = asyncio.create_task(stop.wait())
         n_events = len(self.monitor.events)
+        last_tick = time.monotonic()
         try:
             while not stop.is_set():
                 if queue.empty():
@@ -225,7 +228,10 @@ class MonitorService:
                         for event in self.monitor.events[n_events:]:
                             self.on_event(event)
                     n_events = len(self.monitor.events)
-                if self.stats.frames % 256 == 0:
+                now = time.monotonic()
+                if now - last_tick >= 0.25:
+                    # Proof of life from the loop itself, and a chance for other tasks.
+                    last_tick = now
                     if self.on_tick is not None:
                         self.on_tick()
                     await asyncio.sleep(0)

@@ -12,6 +12,7 @@ For tests, frames can be dropped, delayed (jitter), sent with a wrong CRC or a w
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import time
 from collections.abc import Callable
@@ -67,6 +68,7 @@ class EmitStats:
     frames_bad_crc: int = 0
     frames_wrong_dlc: int = 0
     send_retries: int = 0
+    reopens: int = 0
     clipped: dict[str, int] = field(default_factory=dict)
     elapsed: float = 0.0
 
@@ -129,17 +131,38 @@ class FrameEncoder:
         return out, clipped
 
 
-async def _send(bus: can.BusABC, msg: can.Message, stats: EmitStats) -> None:
-    # SocketCAN answers ENOBUFS when its transmit queue is full: wait and retry rather than
-    # lose the frame, and give up only when the interface is really gone.
-    for attempt in range(200):
-        try:
-            bus.send(msg)
-            return
-        except can.CanOperationError:
-            stats.send_retries += 1
-            await asyncio.sleep(0.001 * min(attempt + 1, 20))
-    raise can.CanOperationError(f"could not send 0x{msg.arbitration_id:X} after 200 tries")
+class _Link:
+    """The emitter's bus, reopened through ``reopen`` when its interface goes away."""
+
+    def __init__(self, bus: can.BusABC, reopen: Callable[[], can.BusABC] | None) -> None:
+        self.bus = bus
+        self.reopen = reopen
+        self.opened: list[can.BusABC] = []
+
+    async def send(self, msg: can.Message, stats: EmitStats) -> None:
+        # SocketCAN answers ENOBUFS when its transmit queue is full and ENETDOWN while the link
+        # is down: wait and retry rather than lose the frame. A deleted and re-added interface
+        # needs a new socket (the old one is bound to the old interface index): reopen.
+        for attempt in range(400):
+            try:
+                self.bus.send(msg)
+                return
+            except (can.CanOperationError, OSError):
+                stats.send_retries += 1
+                await asyncio.sleep(0.001 * min(attempt + 1, 25))
+                if self.reopen is not None and attempt % 40 == 39:
+                    with contextlib.suppress(can.CanError, OSError):
+                        fresh = self.reopen()
+                        self.opened.append(fresh)
+                        self.bus = fresh
+                        stats.reopens += 1
+                        log.warning("bus reopened after send failures")
+        raise can.CanOperationError(f"could not send 0x{msg.arbitration_id:X} after 400 tries")
+
+    def close_reopened(self) -> None:
+        for bus in self.opened:
+            with contextlib.suppress(Exception):
+                bus.shutdown()
 
 
 async def emit(
@@ -152,6 +175,7 @@ async def emit(
     block: int = 256,
     on_block: Callable[[SimChunk, EmitStats], None] | None = None,
     stop: asyncio.Event | None = None,
+    reopen: Callable[[], can.BusABC] | None = None,
 ) -> EmitStats:
     """Publish a scenario's frames on ``bus``.
 
@@ -163,6 +187,8 @@ async def emit(
     block : samples simulated and encoded per step.
     on_block : called after each block is sent (progress reporting).
     stop : set it to end the run early (orderly: the current sample is completed).
+    reopen : opens the bus again when sending keeps failing (an interface deleted and re-added);
+        buses it opens are shut down at the end, ``bus`` stays the caller's.
     """
     if speed < 0:
         raise ValueError(f"speed: must be >= 0, got {speed}")
@@ -176,41 +202,45 @@ async def emit(
     loop = asyncio.get_running_loop()
     t0 = loop.time()
     wall0 = time.perf_counter()
-    while sim.k < total and not (stop is not None and stop.is_set()):
-        chunk = sim.advance(min(block, total - sim.k))
-        payloads, clipped = encoder.encode(chunk)
-        for name, count in clipped.items():
-            if name not in stats.clipped:
-                log.warning("signal %s clipped to its DBC range", name)
-            stats.clipped[name] = stats.clipped.get(name, 0) + count
-        for i, k in enumerate(chunk.k):
-            if speed > 0:
-                delay = t0 + k * dt / speed - loop.time()
-                if disturbance.jitter:
-                    delay += rng.uniform(0.0, disturbance.jitter)
-                if delay > 0:
-                    await asyncio.sleep(delay)
-            elif i % 32 == 0:
-                await asyncio.sleep(0)  # let the rest of the loop (a monitor, say) run
-            for layout, payload in zip(encoder.layouts, payloads, strict=True):
-                data = payload[i].tobytes()
-                if disturbance.active:
-                    u = rng.random(3)
-                    if u[0] < disturbance.drop:
-                        stats.frames_dropped += 1
-                        continue
-                    if u[1] < disturbance.bad_crc:
-                        data = bytes([data[0] ^ 0xFF]) + data[1:]
-                        stats.frames_bad_crc += 1
-                    if u[2] < disturbance.wrong_dlc:
-                        data = data[:-1] if len(data) > 2 else data + b"\x00"
-                        stats.frames_wrong_dlc += 1
-                msg = can.Message(arbitration_id=layout.frame_id, data=data,
-                                  is_extended_id=False, timestamp=time.time())
-                await _send(bus, msg, stats)
-                stats.frames_sent += 1
-            stats.samples += 1
-        if on_block is not None:
-            on_block(chunk, stats)
+    link = _Link(bus, reopen)
+    try:
+        while sim.k < total and not (stop is not None and stop.is_set()):
+            chunk = sim.advance(min(block, total - sim.k))
+            payloads, clipped = encoder.encode(chunk)
+            for name, count in clipped.items():
+                if name not in stats.clipped:
+                    log.warning("signal %s clipped to its DBC range", name)
+                stats.clipped[name] = stats.clipped.get(name, 0) + count
+            for i, k in enumerate(chunk.k):
+                if speed > 0:
+                    delay = t0 + k * dt / speed - loop.time()
+                    if disturbance.jitter:
+                        delay += rng.uniform(0.0, disturbance.jitter)
+                    if delay > 0:
+                        await asyncio.sleep(delay)
+                elif i % 32 == 0:
+                    await asyncio.sleep(0)  # let the rest of the loop (a monitor, say) run
+                for layout, payload in zip(encoder.layouts, payloads, strict=True):
+                    data = payload[i].tobytes()
+                    if disturbance.active:
+                        u = rng.random(3)
+                        if u[0] < disturbance.drop:
+                            stats.frames_dropped += 1
+                            continue
+                        if u[1] < disturbance.bad_crc:
+                            data = bytes([data[0] ^ 0xFF]) + data[1:]
+                            stats.frames_bad_crc += 1
+                        if u[2] < disturbance.wrong_dlc:
+                            data = data[:-1] if len(data) > 2 else data + b"\x00"
+                            stats.frames_wrong_dlc += 1
+                    msg = can.Message(arbitration_id=layout.frame_id, data=data,
+                                      is_extended_id=False, timestamp=time.time())
+                    await link.send(msg, stats)
+                    stats.frames_sent += 1
+                stats.samples += 1
+            if on_block is not None:
+                on_block(chunk, stats)
+    finally:
+        link.close_reopened()
     stats.elapsed = time.perf_counter() - wall0
     return stats

@@ -58,6 +58,7 @@ def setup_logging(fmt: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from canfdi.monitor import Monitor
+    from canfdi.sdnotify import Notifier
     from canfdi.service import MonitorService, open_bus
 
     setup_logging(args.log_format)
@@ -86,6 +87,11 @@ def run(args: argparse.Namespace) -> int:
             return 1
         monitor.sink = recorder
     log = logging.getLogger("canfdi.run")
+    systemd = Notifier()
+
+    def on_ready() -> None:
+        log.info("monitoring %s %s", interface, channel)
+        systemd.ready(f"monitoring {interface} {channel}")
 
     def on_event(event) -> None:
         log.info("event %s", json.dumps(event.as_dict()))
@@ -102,8 +108,10 @@ def run(args: argparse.Namespace) -> int:
         service = MonitorService(
             monitor, lambda: open_bus(interface, channel, bitrate),
             status_period=bus_cfg.status_period, on_event=on_event,
-            on_ready=lambda: log.info("monitoring %s %s", interface, channel))
-        return await service.run(stop)
+            on_ready=on_ready, on_tick=systemd.watchdog)
+        stats = await service.run(stop)
+        systemd.stopping()
+        return stats
 
     try:
         stats = asyncio.run(main())

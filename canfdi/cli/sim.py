@@ -106,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop.set)
         return await emit(bus, scenario, speed=args.speed, duration=args.duration,
-                          disturbance=disturbance, on_block=progress, stop=stop)
+                          disturbance=disturbance, on_block=progress, stop=stop,
+                          reopen=lambda: can.Bus(**kwargs))
 
     try:
         stats = asyncio.run(main())
