@@ -253,6 +253,13 @@ class MonitorService:
     async def _status_loop(self, stop: asyncio.Event) -> None:
         if self.status_period <= 0:
             return
+        # The first heartbeat goes out as soon as the bus is open: listeners learn at once
+        # that a monitor is there, not a status period later.
+        while self.bus is None and not stop.is_set():
+            await asyncio.sleep(0.01)
+        frame = self.monitor.status_frame()
+        if frame is not None and self.bus is not None:
+            self.send([frame])
         while not stop.is_set():
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(stop.wait(), timeout=self.status_period)
