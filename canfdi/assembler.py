@@ -15,8 +15,10 @@ Two layers:
   a whole log with numpy.
 * `SampleAssembler` is the streaming state machine: `SampleAssembler.push` takes one frame
   (timestamps are passed in, nothing here reads a clock or does I/O) and returns its status and
-  the sample it completed. `assemble_batch` runs a recorded log through the same state machine
-  after a vectorised decode, so replay and live runs see identical samples and statistics.
+  the sample it completed. `SampleAssembler.push_batch` and `assemble_batch` (a recorded log)
+  take frames by the block with a vectorised decode; runs of regular periods, whose outcome the
+  state machine's rules fix in advance, are assembled with numpy too, and every other frame goes
+  through the same state machine, so replay and live runs see identical samples and statistics.
 
 Frame statuses (``STATUS_NAMES``, int8 codes in the batch forms):
 
@@ -93,6 +95,18 @@ _E2E_HEADER = {"CRC": (0, 8), "Counter": (8, 8)}
 _MAX_STD_ID = 0x7FF
 _COUNTER_MODULUS = 256
 _F32 = struct.Struct("<f")
+# The batch fast path takes frames at most this many periods apart: the unwrap rule then
+# rounds n to 0 (the plain counter rule) with a full period to spare for float rounding.
+_FAST_MAX_ELAPSED = 127
+# Fewest accepted drive frames push_batch sends through the state machine at a time (unless a
+# regular run can take over), and fewest periods of a run it assembles with numpy: below these
+# the numpy calls around them cost more than the machine's ~2 us a frame (measured).
+_SLOW_SPAN = 32
+_FAST_MIN_PERIODS = 4
+
+# Samples assembled by push_batch, a run at a time: k, timestamp_ns, gap (B,) int64 and the
+# flat [u, z] rows (B, p + q) float64.
+_Block = tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]
 
 # Message kinds in the ID table; their codes double as the valid frame statuses.
 _KIND_DRIVE, _KIND_MONITOR, _KIND_UNUSED = _OK, _MONITOR, _UNUSED
@@ -590,6 +604,16 @@ class SampleAssembler:
         -------
         AssembledLog of the samples completed by these frames; the state carries over to the
         next call exactly as if the frames had been pushed one by one (no `flush`).
+
+        Notes
+        -----
+        Runs of regular periods skip the per-frame state machine: the used drive messages once
+        each in slot (ID) order, one counter per period and the next one in the next period,
+        each frame less than 127 periods after the one before, starting when the latest sample
+        is complete, and at least 4 periods long. Their samples are assembled with numpy,
+        several million frames a second; any other order, a defect, a pause or a counter jump
+        sends the frames up to the next such run through the state machine (about 2 us a
+        frame).
         """
         timestamps_ns = np.asarray(timestamps_ns)
         ids = np.asarray(ids)
@@ -612,17 +636,227 @@ class SampleAssembler:
                  (flags & FLAG_EXTENDED) != 0],
                 [_ERROR_FRAME, _REMOTE, _FD, _EXTENDED], status).astype(np.int8)
         drive = np.flatnonzero(status == _OK)
+        blocks = self._assemble(drive, slot[drive], counters[drive], timestamps_ns, values,
+                                status)
+        # Every status is final now (the machine wrote its verdicts): count them in one go.
+        for code, count in enumerate(np.bincount(status, minlength=len(STATUS_NAMES))):
+            self._counts[code] += int(count)
+        p = self._p
+        if blocks:
+            ks, times, gaps, flat = (np.concatenate(part) for part in zip(*blocks, strict=True))
+        else:
+            ks, times, gaps = (np.zeros(0, dtype=np.int64) for _ in range(3))
+            flat = np.zeros((0, len(self._buffer)))
+        return AssembledLog(k=ks, timestamp_ns=times, u=flat[:, :p], z=flat[:, p:], gap=gaps,
+                            statuses=status, stats=self.stats)
+
+    # -- batch assembly: regular runs vectorised, the rest through the state machine ---------
+
+    def _assemble(
+        self,
+        drive: NDArray[np.intp],
+        slots: NDArray[np.int16],
+        counters: NDArray[np.int16],
+        timestamps_ns: NDArray[np.integer],
+        values: NDArray[np.float64],
+        status: NDArray[np.int8],
+    ) -> list[_Block]:
+        """Run the accepted drive frames of a batch through the state machine, in order.
+
+        Only these frames can change the state (every other status is final after the decode),
+        so the sequence of drive frames is the whole input of the machine. Where it is in the
+        state a completed sample K leaves (`_is_settled`) and the frames ahead are whole regular
+        periods (`_regular_runs`) with the next counter, arriving soon enough, the machine's
+        decisions are known in advance: each period is the next sample, complete, gap 0. Those
+        periods are assembled with numpy (`_fast_run`); everything else goes through `_place`
+        and `_accept` frame by frame (`_slow_run`).
+
+        Parameters
+        ----------
+        drive : (D,) positions in the batch of the frames the decode found "ok" (drive frames).
+        slots, counters : (D,) their slots and counters.
+        timestamps_ns : (N,) arrival times of the whole batch.
+        values : (N, n_signals_max) decoded values of the whole batch.
+        status : (N,) int8 status codes; the machine's verdicts (duplicate, stale) are written
+            into it.
+
+        Returns
+        -------
+        list of (k, timestamp_ns, gap, [u, z] rows) blocks of samples, (B,), (B,), (B,),
+        (B, p + q) each, in order.
+        """
+        blocks: list[_Block] = []
+        n = drive.size
+        if n == 0:
+            return blocks
+        times = timestamps_ns[drive]
+        starts, groups = self._regular_runs(slots, counters, times)
+        m = len(self._dests)
+        pos = 0
+        while pos < n:
+            j = int(np.searchsorted(starts, pos))
+            if j < starts.size and starts[j] == pos and self._is_settled(int(counters[pos]),
+                                                                          int(times[pos])):
+                g = int(groups[j])
+                blocks.append(self._fast_run(drive[pos: pos + g * m], times, pos, g, values))
+                pos += g * m
+                continue
+            # The machine over a stretch long enough to pay for the numpy calls around it, up
+            # to where a regular run starts; it hands back early where one can take over.
+            far = int(np.searchsorted(starts, pos + _SLOW_SPAN))
+            stop = int(starts[far]) if far < starts.size else n
+            takeover = set((starts[j:far] - pos).tolist())
+            block, used = self._slow_run(drive[pos:stop], slots[pos:stop], counters[pos:stop],
+                                         times[pos:stop], values, status, takeover)
+            if block is not None:
+                blocks.append(block)
+            pos += used
+        return blocks
+
+    def _regular_runs(
+        self, slots: NDArray[np.int16], counters: NDArray[np.int16], times: NDArray[np.integer]
+    ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """Where whole regular periods begin in a sequence of accepted drive frames.
+
+        A frame is *linked* to the one before it when it is the next slot with the same counter,
+        or slot 0 after slot M-1 with the counter + 1 (mod 256), and it arrived less than
+        `_FAST_MAX_ELAPSED` periods after it (earlier is fine: the machine clamps at 0).
+
+        Parameters
+        ----------
+        slots, counters : (D,) of the accepted drive frames, in order.
+        times : (D,) their arrival times, ns.
+
+        Returns
+        -------
+        starts : (S,) ascending positions of slot-0 frames followed by whole periods of linked
+            frames, `_FAST_MIN_PERIODS` or more.
+        groups : (S,) the number of whole periods of linked frames from each.
+        """
+        m = len(self._dests)
+        n = slots.size
+        none = np.zeros(0, dtype=np.intp)
+        if m == 0 or n < m:
+            return none, none
+        if times.dtype.kind == "u" and times.max() > np.iinfo(np.int64).max:
+            return none, none  # beyond int64: leave such times to the machine's Python ints
+        t = times.astype(np.int64, copy=False)
+        s = slots.astype(np.int64)
+        c = counters.astype(np.int64)
+        same_period = (s[1:] == s[:-1] + 1) & (c[1:] == c[:-1])
+        next_period = (s[1:] == 0) & (s[:-1] == m - 1) & (c[1:] == (c[:-1] + 1) & 0xFF)
+        diff = t[1:] - t[:-1]
+        # int64 wraps silently; a wrapped difference would hide a huge (or negative) one.
+        wrapped = ((t[1:] ^ t[:-1]) & (t[1:] ^ diff)) < 0
+        soon = ~wrapped & (diff < _FAST_MAX_ELAPSED * self._dt_ns)
+        linked = (same_period | next_period) & soon
+        # Run ends: the positions whose link to the previous frame is broken, and the end.
+        breaks = np.append(np.flatnonzero(~linked) + 1, n)
+        heads = np.flatnonzero(s == 0)
+        ends = breaks[np.searchsorted(breaks, heads, side="right")]
+        groups = (ends - heads) // m
+        whole = groups >= _FAST_MIN_PERIODS
+        return heads[whole], groups[whole]
+
+    def _is_settled(self, counter: int, t: int) -> bool:
+        """Whether the machine would make a regular run starting with this frame samples K+1, ...
+
+        Parameters
+        ----------
+        counter : the run's first frame's counter.
+        t : its arrival time, ns.
+
+        Returns
+        -------
+        True when the latest sample K is complete (then it is not pending either: a sample only
+        opens with a new K, so no pending sample can break or be joined, and the next sample's
+        gap is 0), the frame carries counter K + 1 and it arrived less than `_FAST_MAX_ELAPSED`
+        periods after the latest accepted frame, so that `_place` unwraps it to K + 1 (n = 0).
+        """
+        k = self._k
+        return (k >= 0 and self._last_complete == k and counter == (k + 1) & 0xFF
+                and t - self._t_ref < _FAST_MAX_ELAPSED * self._dt_ns)
+
+    def _fast_run(
+        self,
+        rows: NDArray[np.intp],
+        times: NDArray[np.integer],
+        pos: int,
+        g: int,
+        values: NDArray[np.float64],
+    ) -> _Block:
+        """Assemble g whole regular periods at once, leaving the state the machine would.
+
+        Parameters
+        ----------
+        rows : (g M,) positions in the batch of the periods' frames, slot order per period.
+        times : (D,) arrival times of the accepted drive frames; the run starts at ``pos``.
+        pos : position of the run's first frame among the accepted drive frames.
+        g : number of periods.
+        values : (N, n_signals_max) decoded values of the whole batch.
+
+        Returns
+        -------
+        (k, timestamp_ns, gap, [u, z] rows) of the g samples: (g,), (g,), (g,), (g, p + q).
+        """
+        m = len(self._dests)
+        period_values = values[rows].reshape(g, m, -1)
+        # Positions no field writes keep the pending buffer's value, as in the machine; the
+        # loop keeps its write order (slot by slot) should two fields share a position.
+        flat = np.empty((g, len(self._buffer)))
+        flat[:] = self._buffer
+        for s, dests in enumerate(self._dests):
+            for col, dest in enumerate(dests):
+                flat[:, dest] = period_values[:, s, col]
+        k0 = self._k + 1
+        ks = np.arange(k0, k0 + g, dtype=np.int64)
+        # Each sample is completed by its period's last frame (slot M-1).
+        done = times[pos + m - 1: pos + g * m: m].astype(np.int64)
+        self._k = self._last_complete = k0 + g - 1
+        self._t_ref = int(done[-1])
+        self._seen = self._full
+        self._open = False
+        self._last_gap = 0
+        self._complete += g
+        self._buffer[:] = flat[-1].tolist()
+        return ks, done, np.zeros(g, dtype=np.int64), flat
+
+    def _slow_run(
+        self,
+        rows: NDArray[np.intp],
+        slots: NDArray[np.int16],
+        counters: NDArray[np.int16],
+        times: NDArray[np.integer],
+        values: NDArray[np.float64],
+        status: NDArray[np.int8],
+        takeover: set[int],
+    ) -> tuple[_Block | None, int]:
+        """Accepted drive frames through the state machine, one by one (as `push` does).
+
+        Parameters
+        ----------
+        rows : (R,) positions in the batch of the frames.
+        slots, counters, times : (R,) of the frames.
+        values : (N, n_signals_max) decoded values of the whole batch.
+        status : (N,) int8 status codes; duplicate and stale verdicts are written into it.
+        takeover : positions (into rows) where a regular run starts: the machine stops before
+            one when it has just completed a sample and `_is_settled` says the run is fast.
+
+        Returns
+        -------
+        block : (k, timestamp_ns, gap, [u, z] rows) of the samples completed, or None.
+        used : how many of the frames were taken (R, or the position where it stopped).
+        """
         ks: list[int] = []
-        times: list[int] = []
+        done: list[int] = []
         gaps: list[int] = []
-        rows: list[list[float]] = []
+        samples: list[list[float]] = []
         buffer, dests = self._buffer, self._dests
-        width = len(buffer)
-        # Only accepted drive frames need the sequential state machine; everything else is
-        # already decided by the vectorised decode and counted with one bincount below.
-        for i, s, c, t, vals in zip(drive.tolist(), slot[drive].tolist(),
-                                    counters[drive].tolist(), timestamps_ns[drive].tolist(),
-                                    values[drive].tolist(), strict=True):
+        counter_list, time_list = counters.tolist(), times.tolist()
+        used = len(counter_list)
+        for r, (i, s, c, t, vals) in enumerate(zip(rows.tolist(), slots.tolist(), counter_list,
+                                                   time_list, values[rows].tolist(),
+                                                   strict=True)):
             code = self._place(s, c, t)
             if code != _OK:
                 status[i] = code
@@ -632,17 +866,19 @@ class SampleAssembler:
                 buffer[dest] = value
             if self._accept(s):
                 ks.append(self._k)
-                times.append(t)
+                done.append(t)
                 gaps.append(self._last_gap)
-                rows.append(buffer[:])
-        for code, count in enumerate(np.bincount(status, minlength=len(STATUS_NAMES))):
-            self._counts[code] += int(count)
-        flat = np.array(rows, dtype=float).reshape(len(rows), width)
-        p = self._p
-        return AssembledLog(k=np.array(ks, dtype=np.int64), timestamp_ns=np.array(times,
-                            dtype=np.int64), u=flat[:, :p], z=flat[:, p:],
-                            gap=np.array(gaps, dtype=np.int64), statuses=status,
-                            stats=self.stats)
+                samples.append(buffer[:])
+                # Only a completion can settle the state: the one moment to hand over.
+                if r + 1 in takeover and self._is_settled(counter_list[r + 1],
+                                                          time_list[r + 1]):
+                    used = r + 1
+                    break
+        if not ks:
+            return None, used
+        return (np.array(ks, dtype=np.int64), np.array(done, dtype=np.int64),
+                np.array(gaps, dtype=np.int64),
+                np.array(samples, dtype=float).reshape(len(samples), len(buffer))), used
 
     # -- the state machine (shared by push and push_batch) ------------------------------------
 

@@ -17,7 +17,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from canfdi import __version__
-from canfdi.assembler import BusMap, SampleAssembler
+from canfdi.assembler import STATUS_NAMES, BusMap, SampleAssembler
 from canfdi.config import MonitorConfig
 from canfdi.core.design import Design, design_bank, design_to_dict
 from canfdi.core.diagnoser import Diagnoser, DiagnoserSettings, calibrate_thresholds
@@ -25,7 +25,28 @@ from canfdi.core.records import FaultEvent, Sample
 from canfdi.core.residuals import ResidualBank
 from canfdi.e2e import protect
 
-__all__ = ["Monitor", "OutFrame", "RecordSink", "build_diagnoser", "summary_json"]
+__all__ = ["Monitor", "OutFrame", "RecordSink", "build_diagnoser", "messages_to_arrays",
+           "summary_json"]
+
+
+def messages_to_arrays(messages: list, now: float | None = None) -> tuple[np.ndarray, ...]:
+    """python-can Messages as (t_ns, ids, dlc, flags) (N,) int64 and payloads (N, 8) uint8,
+    the block form `Monitor.on_frames` takes. One comprehension per field: several times
+    faster than filling arrays item by item. A message without a timestamp gets ``now``."""
+    import time
+
+    n = len(messages)
+    now = time.time() if now is None else now
+    t_ns = (np.fromiter([m.timestamp or now for m in messages], np.float64, n) * 1e9
+            ).astype(np.int64)
+    ids = np.fromiter([m.arbitration_id for m in messages], np.int64, n)
+    dlc = np.fromiter([len(m.data) for m in messages], np.int64, n)
+    flags = np.fromiter([m.is_extended_id | (m.is_remote_frame << 1)
+                         | (m.is_error_frame << 2) | (m.is_fd << 3) for m in messages],
+                        np.int64, n)
+    payloads = np.frombuffer(b"".join([bytes(m.data[:8]).ljust(8, b"\0") for m in messages]),
+                             dtype=np.uint8).reshape(n, 8)
+    return t_ns, ids, dlc, flags, payloads
 
 _KIND = {"actuator": 1, "sensor": 2}
 _STATE = {"detected": 1, "accepted": 3}
@@ -136,6 +157,52 @@ class Monitor:
         out: list[OutFrame] = []
         for sample in samples:
             out.extend(self.on_sample(sample))
+        return out
+
+    def on_frames(self, t_ns: np.ndarray, ids: np.ndarray, dlc: np.ndarray,
+                  payloads: np.ndarray, flags: np.ndarray | None = None) -> list[OutFrame]:
+        """Process a block of received frames at once (the fast path: vectorised decode and
+        assembly, residuals and detection over the whole block; same results as on_frame).
+
+        Parameters
+        ----------
+        t_ns : (N,) int64 arrival times; ids, dlc : (N,); payloads : (N, 8) uint8;
+        flags : (N,) bit mask (canfdi.assembler FLAG_*), default 0.
+        """
+        if len(ids) == 0:
+            return []
+        if self.first_timestamp_ns is None:
+            self.first_timestamp_ns = int(t_ns[0])
+        log = self.assembler.push_batch(t_ns, ids, dlc, payloads, flags)
+        if self.sink is not None:
+            self.sink.write_frames(t_ns, ids, dlc, payloads, log.statuses,
+                                   status_names=STATUS_NAMES, flags=flags)
+        return self.on_samples(log.k, log.timestamp_ns, log.u, log.z, log.gap)
+
+    def on_samples(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
+                   gap: np.ndarray) -> list[OutFrame]:
+        """Diagnose a block of assembled samples ((N,) k, t_ns, gap; (N, p) U; (N, q) Z)."""
+        if len(k) == 0:
+            return []
+        self.samples += len(k)
+        dg = self.diagnoser
+        if self.sink is not None:
+            self.sink.write_samples(k, t_ns, U, Z, gap, self.config.inputs, self.config.outputs)
+        if dg is None:
+            return []
+        result = dg.update_block(k, t_ns, U, Z, gap)
+        if self.sink is not None and self.record_residuals:
+            have = ~np.isnan(result.residuals[:, 0])
+            if have.any():
+                self.sink.write_residual_rows(k[have], t_ns[have], dg.residual_names,
+                                              result.residuals[have], result.normalized[have],
+                                              result.statistic[have])
+        out: list[OutFrame] = []
+        for event in result.events:
+            self.events.append(event)
+            if self.sink is not None:
+                self.sink.write_event(event)
+            out.extend(self.fault_frames(event))
         return out
 
     def on_sample(self, sample: Sample) -> list[OutFrame]:

@@ -32,6 +32,8 @@ def open_recorder(path: Path, metadata: dict[str, str] | None = None, **kwargs):
     from canfdi.recorder import McapRecorder
 
     path.parent.mkdir(parents=True, exist_ok=True)
+    # base64 float columns: exact, and ten times cheaper to write than JSON number lists.
+    kwargs.setdefault("float_encoding", "base64")
     return McapRecorder(path, metadata=metadata, **kwargs)
 
 

@@ -75,8 +75,10 @@ async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canf
             announce(f"canfdi demo: {scenario.name} ({scenario.duration:g} s of {plant.name}) "
                      f"on virtual bus {channel!r}")
         stats = await emit(sim_bus, scenario, speed=speed, stop=stop)
-        # Let the monitor catch up with every frame the drive sent.
-        while service.stats.frames < stats.frames_sent and not stop.is_set():
+        # Let the monitor catch up with every frame the drive sent (unless it died: then its
+        # exception is raised below instead of waiting forever).
+        while (service.stats.frames < stats.frames_sent and not stop.is_set()
+               and not monitor_task.done()):
             await asyncio.sleep(0.01)
     finally:
         sim_bus.shutdown()

@@ -8,8 +8,12 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from canfdi.cli.common import config_error, format_event, load_config_or_exit, print_comparison
+
+if TYPE_CHECKING:
+    from canfdi.recorder import FrameArrays
 
 HELP = """\
 Run the monitor offline over a log: an MCAP written by canfdi (run, demo, capture), whose raw
@@ -34,23 +38,139 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def mcap_frames(path: Path) -> Iterator[tuple[int, int, bytes, bool, bool]]:
     """(timestamp_ns, id, data, extended, error) of the frames a canfdi MCAP received."""
-    from canfdi.recorder import TOPIC_FRAMES, log_segments, read_log
+    from canfdi.recorder import iter_frame_blocks
 
-    for segment in log_segments(path):
-        for _, log_time, msg in read_log(segment, topics=[TOPIC_FRAMES]):
-            if msg.get("status") == "sent":
-                continue  # the monitor's own transmissions: a live monitor does not hear them
-            yield (log_time, int(msg["id"]), bytes.fromhex(msg["data"]),
-                   bool(msg.get("extended", False)), msg.get("status") == "error_frame")
+    for block in iter_frame_blocks(path):
+        received = block.status != "sent"  # the monitor's own: a live monitor does not hear them
+        if not received.all():
+            block = block.select(received)
+        yield from zip(block.t_ns.tolist(), block.id.tolist(), block.payloads(),
+                       block.extended.tolist(), (block.status == "error_frame").tolist(),
+                       strict=True)
 
 
-def python_can_frames(path: Path) -> Iterator[tuple[int, int, bytes, bool, bool]]:
+def mcap_frame_arrays(path: Path) -> FrameArrays:
+    """The frames a canfdi MCAP received, as arrays (`canfdi.recorder.FrameArrays`): every
+    segment, in order, without the monitor's own transmissions (status "sent"). Error frames
+    have status "error_frame"; `FrameArrays.payloads` gives payloads longer than 8 bytes."""
+    from canfdi.recorder import read_frames
+
+    frames = _scanned_frames(path)
+    if frames is None:
+        frames = read_frames(path)
+    received = frames.status != "sent"
+    return frames if received.all() else frames.select(received)
+
+
+def frame_array_blocks(path: Path, frames_per_block: int = 65536):
+    """Blocks of received frames (FrameArrays, "sent" removed) of about ``frames_per_block``,
+    read ahead in a thread so that inflating and decoding the log overlaps with the diagnosis
+    (zstd releases the GIL) on a second core."""
+    import queue
+    import threading
+
+    import numpy as np
+
+    from canfdi.mcapscan import UnsupportedLog, scan_topic
+    from canfdi.recorder import TOPIC_FRAMES, FrameArrays, _frame_block, log_segments
+
+    fields = ("t_ns", "id", "dlc", "data", "extended", "status", "flags")
+
+    def merged(parts):
+        return FrameArrays(*(np.concatenate([getattr(b, f) for b in parts]) for f in fields),
+                           {})
+
+    def produce(out: queue.Queue) -> None:
+        try:
+            pending, count = [], 0
+            for segment in log_segments(path):
+                for _, message in scan_topic(segment, TOPIC_FRAMES):
+                    block = _frame_block(message)
+                    if block.long:
+                        raise UnsupportedLog("payloads over 8 bytes")
+                    keep = block.status != "sent"
+                    pending.append(block if keep.all() else block.select(keep))
+                    count += len(pending[-1].t_ns)
+                    if count >= frames_per_block:
+                        out.put(merged(pending))
+                        pending, count = [], 0
+            if pending:
+                out.put(merged(pending))
+            out.put(None)
+        except Exception as exc:  # handed to the consumer, which decides
+            out.put(exc)
+
+    q: queue.Queue = queue.Queue(maxsize=4)
+    thread = threading.Thread(target=produce, args=(q,), daemon=True)
+    thread.start()
+    while (item := q.get()) is not None:
+        if isinstance(item, Exception):
+            raise item
+        yield item
+    thread.join()
+
+
+def _scanned_frames(path: Path):
+    """The frame blocks of every segment through canfdi.mcapscan (fast), or None when a
+    segment needs the full reader (an old one-frame-per-message log, an unusual chunk)."""
+    import numpy as np
+
+    from canfdi.mcapscan import UnsupportedLog, scan_topic
+    from canfdi.recorder import TOPIC_FRAMES, FrameArrays, _frame_block, log_segments
+
+    blocks = []
+    try:
+        for segment in log_segments(path):
+            for _, message in scan_topic(segment, TOPIC_FRAMES):
+                if "frames" not in message:
+                    return None
+                blocks.append(_frame_block(message))
+    except (UnsupportedLog, ValueError, KeyError):
+        return None
+    if not blocks:
+        return None
+    long: dict[int, bytes] = {}
+    offset = 0
+    for b in blocks:
+        long.update({offset + row: data for row, data in b.long.items()})
+        offset += len(b.t_ns)
+    return FrameArrays(*(np.concatenate([getattr(b, f) for b in blocks])
+                         for f in ("t_ns", "id", "dlc", "data", "extended", "status", "flags")),
+                       long)
+
+
+def mcap_blocks(path: Path, frames_per_block: int = 65536):
+    """(t_ns, ids, dlc, flags, payloads) blocks of a canfdi MCAP's received frames: the fast
+    scanner when it can read the log, the full reader otherwise (older layouts)."""
+    from canfdi.mcapscan import UnsupportedLog
+
+    try:
+        for arr in frame_array_blocks(path, frames_per_block):
+            yield arr.t_ns, arr.id, arr.dlc, arr.flags, arr.data
+        return
+    except (UnsupportedLog, ValueError, KeyError):
+        pass
+    arr = mcap_frame_arrays(path)
+    for i in range(0, len(arr.t_ns), frames_per_block):
+        j = i + frames_per_block
+        yield arr.t_ns[i:j], arr.id[i:j], arr.dlc[i:j], arr.flags[i:j], arr.data[i:j]
+
+
+def python_can_blocks(path: Path, frames_per_block: int = 65536):
+    """(t_ns, ids, dlc, flags, payloads) blocks of a log python-can reads."""
     import can
 
+    from canfdi.monitor import messages_to_arrays
+
     with can.LogReader(str(path)) as reader:
+        pending = []
         for msg in reader:
-            yield (round(msg.timestamp * 1e9), msg.arbitration_id, bytes(msg.data),
-                   msg.is_extended_id, msg.is_error_frame)
+            pending.append(msg)
+            if len(pending) >= frames_per_block:
+                yield messages_to_arrays(pending, now=0.0)
+                pending = []
+        if pending:
+            yield messages_to_arrays(pending, now=0.0)
 
 
 def truth_of(path: Path) -> list[dict] | None:
@@ -78,25 +198,25 @@ def run(args: argparse.Namespace) -> int:
         return config_error(exc, "replay")
     suffix = args.log.suffix.lower()
     if suffix in PYTHON_CAN_SUFFIXES:
-        frames, truth = python_can_frames(args.log), None
+        blocks, truth = python_can_blocks(args.log), None
     else:
-        frames, truth = mcap_frames(args.log), truth_of(args.log)
+        blocks, truth = mcap_blocks(args.log), truth_of(args.log)
     progress = not args.no_progress and sys.stderr.isatty()
-    shown, start, count = 0, time.monotonic(), 0
-    n_events = 0
+    start = time.monotonic()
+    count = n_events = 0
     try:
-        for ts, frame_id, data, extended, error in frames:
-            monitor.on_frame(ts, frame_id, data, is_extended=extended, is_error=error)
-            count += 1
+        for t_ns, ids, dlc, flags, payloads in blocks:
+            monitor.on_frames(t_ns, ids, dlc, payloads, flags)
+            count += len(ids)
             if len(monitor.events) != n_events:
                 if not args.json:
                     for event in monitor.events[n_events:]:
                         print(format_event(event, monitor.dt), flush=True)
                 n_events = len(monitor.events)
-            if progress and count % 4096 == 0 and time.monotonic() - shown > 0.5:
-                shown = time.monotonic()
-                print(f"\rcanfdi replay: {count} frames, {monitor.samples} samples, "
-                      f"{count / (shown - start):,.0f} frames/s", end="", file=sys.stderr)
+            if progress:
+                rate = monitor.samples / max(time.monotonic() - start, 1e-9)
+                print(f"\rcanfdi replay: {count:,} frames, {monitor.samples:,} samples, "
+                      f"{rate:,.0f} samples/s", end="", file=sys.stderr)
     except (OSError, ValueError) as exc:
         print(f"\ncanfdi replay: cannot read {args.log}: {exc}", file=sys.stderr)
         return 1

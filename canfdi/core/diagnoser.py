@@ -34,13 +34,29 @@ import numpy as np
 from canfdi.core.design import Design
 from canfdi.core.detect import (
     calibrate_threshold,
+    page_hinkley_batch,
     page_hinkley_step,
     threshold_for_false_alarm_interval,
 )
 from canfdi.core.records import FaultEvent, Sample
 from canfdi.core.residuals import ResidualBank
 
-__all__ = ["Diagnoser", "DiagnoserSettings", "Hypothesis", "calibrate_thresholds"]
+__all__ = ["BlockResult", "Diagnoser", "DiagnoserSettings", "Hypothesis", "calibrate_thresholds"]
+
+
+@dataclass(frozen=True)
+class BlockResult:
+    """What ``Diagnoser.update_block`` did for N samples.
+
+    events : the events, in order.
+    residuals, normalized : (N, m), NaN where a sample had no residual (window filling).
+    statistic : (N, m) the larger Page-Hinkley statistic after each sample.
+    """
+
+    events: list
+    residuals: np.ndarray
+    normalized: np.ndarray
+    statistic: np.ndarray
 
 MONITOR, DIAGNOSE = "monitor", "diagnose"
 
@@ -249,6 +265,125 @@ class Diagnoser:
                 j = self.q + c["index"]
                 x[j] = c["eta"] * x[j] + c["lambda"]
         return x
+
+    def _compensate_block(self, k: np.ndarray, Z: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """(N, q+p) compensated samples, the vectorised twin of _compensate."""
+        X = np.hstack([Z, U]).astype(float, copy=True)
+        for c in self.compensation:
+            mask = k >= c["onset"]
+            if not mask.any():
+                continue
+            if c["target"] == "sensor":
+                X[mask, c["index"]] -= c["bias"]
+            else:
+                j = self.q + c["index"]
+                X[mask, j] = c["eta"] * X[mask, j] + c["lambda"]
+        return X
+
+    def update_block(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
+                     gap: np.ndarray | None = None) -> BlockResult:
+        """Process N samples at once; the same events and state as N calls of ``update``.
+
+        Fault-free stretches are vectorised (residuals as one matrix product over a sliding
+        window view, Page-Hinkley in its cumulative-sum form); the sample that raises an alarm,
+        the samples of a diagnosis and those after a gap go through ``update`` itself.
+
+        Parameters
+        ----------
+        k, t_ns : (N,) sample indices and timestamps; U : (N, p); Z : (N, q); gap : (N,).
+        """
+        k = np.asarray(k, dtype=np.int64)
+        n, m = len(k), self.bank.m
+        gap = np.zeros(n, dtype=np.int64) if gap is None else np.asarray(gap)
+        R = np.full((n, m), np.nan)
+        Rn = np.full((n, m), np.nan)
+        stat = np.zeros((n, m))
+        events: list[FaultEvent] = []
+        # A sample breaks continuity when it has a gap or does not follow its predecessor.
+        prev = np.concatenate([[self._last_k if self._last_k is not None else -2], k[:-1]])
+        breaks = (gap > 0) | (k != prev + 1)
+        if self._last_k is None:
+            breaks[0] = False
+        i = 0
+        while i < n:
+            if self.mode == DIAGNOSE or breaks[i]:
+                events += self.update(Sample(k=int(k[i]), timestamp_ns=int(t_ns[i]), u=U[i],
+                                             z=Z[i], gap=int(gap[i])))
+                if self.last_residuals is not None:
+                    R[i], Rn[i] = self.last_residuals, self.last_normalized
+                stat[i] = self.statistics
+                i += 1
+                continue
+            later = np.flatnonzero(breaks[i + 1:])
+            j = i + 1 + int(later[0]) if len(later) else n
+            i = self._monitor_stretch(k, t_ns, U, Z, i, j, R, Rn, stat, events)
+        return BlockResult(events=events, residuals=R, normalized=Rn, statistic=stat)
+
+    def _monitor_stretch(self, k, t_ns, U, Z, i: int, j: int, R, Rn, stat, events) -> int:
+        """Vectorised monitoring of the continuous samples i..j-1; returns where it stopped
+        (after the sample that raised an alarm, which ``update`` handled)."""
+        S = self.bank.S
+        X = self._compensate_block(k[i:j], Z[i:j], U[i:j])
+        fill = self.bank._fill
+        prefix = self.bank._ring[S + 1 - min(fill, S):] if fill > 0 else np.zeros((0, X.shape[1]))
+        E = np.vstack([prefix, X])
+        first = S - len(prefix)  # first row of X that completes a window
+        if first >= len(X):
+            res = np.zeros((0, self.bank.m))
+        else:
+            res = self.bank.batch(E)  # row r: residual at E row r + S = X row r + S - len(prefix)
+        rows = np.arange(max(first, 0), len(X))  # X rows with a residual
+        rn = res / self.bank.sigma
+        stop = j
+        alarm_row = None
+        if len(rows):
+            ph = page_hinkley_batch(rn, self.delta, self.thresholds, state=self.ph_state)
+            hit = np.flatnonzero(ph.alarms.any(axis=1))
+            if len(hit):
+                alarm_row = int(hit[0])
+            last = alarm_row - 1 if alarm_row is not None else len(rows) - 1
+            if last >= 0:
+                g = np.stack([ph.g_up[last], ph.g_down[last]], axis=1)
+                # Last sample where each statistic was zero, as the step function records it.
+                for d, traj in enumerate((ph.g_up[: last + 1], ph.g_down[: last + 1])):
+                    zero = traj == 0.0
+                    any_zero = zero.any(axis=0)
+                    idx = (last - np.argmax(zero[::-1], axis=0))
+                    self._last_zero[any_zero, d] = k[i + rows[idx[any_zero]]]
+                self.ph_state = g
+                gu, gd = ph.g_up[: last + 1], ph.g_down[: last + 1]
+                stat[i + rows[: last + 1]] = np.maximum(gu, gd)
+                R[i + rows[: last + 1]] = res[: last + 1]
+                Rn[i + rows[: last + 1]] = rn[: last + 1]
+            if alarm_row is not None:
+                stop = i + int(rows[alarm_row])
+        # Rows i..stop-1 are done: bring the streaming state up to date.
+        done = stop - i
+        if done > 0:
+            ring_rows = E[: len(prefix) + done]
+            self.bank.load(ring_rows[-(S + 1):])
+            for r in range(max(0, done - self._history.maxlen), done):
+                self._history.append((int(k[i + r]), np.array(Z[i + r], dtype=float),
+                                      np.array(U[i + r], dtype=float)))
+            keep = [r for r in range(max(0, done - self._recent.maxlen), done)
+                    if r >= first]
+            for r in keep:
+                e = len(prefix) + r
+                self._recent.append((int(k[i + r]), E[e - S: e + 1].copy(), rn[r - first]))
+            self._last_k = int(k[stop - 1])
+            last_r = done - 1
+            if last_r >= first:
+                self.last_residuals = res[last_r - first]
+                self.last_normalized = rn[last_r - first]
+            else:
+                self.last_residuals = self.last_normalized = None
+        if alarm_row is None:
+            return j
+        events += self.update(Sample(k=int(k[stop]), timestamp_ns=int(t_ns[stop]), u=U[stop],
+                                     z=Z[stop], gap=0))
+        R[stop], Rn[stop] = self.last_residuals, self.last_normalized
+        stat[stop] = self.statistics
+        return stop + 1
 
     # -- the state machine -----------------------------------------------------------------
     def update(self, sample: Sample) -> list[FaultEvent]:

@@ -10,7 +10,7 @@ import pytest
 
 from canfdi.config import load_config
 from canfdi.monitor import Monitor
-from canfdi.recorder import read_log
+from canfdi.recorder import read_frames
 from canfdi.service import MonitorService
 from tests.conftest import REPO
 
@@ -52,9 +52,10 @@ def test_lost_bus_is_reopened_and_diagnosis_goes_on(tmp_path):
                          recorder=lambda md: recs.append(McapRecorder(log, metadata=md))
                          or recs[-1]))
     recs[0].close()
-    frames = [can.Message(timestamp=t / 1e9, arbitration_id=m["id"],
-                          data=bytes.fromhex(m["data"]), is_extended_id=False)
-              for topic, t, m in read_log(log) if topic == "/can/frames" and m["status"] == "ok"]
+    logged = read_frames(log)
+    ok = logged.select(logged.status == "ok")
+    frames = [can.Message(timestamp=t / 1e9, arbitration_id=i, data=data, is_extended_id=False)
+              for t, i, data in zip(ok.t_ns.tolist(), ok.id.tolist(), ok.payloads(), strict=True)]
     half = len(frames) // 2
     buses = [FlakyBus(frames[:half], fail_after=half), FlakyBus(frames[half:], fail_after=None)]
     opened = []
@@ -99,11 +100,14 @@ def test_python_can_logs_replay_to_the_same_diagnoses(tmp_path, suffix):
     live = json.loads(res.stdout)["faults"]
     out = tmp_path / f"frames{suffix}"
     with can.Logger(str(out)) as writer:
-        for topic, t, m in read_log(src):
-            if topic == "/can/frames" and m["status"] != "sent":
-                writer.on_message_received(can.Message(
-                    timestamp=t / 1e9, arbitration_id=m["id"], data=bytes.fromhex(m["data"]),
-                    is_extended_id=m["extended"], channel=0))
+        logged = read_frames(src)
+        received = logged.select(logged.status != "sent")
+        for t, i, data, extended in zip(received.t_ns.tolist(), received.id.tolist(),
+                                        received.payloads(), received.extended.tolist(),
+                                        strict=True):
+            writer.on_message_received(can.Message(
+                timestamp=t / 1e9, arbitration_id=i, data=data, is_extended_id=extended,
+                channel=0))
     res = subprocess.run([sys.executable, "-m", "canfdi", "replay", str(out), "--config",
                           str(CONFIG), "--json"], capture_output=True, text=True, timeout=300,
                          cwd=REPO)

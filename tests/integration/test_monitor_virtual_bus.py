@@ -16,7 +16,7 @@ from canfdi import dbc as dbc_files
 from canfdi import e2e
 from canfdi.cli.demo import run_demo
 from canfdi.config import load_config
-from canfdi.recorder import McapRecorder, read_log
+from canfdi.recorder import McapRecorder, read_frames
 from firmware_sim.scenario import load_scenario, parse_scenario
 from tests.conftest import REPO
 
@@ -93,9 +93,9 @@ def test_consecutive_faults_each_diagnosed_within_3_percent_none_spurious(tmp_pa
     assert monitor.summary()["unexplained"] == []
 
     # Every frame the emulator sent is in the MCAP, as a received frame.
-    frames = [m for topic, _, m in read_log(tmp_path / "run.mcap") if topic == "/can/frames"]
-    received = [m for m in frames if m["status"] != "sent"]
-    drive = [m for m in received if m["status"] == "ok"]
+    statuses = read_frames(tmp_path / "run.mcap").status
+    received = statuses[statuses != "sent"]
+    drive = received[received == "ok"]
     assert len(drive) == stats.frames_sent == len(received)
 
     # The fault frames an independent python-can + cantools listener decodes match.

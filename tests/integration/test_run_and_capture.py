@@ -11,7 +11,7 @@ import can
 
 from canfdi.config import load_config
 from canfdi.monitor import Monitor
-from canfdi.recorder import McapRecorder, read_log, read_metadata
+from canfdi.recorder import McapRecorder, read_frames, read_log, read_metadata, read_samples
 from canfdi.service import MonitorService
 from firmware_sim.emitter import emit
 from firmware_sim.scenario import load_scenario
@@ -46,8 +46,9 @@ def test_run_stops_on_sigterm_with_a_readable_log(tmp_path):
     assert code == 0, proc.stderr.read()
     meta = read_metadata(log)
     assert meta["config_name"] == "dc_motor" and "design_json" in meta
-    statuses = [m for t, _, m in read_log(log) if t == "/can/frames" and m["status"] == "sent"]
-    assert statuses and all(m["id"] == 0x082 for m in statuses)
+    frames = read_frames(log)
+    sent_ids = frames.id[frames.status == "sent"]
+    assert len(sent_ids) and (sent_ids == 0x082).all()
 
 
 def test_run_bad_config_exits_2():
@@ -76,7 +77,7 @@ def test_capture_pipeline_records_every_frame_and_sample(tmp_path):
         bus = can.Bus(interface="virtual", channel=channel)
         try:
             stats = await emit(bus, scenario, speed=0, duration=5.0)
-            while service.stats.frames < stats.frames_sent:
+            while service.stats.frames < stats.frames_sent and not task.done():
                 await asyncio.sleep(0.01)
         finally:
             bus.shutdown()
@@ -87,7 +88,7 @@ def test_capture_pipeline_records_every_frame_and_sample(tmp_path):
     stats = asyncio.run(main())
     recorder.close()
     topics = [t for t, _, _ in read_log(out)]
-    assert topics.count("/can/frames") == stats.frames_sent == 1500
-    assert topics.count("/canfdi/samples") == 500
+    assert read_frames(out).size == stats.frames_sent == 1500
+    assert len(read_samples(out).k) == 500
     assert "/canfdi/events" not in topics
     assert os.path.getsize(out) > 0

@@ -87,3 +87,44 @@ def test_thresholds_exceed_the_white_noise_design():
                                                CONFIG.detection.false_alarm_interval)
     assert np.all(diagnoser.thresholds >= white)
     assert diagnoser.thresholds.max() > white  # correlated residuals need more
+
+
+@pytest.mark.parametrize("name", ["dc_motor_consecutive", "dc_motor_sensors_a"])
+def test_block_path_equals_streaming_path(name):
+    """update_block over uneven chunks (with a gap) gives update()'s events and residuals."""
+    from firmware_sim.scenario import load_scenario
+
+    run = simulate(load_scenario(name))
+    n = len(run.k)
+    keep = np.ones(n, dtype=bool)
+    keep[1500:1503] = False  # a lost stretch: a gap in both paths
+    k, t = run.k[keep], (run.t[keep] * 1e9).astype(np.int64)
+    U, Z = run.u_c[keep], run.z[keep]
+    gap = np.zeros(len(k), dtype=np.int64)
+    gap[1:] = np.diff(k) - 1
+
+    streaming = build_diagnoser(CONFIG)
+    s_events, s_res = [], []
+    for i in range(len(k)):
+        s_events += streaming.update(Sample(k=int(k[i]), timestamp_ns=int(t[i]), u=U[i],
+                                            z=Z[i], gap=int(gap[i])))
+        s_res.append(streaming.last_residuals if streaming.last_residuals is not None
+                     else np.full(streaming.bank.m, np.nan))
+
+    block = build_diagnoser(CONFIG)
+    b_events, b_res = [], []
+    rng = np.random.default_rng(0)
+    i = 0
+    while i < len(k):
+        j = min(len(k), i + int(rng.integers(1, 700)))
+        out = block.update_block(k[i:j], t[i:j], U[i:j], Z[i:j], gap[i:j])
+        b_events += out.events
+        b_res.append(out.residuals)
+        i = j
+    assert [(e.kind, e.sample, e.target, e.index, e.onset_sample) for e in b_events] == \
+        [(e.kind, e.sample, e.target, e.index, e.onset_sample) for e in s_events]
+    for a, b in zip(b_events, s_events, strict=True):
+        for key, value in b.estimates.items():
+            assert a.estimates[key] == pytest.approx(value, rel=1e-9, abs=1e-12)
+    np.testing.assert_allclose(np.vstack(b_res), np.array(s_res), rtol=1e-9, atol=1e-12)
+    assert len(s_events) >= 3 and any(e.kind == "accepted" for e in s_events)

@@ -1,4 +1,5 @@
-"""Tests of canfdi.recorder: MCAP round trip, truncation, kill -9, rotation, disk full."""
+"""Tests of canfdi.recorder: MCAP round trip of the block topics, truncation, kill -9,
+rotation, disk full, and reading the older one-row-per-message layout."""
 
 from __future__ import annotations
 
@@ -17,28 +18,44 @@ import pytest
 from mcap.reader import make_reader
 from mcap.records import Footer
 from mcap.stream_reader import StreamReader
+from mcap.writer import Writer
 
+from canfdi.cli.replay import mcap_frame_arrays, mcap_frames
 from canfdi.core.records import FaultEvent, Sample
 from canfdi.recorder import (
+    FLAG_EXTENDED,
+    FLAG_FD,
+    FRAME_DTYPE,
+    FRAMES_ENCODING,
     MESSAGE_ENCODING,
     METADATA_NAME,
+    RESIDUALS_ENCODING,
+    SAMPLES_ENCODING,
     SCHEMA_ENCODING,
     TOPIC_ESTIMATES,
     TOPIC_EVENTS,
     TOPIC_FRAMES,
     TOPIC_RESIDUALS,
+    TOPIC_RESIDUALS_PLOT,
     TOPIC_SAMPLES,
     TOPIC_STATUS,
     TOPICS,
+    FrameArrays,
     McapRecorder,
+    iter_frame_blocks,
     log_segments,
+    read_frames,
     read_log,
     read_metadata,
+    read_residuals,
+    read_samples,
 )
 
 REPO = Path(__file__).resolve().parents[2]
 T0 = 1_700_000_000_123_456_789
 METADATA = {"config_yaml": "name: test\n", "design_json": '{"a": 1}', "version": "0.1.0"}
+INPUTS, OUTPUTS = ["voltage", "load"], ["speed", "current"]
+RESIDUALS = ["r0", "r1"]
 
 
 class FakeClock:
@@ -55,24 +72,19 @@ def stamp(ns: int) -> dict[str, int]:
     return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
 
 
-def frame_message(ns: int, i: int) -> dict:
-    return {
-        "timestamp": stamp(ns),
-        "id": i & 0x7FF,
-        "extended": False,
-        "dlc": 4,
-        "data": i.to_bytes(4, "big").hex(),
-        "status": "ok",
-    }
-
-
 def write_frames(rec: McapRecorder, start: int, stop: int) -> None:
+    """Frames numbered start..stop-1, one write_frame each: frame i carries i in its payload."""
     for i in range(start, stop):
         rec.write_frame(T0 + i * 1000, i & 0x7FF, i.to_bytes(4, "big"), "ok")
 
 
-def frame_indices(messages) -> list[int]:
-    return [int(m["data"], 16) for topic, _, m in messages if topic == TOPIC_FRAMES]
+def indices(frames: FrameArrays) -> list[int]:
+    return [int.from_bytes(p, "big") for p in frames.payloads()]
+
+
+def frame_indices(path: Path, segments: bool = True) -> list[int]:
+    """The numbers of the frames of a log (every segment, or this file alone)."""
+    return indices(read_frames(path, segments=segments))
 
 
 def data_section_end(path: Path) -> int:
@@ -83,8 +95,8 @@ def data_section_end(path: Path) -> int:
     raise AssertionError(f"{path} has no footer")
 
 
-def read_all(path: Path) -> list[tuple[str, int, dict]]:
-    return [m for seg in log_segments(path) for m in read_log(seg)]
+def topic_messages(path: Path, topic: str) -> list[tuple[int, dict]]:
+    return [(t, m) for _, t, m in read_log(path, topics=[topic])]
 
 
 # --------------------------------------------------------------------------------------
@@ -92,13 +104,8 @@ def read_all(path: Path) -> list[tuple[str, int, dict]]:
 # --------------------------------------------------------------------------------------
 
 
-def test_round_trip_every_topic(tmp_path: Path) -> None:
-    path = tmp_path / "run.mcap"
-    inputs, outputs = ["voltage", "load"], ["speed", "current"]
-    sample = Sample(
-        k=300, timestamp_ns=T0 + 5, u=np.array([12.0, 0.5]), z=np.array([3.25, -1.0]), gap=2
-    )
-    event = FaultEvent(
+def event() -> FaultEvent:
+    return FaultEvent(
         kind="accepted",
         sample=310,
         timestamp_ns=T0 + 9,
@@ -113,60 +120,194 @@ def test_round_trip_every_topic(tmp_path: Path) -> None:
         candidates=({"target": "actuator", "index": 0, "name": "voltage"},),
         residuals=("r0", "r1"),
     )
+
+
+def test_round_trip_every_topic(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    sample = Sample(
+        k=300, timestamp_ns=T0 + 5, u=np.array([12.0, 0.5]), z=np.array([3.25, -1.0]), gap=2
+    )
+    fd_payload = bytes(range(64))
+    block_t = T0 + 100 + np.arange(3)
+    block_payloads = np.arange(24, dtype=np.uint8).reshape(3, 8)
     with McapRecorder(path, metadata=METADATA) as rec:
         rec.write_frame(T0, 0x123, b"\x01\x02\xff", "ok")
         rec.write_frame(T0 + 1, 0x1ABCDEF0, b"", "unknown_id", extended=True)
         rec.write_frame(T0 + 2, 0x7FF, bytes(8), "crc", dlc=9)
-        rec.write_frame(T0 + 3, 0x10, b"\x00", 'we"ird\n')
+        rec.write_frame(T0 + 3, 0x10, bytearray(b"\x00"), 'we"ird\n')
         rec.write_frame(T0 + 4, 0x11, b"\xaa", "sent")
-        rec.write_sample(sample, inputs, outputs)
+        rec.write_frame(T0 + 5, 0x12, fd_payload, "fd", flags=FLAG_FD)
+        rec.write_frames(
+            block_t,
+            [0x100, 0x101, 0x18000000],
+            [8, 2, 8],
+            block_payloads,
+            np.array(["ok", "dlc", "extended"]),
+            np.array([False, False, True]),
+        )
+        rec.write_frames(block_t + 10, [1, 2, 3], [1, 1, 1], np.ones((3, 8)), "ok")
+        rec.write_frames(
+            block_t + 20,
+            [4, 5, 6],
+            [8, 8, 8],
+            np.zeros((3, 8)),
+            np.array([2, 0, 1], dtype=np.int8),
+            status_names=["ok", "monitor", "stale"],
+        )
+        rec.write_sample(sample, INPUTS, OUTPUTS)
+        rec.write_samples(
+            [301, 302],
+            [T0 + 6, T0 + 7],
+            [[1.0, 2.0], [np.nan, 4.0]],
+            np.array([[5.0, 6.0], [7.0, np.inf]]),
+            [0, 1],
+            tuple(INPUTS),
+            tuple(OUTPUTS),
+        )
         rec.write_residuals(
             T0 + 6,
             300,
-            ["r0", "r1"],
+            RESIDUALS,
             np.array([0.5, np.nan]),
             [1.5, np.float32(2.0)],
             [0.0, np.inf],
         )
+        rec.write_residual_rows(
+            [301, 302],
+            [T0 + 7, T0 + 8],
+            RESIDUALS,
+            np.array([[1.0, 2.0], [3.0, 4.0]]),
+            np.array([[5.0, 6.0], [7.0, 8.0]]),
+            np.array([[0.0, 0.1], [0.2, -np.inf]]),
+        )
         rec.write_estimates(T0 + 7, 301, "actuator:voltage", {"eta": np.float64(0.9)}, {"eta": 0.1})
-        rec.write_event(event)
+        rec.write_event(event())
         rec.write_status(T0 + 10, "running", 311, {"ok": 1000, "crc": 2}, np.int64(1))
         rec.write("/custom/thing", T0 + 11, {"value": np.int64(7), "list": np.arange(3)})
-        assert rec.messages_written == 11
+        assert rec.buffered == 15 + 3 + 3
+        # 5 single messages (plot, estimates, event, status, custom) but the plot copy of the
+        # first residual row (the other rows share its 50 ms slot) is not counted.
+        assert rec.messages_written == 4
+    assert rec.messages_written == 4 + 15 + 3 + 3 and rec.buffered == 0
 
-    expected = [
-        (TOPIC_FRAMES, T0, {"timestamp": stamp(T0), "id": 0x123, "extended": False, "dlc": 3,
-                            "data": "0102ff", "status": "ok"}),
-        (TOPIC_FRAMES, T0 + 1, {"timestamp": stamp(T0 + 1), "id": 0x1ABCDEF0, "extended": True,
-                                "dlc": 0, "data": "", "status": "unknown_id"}),
-        (TOPIC_FRAMES, T0 + 2, {"timestamp": stamp(T0 + 2), "id": 0x7FF, "extended": False,
-                                "dlc": 9, "data": "00" * 8, "status": "crc"}),
-        (TOPIC_FRAMES, T0 + 3, {"timestamp": stamp(T0 + 3), "id": 0x10, "extended": False,
-                                "dlc": 1, "data": "00", "status": 'we"ird\n'}),
-        (TOPIC_FRAMES, T0 + 4, {"timestamp": stamp(T0 + 4), "id": 0x11, "extended": False,
-                                "dlc": 1, "data": "aa", "status": "sent"}),
-        (TOPIC_SAMPLES, T0 + 5, {"timestamp": stamp(T0 + 5), "k": 300, "gap": 2,
-                                 "u": {"voltage": 12.0, "load": 0.5},
-                                 "z": {"speed": 3.25, "current": -1.0}}),
-        (TOPIC_RESIDUALS, T0 + 6, {"timestamp": stamp(T0 + 6), "k": 300,
-                                   "r": {"r0": 0.5, "r1": None},
-                                   "normalized": {"r0": 1.5, "r1": 2.0},
-                                   "statistic": {"r0": 0.0, "r1": None}}),
+    frames = read_frames(path)
+    assert frames.t_ns.tolist() == [T0 + i for i in range(6)] + (
+        block_t.tolist() + (block_t + 10).tolist() + (block_t + 20).tolist()
+    )
+    ids = [0x123, 0x1ABCDEF0, 0x7FF, 0x10, 0x11, 0x12, 0x100, 0x101, 0x18000000, 1, 2, 3, 4, 5, 6]
+    assert frames.id.tolist() == ids
+    assert frames.dlc.tolist() == [3, 0, 9, 1, 1, 64, 8, 2, 8, 1, 1, 1, 8, 8, 8]
+    assert frames.extended.tolist() == [False, True] + [False] * 6 + [True] + [False] * 6
+    assert frames.flags.tolist() == [0, FLAG_EXTENDED, 0, 0, 0, FLAG_FD, 0, 0, 1] + [0] * 6
+    assert frames.status.tolist() == [
+        "ok",
+        "unknown_id",
+        "crc",
+        'we"ird\n',
+        "sent",
+        "fd",
+        "ok",
+        "dlc",
+        "extended",
+        "ok",
+        "ok",
+        "ok",
+        "stale",
+        "ok",
+        "monitor",
+    ]
+    assert frames.payloads() == [
+        b"\x01\x02\xff",
+        b"",
+        bytes(8),
+        b"\x00",
+        b"\xaa",
+        fd_payload,
+        bytes(range(8)),
+        bytes(range(8, 10)),
+        bytes(range(16, 24)),
+        b"\x01",
+        b"\x01",
+        b"\x01",
+        bytes(8),
+        bytes(8),
+        bytes(8),
+    ]
+    assert frames.data.shape == (15, 8) and frames.data[5].tobytes() == fd_payload[:8]
+    assert frames.long == {5: fd_payload}
+    assert frames.size == 15
+
+    samples = read_samples(path)
+    assert samples.input_names == INPUTS and samples.output_names == OUTPUTS
+    assert samples.k.tolist() == [300, 301, 302]
+    assert samples.t_ns.tolist() == [T0 + 5, T0 + 6, T0 + 7]
+    assert samples.gap.tolist() == [2, 0, 1]
+    np.testing.assert_array_equal(samples.U, [[12.0, 0.5], [1.0, 2.0], [np.nan, 4.0]])
+    # JSON has no inf: non-finite values are null, read back as NaN.
+    np.testing.assert_array_equal(samples.Z, [[3.25, -1.0], [5.0, 6.0], [7.0, np.nan]])
+
+    k, t_ns, names, r, rn, stat = read_residuals(path)
+    assert k.tolist() == [300, 301, 302] and t_ns.tolist() == [T0 + 6, T0 + 7, T0 + 8]
+    assert names == RESIDUALS
+    np.testing.assert_array_equal(r, [[0.5, np.nan], [1.0, 2.0], [3.0, 4.0]])
+    np.testing.assert_array_equal(rn, [[1.5, 2.0], [5.0, 6.0], [7.0, 8.0]])
+    np.testing.assert_array_equal(stat, [[0.0, np.nan], [0.0, 0.1], [0.2, np.nan]])
+
+    # The block messages themselves: one per topic, stamped with their first row.
+    (frame_block,) = [(t, m) for t, m in topic_messages(path, TOPIC_FRAMES)]
+    log_time, block = frame_block
+    assert log_time == T0 and block["timestamp"] == stamp(T0)
+    assert block["encoding"] == FRAMES_ENCODING and block["count"] == 15
+    assert block["statuses"][frames_code(block, "sent")] == "sent"
+    assert block["long"] == {"5": fd_payload.hex()}
+    assert len(block["frames"]) == (15 * FRAME_DTYPE.itemsize + 2) // 3 * 4
+    ((log_time, block),) = topic_messages(path, TOPIC_SAMPLES)
+    assert log_time == T0 + 5
+    assert block == {
+        "timestamp": stamp(T0 + 5),
+        "encoding": SAMPLES_ENCODING,
+        "count": 3,
+        "k": [300, 301, 302],
+        "t_ns": [T0 + 5, T0 + 6, T0 + 7],
+        "gap": [2, 0, 1],
+        "u": {"voltage": [12.0, 1.0, None], "load": [0.5, 2.0, 4.0]},
+        "z": {"speed": [3.25, 5.0, 7.0], "current": [-1.0, 6.0, None]},
+    }
+    ((log_time, block),) = topic_messages(path, TOPIC_RESIDUALS)
+    assert log_time == T0 + 6
+    assert block == {
+        "timestamp": stamp(T0 + 6),
+        "encoding": RESIDUALS_ENCODING,
+        "count": 3,
+        "k": [300, 301, 302],
+        "t_ns": [T0 + 6, T0 + 7, T0 + 8],
+        "names": RESIDUALS,
+        "r": {"r0": [0.5, 1.0, 3.0], "r1": [None, 2.0, 4.0]},
+        "normalized": {"r0": [1.5, 5.0, 7.0], "r1": [2.0, 6.0, 8.0]},
+        "statistic": {"r0": [0.0, 0.0, 0.2], "r1": [None, 0.1, None]},
+    }
+
+    singles = [
+        (TOPIC_RESIDUALS_PLOT, T0 + 6, {"timestamp": stamp(T0 + 6), "k": 300,
+                                        "r": {"r0": 0.5, "r1": None},
+                                        "normalized": {"r0": 1.5, "r1": 2.0},
+                                        "statistic": {"r0": 0.0, "r1": None}}),
         (TOPIC_ESTIMATES, T0 + 7, {"timestamp": stamp(T0 + 7), "k": 301,
                                    "hypothesis": "actuator:voltage",
                                    "estimates": {"eta": 0.9}, "variances": {"eta": 0.1}}),
-        (TOPIC_EVENTS, T0 + 9, {"timestamp": stamp(T0 + 9), **event.as_dict()}),
+        (TOPIC_EVENTS, T0 + 9, {"timestamp": stamp(T0 + 9), **event().as_dict()}),
         (TOPIC_STATUS, T0 + 10, {"timestamp": stamp(T0 + 10), "state": "running",
                                  "samples": 311, "frames": {"ok": 1000, "crc": 2},
                                  "active_faults": 1}),
         ("/custom/thing", T0 + 11, {"timestamp": stamp(T0 + 11), "value": 7, "list": [0, 1, 2]}),
     ]  # fmt: skip
+    block_topics = {TOPIC_FRAMES, TOPIC_SAMPLES, TOPIC_RESIDUALS}
     reader = read_log(path)
     got = list(reader)
-    assert got == expected
-    assert reader.complete and not reader.truncated and reader.messages_read == len(expected)
+    assert [m for m in got if m[0] not in block_topics] == singles
+    assert reader.complete and not reader.truncated and reader.messages_read == len(singles) + 3
     assert stamp(T0) == {"sec": 1_700_000_000, "nsec": 123_456_789}
-    assert list(read_log(path, topics=[TOPIC_STATUS, TOPIC_SAMPLES])) == [expected[5], expected[9]]
+    assert list(read_log(path, topics=[TOPIC_STATUS])) == [singles[3]]
     assert read_metadata(path) == METADATA
 
     with open(path, "rb") as f:
@@ -183,10 +324,12 @@ def test_round_trip_every_topic(tmp_path: Path) -> None:
             assert body["type"] == "object"
         frame_schema = json.loads(summary.schemas[topics[TOPIC_FRAMES].schema_id].data)
         assert set(frame_schema["properties"]["timestamp"]["properties"]) == {"sec", "nsec"}
+        assert frame_schema["properties"]["encoding"]["const"] == FRAMES_ENCODING
+        assert "long" not in frame_schema["required"] and "frames" in frame_schema["required"]
         assert summary.chunk_indexes
         assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
         assert summary.statistics is not None
-        assert summary.statistics.message_count == len(expected)
+        assert summary.statistics.message_count == len(singles) + 3
     with open(path, "rb") as f:
         (meta,) = make_reader(f).iter_metadata()
         assert meta.name == METADATA_NAME and meta.metadata == METADATA
@@ -194,20 +337,293 @@ def test_round_trip_every_topic(tmp_path: Path) -> None:
         seeking = [
             (c.topic, m.log_time, json.loads(m.data)) for _, c, m in make_reader(f).iter_messages()
         ]
-    assert seeking == expected
+    assert sorted(seeking, key=repr) == sorted(got, key=repr)
+
+
+def frames_code(block: dict, status: str) -> int:
+    return block["statuses"].index(status)
+
+
+def test_blocks_fill_to_block_size_and_carry_their_first_time(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    clock = FakeClock()
+    with McapRecorder(path, block_frames=4, block_samples=3, clock=clock) as rec:
+        write_frames(rec, 0, 5)
+        assert rec.buffered == 1 and rec.messages_written == 4
+        n = 9
+        rec.write_frames(
+            T0 + (5 + np.arange(n)) * 1000,
+            5 + np.arange(n),
+            np.full(n, 4),
+            np.zeros((n, 8), np.uint8),
+            ["ok"] * n,
+        )
+        # 1 + 9 buffered: two full blocks written, 2 frames wait for close.
+        assert rec.buffered == 2 and rec.messages_written == 12
+        for i in range(7):
+            rec.write_sample(
+                Sample(k=i, timestamp_ns=T0 + i, u=np.array([i, 0.0]), z=np.zeros(2)),
+                INPUTS,
+                OUTPUTS,
+            )
+        assert rec.buffered == 2 + 1
+    blocks = topic_messages(path, TOPIC_FRAMES)
+    assert [m["count"] for _, m in blocks] == [4, 4, 4, 2]
+    assert [t for t, _ in blocks] == [T0 + i * 1000 for i in (0, 4, 8, 12)]
+    assert [m["timestamp"] for _, m in blocks] == [stamp(t) for t, _ in blocks]
+    assert [len(b) for b in iter_frame_blocks(path)] == [8] * 4  # NamedTuple fields
+    assert [b.size for b in iter_frame_blocks(path)] == [4, 4, 4, 2]
+    assert read_frames(path).id.tolist() == list(range(14))
+    samples = topic_messages(path, TOPIC_SAMPLES)
+    assert [m["count"] for _, m in samples] == [3, 3, 1]
+    assert [t for t, _ in samples] == [T0, T0 + 3, T0 + 6]
+    assert read_samples(path).U[:, 0].tolist() == list(range(7))
+
+
+def test_a_row_after_the_flush_deadline_starts_the_next_interval(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    clock = FakeClock()
+    rec = McapRecorder(path, flush_interval=1.0, clock=clock)
+    write_frames(rec, 0, 3)
+    clock.t = 1.0
+    write_frames(rec, 3, 4)  # the timed flush writes frames 0-2, frame 3 waits
+    assert frame_indices(path) == [0, 1, 2]
+    assert rec.buffered == 1
+    rec.flush()
+    assert frame_indices(path) == [0, 1, 2, 3]
+    rec.close()
+
+
+def test_base64_float_columns_round_trip_exactly(tmp_path: Path) -> None:
+    rng = np.random.default_rng(3)
+    U, Z = rng.standard_normal((50, 2)), rng.standard_normal((50, 2))
+    Z[3, 1] = np.nan
+    R = rng.standard_normal((50, 3, 2))
+    R[7, 2, 0] = -np.inf
+    k, t = np.arange(50), T0 + np.arange(50) * 1000
+    logs = {}
+    for encoding in ("json", "base64"):
+        path = logs[encoding] = tmp_path / f"{encoding}.mcap"
+        with McapRecorder(path, float_encoding=encoding, block_samples=16) as rec:
+            rec.write_samples(k, t, U, Z, np.zeros(50, int), INPUTS, OUTPUTS)
+            rec.write_residual_rows(k, t, RESIDUALS, R[:, 0], R[:, 1], R[:, 2])
+    ((_, block),) = topic_messages(logs["base64"], TOPIC_RESIDUALS)
+    assert isinstance(block["r"]["r0"], str) and block["k"] == k.tolist()
+    for encoding, path in logs.items():
+        samples = read_samples(path)
+        np.testing.assert_array_equal(samples.U, U)
+        np.testing.assert_array_equal(samples.Z, Z)
+        _, _, names, r, rn, stat = read_residuals(path)
+        assert names == RESIDUALS
+        np.testing.assert_array_equal(r, R[:, 0])
+        np.testing.assert_array_equal(rn, R[:, 1])
+        expected = R[:, 2].copy()
+        if encoding == "json":
+            expected[7, 0] = np.nan  # JSON: null; base64 keeps -inf
+        np.testing.assert_array_equal(stat, expected)
+    with pytest.raises(ValueError, match="float_encoding"):
+        McapRecorder(tmp_path / "x.mcap", float_encoding="hex")
+
+
+def test_residuals_plot_keeps_the_first_row_of_every_slot(tmp_path: Path) -> None:
+    n = 1000
+    k = np.arange(n)
+    t = T0 + k * 1_000_000  # one row per ms: 1 s of log time
+    rows = np.column_stack([k, -k]).astype(float)
+    plots = {}
+    for name, plot_rate, vectorised in [
+        ("rows", 20.0, True),
+        ("single", 20.0, False),
+        ("off", 0.0, True),
+        ("fast", 400.0, True),
+    ]:
+        path = tmp_path / f"{name}.mcap"
+        with McapRecorder(path, plot_rate=plot_rate) as rec:
+            if vectorised:
+                for a in range(0, n, 128):  # slots straddle the calls
+                    s = slice(a, a + 128)
+                    rec.write_residual_rows(k[s], t[s], RESIDUALS, rows[s], rows[s], rows[s])
+            else:
+                for i in range(n):
+                    rec.write_residuals(int(t[i]), int(k[i]), RESIDUALS, rows[i], rows[i], rows[i])
+        plots[name] = topic_messages(path, TOPIC_RESIDUALS_PLOT)
+        assert len(read_residuals(path).k) == n
+    slot = 50_000_000  # 1 / 20 Hz
+    expected = [i for i in range(n) if i == 0 or (t[i] // slot) != (t[i - 1] // slot)]
+    assert 20 <= len(expected) <= 21
+    assert [m["k"] for _, m in plots["rows"]] == expected
+    assert plots["single"] == plots["rows"]
+    assert [lt for lt, _ in plots["rows"]] == [int(t[i]) for i in expected]
+    _, first = plots["rows"][1]
+    i = expected[1]
+    assert first == {
+        "timestamp": stamp(int(t[i])),
+        "k": i,
+        "r": {"r0": float(i), "r1": float(-i)},
+        "normalized": {"r0": float(i), "r1": float(-i)},
+        "statistic": {"r0": float(i), "r1": float(-i)},
+    }
+    assert plots["off"] == []
+    assert 400 <= len(plots["fast"]) <= 401
+
+
+def test_many_statuses_and_name_changes(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    statuses = [f"status-{i}" for i in range(600)]
+    with McapRecorder(path) as rec:
+        for i, status in enumerate(statuses):
+            rec.write_frame(T0 + i, i, b"", status)
+        rec.write_frames(
+            T0 + 600 + np.arange(200),
+            np.arange(200),
+            np.zeros(200, int),
+            np.zeros((200, 8), np.uint8),
+            statuses[:200],
+        )
+        with pytest.raises(ValueError, match="256"):
+            rec.write_frames(
+                np.zeros(300, np.int64),
+                np.zeros(300),
+                np.zeros(300),
+                np.zeros((300, 8)),
+                [f"other-{i}" for i in range(300)],
+            )
+        rec.write_sample(
+            Sample(k=0, timestamp_ns=T0, u=np.zeros(2), z=np.zeros(2)), INPUTS, OUTPUTS
+        )
+        rec.write_sample(Sample(k=1, timestamp_ns=T0, u=np.zeros(1), z=np.zeros(2)), ["a"], OUTPUTS)
+        with pytest.raises(ValueError, match="inputs"):
+            rec.write_sample(
+                Sample(k=2, timestamp_ns=T0, u=np.zeros(2), z=np.zeros(2)), ["a"], OUTPUTS
+            )
+        with pytest.raises(ValueError, match="duplicate"):
+            rec.write_residuals(T0, 0, ["r", "r"], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0])
+        with pytest.raises(ValueError, match="payloads"):
+            rec.write_frames([T0], [1], [8], np.zeros((1, 4)), "ok")
+    assert read_frames(path).status.tolist() == statuses + statuses[:200]
+    samples = [m for _, m in topic_messages(path, TOPIC_SAMPLES)]
+    assert [list(m["u"]) for m in samples] == [INPUTS, ["a"]]
+    with pytest.raises(ValueError, match="changes names"):
+        read_samples(path)
 
 
 def test_write_after_close_raises_and_close_is_idempotent(tmp_path: Path) -> None:
     rec = McapRecorder(tmp_path / "run.mcap")
     rec.close()
     rec.close()
-    with pytest.raises(ValueError, match="closed"):
-        write_frames(rec, 0, 1)
+    sample = Sample(k=0, timestamp_ns=T0, u=np.zeros(2), z=np.zeros(2))
+    for write in [
+        lambda: write_frames(rec, 0, 1),
+        lambda: rec.write_frames([T0], [1], [0], np.zeros((1, 8)), "ok"),
+        lambda: rec.write_sample(sample, INPUTS, OUTPUTS),
+        lambda: rec.write_samples([0], [T0], [[0, 0]], [[0, 0]], [0], INPUTS, OUTPUTS),
+        lambda: rec.write_residuals(T0, 0, RESIDUALS, [0, 0], [0, 0], [0, 0]),
+        lambda: rec.write_residual_rows([0], [T0], RESIDUALS, [[0, 0]], [[0, 0]], [[0, 0]]),
+        lambda: rec.write_event(event()),
+    ]:
+        with pytest.raises(ValueError, match="closed"):
+            write()
 
 
 def test_missing_directory_is_reported_at_start(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError):
         McapRecorder(tmp_path / "nowhere" / "run.mcap")
+    with pytest.raises(FileNotFoundError):
+        read_frames(tmp_path / "nowhere.mcap")
+
+
+# --------------------------------------------------------------------------------------
+# the older one-row-per-message layout
+# --------------------------------------------------------------------------------------
+
+
+def write_old_layout(path: Path, n_frames: int) -> None:
+    """A log as the recorder wrote it before blocks: one message per frame, sample, row."""
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        schema = writer.register_schema("canfdi.Json", "jsonschema", b'{"type":"object"}')
+        frames, samples, residuals = (
+            writer.register_channel(topic, "json", schema)
+            for topic in (TOPIC_FRAMES, TOPIC_SAMPLES, TOPIC_RESIDUALS)
+        )
+
+        def add(channel: int, t: int, message: dict) -> None:
+            writer.add_message(
+                channel, t, json.dumps({"timestamp": stamp(t), **message}).encode(), t
+            )
+
+        for i in range(n_frames):
+            add(frames, T0 + i * 1000, {"id": i & 0x7FF, "extended": i % 7 == 0, "dlc": 4,
+                                        "data": i.to_bytes(4, "big").hex(),
+                                        "status": "sent" if i % 5 == 0 else "ok"})  # fmt: skip
+        fd = {"id": 1, "extended": False, "dlc": 64, "data": bytes(range(64)).hex(), "status": "fd"}
+        add(frames, T0 + n_frames * 1000, fd)
+        for k in range(3):
+            add(samples, T0 + k, {"k": k, "gap": k, "u": {"voltage": float(k), "load": None},
+                                  "z": {"speed": 1.0, "current": -1.0}})  # fmt: skip
+            add(residuals, T0 + k, {"k": k, "r": {"r0": k, "r1": None},
+                                    "normalized": {"r0": 1.0, "r1": 2.0},
+                                    "statistic": {"r0": 0.0, "r1": 3.0}})  # fmt: skip
+        writer.finish()
+
+
+def test_reads_the_one_frame_per_message_layout(tmp_path: Path) -> None:
+    path = tmp_path / "old.mcap"
+    n = 5000  # more than one block of old rows
+    write_old_layout(path, n)
+    frames = read_frames(path)
+    assert frames.size == n + 1
+    assert indices(frames)[:n] == list(range(n))
+    assert frames.t_ns.tolist() == [T0 + i * 1000 for i in range(n + 1)]
+    assert frames.id.tolist()[:n] == [i & 0x7FF for i in range(n)]
+    assert frames.extended.tolist()[:n] == [i % 7 == 0 for i in range(n)]
+    assert frames.status.tolist()[:n] == ["sent" if i % 5 == 0 else "ok" for i in range(n)]
+    assert frames.dlc.tolist() == [4] * n + [64]
+    assert frames.long == {n: bytes(range(64))}
+    assert [b.size for b in iter_frame_blocks(path)] == [4096, n + 1 - 4096]
+
+    samples = read_samples(path)
+    assert samples.k.tolist() == [0, 1, 2] and samples.gap.tolist() == [0, 1, 2]
+    assert samples.t_ns.tolist() == [T0, T0 + 1, T0 + 2]
+    assert samples.input_names == INPUTS and samples.output_names == OUTPUTS
+    np.testing.assert_array_equal(samples.U, [[0.0, np.nan], [1.0, np.nan], [2.0, np.nan]])
+    k, t_ns, names, r, rn, stat = read_residuals(path)
+    assert k.tolist() == [0, 1, 2] and t_ns.tolist() == [T0, T0 + 1, T0 + 2]
+    assert names == RESIDUALS and rn.tolist() == [[1.0, 2.0]] * 3
+    np.testing.assert_array_equal(r, [[0.0, np.nan], [1.0, np.nan], [2.0, np.nan]])
+    np.testing.assert_array_equal(stat, [[0.0, 3.0]] * 3)
+
+    # Replay reads both layouts the same way, without the monitor's own frames.
+    new = tmp_path / "new.mcap"
+    with McapRecorder(new, block_frames=1000) as rec:
+        for i in range(n):
+            rec.write_frame(T0 + i * 1000, i & 0x7FF, i.to_bytes(4, "big"),
+                            "sent" if i % 5 == 0 else "ok", i % 7 == 0)  # fmt: skip
+        rec.write_frame(T0 + n * 1000, 1, bytes(range(64)), "fd")
+    old_tuples, new_tuples = list(mcap_frames(path)), list(mcap_frames(new))
+    assert old_tuples == new_tuples
+    expected = [
+        (T0 + i * 1000, i & 0x7FF, i.to_bytes(4, "big"), i % 7 == 0, False)
+        for i in range(n)
+        if i % 5
+    ] + [(T0 + n * 1000, 1, bytes(range(64)), False, False)]
+    assert old_tuples == expected
+    arrays = mcap_frame_arrays(new)
+    assert arrays.t_ns.tolist() == [t for t, *_ in expected]
+    assert arrays.payloads() == [d for _, _, d, _, _ in expected]
+    assert "sent" not in set(arrays.status.tolist())
+
+
+def test_empty_log_reads_as_empty_arrays(tmp_path: Path) -> None:
+    path = tmp_path / "empty.mcap"
+    McapRecorder(path).close()
+    frames = read_frames(path)
+    assert frames.size == 0 and frames.data.shape == (0, 8) and frames.long == {}
+    samples = read_samples(path)
+    assert samples.U.shape == (0, 0) and samples.k.shape == (0,) and samples.input_names == []
+    assert read_residuals(path).R.shape == (0, 0)
+    assert list(mcap_frames(path)) == []
 
 
 # --------------------------------------------------------------------------------------
@@ -216,41 +632,47 @@ def test_missing_directory_is_reported_at_start(tmp_path: Path) -> None:
 
 N_FRAMES = 5000
 BURST = 50  # frames between timed flushes
+BLOCK = 16  # frames per block: a chunk holds blocks of 16, 16, 16 and 2 frames
 
 
 def write_bursts(rec: McapRecorder, clock: FakeClock, start: int, stop: int) -> None:
     """Every BURST frames the clock jumps past flush_interval, so the write of frame i (i a
-    multiple of BURST) ends the chunk holding frames i - BURST .. i - 1 before it is added."""
+    multiple of BURST) writes the buffered frames and ends the chunk holding frames
+    i - BURST .. i - 1 before it buffers frame i."""
     for i in range(start, stop):
         if i % BURST == 0:
             clock.t += 1.0
         rec.write_frame(T0 + i * 1000, i & 0x7FF, i.to_bytes(4, "big"), "ok")
 
 
-def test_truncated_files_read_back_a_prefix(tmp_path: Path) -> None:
+def test_truncated_files_read_back_a_prefix_of_whole_blocks(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
     clock = FakeClock()
-    with McapRecorder(path, metadata=METADATA, flush_interval=0.5, clock=clock) as rec:
+    with McapRecorder(
+        path, metadata=METADATA, flush_interval=0.5, clock=clock, block_frames=BLOCK
+    ) as rec:
         write_bursts(rec, clock, 0, N_FRAMES)
     data = path.read_bytes()
     with open(path, "rb") as f:
         chunks = make_reader(f).get_summary().chunk_indexes
     assert len(chunks) == N_FRAMES // BURST
+    blocks = topic_messages(path, TOPIC_FRAMES)
+    assert [m["count"] for _, m in blocks[:5]] == [BLOCK] * 3 + [BURST % BLOCK, BLOCK]
     expected = list(range(N_FRAMES))
 
-    # Every chunk end (exactly the messages up to it), every chunk middle (the same prefix as
-    # the previous end), one byte short of every chunk end, and a spread of other offsets.
+    # Every chunk end (exactly the frames of the blocks up to it), every chunk middle (the
+    # same prefix as the previous end: the block messages of a cut chunk are dropped whole),
+    # one byte short of every chunk end, and a spread of other offsets.
+    starts = [(c.message_start_time - T0) // 1000 for c in chunks]  # first frame of a chunk
+    assert starts == list(range(0, N_FRAMES, BURST))
     cut_expect: dict[int, int | None] = {}
-    before = 0
-    for c in chunks[::9]:
+    for j, c in enumerate(chunks[::9]):
+        j *= 9
         start, end = c.chunk_start_offset, c.chunk_start_offset + c.chunk_length
-        n_before = (c.message_start_time - T0) // 1000
-        n_through = (c.message_end_time - T0) // 1000 + 1
-        cut_expect[start + c.chunk_length // 2] = n_before
-        cut_expect[end - 1] = n_before
+        n_through = starts[j + 1] if j + 1 < len(starts) else N_FRAMES
+        cut_expect[start + c.chunk_length // 2] = starts[j]
+        cut_expect[end - 1] = starts[j]
         cut_expect[end] = n_through
-        before = n_through
-    assert before > 0
     for cut in [0, 1, 7, 8, 20, 40, *range(50, len(data), 2003), len(data) - 1, len(data)]:
         cut_expect.setdefault(cut, None)
 
@@ -259,9 +681,11 @@ def test_truncated_files_read_back_a_prefix(tmp_path: Path) -> None:
     for cut in sorted(cut_expect):
         trunc.write_bytes(data[:cut])
         reader = read_log(trunc)
-        got = frame_indices(reader)  # must not raise
+        list(reader)  # must not raise
+        got = frame_indices(trunc)  # must not raise either
         assert got == expected[: len(got)], f"not a prefix at byte {cut}"
-        assert len(got) >= previous_count, f"fewer messages at byte {cut} than before it"
+        assert len(got) % BURST == 0 or len(got) == N_FRAMES, f"a block cut at byte {cut}"
+        assert len(got) >= previous_count, f"fewer frames at byte {cut} than before it"
         previous_count = len(got)
         if cut_expect[cut] is not None:
             assert len(got) == cut_expect[cut], f"cut at {cut}"
@@ -276,7 +700,7 @@ def test_truncated_files_read_back_a_prefix(tmp_path: Path) -> None:
 def test_killed_writer_keeps_everything_before_the_last_timed_flush(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
     clock = FakeClock()
-    rec = McapRecorder(path, metadata=METADATA, flush_interval=0.5, clock=clock)
+    rec = McapRecorder(path, metadata=METADATA, flush_interval=0.5, clock=clock, block_frames=BLOCK)
     snapshots = []
     done = 0
     for stop in (1, 49, 50, 51, 1234, 2500, 4999, N_FRAMES):
@@ -284,28 +708,34 @@ def test_killed_writer_keeps_everything_before_the_last_timed_flush(tmp_path: Pa
         done = stop
         # What a SIGKILL now would leave: the bytes in the file, without close().
         snapshots.append((stop, path.read_bytes()))
-    assert rec.messages_written == N_FRAMES
+    assert rec.messages_written + rec.buffered == N_FRAMES
     for stop, data in snapshots:
         flushed = ((stop - 1) // BURST) * BURST  # frames before the last chunk-ending write
         killed = tmp_path / f"killed-{stop}.mcap"
         killed.write_bytes(data)
         reader = read_log(killed)
-        got = frame_indices(reader)
+        list(reader)
+        got = frame_indices(killed)
         assert reader.truncated and not reader.complete
         assert len(got) >= flushed, f"lost flushed frames after {stop} writes"
         assert got == list(range(len(got)))
         assert read_metadata(killed) == METADATA
     rec.close()
-    assert frame_indices(read_log(path)) == list(range(N_FRAMES))
+    assert frame_indices(path) == list(range(N_FRAMES))
 
 
-def test_explicit_flush_ends_the_chunk(tmp_path: Path) -> None:
+def test_explicit_flush_writes_the_buffers_and_ends_the_chunk(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
     rec = McapRecorder(path, flush_interval=3600.0, clock=FakeClock())
     write_frames(rec, 0, 10)
-    assert frame_indices(read_log(path)) == []
+    rec.write_sample(Sample(k=0, timestamp_ns=T0, u=np.zeros(2), z=np.zeros(2)), INPUTS, OUTPUTS)
+    rec.write_residuals(T0, 0, RESIDUALS, [0.0, 1.0], [0.0, 1.0], [0.0, 1.0])
+    assert frame_indices(path) == []
+    assert rec.buffered == 12
     rec.flush()
-    assert frame_indices(read_log(path)) == list(range(10))
+    assert rec.buffered == 0
+    assert frame_indices(path) == list(range(10))
+    assert read_samples(path).k.tolist() == [0] and read_residuals(path).k.tolist() == [0]
     rec.close()
 
 
@@ -320,7 +750,7 @@ while True:
     i += 1
     if i % 10 == 0:
         print(i, flush=True)
-        time.sleep(0.01)  # ~1000 frames/s: far from filling a 1 MiB chunk in 2 s
+        time.sleep(0.01)  # ~1000 frames/s: far from filling a 4096-frame block in 2 s
 """
 
 
@@ -360,7 +790,8 @@ def test_sigkilled_child_loses_at_most_the_last_flush_interval(tmp_path: Path) -
     must_have = max(n for t, n in reports if t < kill_time - 0.5)
     assert must_have > 100
     reader = read_log(path)
-    got = frame_indices(reader)
+    list(reader)
+    got = frame_indices(path)
     assert reader.truncated
     assert got == list(range(len(got)))
     assert len(got) >= must_have
@@ -377,9 +808,14 @@ def test_rotation_by_bytes(tmp_path: Path) -> None:
     stale.write_bytes(b"from an earlier run")
     unrelated = tmp_path / "run-x-0001.mcap"
     unrelated.write_bytes(b"not ours")
-    limit = 20_000
+    limit = 8_000
     rec = McapRecorder(
-        path, metadata=METADATA, rotate_bytes=limit, chunk_size=2048, clock=FakeClock()
+        path,
+        metadata=METADATA,
+        rotate_bytes=limit,
+        chunk_size=2048,
+        block_frames=64,
+        clock=FakeClock(),
     )
     assert not stale.exists() and unrelated.exists()
     write_frames(rec, 0, 6000)
@@ -393,25 +829,30 @@ def test_rotation_by_bytes(tmp_path: Path) -> None:
     got = []
     for seg in rec.paths:
         reader = read_log(seg)
-        got += frame_indices(reader)
+        list(reader)
         assert reader.complete, seg
+        got += frame_indices(seg, segments=False)
         assert read_metadata(seg) == METADATA
         with open(seg, "rb") as f:
             summary = make_reader(f).get_summary()
             assert summary is not None and summary.statistics.message_count > 0
-        # The data section overshoots by at most one chunk (2 KiB before compression) and its
-        # message index; the summary comes on top.
+        # The data section overshoots by at most one chunk (one 64-frame block: 2 KiB of
+        # base64 before compression) and its message index; the summary comes on top.
         assert limit <= data_section_end(seg) < limit + 4096 or seg == rec.paths[-1]
     assert got == list(range(6000))
+    assert frame_indices(path) == list(range(6000))  # read_frames reads every segment
 
 
 def test_rotation_by_seconds(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
     clock = FakeClock(100.0)
     rec = McapRecorder(path, metadata=METADATA, rotate_seconds=10.0, clock=clock)
-    for i in range(70):  # one frame every 0.5 s for 35 s
+    for i in range(70):  # one frame and one sample every 0.5 s for 35 s
         clock.t = 100.0 + 0.5 * i
         write_frames(rec, i, i + 1)
+        rec.write_sample(
+            Sample(k=i, timestamp_ns=T0 + i, u=np.zeros(2), z=np.zeros(2)), INPUTS, OUTPUTS
+        )
     rec.close()
     assert [p.name for p in rec.paths] == [
         "run.mcap",
@@ -422,10 +863,15 @@ def test_rotation_by_seconds(tmp_path: Path) -> None:
     assert log_segments(path) == rec.paths
     for j, seg in enumerate(rec.paths):
         reader = read_log(seg)
-        assert frame_indices(reader) == list(range(20 * j, min(20 * j + 20, 70)))
+        list(reader)
         assert reader.complete
+        # The rows buffered when the segment's time is up are written into it.
+        expected = list(range(20 * j, min(20 * j + 20, 70)))
+        assert frame_indices(seg, segments=False) == expected
+        assert read_samples(seg, segments=False).k.tolist() == expected
         assert read_metadata(seg) == METADATA
-    assert frame_indices(read_all(path)) == list(range(70))
+    assert frame_indices(path) == list(range(70))
+    assert read_samples(path).k.tolist() == list(range(70))
 
 
 # --------------------------------------------------------------------------------------
@@ -465,14 +911,18 @@ class FlakyFile:
 
 
 @pytest.mark.parametrize(
-    ("flush_interval", "chunk_size"),
+    ("flush_interval", "chunk_size", "block_frames"),
     [
-        (0.5, 1024 * 1024),  # the error strikes in a timed flush
-        (1000.0, 1024),  # ... in a write that ends a full chunk
+        (0.5, 1024 * 1024, 4096),  # the error strikes in a timed flush
+        (1000.0, 1024, 8),  # ... in a block write that ends a full chunk
     ],
 )
 def test_disk_full_drops_then_resumes(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture, flush_interval: float, chunk_size: int
+    tmp_path: Path,
+    caplog: pytest.LogCaptureFixture,
+    flush_interval: float,
+    chunk_size: int,
+    block_frames: int,
 ) -> None:
     path = tmp_path / "run.mcap"
     clock = FakeClock()
@@ -482,6 +932,7 @@ def test_disk_full_drops_then_resumes(
         metadata=METADATA,
         flush_interval=flush_interval,
         chunk_size=chunk_size,
+        block_frames=block_frames,
         clock=clock,
         opener=disk.open,
     )
@@ -511,10 +962,11 @@ def test_disk_full_drops_then_resumes(
 
     assert rec.paths == [path, tmp_path / "run-0001.mcap"]
     assert log_segments(path) == rec.paths  # failed retries left no files behind
-    got = frame_indices(read_all(path))
+    got = frame_indices(path)
     assert got[:100] == list(range(100))  # flushed before the disk filled
     assert got == sorted(got) and set(got) <= set(range(300))
     assert set(range(211, 300)) <= set(got)  # a retry happens within a second of recovery
+    assert len(got) < 300  # the unflushed chunk was lost with the failing segment
     assert rec.messages_written == len(got)
     assert rec.messages_written + rec.messages_dropped == 300
     assert read_metadata(rec.paths[-1]) == METADATA
@@ -530,11 +982,21 @@ def test_disk_full_at_start_does_not_raise(tmp_path: Path) -> None:
     rec = McapRecorder(path, metadata=METADATA, clock=clock, opener=disk.open)
     assert rec.failing and rec.write_errors == 1 and rec.paths == []
     write_frames(rec, 0, 5)
-    assert rec.messages_dropped == 5
+    assert rec.buffered == 5 and rec.messages_dropped == 0  # buffered, not yet lost
     disk.full = False
     clock.t = 1.0
     write_frames(rec, 5, 10)
     rec.close()
     assert rec.paths == [path]
-    assert frame_indices(read_log(path)) == list(range(5, 10))
+    assert frame_indices(path) == list(range(10))  # the buffer outlived the failure
     assert read_metadata(path) == METADATA
+
+
+def test_rows_buffered_at_close_while_failing_are_dropped(tmp_path: Path) -> None:
+    clock = FakeClock()
+    disk = Disk(full=True)
+    rec = McapRecorder(tmp_path / "run.mcap", clock=clock, opener=disk.open, block_frames=4)
+    write_frames(rec, 0, 10)  # two full blocks refused, two frames buffered
+    assert rec.messages_dropped == 8 and rec.buffered == 2
+    rec.close()
+    assert rec.messages_dropped == 10 and rec.messages_written == 0

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from canfdi.recorder import read_log
+from canfdi.recorder import read_frames, read_log
 from tests.conftest import REPO
 
 pytestmark = pytest.mark.vcan
@@ -107,10 +107,10 @@ def test_consecutive_faults_across_processes_seen_by_candump(tmp_path):
                 assert f["estimates"][key] == pytest.approx(t[key], rel=0.03)
     # The log is complete (summary written) and holds every frame the emulator sent.
     reader = read_log(monitor.log)
-    frames = [m for topic, _, m in reader if topic == "/can/frames"]
+    list(reader)
     assert reader.complete
     sent = json.loads(res.stdout)["frames_sent"]
-    assert sum(m["status"] == "ok" for m in frames) == sent
+    assert (read_frames(monitor.log).status == "ok").sum() == sent
     # candump saw our FDI frames, and cantools decodes them from candump's output.
     lines = [ln for ln in dump.read_text().splitlines() if " 080#" in ln or " 081#" in ln]
     assert lines, "candump saw no fault frame"
@@ -139,8 +139,7 @@ def test_frames_injected_with_cansend_are_counted_and_logged(tmp_path):
     finally:
         if monitor.proc.poll() is None:
             monitor.proc.kill()
-    statuses = [m["status"] for topic, _, m in read_log(monitor.log) if topic == "/can/frames"
-                and m["status"] != "sent"]
+    statuses = [s for s in read_frames(monitor.log).status.tolist() if s != "sent"]
     assert sorted(statuses) == sorted(["dlc", "crc", "unknown_id", "extended"])
 
 

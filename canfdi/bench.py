@@ -1,0 +1,347 @@
+"""Measurements behind `canfdi bench`: every figure is measured in one run on this machine.
+
+Frames come from the plant emulator (the DC motor's drive, three frames per 10 ms period),
+generated once and reused, so every stage is timed on the same traffic.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import statistics
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Traffic", "bus_limit", "make_traffic", "run_bench"]
+
+
+@dataclass
+class Traffic:
+    """Protected drive frames: t_ns, ids, dlc (N,); payloads (N, 8) uint8."""
+
+    t_ns: np.ndarray
+    ids: np.ndarray
+    dlc: np.ndarray
+    payloads: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def messages(self, count: int | None = None) -> list:
+        import can
+
+        n = len(self) if count is None else min(count, len(self))
+        return [can.Message(timestamp=self.t_ns[i] / 1e9, arbitration_id=int(self.ids[i]),
+                            data=self.payloads[i, : self.dlc[i]].tobytes(),
+                            is_extended_id=False) for i in range(n)]
+
+
+def frame_bits(dlc: int, stuffed: bool) -> int:
+    """Bits of a classic CAN data frame with an 11-bit ID, interframe space included.
+
+    SOF 1, ID 11, RTR 1, IDE 1, r0 1, DLC 4, data 8 dlc, CRC 15, delimiters and ACK 3, EOF 7,
+    IFS 3: 47 + 8 dlc. Worst-case bit stuffing adds one bit per 4 over the 34 + 8 dlc bits from
+    SOF to the end of the CRC.
+    """
+    bits = 47 + 8 * dlc
+    if stuffed:
+        bits += (34 + 8 * dlc - 1) // 4
+    return bits
+
+
+def bus_limit(dlcs: list[int], bitrate: float = 1e6) -> tuple[float, float]:
+    """Frames/s of a saturated bus carrying frames of these sizes in equal numbers:
+    (without stuffing, with worst-case stuffing)."""
+    plain = float(np.mean([frame_bits(d, False) for d in dlcs]))
+    stuffed = float(np.mean([frame_bits(d, True) for d in dlcs]))
+    return bitrate / plain, bitrate / stuffed
+
+
+def make_traffic(frames: int, scenario: str = "dc_motor_nominal") -> Traffic:
+    """About ``frames`` drive frames of a scenario (repeated past its duration)."""
+    from firmware_sim.emitter import FrameEncoder
+    from firmware_sim.scenario import load_scenario
+    from firmware_sim.simulate import Simulator
+
+    sc = load_scenario(scenario)
+    sim = Simulator(sc)
+    enc = FrameEncoder(sim.plant)
+    per = len(enc.layouts)
+    samples = -(-frames // per)
+    chunk = sim.advance(samples)
+    payloads, _ = enc.encode(chunk)
+    n = samples * per
+    ids = np.tile([lay.frame_id for lay in enc.layouts], samples)
+    dlc = np.tile([lay.dlc for lay in enc.layouts], samples)
+    P = np.zeros((n, 8), dtype=np.uint8)
+    for j, (lay, p) in enumerate(zip(enc.layouts, payloads, strict=True)):
+        P[j::per, : lay.dlc] = p
+    # Frames of a period 100 us apart, periods dt apart.
+    t = (np.repeat(chunk.t, per) * 1e9).astype(np.int64) + np.tile(np.arange(per) * 100_000,
+                                                                   samples)
+    return Traffic(t_ns=t, ids=ids, dlc=dlc, payloads=P)
+
+
+def _rss_mib() -> float:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def _timed(fn: Callable[[], object]) -> tuple[float, float]:
+    """(wall seconds, CPU seconds) of fn()."""
+    w0, c0 = time.perf_counter(), time.process_time()
+    fn()
+    return time.perf_counter() - w0, time.process_time() - c0
+
+
+def _feed(monitor, traffic: Traffic, block: int = 4096,
+          on_block: Callable[[int], None] | None = None) -> None:
+    n = len(traffic)
+    for i in range(0, n, block):
+        j = min(n, i + block)
+        monitor.on_frames(traffic.t_ns[i:j], traffic.ids[i:j], traffic.dlc[i:j],
+                          traffic.payloads[i:j])
+        if on_block is not None:
+            on_block(j)
+
+
+def run_bench(config, frames: int = 1_000_000, quick: bool = False,
+              progress: Callable[[str], None] | None = None, workdir: Path | None = None) -> dict:
+    """Measure everything; returns the JSON-ready result."""
+    from canfdi.assembler import BusMap
+    from canfdi.monitor import Monitor
+    from canfdi.recorder import McapRecorder
+
+    say = progress or (lambda msg: None)
+    tmp = Path(workdir or tempfile.mkdtemp(prefix="canfdi-bench-"))
+    out: dict = {"frames": frames, "quick": quick}
+
+    bus_map = BusMap.from_config(config)
+    dlcs = [lay.dlc for lay in bus_map.layouts]
+    plain, stuffed = bus_limit(dlcs)
+    out["bus_limit_fps"] = plain
+    out["bus_limit_stuffed_fps"] = stuffed
+    out["frame_dlcs"] = dlcs
+
+    say(f"generating {frames:,} drive frames")
+    traffic = make_traffic(frames)
+    n = len(traffic)
+
+    # -- throughput from memory: decode -> assemble -> diagnose -> record ------------------
+    say("throughput from memory (decode, assemble, diagnose, record)")
+    monitor = Monitor(config)  # calibration happens here, outside the timing
+    log_path = tmp / "bench.mcap"
+    recorder = McapRecorder(log_path, metadata=monitor.metadata(), float_encoding="base64")
+    monitor.sink = recorder
+    warm = min(n // 10, 100_000)
+    rss = {}
+
+    def mark(done: int) -> None:
+        if "start" not in rss and done >= warm:
+            rss["start"] = (_rss_mib(), done)
+
+    wall, cpu = _timed(lambda: (_feed(monitor, traffic, on_block=mark), recorder.close()))
+    rss_end = _rss_mib()
+    out["throughput_fps"] = n / wall
+    out["throughput_ratio"] = out["throughput_fps"] / plain
+    out["throughput_ratio_stuffed"] = out["throughput_fps"] / stuffed
+    out["cpu_s_per_1e6_frames"] = cpu / n * 1e6
+    out["throughput_samples"] = monitor.samples
+    out["throughput_false_alarms"] = len(monitor.events)
+    r0, f0 = rss.get("start", (rss_end, n))
+    measured = max(n - f0, 1)
+    out["rss_growth_mib"] = (rss_end - r0) / measured * 1e6
+    out["rss_measured_frames"] = measured
+    out["log_bytes_per_frame"] = log_path.stat().st_size / n
+
+    # -- replay: a long capture log (frames + samples), and the monitor log just written -----
+    say("replay (block path) over a capture log and over the monitor log")
+    capture_path = tmp / "long-capture.mcap"
+    capturer = Monitor(config, diagnose=False)
+    cap_recorder = McapRecorder(capture_path, metadata=capturer.metadata(),
+                                float_encoding="base64")
+    capturer.sink = cap_recorder
+    _feed(capturer, traffic)
+    cap_recorder.close()
+    for key, path in (("replay", capture_path), ("replay_monitor_log", log_path)):
+        rate, samples = _replay_rate(config, path)
+        out[f"{key}_samples_per_s"] = rate
+        out[f"{key}_samples"] = samples
+
+    # -- decode: ours (vectorised, precompiled) against cantools --------------------------
+    say("decode: canfdi against cantools")
+    from canfdi import dbc as dbc_files
+
+    db = dbc_files.load(config.bus.dbc)
+    wall_ours, _ = _timed(lambda: bus_map.decode_frames(traffic.ids, traffic.dlc,
+                                                       traffic.payloads))
+    sub = min(n, 30_000 if quick else 100_000)
+    datas = [traffic.payloads[i, : traffic.dlc[i]].tobytes() for i in range(sub)]
+    ids = traffic.ids[:sub].tolist()
+    msgs = {m.frame_id: m for m in db.messages}
+    wall_ct, _ = _timed(lambda: [msgs[i].decode(d, decode_choices=False)
+                                 for i, d in zip(ids, datas, strict=True)])
+    out["decode_fps"] = n / wall_ours
+    out["cantools_decode_fps"] = sub / wall_ct
+    out["decode_ratio_vs_cantools"] = out["decode_fps"] / out["cantools_decode_fps"]
+
+    # -- capture: canfdi capture's path against python-can's BLF logger ---------------------
+    say("capture: MCAP against python-can BLF")
+    import can
+
+    messages = traffic.messages(sub)
+    cap = Monitor(config, diagnose=False)
+    cap_rec = McapRecorder(tmp / "capture.mcap", metadata=cap.metadata(),
+                           float_encoding="base64")
+    cap.sink = cap_rec
+    from canfdi.service import MonitorService
+
+    service = MonitorService(cap, lambda: None, status_period=0)
+
+    def ours() -> None:
+        for i in range(0, sub, 4096):
+            service._process(messages[i:i + 4096])
+        cap_rec.close()
+
+    wall_ours, _ = _timed(ours)
+
+    def blf() -> None:
+        with can.Logger(str(tmp / "capture.blf")) as logger:
+            for msg in messages:
+                logger.on_message_received(msg)
+
+    wall_blf, _ = _timed(blf)
+    out["capture_fps"] = sub / wall_ours
+    out["python_can_blf_fps"] = sub / wall_blf
+    out["capture_ratio_vs_python_can"] = out["capture_fps"] / out["python_can_blf_fps"]
+
+    # -- over the virtual bus, and latency at 50 % load --------------------------------------
+    say("over python-can's virtual bus")
+    out.update(_virtual_bus(config, traffic, sub))
+    say("latency at 50% bus load")
+    out.update(_latency(config, plain, seconds=2.0 if quick else 6.0))
+    return out
+
+
+def _replay_rate(config, path: Path) -> tuple[float, int]:
+    """(samples/s, samples) of `canfdi replay`'s block path over a log: read, decode,
+    assemble, residuals, detection (diagnosis included, no recording)."""
+    from canfdi.cli.replay import frame_array_blocks
+    from canfdi.monitor import Monitor
+
+    replayer = Monitor(config, record_residuals=False)
+
+    def replay() -> None:
+        for arr in frame_array_blocks(path):
+            replayer.on_frames(arr.t_ns, arr.id, arr.dlc, arr.data, arr.flags)
+
+    wall, _ = _timed(replay)
+    return replayer.samples / wall, replayer.samples
+
+
+def _virtual_bus(config, traffic: Traffic, count: int) -> dict:
+    """Frames/s the service consumes from a virtual bus fed as fast as python-can sends."""
+    import can
+
+    from canfdi.monitor import Monitor
+    from canfdi.service import MonitorService
+
+    channel = f"canfdi-bench-{os.getpid()}"
+    messages = traffic.messages(count)
+    monitor = Monitor(config)
+
+    async def main() -> float:
+        stop = asyncio.Event()
+        service = MonitorService(monitor, lambda: can.Bus(interface="virtual", channel=channel),
+                                 status_period=0)
+        task = asyncio.create_task(service.run(stop))
+        while service.bus is None:
+            await asyncio.sleep(0.01)
+        sender = can.Bus(interface="virtual", channel=channel)
+        start = time.perf_counter()
+
+        def send_all() -> None:
+            for msg in messages:
+                sender.send(msg)
+
+        thread = threading.Thread(target=send_all)
+        thread.start()
+        while service.stats.frames < len(messages) and not task.done():
+            await asyncio.sleep(0.005)
+        wall = time.perf_counter() - start
+        thread.join()
+        sender.shutdown()
+        stop.set()
+        await task
+        return wall
+
+    wall = asyncio.run(main())
+    return {"virtual_bus_fps": len(messages) / wall}
+
+
+def _latency(config, bus_fps: float, seconds: float) -> dict:
+    """The live service's reaction time at 50 % of the bus limit.
+
+    The consecutive-faults scenario's frames are delivered to the service at their scheduled
+    times (50 % load), each stamped on arrival; a latency is measured for every handled block
+    that completed a sample: from its last frame's arrival to the end of its handling, fault
+    frames sent on a virtual bus included. Frames are delivered from the monitor's own event
+    loop so that a second busy Python thread (an in-process emulator) does not add its GIL
+    turns to the monitor's time: on a real bus the drive is another node.
+    """
+    import can
+
+    from canfdi.monitor import Monitor
+    from canfdi.service import MonitorService
+
+    frames_per_s = 0.5 * bus_fps
+    count = int(frames_per_s * seconds)
+    traffic = make_traffic(count, scenario="dc_motor_consecutive")
+    messages = traffic.messages()
+    channel = f"canfdi-latency-{os.getpid()}"
+    latencies: list[int] = []
+    monitor = Monitor(config)
+    sent_before = {}
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        service = MonitorService(monitor, lambda: can.Bus(interface="virtual", channel=channel),
+                                 status_period=0, latencies=latencies)
+        task = asyncio.create_task(service.run(stop))
+        while service.bus is None:
+            await asyncio.sleep(0.01)
+        loop = asyncio.get_running_loop()
+        start = loop.time() + 0.05
+        period = 1.0 / frames_per_s
+        for i, msg in enumerate(messages):
+            delay = start + i * period - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            msg.timestamp = time.time()
+            service.deliver(msg)
+        while service.stats.frames < len(messages) and not task.done():
+            await asyncio.sleep(0.005)
+        sent_before["sent"] = service.stats.sent
+        stop.set()
+        await task
+
+    asyncio.run(main())
+    ms = np.array(latencies) / 1e6
+    return {
+        "latency_p50_ms": float(np.percentile(ms, 50)) if len(ms) else float("nan"),
+        "latency_p99_ms": float(np.percentile(ms, 99)) if len(ms) else float("nan"),
+        "latency_mean_ms": float(statistics.fmean(ms)) if len(ms) else float("nan"),
+        "latency_blocks": len(ms),
+        "latency_load_fps": frames_per_s,
+        "latency_faults_diagnosed": sum(e.kind == "accepted" for e in monitor.events),
+        "latency_fault_frames_sent": sent_before.get("sent", 0),
+    }

@@ -1,0 +1,92 @@
+"""`canfdi bench`: how fast the monitor is, against the bus it must keep up with."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from canfdi.cli.common import DEFAULT_CONFIG_DIR, config_error, load_config_or_exit
+
+HELP = """\
+Measure, on this machine and in one run, side by side:
+  bus limit        frames/s of a saturated 1 Mbit/s classic CAN bus for the DBC's frame sizes,
+                   without and with worst-case bit stuffing (computed)
+  throughput       frames/s through decode -> assemble -> diagnose -> record (MCAP), fed from
+                   memory in blocks, its ratio to the bus limit, CPU seconds per 10^6 frames;
+                   and frames/s the service consumes from python-can's virtual bus
+  decode           the precompiled vectorised decoder against cantools Message.decode
+  capture          canfdi capture's path (arrays, assembly, MCAP) against python-can's
+                   can.Logger writing BLF, on the same frames
+  replay           samples/s of canfdi replay's block path over a long capture log (frames
+                   and samples), and over the monitor log of the throughput run
+  latency          p50/p99 from a frame's arrival to the end of its handling (fault frames
+                   sent) in the live service, at 50% bus load
+  memory           RSS growth over the throughput run, per 10^6 frames
+--json prints one object. --quick runs ~10x fewer frames (a smoke test). Progress on stderr."""
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bench", help="measure throughput, latency, decode, capture, replay",
+                       description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--quick", action="store_true", help="a short run (about 10^5 frames)")
+    p.add_argument("--frames", type=int, metavar="N",
+                   help="frames for the throughput run (default 10^6, 10^5 with --quick)")
+    p.add_argument("--config", type=Path, default=DEFAULT_CONFIG_DIR / "dc_motor.yaml",
+                   metavar="FILE", help="monitor config (default: the DC motor)")
+
+
+def run(args: argparse.Namespace) -> int:
+    import os
+
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from canfdi.bench import run_bench
+
+    config = load_config_or_exit(args.config, "bench")
+    if isinstance(config, int):
+        return config
+    frames = args.frames or (100_000 if args.quick else 1_000_000)
+    if frames < 1000:
+        print("canfdi bench: --frames: at least 1000", file=sys.stderr)
+        return 2
+    start = time.monotonic()
+
+    def progress(msg: str) -> None:
+        print(f"canfdi bench [{time.monotonic() - start:6.1f} s] {msg}", file=sys.stderr,
+              flush=True)
+
+    try:
+        result = run_bench(config, frames=frames, quick=args.quick, progress=progress)
+    except ValueError as exc:
+        return config_error(exc, "bench")
+    result["elapsed_s"] = time.monotonic() - start
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    r = result
+    rows = [
+        ("bus limit, 1 Mbit/s", f"{r['bus_limit_fps']:,.0f} frames/s "
+                                f"({r['bus_limit_stuffed_fps']:,.0f} with worst-case stuffing)"),
+        ("throughput (memory)", f"{r['throughput_fps']:,.0f} frames/s = "
+                                f"{r['throughput_ratio']:.1f} x the bus "
+                                f"({r['throughput_ratio_stuffed']:.1f} x stuffed), "
+                                f"{r['cpu_s_per_1e6_frames']:.2f} CPU s per 10^6 frames"),
+        ("throughput (virtual bus)", f"{r['virtual_bus_fps']:,.0f} frames/s"),
+        ("decode", f"{r['decode_fps']:,.0f} frames/s vs cantools "
+                   f"{r['cantools_decode_fps']:,.0f} = {r['decode_ratio_vs_cantools']:.0f} x"),
+        ("capture", f"{r['capture_fps']:,.0f} frames/s vs python-can BLF "
+                    f"{r['python_can_blf_fps']:,.0f} = {r['capture_ratio_vs_python_can']:.2f} x"),
+        ("replay", f"{r['replay_samples_per_s']:,.0f} samples/s over a capture log, "
+                   f"{r['replay_monitor_log_samples_per_s']:,.0f} over a monitor log"),
+        ("latency at 50% load", f"p50 {r['latency_p50_ms']:.3f} ms, p99 "
+                                f"{r['latency_p99_ms']:.3f} ms ({r['latency_blocks']} blocks, "
+                                f"{r['latency_faults_diagnosed']} faults diagnosed)"),
+        ("memory", f"{r['rss_growth_mib']:.2f} MiB RSS growth per 10^6 frames"),
+    ]
+    for name, value in rows:
+        print(f"{name:<26}{value}")
+    print(f"({r['frames']:,} frames, {r['elapsed_s']:.0f} s)")
+    return 0
