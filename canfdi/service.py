@@ -91,7 +91,8 @@ class MonitorService:
     on_tick : called at least every second from the loop (systemd watchdog pings).
     max_backoff : longest wait between attempts to reopen a lost bus.
     block : at most this many queued frames are handled as one block.
-    small_block : fewer queued frames than this go through the per-frame path.
+    small_block : fewer queued frames than this go through the per-frame path (lower
+        latency); more through the block path (throughput).
     latencies : when given, gets one entry (ns) per handled block that completed samples:
         from the arrival of its last frame to the end of its handling (fault frames sent).
     """
@@ -219,7 +220,8 @@ class MonitorService:
         n = len(frames)
         if n < self.small_block:
             # A few frames: the per-frame path reacts sooner than building arrays for them
-            # (both paths give the same results; the tests compare them).
+            # (numpy's fixed costs); a backlog grows the blocks past small_block and the block
+            # path catches up. Both paths give the same results (the tests compare them).
             self._process_each(frames)
             return
         t_ns, ids, dlc, flags, payloads = messages_to_arrays(frames)

@@ -452,19 +452,22 @@ class Diagnoser:
         S = self.bank.S
         positions = k - S + np.arange(S + 1)
         mask = (positions[None, :] >= d["onsets"][:, None]).astype(float)  # (K, S+1)
-        m = self.bank.m
-        out = np.zeros((len(self.hypotheses), len(d["onsets"]), m, self.d))
+        # Every sensor's and actuator's signature under every onset at once (einsum rather
+        # than a Python loop over hypotheses: this runs for each sample of a diagnosis).
+        zs = np.einsum("jms,ks->jkm", self.bank.Gz, mask)  # (q, K, m)
+        u = window[:, self.q :]  # (S+1, p)
+        ua = np.einsum("jms,ks,sj->jkm", self.bank.Gu, mask, u)  # (p, K, m)
+        ub = np.einsum("jms,ks->jkm", self.bank.Gu, mask)
+        out = np.zeros((len(self.hypotheses), len(d["onsets"]), self.bank.m, self.d))
         for h_i, h in enumerate(self.hypotheses):
             if h.target == "sensor":
-                out[h_i, :, :, 0] = (self.bank.Gz[h.index] @ mask.T).T
+                out[h_i, :, :, 0] = zs[h.index]
             elif h.target == "sensors":
                 for c, j in enumerate(h.members):
-                    out[h_i, :, :, c] = (self.bank.Gz[j] @ mask.T).T
+                    out[h_i, :, :, c] = zs[j]
             else:
-                G = self.bank.Gu[h.index]  # (m, S+1)
-                u = window[:, self.q + h.index]
-                out[h_i, :, :, 0] = (G @ (mask * u).T).T
-                out[h_i, :, :, 1] = (G @ mask.T).T
+                out[h_i, :, :, 0] = ua[h.index]
+                out[h_i, :, :, 1] = ub[h.index]
         return out / self.bank.sigma[None, None, :, None]
 
     def _accumulate(self, k: int, window: np.ndarray, rn: np.ndarray) -> None:
