@@ -51,7 +51,14 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from canfdi.codec import MessageLayout, compile_layout
+from canfdi.codec import (
+    FLAG_ERROR,
+    FLAG_EXTENDED,
+    FLAG_FD,
+    FLAG_REMOTE,
+    MessageLayout,
+    compile_layout,
+)
 from canfdi.config import ConfigError, MonitorConfig
 from canfdi.core.records import Sample
 from canfdi.e2e import CRC8_XOROUT, crc8, data_id, e2e_check_batch
@@ -85,11 +92,6 @@ _INVALID_NAMES = tuple(name for name in STATUS_NAMES if name not in VALID_STATUS
  _DUPLICATE, _STALE) = range(len(STATUS_NAMES))
 _N_VALID = 3  # codes below this are valid (ok, monitor, unused)
 
-# Bits of the per-frame ``flags`` of the batch forms (python-can's Message booleans).
-FLAG_EXTENDED = 1
-FLAG_REMOTE = 2
-FLAG_ERROR = 4
-FLAG_FD = 8
 
 _E2E_HEADER = {"CRC": (0, 8), "Counter": (8, 8)}
 _MAX_STD_ID = 0x7FF

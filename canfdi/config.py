@@ -65,6 +65,7 @@ __all__ = [
     "RecordingConfig",
     "load_config",
     "parse_config",
+    "read_yaml",
 ]
 
 
@@ -295,20 +296,25 @@ def _dataclass_section(data: dict, key: str, cls, spec: dict):
     return cls(**values)
 
 
-def load_config(path: str | Path) -> MonitorConfig:
-    """Read and validate a YAML monitor config; raises ConfigError naming the field."""
-    path = Path(path)
+def read_yaml(path: Path, error: type[ValueError], field: str) -> Any:
+    """A YAML file's document; ``error(field, message)`` for a missing, unreadable or invalid
+    file (the position of a YAML error included)."""
     try:
         text = path.read_text()
     except FileNotFoundError:
-        raise ConfigError("config", f"file not found: {path}") from None
+        raise error(field, f"file not found: {path}") from None
     except OSError as exc:
-        raise ConfigError("config", f"cannot read {path}: {exc.strerror}") from None
+        raise error(field, f"cannot read {path}: {exc.strerror}") from None
     try:
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(exc, "problem", exc)
-        raise ConfigError("config", f"invalid YAML{where}: {problem}") from None
-    return parse_config(data, path)
+        raise error(field, f"invalid YAML{where}: {problem}") from None
+
+
+def load_config(path: str | Path) -> MonitorConfig:
+    """Read and validate a YAML monitor config; raises ConfigError naming the field."""
+    path = Path(path)
+    return parse_config(read_yaml(path, ConfigError, "config"), path)

@@ -77,6 +77,11 @@ def _make_table() -> tuple[int, ...]:
 _TABLE = _make_table()
 # The same table as an array so that a whole column of frames is one fancy-indexing look-up.
 _TABLE_NP: NDArray[np.uint8] = np.array(_TABLE, dtype=np.uint8)
+_ALL_IDS = np.arange(2048, dtype=np.int64)
+# CRC register (before the final XOR) after the Data ID bytes (low, high) of every 11-bit ID.
+_ID_SEEDS: NDArray[np.uint8] = _TABLE_NP[
+    _TABLE_NP[CRC8_INIT ^ (_ALL_IDS & 0xFF)].astype(np.int64) ^ (_ALL_IDS >> 8)
+]
 
 
 def crc8(data: bytes | bytearray, init: int = CRC8_INIT) -> int:
@@ -326,15 +331,20 @@ def e2e_check_batch(ids: ArrayLike, payloads: ArrayLike, dlc: ArrayLike) -> NDAr
         raise ValueError("ids must be 11-bit arbitration IDs in 0..0x7FF")
     if dlc.size and (dlc.min() < 0 or dlc.max() > _MAX_DLC):
         raise ValueError("dlc must be in 0..8")
-    ids = ids.astype(np.int64)
-    # Message: Data ID (2 bytes) + payload bytes 1..7; a frame of DLC d contributes 2 + d - 1.
-    message = np.empty((n_frames, 2 + _MAX_DLC - 1), dtype=np.uint8)
-    message[:, 0] = ids & 0xFF
-    message[:, 1] = ids >> 8
-    message[:, 2:] = payloads[:, 1:]
-    lengths = np.clip(dlc.astype(np.int64) + 1, 0, message.shape[1])
-    crc = crc8_batch(message, lengths=lengths)
-    return (crc == payloads[:, 0]) & (dlc >= _HEADER)
+    # The register after the two Data ID bytes depends on the ID only: start every frame from
+    # that seed (one look-up), then run its payload bytes 1..dlc-1 a DLC group at a time, so
+    # no step needs a per-frame length mask.
+    crc = _ID_SEEDS[ids.astype(np.int64)]
+    dlc = dlc.astype(np.int64)
+    for length in np.unique(dlc):
+        if length < _HEADER:
+            continue
+        rows = np.flatnonzero(dlc == length) if len(crc) else np.zeros(0, dtype=np.int64)
+        reg = crc[rows]
+        for j in range(1, int(length)):
+            reg = _TABLE_NP[reg ^ payloads[rows, j]]
+        crc[rows] = reg
+    return ((crc ^ np.uint8(CRC8_XOROUT)) == payloads[:, 0]) & (dlc >= _HEADER)
 
 
 def protect_batch(

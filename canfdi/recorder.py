@@ -128,6 +128,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 from numpy.typing import ArrayLike, NDArray
 
 from canfdi import __version__
+from canfdi.codec import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
 
 if TYPE_CHECKING:
     from canfdi.core.records import FaultEvent, Sample
@@ -222,10 +223,6 @@ FRAME_DTYPE = np.dtype(
     ]
 )
 """One packed record of a ``/can/frames`` block (24 bytes, little-endian, no alignment)."""
-FLAG_EXTENDED = 1
-FLAG_REMOTE = 2
-FLAG_ERROR = 4
-FLAG_FD = 8
 METADATA_NAME = "canfdi"
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "json"

@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
+from canfdi.config import read_yaml
 from firmware_sim.faults import ACTUATOR_KINDS, SENSOR_KINDS, Fault
 from firmware_sim.plants import PLANTS, Plant, make_plant
 
@@ -179,16 +179,5 @@ def load_scenario(path: str | Path) -> Scenario:
     path = Path(path)
     if not path.exists() and not path.suffix and (SCENARIO_DIR / f"{path}.yaml").exists():
         path = SCENARIO_DIR / f"{path}.yaml"
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise ScenarioError("scenario", f"file not found: {path}") from None
-    except OSError as exc:
-        raise ScenarioError("scenario", f"cannot read {path}: {exc.strerror}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark else ""
-        raise ScenarioError("scenario", f"invalid YAML{where}") from None
+    data = read_yaml(path, ScenarioError, "scenario")
     return parse_scenario(data, path)
