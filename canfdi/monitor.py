@@ -11,7 +11,7 @@ with the frames, frames to send are returned, records go to an optional sink (th
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
@@ -64,6 +64,15 @@ class RecordSink(Protocol):
     def write_residuals(self, timestamp_ns: int, k: int, names: list[str], r: np.ndarray,
                         normalized: np.ndarray, statistic: np.ndarray) -> None: ...
     def write_event(self, event: FaultEvent) -> None: ...
+    def write_frames(self, t_ns: np.ndarray, ids: np.ndarray, dlc: np.ndarray,
+                     payloads: np.ndarray, statuses: np.ndarray, *,
+                     status_names: tuple[str, ...] | None = None,
+                     flags: np.ndarray | None = None) -> None: ...
+    def write_samples(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
+                      gap: np.ndarray, input_names: list[str],
+                      output_names: list[str]) -> None: ...
+    def write_residual_rows(self, k: np.ndarray, t_ns: np.ndarray, names: list[str],
+                            R: np.ndarray, Rn: np.ndarray, stat: np.ndarray) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -91,11 +100,6 @@ def build_diagnoser(config: MonitorConfig, design: Design | None = None) -> Diag
         settle_rel_std=ident.settle_rel_std, isolation_margin=ident.isolation_margin,
     )
     return Diagnoser(design, settings, thresholds)
-
-
-@dataclass
-class _Counters:
-    sent: dict[str, int] = field(default_factory=dict)
 
 
 class Monitor:

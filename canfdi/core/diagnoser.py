@@ -208,7 +208,6 @@ class Diagnoser:
         self._recent: deque = deque(maxlen=n_onsets + 8)
         self.compensation: list[dict] = []
         self.events: list[FaultEvent] = []
-        self.debug = False
         self.reset()
 
     def _independent_sensors(self, sensors: list[int]) -> list[int]:
@@ -516,9 +515,6 @@ class Diagnoser:
         else:
             n_b = h_best.n_params
             settled = bool(np.all(np.sqrt(var[:n_b]) <= s.settle_rel_std * np.abs(th[:n_b])))
-        if self.debug and since % 100 == 0:
-            print("dbg", k, [(self.hypotheses[i].label, round(float(cost_h[i]), 1)) for i in order],
-                  th, np.sqrt(var), margin_ok, settled)
         if margin_ok and (settled or since >= s.max_samples):
             return self._accept(k, t, best, kb, theta, var, best_onset, cost_h)
         if since >= s.max_samples:
