@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import signal
 import sys
 from pathlib import Path
 
-from canfdi.cli.common import config_error, load_config_or_exit, open_recorder
+from canfdi.cli.common import (
+    add_bus_overrides,
+    bus_factory,
+    config_error,
+    load_config_or_exit,
+    open_recorder,
+    stop_event,
+)
 
 HELP = """\
 Record every frame of a bus (valid or not, with its E2E status) and the decoded samples in an
@@ -21,15 +27,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", required=True, type=Path, metavar="FILE", help="monitor config")
     p.add_argument("-o", "--output", required=True, type=Path, metavar="OUT.mcap")
-    p.add_argument("--interface", help="override bus.interface")
-    p.add_argument("--channel", help="override bus.channel")
-    p.add_argument("--bitrate", type=int, help="override bus.bitrate")
+    add_bus_overrides(p)
     p.add_argument("--duration", type=float, metavar="T", help="stop after T seconds")
 
 
 def run(args: argparse.Namespace) -> int:
     from canfdi.monitor import Monitor
-    from canfdi.service import MonitorService, open_bus
+    from canfdi.service import MonitorService
 
     config = load_config_or_exit(args.config, "capture")
     if isinstance(config, int):
@@ -44,20 +48,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"canfdi capture: cannot write {args.output}: {exc}", file=sys.stderr)
         return 1
     monitor.sink = recorder
-    bus = config.bus
+    _, _, opener = bus_factory(args, config.bus)
 
     async def main():
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, stop.set)
-        if args.duration:
-            loop.call_later(args.duration, stop.set)
-        service = MonitorService(
-            monitor, lambda: open_bus(args.interface or bus.interface,
-                                      args.channel or bus.channel,
-                                      args.bitrate if args.bitrate is not None else bus.bitrate),
-            status_period=0)
+        stop = stop_event(args.duration)
+        service = MonitorService(monitor, opener, status_period=0)
         return await service.run(stop)
 
     try:

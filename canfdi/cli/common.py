@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import argparse
+import asyncio
+import signal
 import sys
 from pathlib import Path
 
 from canfdi.config import ConfigError, MonitorConfig, load_config
 from canfdi.core.records import FaultEvent
 
-__all__ = ["DEFAULT_CONFIG_DIR", "config_error", "format_event", "load_config_or_exit",
-           "open_recorder", "print_comparison"]
+__all__ = ["DEFAULT_CONFIG_DIR", "add_bus_overrides", "bus_factory", "config_error",
+           "format_event", "load_config_or_exit", "open_recorder", "print_comparison",
+           "stop_event"]
 
 DEFAULT_CONFIG_DIR = Path(__file__).resolve().parents[2] / "deploy" / "config"
 
@@ -20,6 +24,35 @@ def load_config_or_exit(path: Path | str, verb: str) -> MonitorConfig | int:
         return load_config(path)
     except ConfigError as exc:
         return config_error(exc, verb)
+
+
+def add_bus_overrides(p: argparse.ArgumentParser) -> None:
+    """--interface, --channel, --bitrate overriding the config's bus: section."""
+    p.add_argument("--interface", help="override bus.interface")
+    p.add_argument("--channel", help="override bus.channel")
+    p.add_argument("--bitrate", type=int, help="override bus.bitrate")
+
+
+def bus_factory(args: argparse.Namespace, bus) -> tuple[str, str, object]:
+    """(interface, channel, opener) from the config's BusConfig and the overrides."""
+    from canfdi.service import open_bus
+
+    interface = args.interface or bus.interface
+    channel = args.channel or bus.channel
+    bitrate = args.bitrate if args.bitrate is not None else bus.bitrate
+    return interface, channel, lambda: open_bus(interface, channel, bitrate)
+
+
+def stop_event(duration: float | None = None) -> asyncio.Event:
+    """An event set by SIGINT, SIGTERM or, when given, after ``duration`` seconds (call it from
+    the running event loop)."""
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    if duration:
+        loop.call_later(duration, stop.set)
+    return stop
 
 
 def config_error(exc: Exception, verb: str) -> int:

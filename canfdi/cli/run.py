@@ -6,12 +6,19 @@ import argparse
 import asyncio
 import json
 import logging
-import signal
 import sys
 import time
 from pathlib import Path
 
-from canfdi.cli.common import config_error, format_event, load_config_or_exit, open_recorder
+from canfdi.cli.common import (
+    add_bus_overrides,
+    bus_factory,
+    config_error,
+    format_event,
+    load_config_or_exit,
+    open_recorder,
+    stop_event,
+)
 
 HELP = """\
 Monitor a drive's CAN bus: decode its frames with the config's DBC, diagnose faults, send
@@ -27,9 +34,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="monitor a live bus (the daemon)", description=HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", required=True, type=Path, metavar="FILE", help="monitor config")
-    p.add_argument("--interface", help="override bus.interface")
-    p.add_argument("--channel", help="override bus.channel")
-    p.add_argument("--bitrate", type=int, help="override bus.bitrate")
+    add_bus_overrides(p)
     p.add_argument("--log-dir", type=Path, metavar="DIR",
                    help="where MCAP logs go (default: recording.directory of the config)")
     p.add_argument("-o", "--output", type=Path, metavar="FILE.mcap",
@@ -59,16 +64,13 @@ def setup_logging(fmt: str) -> None:
 def run(args: argparse.Namespace) -> int:
     from canfdi.monitor import Monitor
     from canfdi.sdnotify import Notifier
-    from canfdi.service import MonitorService, open_bus
+    from canfdi.service import MonitorService
 
     setup_logging(args.log_format)
     config = load_config_or_exit(args.config, "run")
     if isinstance(config, int):
         return config
-    bus_cfg = config.bus
-    interface = args.interface or bus_cfg.interface
-    channel = args.channel or bus_cfg.channel
-    bitrate = args.bitrate if args.bitrate is not None else bus_cfg.bitrate
+    interface, channel, opener = bus_factory(args, config.bus)
     try:
         monitor = Monitor(config)
     except ValueError as exc:
@@ -99,15 +101,9 @@ def run(args: argparse.Namespace) -> int:
             print(format_event(event, monitor.dt), flush=True)
 
     async def main():
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, stop.set)
-        if args.duration:
-            loop.call_later(args.duration, stop.set)
+        stop = stop_event(args.duration)
         service = MonitorService(
-            monitor, lambda: open_bus(interface, channel, bitrate),
-            status_period=bus_cfg.status_period, on_event=on_event,
+            monitor, opener, status_period=config.bus.status_period, on_event=on_event,
             on_ready=on_ready, on_tick=systemd.watchdog)
         stats = await service.run(stop)
         systemd.stopping()

@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import signal
 import sys
 from pathlib import Path
+
+from canfdi.cli.common import stop_event
 
 HELP = """\
 Run the plant emulator (firmware_sim) for a scenario and publish the drive's frames, encoded
@@ -101,10 +102,7 @@ def run(args: argparse.Namespace) -> int:
                   end="", file=sys.stderr, flush=True)
 
     async def main() -> object:
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, stop.set)
+        stop = stop_event()
         return await emit(bus, scenario, speed=args.speed, duration=args.duration,
                           disturbance=disturbance, on_block=progress, stop=stop,
                           reopen=lambda: can.Bus(**kwargs))
