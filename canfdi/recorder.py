@@ -948,6 +948,15 @@ class McapRecorder:
             message = {"timestamp": _stamp(timestamp_ns), **message}
         self._write_now(topic, timestamp_ns, _encode(message))
 
+    def _begin_write(self) -> float:
+        """Refuse writes after close; run the timed flush when it is due; the clock's now."""
+        if self._closed:
+            raise ValueError("write to a closed McapRecorder")
+        now = self._clock()
+        if now >= self._deadline:
+            self._tick(now)
+        return now
+
     def write_frame(
         self,
         timestamp_ns: int,
@@ -982,11 +991,7 @@ class McapRecorder:
         ValueError
             After `close`.
         """
-        if self._closed:
-            raise ValueError("write to a closed McapRecorder")
-        now = self._clock()
-        if now >= self._deadline:
-            self._tick(now)
+        now = self._begin_write()
         code = self._status_codes.get(status)
         if code is None:
             code = self._new_status(status)
@@ -1043,11 +1048,7 @@ class McapRecorder:
         ValueError
             After `close`, or for arrays of the wrong shape.
         """
-        if self._closed:
-            raise ValueError("write to a closed McapRecorder")
-        now = self._clock()
-        if now >= self._deadline:
-            self._tick(now)
+        now = self._begin_write()
         t = np.asarray(t_ns)
         n = len(t)
         records = np.zeros(n, dtype=FRAME_DTYPE)
@@ -1091,11 +1092,7 @@ class McapRecorder:
         ValueError
             After `close`, or if ``u`` or ``z`` does not match the names.
         """
-        if self._closed:
-            raise ValueError("write to a closed McapRecorder")
-        now = self._clock()
-        if now >= self._deadline:
-            self._tick(now)
+        now = self._begin_write()
         if input_names is not self._inputs_given or output_names is not self._outputs_given:
             self._sample_names(input_names, output_names)
         u, z = sample.u, sample.z
@@ -1147,11 +1144,7 @@ class McapRecorder:
         ValueError
             After `close`, or for arrays of the wrong shape.
         """
-        if self._closed:
-            raise ValueError("write to a closed McapRecorder")
-        now = self._clock()
-        if now >= self._deadline:
-            self._tick(now)
+        now = self._begin_write()
         if input_names is not self._inputs_given or output_names is not self._outputs_given:
             self._sample_names(input_names, output_names)
         n = len(np.asarray(k))
@@ -1202,11 +1195,7 @@ class McapRecorder:
         ValueError
             After `close`, or if a row does not match the names.
         """
-        if self._closed:
-            raise ValueError("write to a closed McapRecorder")
-        now = self._clock()
-        if now >= self._deadline:
-            self._tick(now)
+        now = self._begin_write()
         if names is not self._residual_names_given:
             self._set_residual_names(names)
         r, normalized, statistic = _float_row(r), _float_row(normalized), _float_row(statistic)
@@ -1258,11 +1247,7 @@ class McapRecorder:
         ValueError
             After `close`, or for arrays of the wrong shape.
         """
-        if self._closed:
-            raise ValueError("write to a closed McapRecorder")
-        now = self._clock()
-        if now >= self._deadline:
-            self._tick(now)
+        now = self._begin_write()
         if names is not self._residual_names_given:
             self._set_residual_names(names)
         n = len(np.asarray(k))
@@ -1558,11 +1543,7 @@ class McapRecorder:
     # -- internals: segments ---------------------------------------------------------------
 
     def _write_now(self, topic: str, timestamp_ns: int, data: bytes) -> None:
-        if self._closed:
-            raise ValueError("write to a closed McapRecorder")
-        now = self._clock()
-        if now >= self._deadline:
-            self._tick(now)
+        now = self._begin_write()
         self._write(topic, timestamp_ns, data, 1, now)
 
     def _tick(self, now: float) -> None:
