@@ -148,22 +148,27 @@ def alarms_to_events(alarms: ArrayLike, start_sample: int = 0) -> list[Alarm]:
 # --------------------------------------------------------------------------------------
 
 
-def _as_2d(x: ArrayLike, name: str) -> NDArray[np.float64]:
+def _as_2d(x: ArrayLike, name: str, missing_ok: bool = False) -> NDArray[np.float64]:
     arr = np.asarray(x, dtype=np.float64)
     if arr.ndim != 2:
         raise ValueError(f"{name}: expected a 2-D array (N, m), got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}: must be finite")
+    _check_finite(arr, name, missing_ok)
     return arr
 
 
-def _as_row(x: ArrayLike, m: int, name: str) -> NDArray[np.float64]:
+def _as_row(x: ArrayLike, m: int, name: str, missing_ok: bool = False) -> NDArray[np.float64]:
     arr = np.asarray(x, dtype=np.float64)
     if arr.shape != (m,):
         raise ValueError(f"{name}: expected shape ({m},), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}: must be finite")
+    _check_finite(arr, name, missing_ok)
     return arr
+
+
+def _check_finite(arr: NDArray[np.float64], name: str, missing_ok: bool) -> None:
+    bad = np.isinf(arr) if missing_ok else ~np.isfinite(arr)
+    if np.any(bad):
+        raise ValueError(f"{name}: must be finite" + (" (NaN marks a missing value)"
+                                                      if missing_ok else ""))
 
 
 def _per_residual(
@@ -309,11 +314,23 @@ def _lindley(z: NDArray[np.float64], g0: NDArray[np.float64]) -> NDArray[np.floa
     return np.maximum(g0 + s, s - running_min)
 
 
+def _increments(u: NDArray[np.float64], delta: NDArray[np.float64]
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Up and down increments; a missing value (NaN) adds 0, so its statistics hold."""
+    up, down = u - delta, -u - delta
+    missing = np.isnan(u)
+    if missing.any():
+        up = np.where(missing, 0.0, up)
+        down = np.where(missing, 0.0, down)
+    return up, down
+
+
 def _ph_block(
     u: NDArray[np.float64], delta: NDArray[np.float64], g0: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     # the increments are formed exactly as in page_hinkley_step so both agree to rounding
-    return _lindley(u - delta, g0[:, 0]), _lindley(-u - delta, g0[:, 1])
+    up, down = _increments(u, delta)
+    return _lindley(up, g0[:, 0]), _lindley(down, g0[:, 1])
 
 
 def _direction(
@@ -340,7 +357,8 @@ def page_hinkley_step(
     With u = (x - mu0) / sigma,
     ``g+ = max(0, g+ + u - delta)``, ``g- = max(0, g- - u - delta)``; a residual is in
     alarm while either statistic is >= h. Nothing is reset on an alarm: the caller decides
-    (pass a zero state to restart).
+    (pass a zero state to restart). A NaN residual is missing (its window lost a frame): its
+    statistics hold.
 
     Parameters
     ----------
@@ -368,15 +386,15 @@ def page_hinkley_step(
     if xr.ndim != 1:
         raise ValueError(f"x: expected a 1-D array (m,), got shape {xr.shape}")
     m = xr.shape[0]
-    xr = _as_row(xr, m, "x")
+    xr = _as_row(xr, m, "x", missing_ok=True)
     st = _check_state(state, m)
     d = _per_residual(delta, m, "delta", nonnegative=True)
     hh = _per_residual(h, m, "h", positive=True)
     mu = _per_residual(mu0, m, "mu0")
     sg = _per_residual(sigma, m, "sigma", positive=True)
-    u = (xr - mu) / sg
-    g_up = np.maximum(0.0, st[:, 0] + (u - d))
-    g_down = np.maximum(0.0, st[:, 1] + (-u - d))
+    up, down = _increments((xr - mu) / sg, d)
+    g_up = np.maximum(0.0, st[:, 0] + up)
+    g_down = np.maximum(0.0, st[:, 1] + down)
     return np.stack([g_up, g_down], axis=1), _direction(g_up, g_down, hh)
 
 
@@ -483,7 +501,7 @@ def page_hinkley_batch(
     Parameters
     ----------
     x : array_like, shape (N, m)
-        Residuals, one column per residual.
+        Residuals, one column per residual; NaN marks a missing value (statistics hold).
     delta : float or array_like, shape (m,)
         Drift, half the smallest change to detect, in units of sigma, >= 0.
     h : float or array_like, shape (m,)
@@ -506,7 +524,7 @@ def page_hinkley_batch(
         Trajectories ``g_up`` and ``g_down`` (N, m), ``alarms`` (N, m) int8 and the final
         ``state`` (m, 2).
     """
-    xx = _as_2d(x, "x")
+    xx = _as_2d(x, "x", missing_ok=True)
     m = xx.shape[1]
     d = _per_residual(delta, m, "delta", nonnegative=True)
     hh = _per_residual(h, m, "h", positive=True)

@@ -285,22 +285,27 @@ class Diagnoser:
 
         Fault-free stretches are vectorised (residuals as one matrix product over a sliding
         window view, Page-Hinkley in its cumulative-sum form); the sample that raises an alarm,
-        the samples of a diagnosis and those after a gap go through ``update`` itself.
+        the samples of a diagnosis and those after a missing sample go through ``update``
+        itself.
 
         Parameters
         ----------
-        k, t_ns : (N,) sample indices and timestamps; U : (N, p); Z : (N, q); gap : (N,).
+        k, t_ns : (N,) increasing sample indices and timestamps; U : (N, p); Z : (N, q), NaN
+        where a value was lost; gap : (N,) samples missing before each (informational: the
+        indices say it).
         """
         k = np.asarray(k, dtype=np.int64)
         n, m = len(k), self.bank.m
         gap = np.zeros(n, dtype=np.int64) if gap is None else np.asarray(gap)
+        U = np.asarray(U, dtype=float)
+        Z = np.asarray(Z, dtype=float)
         R = np.full((n, m), np.nan)
         Rn = np.full((n, m), np.nan)
         stat = np.zeros((n, m))
         events: list[FaultEvent] = []
-        # A sample breaks continuity when it has a gap or does not follow its predecessor.
+        # A sample breaks continuity when it does not follow its predecessor.
         prev = np.concatenate([[self._last_k if self._last_k is not None else -2], k[:-1]])
-        breaks = (gap > 0) | (k != prev + 1)
+        breaks = k != prev + 1
         if self._last_k is None:
             breaks[0] = False
         i = 0
@@ -323,64 +328,46 @@ class Diagnoser:
         (after the sample that raised an alarm, which ``update`` handled)."""
         S = self.bank.S
         X = self._compensate_block(k[i:j], Z[i:j], U[i:j])
-        fill = self.bank._fill
-        prefix = self.bank._ring[S + 1 - min(fill, S):] if fill > 0 else np.zeros((0, X.shape[1]))
-        E = np.vstack([prefix, X])
-        first = S - len(prefix)  # first row of X that completes a window
-        if first >= len(X):
-            res = np.zeros((0, self.bank.m))
-        else:
-            res = self.bank.batch(E)  # row r: residual at E row r + S = X row r + S - len(prefix)
-        rows = np.arange(max(first, 0), len(X))  # X rows with a residual
+        E = np.vstack([self.bank.tail, X])
+        res = self.bank.batch(E)  # row r: the residuals at X row r, as update would give them
         rn = res / self.bank.sigma
-        stop = j
-        alarm_row = None
-        if len(rows):
-            ph = page_hinkley_batch(rn, self.delta, self.thresholds, state=self.ph_state)
-            hit = np.flatnonzero(ph.alarms.any(axis=1))
-            if len(hit):
-                alarm_row = int(hit[0])
-            last = alarm_row - 1 if alarm_row is not None else len(rows) - 1
-            if last >= 0:
-                g = np.stack([ph.g_up[last], ph.g_down[last]], axis=1)
-                # Last sample where each statistic was zero, as the step function records it.
-                for d, traj in enumerate((ph.g_up[: last + 1], ph.g_down[: last + 1])):
-                    zero = traj == 0.0
-                    any_zero = zero.any(axis=0)
-                    idx = (last - np.argmax(zero[::-1], axis=0))
-                    self._last_zero[any_zero, d] = k[i + rows[idx[any_zero]]]
-                self.ph_state = g
-                gu, gd = ph.g_up[: last + 1], ph.g_down[: last + 1]
-                stat[i + rows[: last + 1]] = np.maximum(gu, gd)
-                R[i + rows[: last + 1]] = res[: last + 1]
-                Rn[i + rows[: last + 1]] = rn[: last + 1]
-            if alarm_row is not None:
-                stop = i + int(rows[alarm_row])
-        # Rows i..stop-1 are done: bring the streaming state up to date.
-        done = stop - i
+        valid = ~np.isnan(rn)
+        have = valid.any(axis=1)  # rows where update returns residuals (not all missing)
+        ph = page_hinkley_batch(rn, self.delta, self.thresholds, state=self.ph_state)
+        hit = np.flatnonzero(ph.alarms.any(axis=1))
+        alarm_row = int(hit[0]) if len(hit) else None
+        done = alarm_row if alarm_row is not None else len(X)
         if done > 0:
-            ring_rows = E[: len(prefix) + done]
-            self.bank.load(ring_rows[-(S + 1):])
+            gu, gd = ph.g_up[:done], ph.g_down[:done]
+            # Last sample where each statistic was zero after a residual, as update records it.
+            for d, traj in enumerate((gu, gd)):
+                zero = (traj == 0.0) & valid[:done]
+                any_zero = zero.any(axis=0)
+                idx = done - 1 - np.argmax(zero[::-1], axis=0)
+                self._last_zero[any_zero, d] = k[i + idx[any_zero]]
+            self.ph_state = np.stack([gu[-1], gd[-1]], axis=1)
+            stat[i: i + done] = np.maximum(gu, gd)
+            R[i: i + done] = res[:done]
+            Rn[i: i + done] = rn[:done]
+            # Bring the streaming state up to date with rows i..i+done-1.
+            self.bank.load(E[: S + done])
             for r in range(max(0, done - self._history.maxlen), done):
                 self._history.append((int(k[i + r]), np.array(Z[i + r], dtype=float),
                                       np.array(U[i + r], dtype=float)))
-            keep = [r for r in range(max(0, done - self._recent.maxlen), done)
-                    if r >= first]
-            for r in keep:
-                e = len(prefix) + r
-                self._recent.append((int(k[i + r]), E[e - S: e + 1].copy(), rn[r - first]))
-            self._last_k = int(k[stop - 1])
-            last_r = done - 1
-            if last_r >= first:
-                self.last_residuals = res[last_r - first]
-                self.last_normalized = rn[last_r - first]
+            for r in np.flatnonzero(have[:done])[-self._recent.maxlen:].tolist():
+                self._recent.append((int(k[i + r]), E[r: r + S + 1].copy(), rn[r]))
+            self._last_k = int(k[i + done - 1])
+            if have[done - 1]:
+                self.last_residuals, self.last_normalized = res[done - 1], rn[done - 1]
             else:
                 self.last_residuals = self.last_normalized = None
         if alarm_row is None:
             return j
+        stop = i + alarm_row
         events += self.update(Sample(k=int(k[stop]), timestamp_ns=int(t_ns[stop]), u=U[stop],
                                      z=Z[stop], gap=0))
-        R[stop], Rn[stop] = self.last_residuals, self.last_normalized
+        if self.last_residuals is not None:
+            R[stop], Rn[stop] = self.last_residuals, self.last_normalized
         stat[stop] = self.statistics
         return stop + 1
 
@@ -388,10 +375,14 @@ class Diagnoser:
     def update(self, sample: Sample) -> list[FaultEvent]:
         """Process one sample; returns the events it caused (usually none)."""
         k = sample.k
-        if self._last_k is not None and (sample.gap or k != self._last_k + 1):
-            self.bank.restart()
+        if self._last_k is not None and k != self._last_k + 1:
+            missing = k - self._last_k - 1
+            if 0 < missing <= self.bank.S:
+                self.bank.skip(missing)  # residuals whose windows miss them are missing
+            else:
+                self.bank.restart()
+                self._recent.clear()
             self._history.clear()
-            self._recent.clear()
         self._last_k = k
         self._history.append((k, np.asarray(sample.z, dtype=float).copy(),
                               np.asarray(sample.u, dtype=float).copy()))
@@ -411,7 +402,7 @@ class Diagnoser:
 
     def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
         self.ph_state, alarm = page_hinkley_step(self.ph_state, rn, self.delta, self.thresholds)
-        self._last_zero[self.ph_state == 0.0] = k
+        self._last_zero[(self.ph_state == 0.0) & ~np.isnan(rn)[:, None]] = k
         if not alarm.any():
             return []
         alarming = np.flatnonzero(alarm)
@@ -442,7 +433,8 @@ class Diagnoser:
         self._diag = {
             "k_d": k, "onsets": np.array(onsets), "n": 0,
             "A": np.tile(np.eye(self.d) * self.settings.prior_precision, (H, K, 1, 1)),
-            "b": np.zeros((H, K, self.d)), "rr": 0.0, "u_abs": np.zeros(self.p),
+            "b": np.zeros((H, K, self.d)), "rr": 0.0, "n_res": 0,
+            "u_abs": np.zeros(self.p), "n_u": np.zeros(self.p),
         }
 
     def _regressors(self, k: int, window: np.ndarray) -> np.ndarray:
@@ -454,7 +446,8 @@ class Diagnoser:
         # Every sensor's and actuator's signature under every onset at once (einsum rather
         # than a Python loop over hypotheses: this runs for each sample of a diagnosis).
         zs = np.einsum("jms,ks->jkm", self.bank.Gz, mask)  # (q, K, m)
-        u = window[:, self.q :]  # (S+1, p)
+        # A lost command only enters residuals that are missing (and masked) anyway.
+        u = np.nan_to_num(window[:, self.q :])  # (S+1, p)
         ua = np.einsum("jms,ks,sj->jkm", self.bank.Gu, mask, u)  # (p, K, m)
         ub = np.einsum("jms,ks->jkm", self.bank.Gu, mask)
         out = np.zeros((len(self.hypotheses), len(d["onsets"]), self.bank.m, self.d))
@@ -471,12 +464,18 @@ class Diagnoser:
 
     def _accumulate(self, k: int, window: np.ndarray, rn: np.ndarray) -> None:
         d = self._diag
-        phi = self._regressors(k, window)
+        valid = ~np.isnan(rn)
+        phi = self._regressors(k, window) * valid[None, None, :, None]  # missing: no equation
+        rv = np.where(valid, rn, 0.0)
         d["A"] += np.einsum("hkmi,hkmj->hkij", phi, phi)
-        d["b"] += np.einsum("hkmi,m->hki", phi, rn)
-        d["rr"] += float(rn @ rn)
+        d["b"] += np.einsum("hkmi,m->hki", phi, rv)
+        d["rr"] += float(rv @ rv)
         d["n"] += 1
-        d["u_abs"] += np.abs(window[-1, self.q :])
+        d["n_res"] += int(valid.sum())
+        u_now = window[-1, self.q :]
+        seen = ~np.isnan(u_now)
+        d["u_abs"][seen] += np.abs(u_now[seen])
+        d["n_u"] += seen
 
     def _diagnose(self, k: int, t: int, window: np.ndarray, rn: np.ndarray
                   ) -> list[FaultEvent]:
@@ -501,14 +500,14 @@ class Diagnoser:
         kb = int(best_onset[best])
         A = d["A"][best, kb]
         P = np.linalg.inv(A)
-        dof = max(d["n"] * self.bank.m - h_best.n_params, 1)
+        dof = max(d["n_res"] - h_best.n_params, 1)
         scale = max(float(cost[best, kb]) / dof, 1e-300)
         var = np.diag(P) * scale
         th = theta[best, kb]
         if h_best.target == "actuator":
             # A pure scale fault has lambda = 0: judge lambda against a tenth of the offset the
             # scale puts on the mean command when that is larger than lambda itself.
-            u_mean = d["u_abs"][h_best.index] / d["n"]
+            u_mean = d["u_abs"][h_best.index] / max(d["n_u"][h_best.index], 1.0)
             lam_scale = max(abs(th[1]), 0.1 * abs(th[0]) * u_mean)
             settled = (np.sqrt(var[0]) <= s.settle_rel_std * abs(1.0 + th[0])
                        and np.sqrt(var[1]) <= s.settle_rel_std * lam_scale)

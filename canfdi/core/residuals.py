@@ -9,6 +9,11 @@ where row i of M holds v_i on the z entries and -v_i^T Hc on the u entries of th
 samples (zeros on older ones). The streaming path keeps a ring of S+1 samples; the batch path
 applies the same M to a whole record as S+1 shifted products (equal to round-off; tested).
 
+Missing data. A value lost on the bus (a dropped frame: NaN in x) or a whole missing sample
+(`ResidualBank.skip`) makes missing exactly the residuals that use it, i.e. whose row of M is
+nonzero at that entry; the others are still exact. Each residual needs only its own s_i + 1
+samples, so after a restart the short-window residuals resume first. Missing residuals are NaN.
+
 Fault signatures for the diagnoser: a sensor bias b on z_j from sample k_f adds
 b * sum_l Gz_j[:, l] [k-S+l >= k_f]; an actuator fault u_j = eta u_cj + lambda from k_f adds
 sum_l Gu_j[:, l] ((eta - 1) u_cj(k-S+l) + lambda) [k-S+l >= k_f], with Gz_j = M's z_j columns and
@@ -64,60 +69,94 @@ class ResidualBank:
             vu = -(pv.vector @ Hc).reshape(s + 1, p)
             coef[i, S - s :, :q] = vz
             coef[i, S - s :, q:] = vu
+        # Entries at round-off (1e-17 where the design decoupled a channel) are zero: then a
+        # residual never reads a channel it was decoupled from, lost or not.
+        scale = np.abs(coef).reshape(m, -1).max(axis=1)
+        coef[np.abs(coef) <= 1e-12 * scale[:, None, None]] = 0.0
         self.M = coef.reshape(m, (S + 1) * width)
         self._blocks_T = np.ascontiguousarray(coef.transpose(1, 2, 0))  # (S+1, q+p, m)
+        # Which entries each residual reads: a missing one there makes the residual missing.
+        uses = (coef != 0).astype(float)
+        self._uses = uses.reshape(m, (S + 1) * width)
+        self._uses_T = np.ascontiguousarray(uses.transpose(1, 2, 0))
         self.Gz = np.ascontiguousarray(coef[:, :, :q].transpose(2, 0, 1))
         self.Gu = np.ascontiguousarray(-coef[:, :, q:].transpose(2, 0, 1))
-        self._ring = np.zeros((S + 1, width))
-        self._fill = 0
+        self._ring = np.full((S + 1, width), np.nan)
 
     @property
     def m(self) -> int:
         return len(self.names)
 
     def restart(self) -> None:
-        """Forget the window (after a gap): residuals resume after S+1 new samples."""
-        self._fill = 0
+        """Forget the window (after a long gap): each residual resumes after s_i+1 samples."""
+        self._ring[:] = np.nan
+
+    def skip(self, count: int) -> None:
+        """``count`` samples are missing entirely: push them as missing values."""
+        if count > self.S:
+            self.restart()
+        elif count > 0:
+            self._ring[:-count] = self._ring[count:].copy()
+            self._ring[-count:] = np.nan
 
     @property
-    def window(self) -> np.ndarray | None:
-        """(S+1, q+p) the current window, oldest first, or None while it is filling."""
-        return self._ring if self._fill > self.S else None
+    def window(self) -> np.ndarray:
+        """(S+1, q+p) the current window, oldest first; NaN where a value is missing."""
+        return self._ring
+
+    @property
+    def tail(self) -> np.ndarray:
+        """(S, q+p) the window's last S samples: prepended to a record, its first sample's
+        residuals are the ones `update` would give."""
+        return self._ring[1:]
 
     def load(self, x: np.ndarray) -> None:
-        """Replace the window by the last S+1 rows of x ((n, q+p), compensated samples)."""
+        """Replace the window by the last S+1 rows of x ((n, q+p), compensated samples);
+        fewer rows leave the older positions missing."""
         n = min(len(x), self.S + 1)
-        self._ring[self.S + 1 - n :] = x[len(x) - n :]
-        self._fill = n
+        self._ring[:] = np.nan
+        if n:
+            self._ring[self.S + 1 - n :] = x[len(x) - n :]
 
     def update(self, z: np.ndarray, u: np.ndarray) -> np.ndarray | None:
-        """Push one sample; (m,) residuals, or None while the window fills."""
+        """Push one sample ((q,), (p,); NaN = missing); (m,) residuals, NaN where missing, or
+        None when every residual is missing."""
         ring = self._ring
         ring[:-1] = ring[1:]
         ring[-1, : self.q] = z
         ring[-1, self.q :] = u
-        self._fill += 1
-        if self._fill <= self.S:
-            return None
-        return self.M @ ring.reshape(-1)
+        w = ring.reshape(-1)
+        missing = np.isnan(w)
+        if not missing.any():
+            return self.M @ w
+        r = self.M @ np.where(missing, 0.0, w)
+        r[self._uses @ missing > 0] = np.nan
+        return None if np.isnan(r).all() else r
 
     def batch(self, x: np.ndarray) -> np.ndarray:
         """Residuals of every full window of a record.
 
         Parameters
         ----------
-        x : (N, q+p) consecutive samples [z, u].
+        x : (N, q+p) consecutive samples [z, u]; NaN marks a missing value.
 
         Returns
         -------
-        (N - S, m): row j is r at sample j + S.
+        (N - S, m): row j is r at sample j + S; NaN where a residual reads a missing value.
         """
         if len(x) <= self.S:
             return np.zeros((0, self.m))
+        missing = np.isnan(x)
+        if missing.any():
+            out = self._fir(np.where(missing, 0.0, x), self._blocks_T)
+            out[self._fir(missing.astype(float), self._uses_T) > 0] = np.nan
+            return out
+        return self._fir(x, self._blocks_T)
+
+    def _fir(self, x: np.ndarray, blocks: np.ndarray) -> np.ndarray:
         # M w(k) split by window position: sum over l of x(k - S + l) M_l^T, S+1 thin products
         # over the whole record instead of copying every window into a ((S+1)(q+p))-wide row.
         n = len(x) - self.S
-        blocks = self._blocks_T
         out = x[: n] @ blocks[0]
         for lag in range(1, self.S + 1):
             out += x[lag : lag + n] @ blocks[lag]

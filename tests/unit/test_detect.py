@@ -206,6 +206,30 @@ def test_page_hinkley_batch_equals_steps(restart):
 
 
 @pytest.mark.parametrize("restart", [False, True])
+def test_missing_residuals_hold_their_statistics_in_both_forms(restart):
+    x = record_with_changes(13)
+    rng = np.random.default_rng(3)
+    gappy = np.where(rng.random(x.shape) < 0.2, np.nan, x)
+    delta, h = np.array([0.5, 0.25, 0.5]), np.array([5.0, 8.0, 4.0])
+    ref = run_steps(gappy, delta, h, restart=restart)
+    res = page_hinkley_batch(gappy, delta, h, restart_on_alarm=restart)
+    assert_same_run(res, *ref)
+    # A missing value adds nothing: the statistics after it are those before it.
+    rows, cols = np.nonzero(np.isnan(gappy[1:]))
+    rows += 1
+    held = res.alarms[rows - 1, cols] == 0  # (after an alarm a restart may zero them)
+    np.testing.assert_array_equal(res.g_up[rows, cols][held], res.g_up[rows - 1, cols][held])
+    np.testing.assert_array_equal(res.g_down[rows, cols][held],
+                                  res.g_down[rows - 1, cols][held])
+    # And the run equals one over the record with the missing samples left out, per residual.
+    if not restart:
+        for c in range(x.shape[1]):
+            keep = ~np.isnan(gappy[:, c])
+            alone = page_hinkley_batch(gappy[keep, c:c + 1], delta[c], h[c])
+            np.testing.assert_allclose(res.g_up[keep, c], alone.g_up[:, 0], atol=1e-9)
+
+
+@pytest.mark.parametrize("restart", [False, True])
 def test_page_hinkley_chunked_equals_single_call(restart):
     x = record_with_changes(12)
     delta, h = 0.5, 5.0
@@ -322,7 +346,7 @@ def test_known_mean_is_used_not_estimated():
         ({"state": np.zeros((3, 2))}, "state"),
         ({"state": -np.ones((2, 2))}, "state"),
         ({"x": np.zeros(5)}, "x"),
-        ({"x": np.full((5, 2), np.nan)}, "x"),
+        ({"x": np.full((5, 2), np.inf)}, "x"),
         ({"h": [1.0, 2.0, 3.0]}, "h"),
     ],
 )

@@ -67,16 +67,44 @@ def test_a_gap_restarts_the_window_and_raises_no_alarm():
     diagnoser = build_diagnoser(CONFIG)
     events = _feed(diagnoser, run, gaps={300, 301, 302, 600})
     assert events == []
-    # Right after a gap, S + 1 samples pass before residuals resume.
+    # After a gap longer than the window each residual resumes after its own s_i + 1 samples:
+    # the sensor residuals (window 4) before the actuator's (window 8).
     diagnoser2 = build_diagnoser(CONFIG)
-    S = diagnoser2.bank.S
+    bank = diagnoser2.bank
+    windows = np.array([4 if name.startswith("s:") else 8 for name in bank.names])
+    assert bank.S == 8
     for i in range(50):
         diagnoser2.update(Sample(k=i, timestamp_ns=i, u=run.u_c[i], z=run.z[i]))
     diagnoser2.update(Sample(k=60, timestamp_ns=60, u=run.u_c[60], z=run.z[60], gap=10))
     assert diagnoser2.last_residuals is None
-    for i in range(61, 61 + S):
+    for n in range(2, bank.S + 2):
+        i = 59 + n
         diagnoser2.update(Sample(k=i, timestamp_ns=i, u=run.u_c[i], z=run.z[i]))
-    assert diagnoser2.last_residuals is not None
+        r = diagnoser2.last_residuals
+        have = np.zeros(bank.m, dtype=bool) if r is None else ~np.isnan(r)
+        np.testing.assert_array_equal(have, windows + 1 <= n, err_msg=f"{n} samples")
+
+
+def test_a_lost_value_makes_missing_only_the_residuals_that_read_it():
+    """A sample without DRIVE_CURRENTS (i_f, i_a, i_f+i_a NaN): the residuals that read those
+    values over their window are NaN, every other one is exactly the lossless value."""
+    run = simulate(_scenario([], duration=3.0))
+    full, lossy = build_diagnoser(CONFIG), build_diagnoser(CONFIG)
+    bank = full.bank
+    for i in range(len(run.k)):
+        z = run.z[i].copy()
+        if i == 100:
+            z[:3] = np.nan
+        full.update(Sample(k=i, timestamp_ns=i, u=run.u_c[i], z=run.z[i]))
+        lossy.update(Sample(k=i, timestamp_ns=i, u=run.u_c[i], z=z))
+        if 100 <= i <= 100 + bank.S:
+            a, b = full.last_residuals, lossy.last_residuals
+            b = np.full(bank.m, np.nan) if b is None else b
+            lag = bank.S - (i - 100)  # the lost sample's position in the window
+            reads = bank.M.reshape(bank.m, bank.S + 1, -1)[:, lag, :3].any(axis=1)
+            np.testing.assert_array_equal(np.isnan(b), reads, err_msg=f"k={i}")
+            np.testing.assert_array_equal(b[~reads], a[~reads])
+    np.testing.assert_array_equal(full.last_residuals, lossy.last_residuals)
 
 
 def test_thresholds_exceed_the_white_noise_design():
@@ -89,17 +117,29 @@ def test_thresholds_exceed_the_white_noise_design():
     assert diagnoser.thresholds.max() > white  # correlated residuals need more
 
 
-@pytest.mark.parametrize("name", ["dc_motor_consecutive", "dc_motor_sensors_a"])
-def test_block_path_equals_streaming_path(name):
-    """update_block over uneven chunks (with a gap) gives update()'s events and residuals."""
+@pytest.mark.parametrize(("name", "lossy"), [("dc_motor_consecutive", False),
+                                             ("dc_motor_sensors_a", False),
+                                             ("dc_motor_consecutive", True)])
+def test_block_path_equals_streaming_path(name, lossy):
+    """update_block over uneven chunks (with gaps, and with lost messages: NaN values) gives
+    update()'s events and residuals."""
     from firmware_sim.scenario import load_scenario
 
     run = simulate(load_scenario(name))
     n = len(run.k)
     keep = np.ones(n, dtype=bool)
     keep[1500:1503] = False  # a lost stretch: a gap in both paths
+    U, Z = run.u_c.copy(), run.z.copy()
+    if lossy:
+        rng = np.random.default_rng(1)
+        keep[rng.choice(n, 20, replace=False)] = False  # single missing samples
+        keep[2500:2520] = False  # longer than the window
+        # Each message lost with probability 5%: DRIVE_CMD (V), DRIVE_CURRENTS, DRIVE_SPEED.
+        U[rng.random(n) < 0.05] = np.nan
+        Z[rng.random(n) < 0.05, :3] = np.nan
+        Z[rng.random(n) < 0.05, 3] = np.nan
     k, t = run.k[keep], (run.t[keep] * 1e9).astype(np.int64)
-    U, Z = run.u_c[keep], run.z[keep]
+    U, Z = U[keep], Z[keep]
     gap = np.zeros(len(k), dtype=np.int64)
     gap[1:] = np.diff(k) - 1
 
@@ -128,3 +168,6 @@ def test_block_path_equals_streaming_path(name):
             assert a.estimates[key] == pytest.approx(value, rel=1e-9, abs=1e-12)
     np.testing.assert_allclose(np.vstack(b_res), np.array(s_res), rtol=1e-9, atol=1e-12)
     assert len(s_events) >= 3 and any(e.kind == "accepted" for e in s_events)
+    if lossy:
+        accepted = [(e.target, e.index) for e in s_events if e.kind == "accepted"]
+        assert accepted == [("actuator", 0), ("sensor", 0), ("sensor", 1)]
