@@ -3,8 +3,11 @@
 The bus contract (``dbc/README.md``, DESIGN.md "The bus contract"): in control period k the
 drive sends each of its DBC messages once, every one carrying the E2E header (CRC-8 in byte 0,
 alive counter ``k mod 256`` in byte 1). A sample k is complete when every drive message that
-carries a model signal has arrived for counter k with the right DLC and CRC; only complete
-samples reach the diagnoser, each with ``gap`` = samples lost or broken just before it.
+carries a model signal has arrived for counter k with the right DLC and CRC. A sample some of
+whose messages were lost is *broken*: it is delivered when a later counter closes it (or at
+`SampleAssembler.flush`), with NaN for the signals of its missing messages, so the diagnoser
+keeps every residual that does not read them. Each sample carries ``gap`` = samples missing
+entirely (no valid frame at all) just before it.
 
 Two layers:
 
@@ -439,9 +442,10 @@ class AssembledLog(NamedTuple):
     """Samples and frame statuses of a batch of frames.
 
     k : (M,) int64 unwrapped sample indices; timestamp_ns : (M,) int64, arrival of each
-    sample's completing frame; u : (M, p), z : (M, q) float64 in the model's order; gap : (M,)
-    int64 samples lost or broken before each; statuses : (N,) int8 codes into `STATUS_NAMES`,
-    one per frame; stats : the assembler's `SampleAssembler.stats` after the batch.
+    sample's last frame; u : (M, p), z : (M, q) float64 in the model's order, NaN for the
+    signals of a broken sample's lost messages; gap : (M,) int64 samples missing entirely
+    before each; statuses : (N,) int8 codes into `STATUS_NAMES`, one per frame; stats : the
+    assembler's `SampleAssembler.stats` after the batch.
     """
 
     k: NDArray[np.int64]
@@ -492,7 +496,9 @@ class SampleAssembler:
         self._k = -1  # latest sample index started (-1: no frame yet)
         self._t_ref = 0  # arrival of the latest accepted frame, ns
         self._last_complete = -1
+        self._last_delivered = -1  # latest sample handed out, complete or broken
         self._last_gap = 0  # gap of the sample _accept just completed
+        self._partial: tuple[int, int, int, list[float]] | None = None  # broken, to hand out
         self._counts = [0] * len(STATUS_NAMES)
         self._complete = 0
         self._broken = 0
@@ -506,8 +512,8 @@ class SampleAssembler:
         -------
         dict with frames_received, frames_valid, frames_invalid, invalid_by_reason (every
         invalid status -> count, zeros included), samples_complete, samples_broken (started but
-        never completed, including one closed by `flush`), samples_missing (no valid frame at
-        all), duplicates.
+        never completed, including one closed by `flush`; delivered with NaN for the signals of
+        their missing messages), samples_missing (no valid frame at all), duplicates.
         """
         counts = self._counts
         invalid = {name: counts[STATUS_CODES[name]] for name in _INVALID_NAMES}
@@ -546,7 +552,8 @@ class SampleAssembler:
         Returns
         -------
         status : one of `STATUS_NAMES`.
-        samples : the sample this frame completed ([] or one Sample).
+        samples : the samples this frame delivered, in order: a broken sample it closed (NaN
+            for the missing signals) and/or the sample it completed.
         """
         if is_error:
             code = _ERROR_FRAME
@@ -563,25 +570,47 @@ class SampleAssembler:
                 return status, []
             code = self._place(slot, data[1], timestamp_ns)
             self._counts[code] += 1
+            out = self._take_partial()
             if code == _OK:
                 buffer = self._buffer
                 for dest, value in zip(self._dests[slot], values, strict=True):
                     buffer[dest] = value
                 if self._accept(slot):
                     p = self._p
-                    sample = Sample(k=self._k, timestamp_ns=timestamp_ns,
-                                    u=np.array(buffer[:p]), z=np.array(buffer[p:]),
-                                    gap=self._last_gap)
-                    return "ok", [sample]
-            return STATUS_NAMES[code], []
+                    out.append(Sample(k=self._k, timestamp_ns=timestamp_ns,
+                                      u=np.array(buffer[:p]), z=np.array(buffer[p:]),
+                                      gap=self._last_gap))
+            return STATUS_NAMES[code], out
         self._counts[code] += 1
         return STATUS_NAMES[code], []
 
-    def flush(self) -> None:
-        """End of stream: a pending incomplete sample is counted as broken."""
+    def flush(self) -> list[Sample]:
+        """End of stream: a pending incomplete sample is closed as broken and delivered."""
         if self._open:
-            self._open = False
-            self._broken += 1
+            self._close_broken()
+        return self._take_partial()
+
+    def _close_broken(self) -> None:
+        """The pending sample will not complete: keep it, NaN for its missing messages."""
+        self._open = False
+        self._broken += 1
+        row = list(self._buffer)
+        nan = math.nan
+        for slot, dests in enumerate(self._dests):
+            if not self._seen >> slot & 1:
+                for dest in dests:
+                    row[dest] = nan
+        gap = 0 if self._last_delivered < 0 else self._k - self._last_delivered - 1
+        self._last_delivered = self._k
+        self._partial = (self._k, self._t_ref, gap, row)
+
+    def _take_partial(self) -> list[Sample]:
+        if self._partial is None:
+            return []
+        k, t, gap, row = self._partial
+        self._partial = None
+        p = self._p
+        return [Sample(k=k, timestamp_ns=t, u=np.array(row[:p]), z=np.array(row[p:]), gap=gap)]
 
     def push_batch(
         self,
@@ -814,7 +843,7 @@ class SampleAssembler:
         ks = np.arange(k0, k0 + g, dtype=np.int64)
         # Each sample is completed by its period's last frame (slot M-1).
         done = times[pos + m - 1: pos + g * m: m].astype(np.int64)
-        self._k = self._last_complete = k0 + g - 1
+        self._k = self._last_complete = self._last_delivered = k0 + g - 1
         self._t_ref = int(done[-1])
         self._seen = self._full
         self._open = False
@@ -860,6 +889,13 @@ class SampleAssembler:
                                                    time_list, values[rows].tolist(),
                                                    strict=True)):
             code = self._place(s, c, t)
+            if self._partial is not None:
+                pk, pt, pgap, prow = self._partial
+                self._partial = None
+                ks.append(pk)
+                done.append(pt)
+                gaps.append(pgap)
+                samples.append(prow)
             if code != _OK:
                 status[i] = code
                 continue
@@ -909,7 +945,7 @@ class SampleAssembler:
             if k < k_cur:
                 return _STALE
             if self._open:
-                self._broken += 1
+                self._close_broken()
             self._missing += k - k_cur - 1
         self._k = k
         self._seen = 0
@@ -923,9 +959,9 @@ class SampleAssembler:
         if self._seen != self._full:
             return False
         self._open = False
-        last = self._last_complete
+        last = self._last_delivered
         self._last_gap = 0 if last < 0 else self._k - last - 1
-        self._last_complete = self._k
+        self._last_complete = self._last_delivered = self._k
         self._complete += 1
         return True
 
@@ -951,9 +987,15 @@ def assemble_batch(
     -------
     AssembledLog: the same samples, per-frame statuses and stats as pushing every frame to a
     fresh `SampleAssembler` one by one and then calling `SampleAssembler.flush` (a sample left
-    incomplete at the end of the log counts as broken).
+    incomplete at the end of the log is delivered as broken).
     """
     assembler = SampleAssembler(bus_map, dt)
     log = assembler.push_batch(timestamps_ns, ids, dlc, payloads, flags)
-    assembler.flush()
+    last = assembler.flush()
+    if last:
+        (s,) = last
+        log = log._replace(
+            k=np.append(log.k, s.k), timestamp_ns=np.append(log.timestamp_ns, s.timestamp_ns),
+            u=np.vstack([log.u, s.u[None, :]]), z=np.vstack([log.z, s.z[None, :]]),
+            gap=np.append(log.gap, s.gap))
     return log._replace(stats=assembler.stats)

@@ -196,7 +196,7 @@ class Monitor:
             return []
         result = dg.update_block(k, t_ns, U, Z, gap)
         if self.sink is not None and self.record_residuals:
-            have = ~np.isnan(result.residuals[:, 0])
+            have = ~np.isnan(result.residuals).all(axis=1)
             if have.any():
                 self.sink.write_residual_rows(k[have], t_ns[have], dg.residual_names,
                                               result.residuals[have], result.normalized[have],
@@ -273,9 +273,13 @@ class Monitor:
         })
 
     # -- results ----------------------------------------------------------------------------
-    def finish(self) -> None:
-        """End of stream: a pending incomplete sample counts as broken."""
-        self.assembler.flush()
+    def finish(self) -> list[OutFrame]:
+        """End of stream: a pending incomplete sample is diagnosed as broken; returns the
+        frames that caused (usually none)."""
+        out: list[OutFrame] = []
+        for sample in self.assembler.flush():
+            out.extend(self.on_sample(sample))
+        return out
 
     def summary(self, truth: list[dict] | None = None) -> dict[str, Any]:
         """The JSON contract of `replay --json` and `demo --json`."""

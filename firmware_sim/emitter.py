@@ -7,6 +7,8 @@ precompiled layouts of canfdi.codec; sending is paced in real time (``speed`` 1)
 (``speed`` N) or as fast as the bus takes them (``speed`` 0).
 
 For tests, frames can be dropped, delayed (jitter), sent with a wrong CRC or a wrong DLC.
+`frame_log` gives the same frames without a bus, as arrays stamped with their ideal arrival
+times (offline tests and evaluations: no pacing, no event loop).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from firmware_sim.plants import Plant
 from firmware_sim.scenario import Scenario
 from firmware_sim.simulate import SimChunk, Simulator
 
-__all__ = ["Disturbance", "EmitStats", "FrameEncoder", "emit"]
+__all__ = ["Disturbance", "EmitStats", "FrameEncoder", "FrameLog", "emit", "frame_log"]
 
 log = logging.getLogger("firmware_sim.emitter")
 
@@ -244,3 +246,64 @@ async def emit(
         link.close_reopened()
     stats.elapsed = time.perf_counter() - wall0
     return stats
+
+
+@dataclass(frozen=True)
+class FrameLog:
+    """A scenario's drive frames as arrays, in arrival order.
+
+    t_ns : (N,) int64 arrival times (sample k's frames from k dt on); ids, dlc : (N,) int64;
+    payloads : (N, 8) uint8, zero-padded beyond each DLC; stats : what was injected;
+    truth : the scenario's injected faults; chunk : the simulated run.
+    """
+
+    t_ns: np.ndarray
+    ids: np.ndarray
+    dlc: np.ndarray
+    payloads: np.ndarray
+    stats: EmitStats
+    truth: list[dict]
+    chunk: SimChunk
+
+
+def frame_log(scenario: Scenario, disturbance: Disturbance | None = None,
+              duration: float | None = None, frame_spacing: float = 130e-6) -> FrameLog:
+    """The frames ``emit`` would send for a scenario, with its disturbance, without a bus.
+
+    Sample k's messages leave at k dt + i ``frame_spacing`` (i: the message's place, ID order;
+    130 us is one 8-byte frame at 1 Mbit/s); jitter delays each frame independently by
+    U(0, jitter) seconds, so frames of a period can arrive reordered. Drops, bad CRCs and wrong
+    DLCs are drawn per frame as in ``emit``.
+    """
+    disturbance = disturbance or Disturbance()
+    sim = Simulator(scenario)
+    total = sim.total_samples if duration is None else round(duration / sim.plant.dt)
+    chunk = sim.advance(total)
+    encoder = FrameEncoder(sim.plant)
+    payloads, clipped = encoder.encode(chunk)
+    n, m = len(chunk), len(payloads)
+    rng = np.random.default_rng(disturbance.seed)
+    base = np.round(chunk.k * sim.plant.dt * 1e9).astype(np.int64)
+    t = base[:, None] + np.round(np.arange(m) * frame_spacing * 1e9).astype(np.int64)
+    if disturbance.jitter:
+        t = t + np.round(rng.uniform(0.0, disturbance.jitter, (n, m)) * 1e9).astype(np.int64)
+    ids = np.broadcast_to([lay.frame_id for lay in encoder.layouts], (n, m))
+    dlc = np.broadcast_to([p.shape[1] for p in payloads], (n, m)).copy()
+    data = np.zeros((n, m, 8), dtype=np.uint8)
+    for i, p in enumerate(payloads):
+        data[:, i, : p.shape[1]] = p
+    stats = EmitStats(samples=n, clipped=clipped)
+    u = rng.random((n, m, 3))
+    keep = u[..., 0] >= disturbance.drop
+    bad_crc = keep & (u[..., 1] < disturbance.bad_crc)
+    data[..., 0] ^= np.where(bad_crc, 0xFF, 0).astype(np.uint8)
+    wrong = keep & (u[..., 2] < disturbance.wrong_dlc)
+    dlc = np.where(wrong, np.where(dlc > 2, dlc - 1, dlc + 1), dlc)
+    stats.frames_dropped = int((~keep).sum())
+    stats.frames_bad_crc = int(bad_crc.sum())
+    stats.frames_wrong_dlc = int(wrong.sum())
+    stats.frames_sent = int(keep.sum())
+    order = np.argsort(t[keep], kind="stable")
+    return FrameLog(t_ns=t[keep][order], ids=ids[keep][order].astype(np.int64),
+                    dlc=dlc[keep][order].astype(np.int64),
+                    payloads=data[keep][order], stats=stats, truth=sim.truth(), chunk=chunk)

@@ -2,7 +2,8 @@
 
 Traffic comes from firmware_sim (the dc_motor actuator scenario on motor_drive.dbc: DRIVE_CMD
 0x104, DRIVE_CURRENTS 0x105, DRIVE_SPEED 0x106 every 10 ms). Every sample the assembler emits
-must carry exactly the values the drive sent for that k; nothing else may get through.
+must carry exactly the values the drive sent for that k; nothing else may get through. A
+broken sample (some of its messages lost) carries NaN for exactly those messages' signals.
 """
 
 from __future__ import annotations
@@ -72,7 +73,7 @@ def push_all(assembler: SampleAssembler, frames) -> tuple[list[str], list]:
             t, frame_id, data, is_extended=bool(flags & FLAG_EXTENDED),
             is_remote=bool(flags & FLAG_REMOTE), is_error=bool(flags & FLAG_ERROR),
             is_fd=bool(flags & FLAG_FD))
-        assert len(done) <= 1
+        assert len(done) <= 2  # a broken sample closed, and/or this frame's completed
         statuses.append(status)
         samples.extend(done)
     return statuses, samples
@@ -82,17 +83,38 @@ def run(frames, flush: bool = True) -> tuple[list[str], list, dict]:
     assembler = SampleAssembler(dc_motor_map(), DT)
     statuses, samples = push_all(assembler, frames)
     if flush:
-        assembler.flush()
+        samples += assembler.flush()
     return statuses, samples, assembler.stats
 
 
+def lost_messages(sample) -> set[int]:
+    """IDs of the drive messages whose signals are NaN in the sample (each all or none)."""
+    bus_map = dc_motor_map()
+    flat = np.concatenate([sample.u, sample.z])
+    lost = set()
+    for slot, fields in enumerate(bus_map.fields):
+        nan = [np.isnan((sample.u if vector == "u" else sample.z)[j])
+               for _, vector, j in fields]
+        assert all(nan) or not any(nan), f"k={sample.k}: a message only partly missing"
+        if all(nan):
+            lost.add(bus_map.layouts[slot].frame_id)
+    assert len(lost) < len(bus_map.layouts), f"k={sample.k}: delivered with nothing in it"
+    assert np.isnan(flat).sum() == sum(
+        len(bus_map.fields[bus_map.slot_of[i][0]]) for i in lost)
+    return lost
+
+
 def assert_values_are_the_drives(samples, n: int, k0: int = 0) -> None:
+    """Every value is the drive's; NaN only for whole lost messages."""
     expected = expected_values(n, k0)
     for sample in samples:
         assert sample.k in expected, f"sample k={sample.k} was never sent"
+        lost_messages(sample)
         u, z = expected[sample.k]
-        np.testing.assert_array_equal(sample.u, u, err_msg=f"u of k={sample.k}")
-        np.testing.assert_array_equal(sample.z, z, err_msg=f"z of k={sample.k}")
+        np.testing.assert_array_equal(np.where(np.isnan(sample.u), u, sample.u), u,
+                                      err_msg=f"u of k={sample.k}")
+        np.testing.assert_array_equal(np.where(np.isnan(sample.z), z, sample.z), z,
+                                      err_msg=f"z of k={sample.k}")
 
 
 def assert_batch_equals_streaming(frames) -> None:
@@ -195,15 +217,25 @@ def test_invalid_dt_is_refused():
 # -- defects ------------------------------------------------------------------------------------
 
 
-def test_dropped_frame_breaks_its_sample_and_the_next_has_gap_1():
+def test_dropped_frame_breaks_its_sample_which_is_delivered_without_its_signals():
     frames = frames_of(10)
     del frames[index_of(frames, CURRENTS, 5)]
     statuses, samples, stats = run(frames)
     assert set(statuses) == {"ok"}
-    assert [s.k for s in samples] == [0, 1, 2, 3, 4, 6, 7, 8, 9]
-    assert [s.gap for s in samples] == [0, 0, 0, 0, 0, 1, 0, 0, 0]
-    assert (stats["samples_broken"], stats["samples_missing"]) == (1, 0)
+    assert [s.k for s in samples] == list(range(10))
+    assert [s.gap for s in samples] == [0] * 10
+    assert [lost_messages(s) for s in samples] == [set()] * 5 + [{CURRENTS}] + [set()] * 4
+    assert (stats["samples_complete"], stats["samples_broken"], stats["samples_missing"]) == \
+        (9, 1, 0)
     assert_values_are_the_drives(samples, 10)
+    # Sample 5 is delivered when the first frame of sample 6 shows it cannot complete, with the
+    # arrival time of its own last frame.
+    assembler = SampleAssembler(dc_motor_map(), DT)
+    i6 = index_of(frames, CMD, 6)
+    push_all(assembler, frames[:i6])
+    status, done = assembler.push(*frames[i6][:3])
+    assert status == "ok" and [s.k for s in done] == [5]
+    assert done[0].timestamp_ns == frames[i6 - 1][0]
 
 
 def test_whole_period_lost_counts_as_missing():
@@ -244,8 +276,8 @@ def test_bad_crc_is_rejected_and_a_good_retransmission_completes_the_sample():
     frames[i] = (t, frame_id, bytes(bad), 0)
     statuses, samples, stats = run(frames)
     assert statuses[i] == "crc"
-    assert [s.k for s in samples] == [0, 1, 2, 3, 5, 6, 7, 8, 9]
-    assert samples[4].gap == 1
+    assert [s.k for s in samples] == list(range(10))
+    assert lost_messages(samples[4]) == {CURRENTS} and samples[5].gap == 0
     assert stats["invalid_by_reason"]["crc"] == 1
     assert stats["samples_broken"] == 1
     assert_values_are_the_drives(samples, 10)
@@ -265,7 +297,8 @@ def test_corrupted_counter_is_caught_by_the_crc():
     frames[i] = (t, frame_id, data[:1] + bytes([3]) + data[2:], 0)
     statuses, samples, _ = run(frames)
     assert statuses[i] == "crc"
-    assert [s.k for s in samples] == [0, 1, 3, 4, 5]
+    assert [s.k for s in samples] == list(range(6))
+    assert lost_messages(samples[2]) == {SPEED}
     assert_values_are_the_drives(samples, 6)
 
 
@@ -278,7 +311,8 @@ def test_wrong_dlc_is_rejected():
     frames[j] = (frames[j][0], CMD, frames[j][2][:7], 0)
     statuses, samples, stats = run(frames)
     assert statuses[i] == statuses[j] == "dlc"
-    assert [s.k for s in samples] == [0, 1, 3, 5]
+    assert [s.k for s in samples] == list(range(6))
+    assert [lost_messages(s) for s in samples] == [set(), set(), {SPEED}, set(), {CMD}, set()]
     assert stats["invalid_by_reason"]["dlc"] == 2
     assert_values_are_the_drives(samples, 6)
 
@@ -314,7 +348,8 @@ def test_an_extended_frame_cannot_stand_in_for_a_drive_frame():
     frames[i] = (*frames[i][:3], FLAG_EXTENDED)
     statuses, samples, _ = run(frames)
     assert statuses[i] == "extended"
-    assert [s.k for s in samples] == [0, 2, 3]
+    assert [s.k for s in samples] == [0, 1, 2, 3]
+    assert lost_messages(samples[1]) == {SPEED}
 
 
 def test_monitor_frames_are_valid_and_not_part_of_samples():
@@ -340,8 +375,8 @@ def test_late_frame_of_an_older_period_is_stale():
     frames.insert(index_of(frames, SPEED, 6) + 1, frames[index_of(frames, CMD, 1)])
     statuses, samples, stats = run(frames)
     assert statuses.count("stale") == 2
-    assert [s.k for s in samples] == [0, 1, 2, 4, 5, 6, 7]
-    assert samples[3].gap == 1
+    assert [s.k for s in samples] == list(range(8))
+    assert lost_messages(samples[3]) == {SPEED} and samples[4].gap == 0
     assert stats["samples_broken"] == 1
     assert_values_are_the_drives(samples, 8)
 
@@ -373,15 +408,16 @@ def test_long_outage_is_unwrapped_by_the_timestamps(lost):
     assert_values_are_the_drives(samples, n)
 
 
-def test_flush_breaks_the_pending_sample():
+def test_flush_breaks_the_pending_sample_and_delivers_it():
     frames = frames_of(3)[:-1]
     _, samples, stats = run(frames, flush=False)
     assert stats["samples_broken"] == 0
     assert [s.k for s in samples] == [0, 1]
     assembler = SampleAssembler(dc_motor_map(), DT)
     push_all(assembler, frames)
-    assembler.flush()
-    assembler.flush()
+    (last,) = assembler.flush()
+    assert last.k == 2 and lost_messages(last) == {SPEED}
+    assert assembler.flush() == []
     assert assembler.stats["samples_broken"] == 1
     # The missing frame after the end of stream: that sample was given up.
     last = frames_of(3)[-1]
@@ -532,7 +568,7 @@ def test_random_damage_never_lets_bad_data_through(mutations):
     assert stats["frames_received"] == len(frames)
     assert stats["frames_valid"] + stats["frames_invalid"] == len(frames)
     assert sum(stats["invalid_by_reason"].values()) == stats["frames_invalid"]
-    assert stats["samples_complete"] == len(samples)
+    assert stats["samples_complete"] + stats["samples_broken"] == len(samples)
     ks = [s.k for s in samples]
     assert ks == sorted(set(ks))
     assert [s.gap for s in samples[1:]] == [b - a - 1 for a, b in itertools.pairwise(ks)]

@@ -41,8 +41,8 @@ from tests.unit.test_busmap import DT_NS, as_log, dc_motor_map
 # 80 wraps of the 8-bit counter; a multiple of 256 so that copies of the log can be chained.
 N_CLEAN = 20_480
 # Everything the state machine keeps between frames.
-_STATE = ("_buffer", "_seen", "_open", "_k", "_t_ref", "_last_complete", "_last_gap", "_counts",
-          "_complete", "_broken", "_missing")
+_STATE = ("_buffer", "_seen", "_open", "_k", "_t_ref", "_last_complete", "_last_delivered",
+          "_last_gap", "_partial", "_counts", "_complete", "_broken", "_missing")
 
 
 def log_of(frames) -> tuple[np.ndarray, ...]:
@@ -55,7 +55,7 @@ def state_of(assembler: SampleAssembler) -> dict:
     state = {name: getattr(assembler, name) for name in _STATE}
     # Python ints, not numpy scalars that would wrap or change the arithmetic of _place.
     assert all(type(state[name]) is int for name in ("_seen", "_k", "_t_ref", "_last_complete",
-                                                     "_last_gap"))
+                                                     "_last_delivered", "_last_gap"))
     return state
 
 
@@ -113,10 +113,20 @@ def assert_batch_equals_push(frames, cuts=(), then=()
     assert_same(push_batches(assembler, then), later_statuses, later_samples)
     assert assembler.stats == reference.stats
     assert state_of(assembler) == state_of(reference)
-    reference.flush()
-    assembler.flush()
+    last = reference.flush()
+    assert_same(_as_batched(assembler.flush()), [], last)
     assert assembler.stats == reference.stats
     return assembler, statuses + later_statuses, samples + later_samples
+
+
+def _as_batched(samples: list) -> dict[str, np.ndarray]:
+    bus_map = dc_motor_map()
+    return {"k": np.array([s.k for s in samples], dtype=np.int64),
+            "timestamp_ns": np.array([s.timestamp_ns for s in samples], dtype=np.int64),
+            "gap": np.array([s.gap for s in samples], dtype=np.int64),
+            "u": np.array([s.u for s in samples]).reshape(len(samples), bus_map.p),
+            "z": np.array([s.z for s in samples]).reshape(len(samples), bus_map.q),
+            "statuses": np.zeros(0, dtype=np.int8)}
 
 
 def shifted(frames, by_ns: int):
