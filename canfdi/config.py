@@ -35,6 +35,7 @@ Layout::
       max_samples: 2000
       settle_rel_std: 0.01
       isolation_margin: 50.0
+      max_fit_variance: 4.0        # accept only fits leaving about noise (a spike: no)
     recording:                     # optional; MCAP logs of `canfdi run`
       directory: logs
       rotate_mib: 256
@@ -108,6 +109,7 @@ class IdentificationConfig:
     max_samples: int = 2000
     settle_rel_std: float = 0.01
     isolation_margin: float = 50.0
+    max_fit_variance: float = 4.0
 
 
 @dataclass(frozen=True)
@@ -237,6 +239,7 @@ def parse_config(data: Any, path: Path | None = None) -> MonitorConfig:
     identification = _dataclass_section(data, "identification", IdentificationConfig, {
         "min_samples": (int, (1, 10**7)), "max_samples": (int, (1, 10**7)),
         "settle_rel_std": (float, (1e-9, 1.0)), "isolation_margin": (float, (0.0, 1e12)),
+        "max_fit_variance": (float, (1.0, 1e12)),
     })
     if identification.max_samples < identification.min_samples:
         raise ConfigError("identification.max_samples",

@@ -98,6 +98,7 @@ def build_diagnoser(config: MonitorConfig, design: Design | None = None) -> Diag
         false_alarm_interval=config.detection.false_alarm_interval,
         min_samples=ident.min_samples, max_samples=ident.max_samples,
         settle_rel_std=ident.settle_rel_std, isolation_margin=ident.isolation_margin,
+        max_fit_variance=ident.max_fit_variance,
     )
     return Diagnoser(design, settings, thresholds)
 

@@ -14,7 +14,9 @@ is fitted for several onsets around the Page-Hinkley change point. From ``min_sa
 alarm the fits are compared by their least-squares cost J: the best hypothesis is accepted when
 every hypothesis outside its ambiguity group costs at least ``isolation_margin`` more (a
 log-likelihood-ratio margin on the normalised residuals) and its estimates have settled (standard
-deviation below ``settle_rel_std`` of their size). Hypotheses with the same residual signature
+deviation below ``settle_rel_std`` of their size) and it leaves about the noise (residual variance
+per equation at most ``max_fit_variance`` times nominal: a transient such as one corrupt sample
+is no persistent fault, and no step fits it). Hypotheses with the same residual signature
 (canfdi.core.design) fit equally well forever; the event then lists them all as candidates.
 No acceptance by ``max_samples``: an "unexplained" event and the detector restarts.
 
@@ -74,6 +76,8 @@ class DiagnoserSettings:
     onset_before : onsets tried before the Page-Hinkley change point (all up to the alarm
         after it), at most max_onsets in all.
     prior_precision : P reset value is 1 / prior_precision (information form: J0 = this * I).
+    max_fit_variance : accept only a fit whose cost per residual equation (normalised residuals:
+        1 is the noise) is at most this.
     """
 
     drift: float = 0.5
@@ -85,6 +89,7 @@ class DiagnoserSettings:
     onset_before: int = 3
     max_onsets: int = 16
     prior_precision: float = 1e-8
+    max_fit_variance: float = 4.0
 
 
 @dataclass(frozen=True)
@@ -514,18 +519,23 @@ class Diagnoser:
         else:
             n_b = h_best.n_params
             settled = bool(np.all(np.sqrt(var[:n_b]) <= s.settle_rel_std * np.abs(th[:n_b])))
-        if margin_ok and (settled or since >= s.max_samples):
+        fits = scale <= s.max_fit_variance
+        if margin_ok and fits and (settled or since >= s.max_samples):
             return self._accept(k, t, best, kb, theta, var, best_onset, cost_h)
         if since >= s.max_samples:
-            event = FaultEvent(kind="unexplained", sample=k, timestamp_ns=t,
-                               detected_sample=d["k_d"],
-                               candidates=tuple(self._describe(i, theta[i, best_onset[i]])
-                                                for i in order[:3]))
-            self.events.append(event)
-            self.mode = MONITOR
-            self._restart_detector(k)
-            return [event]
+            return self._unexplained(k, t, theta, best_onset, order)
         return []
+
+    def _unexplained(self, k: int, t: int, theta: np.ndarray, best_onset: np.ndarray,
+                     order: np.ndarray) -> list[FaultEvent]:
+        event = FaultEvent(kind="unexplained", sample=k, timestamp_ns=t,
+                           detected_sample=self._diag["k_d"],
+                           candidates=tuple(self._describe(i, theta[i, best_onset[i]])
+                                            for i in order[:3]))
+        self.events.append(event)
+        self.mode = MONITOR
+        self._restart_detector(k)
+        return [event]
 
     def _describe(self, h_i: int, th: np.ndarray, var: np.ndarray | None = None) -> dict:
         h = self.hypotheses[h_i]
@@ -579,6 +589,10 @@ class Diagnoser:
                     continue
                 faults.append(("sensor", j, {"bias": float(th[c])}, {"bias": float(var[c])},
                                self._sensor_twins(j, float(th[c]))))
+        if not faults:
+            # The best fit is a joint sensor bias with no member significant: no persistent
+            # fault explains the alarm (a transient, such as one corrupt sample).
+            return self._unexplained(k, t, theta, best_onset, np.argsort(cost_h, kind="stable"))
         events = []
         for target, index, est, variances, candidates in faults:
             names = self.design.input_names if target == "actuator" else self.design.output_names

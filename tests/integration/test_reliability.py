@@ -65,10 +65,13 @@ def test_fuzz_1e6_frames_no_exception_every_frame_logged_no_fault(tmp_path):
     logged = read_frames(tmp_path / "fuzz.mcap")
     assert len(logged.t_ns) == len(ids)  # every frame logged, valid or not
     np.testing.assert_array_equal(logged.id, ids)
-    # No fault is diagnosed from garbage. (A garbage frame passes the 8-bit CRC and matches the
-    # pending counter about once in 65,536: such a sample can raise a detection, which then
-    # ends "unexplained", never as an accepted fault.)
-    assert [e for e in monitor.events if e.kind == "accepted"] == []
+    # No fault is diagnosed from garbage. A random frame passes the 8-bit CRC once in 256; if
+    # its counter is ahead of the pending one (half of them) it opens a sample of garbage values.
+    # Such a sample can raise a detection, but no persistent fault fits a transient: every
+    # detection ends "unexplained", none as an accepted fault.
+    kinds = [e.kind for e in monitor.events]
+    assert "accepted" not in kinds
+    assert kinds == ["detected", "unexplained"] * (len(kinds) // 2)
 
 
 def test_fuzz_stream_gives_the_same_statuses_frame_by_frame_and_in_blocks():

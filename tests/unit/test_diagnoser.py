@@ -171,3 +171,16 @@ def test_block_path_equals_streaming_path(name, lossy):
     if lossy:
         accepted = [(e.target, e.index) for e in s_events if e.kind == "accepted"]
         assert accepted == [("actuator", 0), ("sensor", 0), ("sensor", 1)]
+
+
+@pytest.mark.parametrize(("channel", "size"), [(0, 5.0), (1, -20.0), (2, 5.0)])
+def test_one_corrupt_sample_is_never_diagnosed_as_a_fault(channel, size):
+    """A single wrong value (garbage that passed the CRC) moves the residuals for one window:
+    it may be detected, but no step fault fits it and the detection ends unexplained."""
+    run = simulate(_scenario([], duration=40.0))
+    Z = run.z.copy()
+    Z[500, channel] += size
+    diagnoser = build_diagnoser(CONFIG)
+    result = diagnoser.update_block(run.k, (run.t * 1e9).astype(np.int64), run.u_c, Z)
+    assert [e.kind for e in result.events] == ["detected", "unexplained"]
+    assert diagnoser.compensation == [] and diagnoser.mode == "monitor"
