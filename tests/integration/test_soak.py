@@ -40,7 +40,7 @@ def test_a_reduced_soak_passes_and_bounds_the_rate_by_its_monitored_samples(caps
     assert bound["per_sample"] == pytest.approx(-math.log(0.05) / monitored)
     assert bound["per_sample"] == pytest.approx(3.0 / monitored, rel=0.002)
     assert bound["per_hour"] == pytest.approx(bound["per_sample"] * 3600 / 0.01)
-    assert r["configured"]["per_sample"] == pytest.approx(5 / 1e7)  # 5 residuals, 1e7 each
+    assert r["configured"]["per_sample"] == pytest.approx(5 / 1e9)  # 5 residuals, 1e9 each
     for q in r["per_residual"]:
         assert 0 < q["peak_statistic"] < q["threshold"] and q["alarms"] == 0
         assert q["rate_lower_95"] == 0 and q["rate_upper_95"] == bound["per_sample"]
@@ -131,3 +131,12 @@ def test_a_scenario_with_faults_or_too_few_samples_exits_2():
     assert res.returncode == 2 and "faults" in res.stderr, res.stderr
     res = _cli("--samples", "50", "--runs", "10")
     assert res.returncode == 2 and "--samples" in res.stderr, res.stderr
+
+
+def test_ten_million_fault_free_samples_raise_no_false_alarm(capsys):
+    """Issue 7's soak in full: 10^7 samples (about 30 s), the deployed thresholds, no alarm."""
+    rc, r = _soak(capsys)
+    assert r["samples"] == 10_000_000
+    assert (rc, r["detections"], r["accepted_faults"]) == (0, 0, 0), r["detection_list"]
+    assert r["rate_bound_95"]["per_sample"] == pytest.approx(3.0 / r["samples_monitored"],
+                                                             rel=0.002)

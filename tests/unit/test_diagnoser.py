@@ -184,3 +184,22 @@ def test_one_corrupt_sample_is_never_diagnosed_as_a_fault(channel, size):
     result = diagnoser.update_block(run.k, (run.t * 1e9).astype(np.int64), run.u_c, Z)
     assert [e.kind for e in result.events] == ["detected", "unexplained"]
     assert diagnoser.compensation == [] and diagnoser.mode == "monitor"
+
+
+def test_long_run_variance_of_the_residuals_matches_their_autocovariance():
+    """The threshold bound for correlated residuals uses each residual's long-run variance;
+    for white measurement noise it is exact, e.g. 5 for s:omega_r (a 5-sample moving sum)."""
+    from canfdi.core.diagnoser import _long_run_variance
+
+    bank = build_diagnoser(CONFIG).bank
+    rng = np.random.default_rng(0)
+    x = np.zeros((400_000, bank.q + bank.p))
+    x[:, : bank.q] = 0.01 * rng.standard_normal((len(x), bank.q))
+    rn = bank.batch(x) / bank.sigma
+    exact = _long_run_variance(bank, np.full(bank.q, 0.01), None, rn)
+    assert exact[bank.names.index("s:omega_r")] == pytest.approx(5.0)
+    centred = rn - rn.mean(axis=0)
+    acov = [np.mean(centred[: len(rn) - lag] * centred[lag:], axis=0)
+            for lag in range(bank.S + 1)]
+    empirical = acov[0] + 2 * np.sum(acov[1:], axis=0)
+    np.testing.assert_allclose(exact, empirical, rtol=0.05, atol=0.02)
