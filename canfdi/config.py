@@ -8,6 +8,7 @@ Layout::
 
     name: dc_motor                 # free text
     description: ...               # optional
+    method: parity                 # parity (seed 001) | output_error (seed 003) | uio (seed 004)
     model: {time, dt, A, B, C, D, F, G}          # see canfdi.core.model.StateSpace.from_dict
     signals:
       inputs: [V]                  # p names, the actuators
@@ -36,6 +37,8 @@ Layout::
       settle_rel_std: 0.01
       isolation_margin: 50.0
       max_fit_variance: 4.0        # accept only fits leaving about noise (a spike: no)
+    output_error: {...}            # the output_error method's section (canfdi.method_oe)
+    uio: {...}                     # the uio method's section (canfdi.method_uio)
     recording:                     # optional; MCAP logs of `canfdi run`
       directory: logs
       rotate_mib: 256
@@ -47,7 +50,7 @@ measurements (dbc/README.md); each must be in exactly one message sent by DRIVE.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -78,8 +81,11 @@ class ConfigError(ValueError):
         self.field = field
 
 
-_TOP_KEYS = {"name", "description", "model", "signals", "noise", "design", "bus", "detection",
-             "identification", "recording"}
+# The diagnosis methods (seed 001 parity, seed 003 output error, seed 004 unknown-input
+# decoupling); each non-parity method reads its own section, named after it.
+METHODS = ("parity", "output_error", "uio")
+_TOP_KEYS = {"name", "description", "method", "model", "signals", "noise", "design", "bus",
+             "detection", "identification", "recording", "output_error", "uio"}
 
 
 @dataclass(frozen=True)
@@ -138,6 +144,8 @@ class MonitorConfig:
     identification: IdentificationConfig = IdentificationConfig()
     recording: RecordingConfig = RecordingConfig()
     path: Path | None = None
+    method: str = "parity"
+    method_options: dict = field(default_factory=dict)
 
 
 def _check_keys(data: dict, allowed: set[str], where: str) -> None:
@@ -254,11 +262,18 @@ def parse_config(data: Any, path: Path | None = None) -> MonitorConfig:
     description = data.get("description", "")
     if not isinstance(description, str):
         raise ConfigError("description", "expected a string")
+    method = data.get("method", "parity")
+    if method not in METHODS:
+        raise ConfigError("method", f"expected one of {', '.join(METHODS)}, got {method!r}")
+    # The method's own section stays a mapping here: its module validates it (naming fields
+    # "<method>.<key>") when the diagnoser is built.
+    method_options = _section(data, method) if method != "parity" else {}
     return MonitorConfig(name=name, description=description, model=model, inputs=inputs,
                          outputs=outputs, unknown_inputs=unknown_inputs,
                          unknown_outputs=unknown_outputs, design=options, bus=bus,
                          detection=detection, identification=identification,
-                         recording=recording, path=path)
+                         recording=recording, path=path, method=method,
+                         method_options=method_options)
 
 
 def _dataclass_section(data: dict, key: str, cls, spec: dict):

@@ -20,7 +20,12 @@ from canfdi import __version__
 from canfdi.assembler import STATUS_NAMES, BusMap, SampleAssembler
 from canfdi.config import MonitorConfig
 from canfdi.core.design import Design, design_bank, design_to_dict
-from canfdi.core.diagnoser import Diagnoser, DiagnoserSettings, calibrate_thresholds
+from canfdi.core.diagnoser import (
+    BlockResult,
+    Diagnoser,
+    DiagnoserSettings,
+    calibrate_thresholds,
+)
 from canfdi.core.records import FaultEvent, Sample
 from canfdi.core.residuals import ResidualBank
 from canfdi.e2e import protect
@@ -83,8 +88,42 @@ class OutFrame:
     data: bytes
 
 
-def build_diagnoser(config: MonitorConfig, design: Design | None = None) -> Diagnoser:
-    """The diagnoser a config describes: design, calibrated thresholds, settings."""
+class DiagnoserLike(Protocol):
+    """What the monitor needs of a diagnosis method: `canfdi.core.diagnoser.Diagnoser` (parity,
+    seed 001); `canfdi.method_oe` and `canfdi.method_uio` build the others. Residual arrays
+    are (m,) in ``residual_names`` order; events use the FaultEvent contract (kinds detected,
+    accepted, unexplained; estimates eta/lambda for actuators, bias for sensors)."""
+
+    thresholds: np.ndarray
+    mode: str  # "monitor" or "diagnose"
+    compensation: list[dict]  # one entry per accepted fault
+    last_residuals: np.ndarray | None
+    last_normalized: np.ndarray | None
+    events: list[FaultEvent]
+
+    @property
+    def residual_names(self) -> list[str]: ...
+
+    @property
+    def statistics(self) -> np.ndarray: ...
+
+    def update(self, sample: Sample) -> list[FaultEvent]: ...
+
+    def update_block(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
+                     gap: np.ndarray | None = None) -> BlockResult: ...
+
+
+def build_diagnoser(config: MonitorConfig, design: Design | None = None) -> DiagnoserLike:
+    """The diagnoser a config describes (its ``method``): design, calibrated thresholds,
+    settings."""
+    if config.method == "output_error":
+        from canfdi.method_oe import build_output_error_diagnoser
+
+        return build_output_error_diagnoser(config)
+    if config.method == "uio":
+        from canfdi.method_uio import build_uio_diagnoser
+
+        return build_uio_diagnoser(config)
     design = design or design_bank(config.model, config.inputs, config.outputs, config.design)
     bank = ResidualBank(design)
     meas = (config.design.measurement_std if config.design.measurement_std is not None
@@ -118,9 +157,12 @@ class Monitor:
                  record_residuals: bool = True, diagnose: bool = True) -> None:
         self.config = config
         self.bus_map = BusMap.from_config(config)
-        self.design = design_bank(config.model, config.inputs, config.outputs, config.design)
+        # The parity design is the parity method's (and `canfdi design`'s); the other methods
+        # build their own from the config.
+        self.design = (design_bank(config.model, config.inputs, config.outputs, config.design)
+                       if config.method == "parity" else None)
         self.diagnoser = build_diagnoser(config, self.design) if diagnose else None
-        self.dt = self.design.model.dt or 1.0
+        self.dt = config.model.dt or 1.0
         self.assembler = SampleAssembler(self.bus_map, self.dt)
         self.sink = sink
         self.record_residuals = record_residuals
@@ -138,8 +180,10 @@ class Monitor:
             "version": __version__,
             "config_name": cfg.name,
             "config_yaml": cfg.path.read_text() if cfg.path and cfg.path.exists() else "",
-            "design_json": json.dumps(design_to_dict(self.design)),
+            "method": cfg.method,
         }
+        if self.design is not None:
+            out["design_json"] = json.dumps(design_to_dict(self.design))
         if self.diagnoser is not None:
             out["residuals_json"] = json.dumps(self.diagnoser.residual_names)
             out["thresholds_json"] = json.dumps([float(h) for h in self.diagnoser.thresholds])

@@ -111,6 +111,7 @@ def _bad(tmp_path, path: str, value) -> str:
         ("detection.false_alarm_interval", 1.0, "detection.false_alarm_interval"),
         ("identification.settle_rel_std", 5.0, "identification.settle_rel_std"),
         ("bus.dbc", "no_such_drive", "bus.dbc"),
+        ("method", "kalman", "method"),
     ],
 )
 def test_bad_configs_exit_2_naming_the_field(tmp_path, path, value, field):
