@@ -22,7 +22,10 @@ HELP = """\
 Run a scenario's drive (firmware_sim) and the canfdi monitor together on python-can's
 in-process virtual bus: the emulator publishes the drive's frames, the monitor decodes them,
 diagnoses each fault as it happens (printed live), sends its fault frames back on the bus, and
-at the end prints the injected faults against the diagnosed ones.
+at the end prints the injected faults against the diagnosed ones. In a terminal a live view
+shows each residual's Page-Hinkley statistic against its threshold, the detector state, the
+active (compensated) faults and the frame counters (--no-live turns it off; it is off when
+stdout is not a terminal).
 
 Defaults: scenario dc_motor_consecutive, the monitor config of the scenario's plant
 (deploy/config/<plant>.yaml), as fast as the monitor keeps up (--speed 0).
@@ -43,11 +46,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", type=Path, metavar="OUT.mcap",
                    help="record the run in an MCAP log")
     p.add_argument("--channel", default="canfdi-demo", help="virtual bus channel name")
+    p.add_argument("--no-live", action="store_true",
+                   help="no live view (it is on when stdout is a terminal, off otherwise)")
 
 
 async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canfdi-demo",
-                   recorder=None, on_event=None, announce=None):
-    """Emulator and monitor on one virtual bus; returns (monitor, emitter stats)."""
+                   recorder=None, on_event=None, announce=None, live=None):
+    """Emulator and monitor on one virtual bus; returns (monitor, emitter stats, truth).
+
+    ``live``: a callable monitor -> canfdi.liveview.LiveView, shown while the demo runs."""
     import can
 
     from canfdi.monitor import Monitor
@@ -67,6 +74,11 @@ async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canf
     service = MonitorService(monitor, lambda: can.Bus(interface="virtual", channel=channel),
                              status_period=config.bus.status_period, on_event=on_event)
     monitor_task = asyncio.create_task(service.run(stop))
+    view = live(monitor) if live is not None else None
+    view_task = None
+    if view is not None:
+        view.__enter__()
+        view_task = asyncio.create_task(view.run(stop))
     while service.bus is None and not monitor_task.done():
         await asyncio.sleep(0.01)
     sim_bus = can.Bus(interface="virtual", channel=channel)
@@ -83,7 +95,12 @@ async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canf
     finally:
         sim_bus.shutdown()
         stop.set()
-        await monitor_task
+        try:
+            await monitor_task
+        finally:
+            if view is not None:
+                await view_task
+                view.__exit__(None, None, None)
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
     return monitor, stats, truth
@@ -106,6 +123,19 @@ def run(args: argparse.Namespace) -> int:
         return config
     quiet = args.json
     recorders = []
+    views = []
+
+    def make_view(monitor):
+        from canfdi.liveview import LiveView
+
+        views.append(LiveView(monitor, title=f"canfdi demo: {scenario.name}"))
+        return views[-1]
+
+    def say(line: str) -> None:
+        if views:
+            views[0].print(line)
+        else:
+            print(line, flush=True)
 
     def make_recorder(metadata):
         recorders.append(open_recorder(args.output, metadata))
@@ -113,13 +143,14 @@ def run(args: argparse.Namespace) -> int:
 
     def on_event(event) -> None:
         if not quiet:
-            print(format_event(event, plant.dt), flush=True)
+            say(format_event(event, plant.dt))
 
     try:
         monitor, stats, truth = asyncio.run(run_demo(
             scenario, config, speed=args.speed, channel=args.channel,
             recorder=make_recorder if args.output else None, on_event=on_event,
-            announce=None if quiet else lambda line: print(line, flush=True)))
+            announce=None if quiet else say,
+            live=make_view if not quiet and not args.no_live and sys.stdout.isatty() else None))
     except ValueError as exc:
         return config_error(exc, "demo")
     finally:

@@ -1,0 +1,63 @@
+"""The live view: rendered in a pseudo-terminal by `canfdi demo`; off when not a terminal."""
+
+import io
+import os
+import pty
+import re
+import subprocess
+import sys
+
+from rich.console import Console
+
+from canfdi.config import load_config
+from canfdi.liveview import render, snapshot
+from tests.conftest import REPO
+
+CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
+ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
+
+
+def test_demo_renders_the_live_view_in_a_pseudo_terminal():
+    master, slave = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "canfdi", "demo", "--scenario",
+                             "dc_motor_actuator", "--speed", "0"], stdin=slave, stdout=slave,
+                            stderr=slave, cwd=REPO, close_fds=True)
+    os.close(slave)
+    chunks = []
+    while True:
+        try:
+            data = os.read(master, 65536)
+        except OSError:  # EIO: the child closed the terminal
+            break
+        if not data:
+            break
+        chunks.append(data)
+    os.close(master)
+    assert proc.wait(timeout=300) == 0
+    text = ANSI.sub("", b"".join(chunks).decode(errors="replace"))
+    assert "Page-Hinkley / threshold" in text and "a:V" in text
+    assert "active faults (compensated):" in text and "eta 2.00" in text
+    assert "accepted" in text and "diagnosed:" in text  # diagnoses scroll above the view
+
+
+def test_no_live_view_when_stdout_is_not_a_terminal():
+    res = subprocess.run([sys.executable, "-m", "canfdi", "demo", "--scenario",
+                          "dc_motor_actuator"], capture_output=True, text=True, timeout=300,
+                         cwd=REPO)
+    assert res.returncode == 0
+    assert "Page-Hinkley / threshold" not in res.stdout and "\x1b[" not in res.stdout
+
+
+def test_render_shows_each_residual_against_its_threshold_and_the_counters():
+    from canfdi.monitor import Monitor
+
+    monitor = Monitor(load_config(CONFIG))
+    console = Console(file=io.StringIO(), width=100, force_terminal=False)
+    console.print(render(snapshot(monitor), "test"))
+    out = console.file.getvalue()
+    assert "test  monitoring" in out and "frames 0 received" in out
+    for name, h in zip(monitor.diagnoser.residual_names, monitor.diagnoser.thresholds,
+                       strict=True):
+        assert re.search(rf"{re.escape(name)}\s+-\s+\.+\s+0\.0/{h:.1f}", out), name
+    snap = snapshot(monitor)
+    assert snap["state"] == "monitoring" and snap["faults"] == [] and snap["samples"] == 0
