@@ -3,7 +3,8 @@
 python-can delivers frames from its own reader (a thread, or the loop's reader for socket
 buses); `BusBridge` puts frames AND bus errors on an asyncio.Queue (python-can's
 AsyncBufferedReader would wait forever on a dead bus). `MonitorService.run` consumes the queue,
-feeds the Monitor, sends its fault frames, sends FDI_STATUS every status period, reopens a lost
+feeds the Monitor, sends its fault frames, sends FDI_STATUS every status period (state
+"degraded" while the recorder cannot write: diagnosis and fault frames go on), reopens a lost
 bus with exponential backoff, and on stop closes the bus (the source) before the recorder (the
 sink), so the log holds everything that was received.
 """
@@ -307,6 +308,13 @@ class MonitorService:
             for event in self.monitor.events[n_events:]:
                 self.on_event(event)
 
+    def status_frame(self) -> OutFrame | None:
+        """The FDI_STATUS frame to send now: state "degraded" while the monitor's record sink
+        says it is failing (the MCAP log is not being written: a full disk), else the
+        monitor's own state."""
+        failing = getattr(self.monitor.sink, "failing", False)
+        return self.monitor.status_frame("degraded" if failing else None)
+
     async def _status_loop(self, stop: asyncio.Event) -> None:
         if self.status_period <= 0:
             return
@@ -314,7 +322,7 @@ class MonitorService:
         # that a monitor is there, not a status period later.
         while self.bus is None and not stop.is_set():
             await asyncio.sleep(0.01)
-        frame = self.monitor.status_frame()
+        frame = self.status_frame()
         if frame is not None and self.bus is not None:
             self.send([frame])
         while not stop.is_set():
@@ -322,6 +330,6 @@ class MonitorService:
                 await asyncio.wait_for(stop.wait(), timeout=self.status_period)
             if stop.is_set():
                 return
-            frame = self.monitor.status_frame()
+            frame = self.status_frame()
             if frame is not None and self.bus is not None:
                 self.send([frame])

@@ -13,13 +13,19 @@ from canfdi.cli.common import (
     config_error,
     load_config_or_exit,
     open_recorder,
+    recording_counts,
     stop_event,
 )
 
 HELP = """\
 Record every frame of a bus (valid or not, with its E2E status) and the decoded samples in an
 MCAP log, until SIGINT/SIGTERM or --duration. The config gives the bus and the DBC; no
-diagnosis runs, so `canfdi replay OUT.mcap --config FILE` can diagnose the log later."""
+diagnosis runs, so `canfdi replay OUT.mcap --config FILE` can diagnose the log later.
+
+On stderr: "canfdi capture: recording INTERFACE CHANNEL to OUT.mcap" once the bus is open, a
+warning when the log cannot be written (a full disk: frames are dropped, and recording resumes
+in a new segment OUT-0001.mcap when space returns) and a summary at the end. A killed capture
+loses about the last second; `canfdi replay` reads the truncated file."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -48,11 +54,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"canfdi capture: cannot write {args.output}: {exc}", file=sys.stderr)
         return 1
     monitor.sink = recorder
-    _, _, opener = bus_factory(args, config.bus)
+    interface, channel, opener = bus_factory(args, config.bus)
+
+    def on_ready() -> None:
+        print(f"canfdi capture: recording {interface} {channel} to {args.output}",
+              file=sys.stderr, flush=True)
 
     async def main():
         stop = stop_event(args.duration)
-        service = MonitorService(monitor, opener, status_period=0)
+        service = MonitorService(monitor, opener, status_period=0, on_ready=on_ready)
         return await service.run(stop)
 
     try:
@@ -61,4 +71,9 @@ def run(args: argparse.Namespace) -> int:
         recorder.close()
     print(f"canfdi capture: {stats.frames} frames, {monitor.samples} samples -> {args.output}",
           file=sys.stderr)
+    counts = recording_counts(recorder)
+    if counts["write_errors"]:
+        print(f"canfdi capture: {counts['write_errors']} log write errors (last: "
+              f"{counts['last_error']}), {counts['dropped']} records dropped; segments: "
+              f"{', '.join(counts['segments'])}", file=sys.stderr)
     return 0

@@ -13,7 +13,7 @@ from canfdi.core.records import FaultEvent
 
 __all__ = ["DEFAULT_CONFIG_DIR", "add_bus_overrides", "bus_factory", "config_error",
            "format_event", "load_config_or_exit", "open_recorder", "print_comparison",
-           "stop_event"]
+           "recording_counts", "stop_event"]
 
 DEFAULT_CONFIG_DIR = Path(__file__).resolve().parents[2] / "deploy" / "config"
 
@@ -68,6 +68,20 @@ def open_recorder(path: Path, metadata: dict[str, str] | None = None, **kwargs):
     # base64 float columns: exact, and ten times cheaper to write than JSON number lists.
     kwargs.setdefault("float_encoding", "base64")
     return McapRecorder(path, metadata=metadata, **kwargs)
+
+
+def recording_counts(recorder) -> dict:
+    """What an McapRecorder wrote and lost, for a verb's exit summary: ``{"segments": [file
+    names], "written": rows and messages, "dropped": lost to write errors, "write_errors": N,
+    "last_error": str or None}``."""
+    error = recorder.last_error
+    return {
+        "segments": [str(p) for p in recorder.paths],
+        "written": recorder.messages_written,
+        "dropped": recorder.messages_dropped,
+        "write_errors": recorder.write_errors,
+        "last_error": None if error is None else (error.strerror or str(error)),
+    }
 
 
 def _estimates(estimates: dict) -> str:

@@ -17,6 +17,7 @@ from canfdi.cli.common import (
     format_event,
     load_config_or_exit,
     open_recorder,
+    recording_counts,
     stop_event,
 )
 
@@ -26,8 +27,12 @@ FDI_FAULT / FDI_ESTIMATE frames when a fault is accepted and FDI_STATUS every st
 and record everything in MCAP logs (rotated by size and age) under the recording directory.
 
 The bus comes from the config's bus: section (interface, channel, bitrate), overridable here.
-A lost bus is reopened with backoff. SIGTERM or SIGINT stops it in order: the bus is closed,
-the log flushed and closed, exit status 0. A bad config exits with status 2."""
+A lost bus is reopened with backoff. A log that cannot be written (a full disk) never stops the
+monitoring: the error is logged once, records are dropped and counted, FDI_STATUS says
+"degraded", and recording resumes in a new segment when space returns. SIGTERM or SIGINT
+stops it in order: the bus is closed, the log flushed and closed, a "stopped:" line gives the
+counters (with "recording": segments, written, dropped, write_errors), exit status 0. A bad
+config exits with status 2."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -115,7 +120,9 @@ def run(args: argparse.Namespace) -> int:
         if recorder is not None:
             recorder.close()
     summary = monitor.summary()
-    log.info("stopped: %s", json.dumps({"frames": stats.frames, "sent": stats.sent,
-                                        "bus_errors": stats.bus_errors,
-                                        "faults": len(summary["faults"])}))
+    stopped = {"frames": stats.frames, "sent": stats.sent, "bus_errors": stats.bus_errors,
+               "faults": len(summary["faults"])}
+    if recorder is not None:
+        stopped["recording"] = recording_counts(recorder)
+    log.info("stopped: %s", json.dumps(stopped))
     return 0

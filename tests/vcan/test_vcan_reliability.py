@@ -1,0 +1,369 @@
+"""Issue 7 on real SocketCAN (vcan0), with separate processes and candump as the witness.
+
+- kill -9 of `canfdi capture` and of `canfdi run` mid-scenario: the truncated MCAP reads back
+  with every frame candump saw up to the recorder's flush interval (1 s) before the kill, in
+  order and with the same kernel timestamps, and `canfdi replay` diagnoses it.
+- a full disk (a small tmpfs filled up) under `canfdi run`: fault frames go on, FDI_STATUS says
+  "degraded", the recorder's error and its resumption are logged once each, the exit summary
+  counts the dropped records, and recording resumes in a new segment when space returns.
+
+Clocks: candump -L prints the kernel's receive timestamp of each frame (SO_TIMESTAMP, epoch);
+python-can's socketcan stamps received frames with the same kernel timestamp (SO_TIMESTAMPNS),
+which the recorder keeps as t_ns; kill and fill times are taken with time.time(), the same
+realtime clock. Skipped with a reason where there is no vcan0 (see tests/conftest.py);
+`deploy/vcan-harness` provides one. The scenario runs at real time (UML syscalls are slow).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from canfdi.recorder import log_segments, read_frames, read_log
+from tests.conftest import REPO
+
+pytestmark = pytest.mark.vcan
+
+CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
+CANFDI = [sys.executable, "-m", "canfdi"]
+SCENARIO = "dc_motor_consecutive"  # faults at 10 s, 20 s, 30 s; accepted about 2 s later
+FDI_IDS = frozenset({0x080, 0x081, 0x082, 0x083})  # the monitor's own frames (motor_drive.dbc)
+FDI_FAULT, FDI_STATUS = 0x080, 0x082
+DEGRADED = 3  # FDI_STATUS State
+FLUSH_BOUND = 1.5  # s: the recorder's 1 s flush interval, with a margin
+KILL_AFTER = 16.0  # s of scenario time: the first fault is accepted at about 12 s
+
+
+class Proc:
+    """A process whose stdout and stderr lines are collected, with the time each was read."""
+
+    def __init__(self, *cmd: str) -> None:
+        self.proc = subprocess.Popen([str(c) for c in cmd], stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True, cwd=REPO)
+        self.stdout: list[tuple[float, str]] = []
+        self.stderr: list[tuple[float, str]] = []
+        self._changed = threading.Condition()
+        for stream, sink in ((self.proc.stdout, self.stdout), (self.proc.stderr, self.stderr)):
+            threading.Thread(target=self._pump, args=(stream, sink), daemon=True).start()
+
+    def _pump(self, stream, sink: list[tuple[float, str]]) -> None:
+        for line in stream:
+            with self._changed:
+                sink.append((time.time(), line))
+                self._changed.notify_all()
+
+    def wait_for(self, *words: str, stream: str = "stderr", timeout: float = 120.0) -> float:
+        """The time the first line holding every word was read (fails after ``timeout``)."""
+        lines = self.stdout if stream == "stdout" else self.stderr
+        deadline = time.monotonic() + timeout
+        with self._changed:
+            while True:
+                for seen, line in lines:
+                    if all(w in line for w in words):
+                        return seen
+                left = deadline - time.monotonic()
+                if left <= 0 or (self.proc.poll() is not None and not self._more(lines)):
+                    pytest.fail(f"never printed {words} on {stream}:\n{self.text()}")
+                self._changed.wait(timeout=min(left, 1.0))
+
+    def _more(self, lines: list) -> bool:
+        n = len(lines)
+        self._changed.wait(timeout=1.0)  # the pumps' last lines
+        return len(lines) != n
+
+    def lines(self, stream: str = "stderr") -> list[str]:
+        return [line for _, line in (self.stdout if stream == "stdout" else self.stderr)]
+
+    def text(self) -> str:
+        return "".join(self.lines("stdout")) + "".join(self.lines("stderr"))
+
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 60.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            return self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            raise
+
+    def ensure_dead(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+class Candump:
+    """`candump -L vcan0` into a file: (kernel time, id, payload) of every frame on vcan0."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        with path.open("w") as out:
+            self.proc = subprocess.Popen(["candump", "-L", "vcan0"], stdout=out,
+                                         stderr=subprocess.DEVNULL)
+
+    def frames(self) -> list[tuple[float, int, bytes]]:
+        out = []
+        for line in self.path.read_text().splitlines():
+            parts = line.split()
+            if len(parts) != 3 or "#" not in parts[2]:
+                continue  # a line still being written
+            frame_id, _, data = parts[2].partition("#")
+            out.append((float(parts[0].strip("()")), int(frame_id, 16), bytes.fromhex(data)))
+        return out
+
+    def first_drive_frame(self, timeout: float = 180.0) -> float:
+        """Kernel time of the first frame not sent by the monitor (candump's output is block
+        buffered: a few hundred ms late at 300 frames/s)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            drive = [t for t, i, _ in self.frames() if i not in FDI_IDS]
+            if drive:
+                return drive[0]
+            time.sleep(0.2)
+        pytest.fail("candump saw no frame of the drive")
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()  # candump flushes its output on SIGTERM
+            self.proc.wait(timeout=30)
+
+
+def sleep_until(t: float) -> None:
+    time.sleep(max(0.0, t - time.time()))
+
+
+def sim(*extra: str) -> Proc:
+    return Proc(*CANFDI, "sim", "--scenario", SCENARIO, "--interface", "socketcan",
+                "--channel", "vcan0", "--quiet", *extra)
+
+
+def monitor(verb: str, log: Path) -> Proc:
+    proc = Proc(*CANFDI, verb, "--config", CONFIG, "--interface", "socketcan", "--channel",
+                "vcan0", "-o", log)
+    # Both say so once their bus is open; calibration makes run's start slow under UML.
+    proc.wait_for("recording" if verb == "capture" else "monitoring", timeout=240)
+    return proc
+
+
+def received(log: Path):
+    """The frames the log says were received (without the monitor's own, "sent")."""
+    frames = read_frames(log)
+    return frames.select(frames.status != "sent")
+
+
+def keys(frames) -> list[tuple[int, bytes]]:
+    return list(zip(frames.id.tolist(), frames.payloads(), strict=True))
+
+
+def decode_fault(data: bytes) -> tuple[int, int, int]:
+    """FDI_FAULT (Kind, State, Index): Kind bits 16-17, State 18-19, Index 24-31."""
+    return data[2] & 0x03, (data[2] >> 2) & 0x03, data[3]
+
+
+@pytest.mark.parametrize("verb", ["capture", "run"])
+def test_sigkill_loses_at_most_the_last_flush_interval_and_replays(tmp_path, verb):
+    log = tmp_path / f"{verb}.mcap"
+    dump = Candump(tmp_path / "candump.log")
+    mon = emulator = None
+    try:
+        mon = monitor(verb, log)
+        emulator = sim()
+        start = dump.first_drive_frame()
+        sleep_until(start + KILL_AFTER)
+        kill_time = time.time()
+        os.kill(mon.proc.pid, signal.SIGKILL)
+        assert mon.proc.wait(timeout=30) == -signal.SIGKILL
+        emulator.stop()
+        time.sleep(0.5)
+    finally:
+        for p in (mon, emulator):
+            if p is not None:
+                p.ensure_dead()
+        dump.stop()
+    bus = dump.frames()
+    drive = [(t, i, d) for t, i, d in bus if i not in FDI_IDS]
+
+    # The truncated log: no summary, read in file order up to its last complete record.
+    reader = read_log(log)
+    list(reader)
+    assert reader.truncated and not reader.complete
+    assert log_segments(log) == [log]
+    got = received(log)
+    # Exactly what candump saw, from the scenario's first frame on, in order: nothing
+    # invented, nothing reordered, nothing missing in between.
+    assert keys(got) == [(i, d) for _, i, d in drive[: got.size]]
+    # With the same kernel receive timestamps (candump prints microseconds).
+    skew = max(abs(t / 1e9 - drive[n][0]) for n, t in enumerate(got.t_ns.tolist()))
+    assert skew < 1e-3, f"log and candump timestamps differ by up to {skew:.6f} s"
+    # Everything older than the flush interval (with a margin) before the kill is there.
+    before_kill = sum(t < kill_time for t, _, _ in drive)
+    must_have = sum(t < kill_time - FLUSH_BOUND for t, _, _ in drive)
+    assert got.size > 0
+    newest = drive[got.size - 1][0]
+    print(f"\n{verb}: {before_kill} drive frames on the bus before the kill, {got.size} in the "
+          f"log, {before_kill - got.size} lost; newest logged frame {kill_time - newest:.3f} s "
+          f"before the kill (bound asserted: {FLUSH_BOUND} s, {must_have} frames); "
+          f"timestamps equal to candump's within {skew * 1e6:.1f} us")
+    assert got.size >= must_have > 1000
+
+    if verb == "run":
+        # The monitor's own frames in the log are those candump saw it send, in order, up to
+        # the same bound; it had announced the first fault on the bus and on stdout.
+        sent = read_frames(log)
+        sent = sent.select(sent.status == "sent")
+        ours = [(t, i, d) for t, i, d in bus if i in FDI_IDS]
+        assert keys(sent) == [(i, d) for _, i, d in ours[: sent.size]]
+        assert sent.size >= sum(t < kill_time - FLUSH_BOUND for t, _, _ in ours)
+        faults = [decode_fault(d) for t, i, d in ours if i == FDI_FAULT and t < kill_time]
+        assert (1, 3, 0) in faults  # actuator 0 accepted
+        assert any("FAULT      actuator 0" in line for line in mon.lines("stdout"))
+
+    res = subprocess.run([*CANFDI, "replay", str(log), "--config", str(CONFIG), "--json",
+                          "--no-progress"], capture_output=True, text=True, timeout=600,
+                         cwd=REPO)
+    assert res.returncode == 0, res.stderr
+    result = json.loads(res.stdout)
+    assert result["frames"]["received"] == got.size
+    first = result["faults"][0]
+    assert (first["kind"], first["index"], first["name"]) == ("actuator", 0, "V")
+    assert first["estimate"]["eta"] == pytest.approx(2.0, rel=0.03)
+    assert first["estimate"]["lambda"] == pytest.approx(10.0, rel=0.03)
+    assert [f["kind"] for f in result["faults"]] == ["actuator"]  # the next fault is at 20 s
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 4 MiB tmpfs mounted for the test (root only: skipped where mount is refused)."""
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(mount)],
+                         capture_output=True, text=True, timeout=60)
+    if res.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.strip() or res.returncode}")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], capture_output=True, timeout=60)
+
+
+def fill(directory: Path) -> Path:
+    """Write a file until the file system is full (ENOSPC); returns its path."""
+    filler = directory / "filler"
+    fd = os.open(filler, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
+    block = b"\xa5" * 65536
+    try:
+        while True:
+            os.write(fd, block)  # a short write first, then ENOSPC
+    except OSError as exc:
+        if exc.errno != errno.ENOSPC:
+            raise
+    finally:
+        os.close(fd)
+    return filler
+
+
+FILL_AT = 4.0  # s of scenario time: before the first fault (10 s)
+FREE_AT = 25.0  # after the second fault is accepted (22 s), before the third (30 s)
+
+
+def test_full_disk_fault_frames_go_on_and_recording_resumes(tmp_path, small_disk):
+    log = small_disk / "run.mcap"
+    dump = Candump(tmp_path / "candump.log")
+    mon = emulator = None
+    filler = small_disk / "filler"
+    try:
+        mon = monitor("run", log)
+        emulator = sim()
+        start = dump.first_drive_frame()
+        sleep_until(start + FILL_AT)
+        fill_start = time.time()
+        fill(small_disk)
+        fail_seen = mon.wait_for("canfdi.recorder", "failed", timeout=60)
+        sleep_until(start + FREE_AT)
+        assert time.time() < start + 29.0, "freeing the disk came too late for the test"
+        free_time = time.time()
+        filler.unlink()
+        resume_seen = mon.wait_for("canfdi.recorder", "resumed", timeout=60)
+        emulator.proc.wait(timeout=180)
+        assert emulator.proc.returncode == 0, emulator.text()
+        time.sleep(2.0)  # the monitor drains its socket
+        code = mon.stop(signal.SIGTERM)
+    finally:
+        for p in (mon, emulator):
+            if p is not None:
+                p.ensure_dead()
+        dump.stop()
+        with contextlib.suppress(FileNotFoundError):
+            filler.unlink()
+    stderr = "".join(mon.lines())
+    assert code == 0, stderr
+    bus = dump.frames()
+    drive = [(t, i, d) for t, i, d in bus if i not in FDI_IDS]
+
+    # Diagnosis and fault frames went on while the disk was full.
+    accepted: dict[tuple[int, int], float] = {}  # (Kind, Index): when announced accepted
+    for t, i, d in bus:
+        kind, state, index = decode_fault(d) if i == FDI_FAULT else (0, 0, 0)
+        if state == 3:
+            accepted.setdefault((kind, index), t)
+    assert set(accepted) == {(1, 0), (2, 0), (2, 1)}, accepted
+    assert fail_seen < accepted[(1, 0)] < free_time
+    assert fail_seen < accepted[(2, 0)] < free_time
+    assert accepted[(2, 1)] > resume_seen
+
+    # FDI_STATUS: degraded from the failure to the resumption, and only then.
+    status = [(t, d[2] & 0x0F) for t, i, d in bus if i == FDI_STATUS]
+    assert all(s != DEGRADED for t, s in status if t < fill_start or t > resume_seen), status
+    degraded = [s for t, s in status if fail_seen < t < free_time]
+    assert len(degraded) >= 5 and set(degraded) == {DEGRADED}, status
+
+    # One warning per episode (error, then resumption), and the counts at exit.
+    recorder_lines = [ln for ln in mon.lines() if "canfdi.recorder" in ln]
+    failed = [ln for ln in recorder_lines if "failed" in ln]
+    resumed = [ln for ln in recorder_lines if "resumed" in ln]
+    assert len(failed) == 1 and "No space left on device" in failed[0], stderr
+    assert len(resumed) == 1, stderr
+    stopped = json.loads(next(ln for ln in mon.lines() if "stopped: " in ln)
+                         .split("stopped: ", 1)[1])
+    recording = stopped["recording"]
+    assert stopped["faults"] == 3
+    assert recording["segments"] == [str(log), str(small_disk / "run-0001.mcap")]
+    assert recording["write_errors"] >= 1 and recording["last_error"] == os.strerror(
+        errno.ENOSPC)
+
+    # The log: the abandoned first segment (truncated) and the resumed one (complete).
+    assert log_segments(log) == [log, small_disk / "run-0001.mcap"]
+    first, second = read_log(log), read_log(small_disk / "run-0001.mcap")
+    list(first), list(second)
+    assert first.truncated and second.complete
+    # Received frames: candump's, with one gap. Before the gap, everything older than the
+    # flush bound before the disk filled; after it, everything from the resumption to the end.
+    got = keys(received(log))
+    want = [(i, d) for _, i, d in drive]
+    head = next((n for n, (a, b) in enumerate(zip(got, want, strict=False)) if a != b),
+                len(got))
+    tail = len(got) - head
+    assert got[head:] == want[len(want) - tail:]
+    gap_end = len(want) - tail
+    assert head >= sum(t < fill_start - FLUSH_BOUND for t, _, _ in drive)
+    assert gap_end <= sum(t < resume_seen for t, _, _ in drive)
+    lost = gap_end - head
+    assert 0 < lost <= recording["dropped"]
+    events = [m for topic, _, m in read_log(small_disk / "run-0001.mcap")
+              if topic == "/canfdi/events" and m["kind"] == "accepted"]
+    assert [(e["target"], e["index"]) for e in events] == [("sensor", 1)]
+    print(f"\nfull disk: filled {fill_start - start:.1f} s into the scenario, error logged "
+          f"{fail_seen - fill_start:.2f} s later, freed at {free_time - start:.1f} s, resumed "
+          f"{resume_seen - free_time:.2f} s later; {len(want)} drive frames, {lost} missing "
+          f"from the log; recorder: {recording}; {len(degraded)} degraded FDI_STATUS frames")
