@@ -123,6 +123,11 @@ class LiveView:
     def print(self, line: str) -> None:
         self._live.console.print(line, markup=False, highlight=False)
 
+    def stream(self) -> _LineStream:
+        """A text stream whose lines print above the view (for logging handlers, which keep
+        their own reference to stderr and would otherwise tear the display)."""
+        return _LineStream(self)
+
     def refresh(self, force: bool = False) -> None:
         now = time.monotonic()
         if force or now - self._last >= self.period:
@@ -137,3 +142,23 @@ class LiveView:
                 await asyncio.wait_for(stop.wait(), self.period)
             except TimeoutError:
                 pass
+
+
+class _LineStream:
+    """Write-only text stream: complete lines go to ``LiveView.print``."""
+
+    def __init__(self, view: LiveView) -> None:
+        self._view = view
+        self._pending = ""
+
+    def write(self, text: str) -> int:
+        self._pending += text
+        *lines, self._pending = self._pending.split("\n")
+        for line in lines:
+            self._view.print(line)
+        return len(text)
+
+    def flush(self) -> None:
+        if self._pending:
+            self._view.print(self._pending)
+            self._pending = ""

@@ -32,7 +32,10 @@ monitoring: the error is logged once, records are dropped and counted, FDI_STATU
 "degraded", and recording resumes in a new segment when space returns. SIGTERM or SIGINT
 stops it in order: the bus is closed, the log flushed and closed, a "stopped:" line gives the
 counters (with "recording": segments, written, dropped, write_errors), exit status 0. A bad
-config exits with status 2."""
+config exits with status 2. In a terminal a live view shows each residual's Page-Hinkley
+statistic against its threshold, the detector state, the active faults and the frame counters,
+with diagnoses and log lines printed above it (--no-live, --quiet or a non-terminal stdout turn
+it off: a daemon's journal gets plain lines)."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -49,6 +52,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--log-format", choices=("text", "json"), default="text",
                    help="format of the service's log lines on stderr (default: text)")
     p.add_argument("--quiet", action="store_true", help="do not print diagnoses on stdout")
+    p.add_argument("--no-live", action="store_true",
+                   help="no live view (it is on when stdout is a terminal, off otherwise)")
 
 
 class _JsonFormatter(logging.Formatter):
@@ -100,17 +105,40 @@ def run(args: argparse.Namespace) -> int:
         log.info("monitoring %s %s", interface, channel)
         systemd.ready(f"monitoring {interface} {channel}")
 
+    view = None
+    if not args.quiet and not args.no_live and sys.stdout.isatty():
+        from canfdi.liveview import LiveView
+
+        view = LiveView(monitor, title=f"canfdi run: {config.name} on {interface} {channel}")
+
     def on_event(event) -> None:
         log.info("event %s", json.dumps(event.as_dict()))
         if not args.quiet:
-            print(format_event(event, monitor.dt), flush=True)
+            line = format_event(event, monitor.dt)
+            if view is not None:
+                view.print(line)
+            else:
+                print(line, flush=True)
 
     async def main():
         stop = stop_event(args.duration)
         service = MonitorService(
             monitor, opener, status_period=config.bus.status_period, on_event=on_event,
             on_ready=on_ready, on_tick=systemd.watchdog)
-        stats = await service.run(stop)
+        if view is None:
+            stats = await service.run(stop)
+        else:
+            # Log lines print above the view instead of tearing it.
+            for handler in logging.getLogger().handlers:
+                if isinstance(handler, logging.StreamHandler):
+                    handler.setStream(view.stream())
+            with view:
+                refresher = asyncio.create_task(view.run(stop))
+                try:
+                    stats = await service.run(stop)
+                finally:
+                    stop.set()
+                    await refresher
         systemd.stopping()
         return stats
 

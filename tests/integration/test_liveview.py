@@ -17,11 +17,11 @@ CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
 
 
-def test_demo_renders_the_live_view_in_a_pseudo_terminal():
+def _in_pty(*args: str) -> tuple[int, str]:
+    """Run ``canfdi ARGS`` with a pseudo-terminal as stdin, stdout and stderr."""
     master, slave = pty.openpty()
-    proc = subprocess.Popen([sys.executable, "-m", "canfdi", "demo", "--scenario",
-                             "dc_motor_actuator", "--speed", "0"], stdin=slave, stdout=slave,
-                            stderr=slave, cwd=REPO, close_fds=True)
+    proc = subprocess.Popen([sys.executable, "-m", "canfdi", *args], stdin=slave,
+                            stdout=slave, stderr=slave, cwd=REPO, close_fds=True)
     os.close(slave)
     chunks = []
     while True:
@@ -33,8 +33,12 @@ def test_demo_renders_the_live_view_in_a_pseudo_terminal():
             break
         chunks.append(data)
     os.close(master)
-    assert proc.wait(timeout=300) == 0
-    text = ANSI.sub("", b"".join(chunks).decode(errors="replace"))
+    return proc.wait(timeout=300), ANSI.sub("", b"".join(chunks).decode(errors="replace"))
+
+
+def test_demo_renders_the_live_view_in_a_pseudo_terminal():
+    code, text = _in_pty("demo", "--scenario", "dc_motor_actuator", "--speed", "0")
+    assert code == 0
     assert "Page-Hinkley / threshold" in text and "a:V" in text
     assert "active faults (compensated):" in text and "eta 2.00" in text
     assert "accepted" in text and "diagnosed:" in text  # diagnoses scroll above the view
@@ -61,3 +65,12 @@ def test_render_shows_each_residual_against_its_threshold_and_the_counters():
         assert re.search(rf"{re.escape(name)}\s+-\s+\.+\s+0\.0/{h:.1f}", out), name
     snap = snapshot(monitor)
     assert snap["state"] == "monitoring" and snap["faults"] == [] and snap["samples"] == 0
+
+
+def test_run_renders_the_live_view_with_its_log_lines_above_it():
+    code, text = _in_pty("run", "--config", str(CONFIG), "--no-record", "--duration", "2",
+                         "--channel", "canfdi-live-test")
+    assert code == 0
+    assert "canfdi run: dc_motor on virtual canfdi-live-test" in text
+    assert "Page-Hinkley / threshold" in text and "s:omega_r" in text
+    assert "monitoring virtual canfdi-live-test" in text and "stopped:" in text
