@@ -1,0 +1,577 @@
+"""The output-error method of seed 003: OE residual, Page-Hinkley detection, isolation by
+identifying the residual's response to a step, decision tests, and the reset of Section 3.3.
+
+RESIDUAL. The parallel OE models (canfdi.core.oe_model) are simulated from the commands u_c
+alone; r_j(k) = z_j(k) - y_hat_j(k) for every output j (seed 003 eq. 9), normalised by its
+fault-free standard deviation sigma_j. Under a single additive fault (eqs. 10-11)
+
+    actuator i:  r_j(k) = G_ji(q) lambda U(k - k_f) + e_j(k)   for every output j it reaches,
+    sensor j:    r_j(k) = b U(k - k_f) + e_j(k)                on output j only.
+
+DETECTION (Section 3.1). A two-sided Page-Hinkley test on each normalised residual (drift delta
+in noise stds). The OE residual of a well identified model is the measurement noise itself,
+white, so Siegmund's threshold for the false-alarm interval applies; model error colours it,
+so the threshold is also bounded by Siegmund's on the residual's long-run variance (the ratio
+measured on the identification data by `canfdi identify`), as canfdi.core.diagnoser does for
+correlated parity residuals.
+
+ISOLATION AND IDENTIFICATION (Section 3.2). At the alarm k_d, onsets k_f are tried from a few
+samples before the Page-Hinkley change point up to k_d (the paper shifts its step back from
+k_d). ``min_samples`` after the alarm (the paper's L - l0; the window also holds ``pre_samples``
+= l0 samples before the earliest onset), the hypotheses are tested, actuators first:
+
+* actuator i, each onset: (a) the amplitude: least squares of r_j = lambda s_ji(k - k_f) over
+  every output j, s_ji the step response of the model G_ji (outputs without a path must stay at
+  zero), weighted by 1/sigma_j^2. This is the amplitude reported (with its variance): it is the
+  maximum-likelihood estimate under the hypothesis; the paper's B^(1)/F^(1)/K^ of the free
+  fit is the same quantity estimated with more free parameters. (b) the free fit (the paper's
+  G^Du): for each output j the path reaches, an OE model of the structure (nb, nf, d) of G_ji
+  fitted to r_j with a unit step at k_f (canfdi.core.oe_model.fit_step), giving F^Du and the
+  variances of its coefficients. Decision tests, as we read seed 003's eqs. 16-17 (the
+  extraction lost them; gamma = 0.2 and kappa = 0.1 are its values):
+
+    gamma (parameter variance bound, eq. 16): every coefficient of F^Du has
+        sigma(f^Du_l) <= gamma ||f^||   (the model is well determined by the data; normalised
+        by the size of the model's own F so that gamma is dimensionless, as the paper's 0.2
+        must be for coefficients near 1);
+    kappa (normalised parameter distance, eq. 17):
+        D = ||f^Du - f^|| / ||f^|| <= kappa   (F^Du is close to the model's F^).
+
+  An onset passes when both tests pass on every output the actuator reaches and the fit (a)
+  leaves about the noise (cost per equation at most ``max_fit_variance``, normalised residuals:
+  1 is the noise; the paper's "if the abrupt fault assumption is not valid"). Among passing
+  onsets and actuators, the one with the smallest D is kept (the paper's choice of the shift j);
+  k_f^ is its onset. A path with no denominator (nf = 0) has no F to compare: its gamma test
+  is on the gain (sigma(K^Du) <= gamma |K^Du|) and D = 0.
+* only when no actuator passes, sensor j, each onset: r_j = b U(k - k_f) by least squares
+  (the other outputs must stay at zero); the onset of least cost is kept; the one test (eq. 16
+  for a gain) is sigma(b) <= gamma |b|, i.e. b differs from zero, plus the fit-variance test.
+  Of several passing sensors the one of least total cost wins.
+
+No hypothesis passing by ``max_samples``: an "unexplained" event and the detector restarts
+(a transient, a multiplicative fault, or a fault outside the abrupt additive model). Tests are
+repeated every ``check_every`` samples between min_samples and max_samples.
+
+RESET (Section 3.3). The accepted fault is folded into a compensation from k_f on: a sensor
+bias is subtracted from z_j; an actuator fault lambda is added to u_c,i at the model's input.
+The model outputs are recomputed from k_f: the OE model is linear, so adding lambda from k_f to
+the input adds lambda times each path's step response, and its state is moved by lambda times
+the state a unit step from k_f would have put there (exact superposition, no replay of the
+history). The Page-Hinkley test restarts, so a second fault is diagnosed on top of the first.
+
+LOST DATA. A NaN measurement z_j makes r_j missing (NaN) for that sample: Page-Hinkley holds,
+the fits take no equation. A NaN command u_i is replaced by its last known value (the model's
+state keeps running, on the held input); the hold error then decays with the path's poles, so
+the residual of every output u_i reaches is missing for that sample and the ``taint`` samples
+after it (the time for the slowest pole of the path to fall to ``settle`` of a jump). A gap of
+at most ``max_hold`` samples is bridged the same way (the model runs on held inputs, the
+residuals are missing meanwhile and for the taint after); a longer gap (or k going backwards)
+restarts the models at rest on the next input and the residuals are missing for ``warmup``
+samples (the same settling time over every path), as at start-up.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from canfdi.core.detect import (
+    page_hinkley_batch,
+    page_hinkley_step,
+    threshold_for_false_alarm_interval,
+)
+from canfdi.core.diagnoser import BlockResult
+from canfdi.core.oe_model import OeModel, fit_step, pair_initial_state, simulate
+from canfdi.core.records import FaultEvent, Sample
+
+__all__ = ["OeSettings", "OutputErrorDiagnoser", "oe_thresholds", "settling_samples"]
+
+MONITOR, DIAGNOSE = "monitor", "diagnose"
+
+
+@dataclass(frozen=True)
+class OeSettings:
+    """Settings of the output_error method (the config's output_error: section).
+
+    drift : Page-Hinkley delta in residual noise stds; false_alarm_interval : samples between
+        false alarms per residual the thresholds target.
+    gamma, kappa : the decision tests (module docstring).
+    min_samples : samples after the alarm before the first decision (L - l0).
+    max_samples : samples after the alarm before giving up ("unexplained").
+    pre_samples : samples before the earliest onset in the fitting window (l0).
+    onset_before : onsets tried before the Page-Hinkley change point; max_onsets : at most this
+        many onsets (the latest ones, up to the alarm).
+    max_fit_variance : accept only a fit whose cost per equation (normalised) is at most this.
+    check_every : samples between decisions after min_samples.
+    max_hold : longest gap (samples) bridged on held inputs; longer ones restart the models.
+    settle : fraction a transient must fall to before residuals count again (taint, warm-up).
+    """
+
+    drift: float = 0.5
+    false_alarm_interval: float = 1.0e7
+    gamma: float = 0.2
+    kappa: float = 0.1
+    min_samples: int = 48
+    max_samples: int = 400
+    pre_samples: int = 10
+    onset_before: int = 3
+    max_onsets: int = 10
+    max_fit_variance: float = 4.0
+    check_every: int = 10
+    max_hold: int = 10
+    settle: float = 0.01
+
+
+def settling_samples(radius: float, settle: float) -> int:
+    """Samples for a transient of a pole of modulus ``radius`` to fall to ``settle``."""
+    if radius <= 0.0:
+        return 1
+    if radius >= 1.0:
+        raise ValueError(f"pole modulus {radius} >= 1: the model is not stable")
+    return max(1, math.ceil(math.log(settle) / math.log(radius)))
+
+
+def oe_thresholds(drift: float, interval: float, long_run: np.ndarray) -> np.ndarray:
+    """(q,) Page-Hinkley thresholds (noise stds) for a false-alarm interval (samples).
+
+    White residuals: Siegmund's threshold. A residual of long-run variance ratio L > 1 (model
+    error colours it) behaves, over long excursions, as white noise of std sqrt(L): Siegmund's
+    threshold on that scale bounds it (canfdi.core.diagnoser does the same)."""
+    white = threshold_for_false_alarm_interval(drift, interval)
+    out = []
+    for ratio in np.asarray(long_run, dtype=float):
+        lr = math.sqrt(max(float(ratio), 1.0))
+        out.append(max(white, lr * threshold_for_false_alarm_interval(drift / lr, interval)))
+    return np.array(out)
+
+
+class OutputErrorDiagnoser:
+    """Streaming OE diagnoser: ``update(sample) -> events`` (canfdi.monitor.DiagnoserLike).
+
+    Parameters
+    ----------
+    model : the identified OeModel (p inputs, q outputs).
+    sigma : (q,) fault-free residual standard deviations.
+    thresholds : (q,) Page-Hinkley thresholds in noise stds (oe_thresholds).
+    settings : OeSettings.
+    input_names, output_names : channel names (p,), (q,).
+    """
+
+    def __init__(self, model: OeModel, sigma: np.ndarray, thresholds: np.ndarray,
+                 settings: OeSettings, input_names: list[str], output_names: list[str]) -> None:
+        self.model = model
+        self.p, self.q = model.p, model.q
+        if len(input_names) != self.p or len(output_names) != self.q:
+            raise ValueError(f"names: expected {self.p} inputs and {self.q} outputs, got "
+                             f"{len(input_names)} and {len(output_names)}")
+        self.sigma = np.asarray(sigma, dtype=float).reshape(self.q)
+        if np.any(~np.isfinite(self.sigma)) or np.any(self.sigma <= 0):
+            raise ValueError("sigma: residual standard deviations must be finite and > 0")
+        self.thresholds = np.asarray(thresholds, dtype=float).reshape(self.q)
+        self.settings = settings
+        self.input_names, self.output_names = list(input_names), list(output_names)
+        self.delta = settings.drift
+        s = settings
+        self._paths = model.has_path()
+        # taint[i, j]: samples residual j stays missing after a held (lost) command u_i.
+        self._taint = np.zeros((self.p, self.q), dtype=np.int64)
+        for pair in model.pairs:
+            self._taint[pair.input, pair.output] = settling_samples(pair.pole_radius,
+                                                                    s.settle) + pair.delay
+        self.warmup = int(self._taint.max()) if model.pairs else 0
+        self._pair_of = {(pr.output, pr.input): pr for pr in model.pairs}
+        self._recent: deque = deque(maxlen=s.max_onsets + s.onset_before + s.pre_samples + 8)
+        self.compensation: list[dict] = []
+        self.events: list[FaultEvent] = []
+        self.reset()
+
+    # -- state ---------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to monitoring with no compensation; the models restart on the next sample."""
+        self.mode = MONITOR
+        self.compensation = []
+        self._states: list[np.ndarray] | None = None
+        self._u_last = np.array(self.model.u0, dtype=float)
+        self._taint_until = np.full(self.q, np.iinfo(np.int64).min // 2, dtype=np.int64)
+        self._last_k: int | None = None
+        self._recent.clear()
+        self._restart_detector()
+        self.last_residuals: np.ndarray | None = None
+        self.last_normalized: np.ndarray | None = None
+
+    def _restart_detector(self, k: int = -1) -> None:
+        self.ph_state = np.zeros((self.q, 2))
+        self._last_zero = np.full((self.q, 2), k, dtype=np.int64)
+        self._diag: dict | None = None
+
+    @property
+    def residual_names(self) -> list[str]:
+        return [f"oe:{name}" for name in self.output_names]
+
+    @property
+    def statistics(self) -> np.ndarray:
+        """(q,) the larger Page-Hinkley statistic of each residual."""
+        return self.ph_state.max(axis=1)
+
+    # -- the residual ----------------------------------------------------------------------
+    def _lambda(self, k: np.ndarray) -> np.ndarray:
+        """(N, p) actuator compensation added to the commands at samples k."""
+        out = np.zeros((len(k), self.p))
+        for c in self.compensation:
+            if c["target"] == "actuator":
+                out[k >= c["onset"], c["index"]] += c["lambda"]
+        return out
+
+    def _bias(self, k: np.ndarray) -> np.ndarray:
+        """(N, q) sensor compensation subtracted from the measurements at samples k."""
+        out = np.zeros((len(k), self.q))
+        for c in self.compensation:
+            if c["target"] == "sensor":
+                out[k >= c["onset"], c["index"]] += c["bias"]
+        return out
+
+    def _start_models(self, k: int, u_held: np.ndarray) -> None:
+        """Models at rest on the (compensated) input of sample k; residuals missing during the
+        warm-up."""
+        dev = u_held + self._lambda(np.array([k]))[0] - self.model.u0
+        self._states = [pair_initial_state(pr, dev[pr.input]) for pr in self.model.pairs]
+        self._taint_until[:] = k + self.warmup - 1
+
+    def _residuals(self, k: np.ndarray, U: np.ndarray, Z: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """(N, q) residuals and normalised residuals of continuous samples k, advancing the
+        models, the held commands and the taint (shared by update and update_block)."""
+        n = len(k)
+        nan_u = np.isnan(U)
+        held = U.copy()
+        if nan_u.any():
+            # Forward fill from the last known command (vectorised).
+            idx = np.where(~nan_u, np.arange(n)[:, None], -1)
+            idx = np.maximum.accumulate(idx, axis=0)
+            last = np.vstack([self._u_last[None, :], U])
+            held = np.take_along_axis(last, idx + 1, axis=0)
+            held = np.where(idx < 0, self._u_last[None, :], held)
+        self._u_last = held[-1].copy()
+        dev = held + self._lambda(k) - self.model.u0
+        Y, self._states = simulate(self.model, dev, self._states)
+        R = Z - self._bias(k) - Y
+        # Residuals stay missing after a lost command, for the taint of its paths.
+        until = np.empty((n, self.q), dtype=np.int64)
+        for j in range(self.q):
+            cand = np.full(n, np.iinfo(np.int64).min // 2, dtype=np.int64)
+            for i in range(self.p):
+                if self._taint[i, j] and nan_u[:, i].any():
+                    cand = np.maximum(cand, np.where(nan_u[:, i], k + self._taint[i, j] - 1,
+                                                     cand))
+            until[:, j] = np.maximum.accumulate(np.maximum(cand, self._taint_until[j]))
+        self._taint_until = until[-1].copy()
+        R[k[:, None] <= until] = np.nan
+        return R, R / self.sigma
+
+    def _bridge(self, k: int) -> None:
+        """Before sample k: a gap since the last sample is bridged on held inputs, or the
+        models restart."""
+        if self._states is None:
+            return
+        missing = k - self._last_k - 1 if self._last_k is not None else 0
+        if missing == 0:
+            return
+        if 0 < missing <= self.settings.max_hold:
+            ks = np.arange(self._last_k + 1, k)
+            nan = np.full((missing, self.p), np.nan)
+            self._residuals(ks, nan, np.full((missing, self.q), np.nan))
+        else:
+            self._states = None
+
+    # -- streaming -------------------------------------------------------------------------
+    def update(self, sample: Sample) -> list[FaultEvent]:
+        """Process one sample; returns the events it caused (usually none)."""
+        k = int(sample.k)
+        u = np.asarray(sample.u, dtype=float).reshape(self.p)
+        z = np.asarray(sample.z, dtype=float).reshape(self.q)
+        self._bridge(k)
+        if self._states is None:
+            self._start_models(k, np.where(np.isnan(u), self._u_last, u))
+        self._last_k = k
+        R, Rn = self._residuals(np.array([k]), u[None, :], z[None, :])
+        r, rn = R[0], Rn[0]
+        if np.isnan(r).all():
+            self.last_residuals = self.last_normalized = None
+            return []
+        self.last_residuals, self.last_normalized = r, rn
+        self._recent.append((k, rn))
+        if self.mode == MONITOR:
+            return self._monitor(k, sample.timestamp_ns, rn)
+        return self._diagnose(k, sample.timestamp_ns, rn)
+
+    def update_block(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
+                     gap: np.ndarray | None = None) -> BlockResult:
+        """Process N samples at once; the same events and state as N calls of ``update``.
+
+        Continuous monitoring stretches are vectorised (the models over the whole stretch by
+        lfilter, Page-Hinkley in its cumulative form); the sample that raises an alarm, the
+        samples of a diagnosis and those after a gap go through ``update``.
+
+        Parameters
+        ----------
+        k, t_ns : (N,) increasing sample indices and timestamps; U : (N, p); Z : (N, q), NaN
+        where a value was lost; gap : (N,) informational (the indices say it).
+        """
+        k = np.asarray(k, dtype=np.int64)
+        n = len(k)
+        U = np.asarray(U, dtype=float).reshape(n, self.p)
+        Z = np.asarray(Z, dtype=float).reshape(n, self.q)
+        R = np.full((n, self.q), np.nan)
+        Rn = np.full((n, self.q), np.nan)
+        stat = np.zeros((n, self.q))
+        events: list[FaultEvent] = []
+        prev = np.concatenate([[self._last_k if self._last_k is not None else -2], k[:-1]])
+        breaks = k != prev + 1
+        if self._last_k is None or self._states is None:
+            breaks[0] = True
+        i = 0
+        while i < n:
+            if self.mode == DIAGNOSE or breaks[i]:
+                events += self.update(Sample(k=int(k[i]), timestamp_ns=int(t_ns[i]), u=U[i],
+                                             z=Z[i], gap=0))
+                if self.last_residuals is not None:
+                    R[i], Rn[i] = self.last_residuals, self.last_normalized
+                stat[i] = self.statistics
+                i += 1
+                continue
+            later = np.flatnonzero(breaks[i + 1:])
+            j = i + 1 + int(later[0]) if len(later) else n
+            i = self._monitor_stretch(k, t_ns, U, Z, i, j, R, Rn, stat, events)
+        return BlockResult(events=events, residuals=R, normalized=Rn, statistic=stat)
+
+    def _snapshot(self) -> tuple:
+        return ([s.copy() for s in self._states], self._u_last.copy(),
+                self._taint_until.copy())
+
+    def _monitor_stretch(self, k, t_ns, U, Z, i: int, j: int, R, Rn, stat, events) -> int:
+        """Vectorised monitoring of continuous samples i..j-1; returns where it stopped (after
+        the sample that raised an alarm, which ``update`` handled)."""
+        before = self._snapshot()
+        res, rn = self._residuals(k[i:j], U[i:j], Z[i:j])
+        valid = ~np.isnan(rn)
+        ph = page_hinkley_batch(rn, self.delta, self.thresholds, state=self.ph_state)
+        hit = np.flatnonzero(ph.alarms.any(axis=1))
+        done = int(hit[0]) if len(hit) else j - i
+        if len(hit):
+            # Redo the models up to the alarm row only: update() takes the alarm sample.
+            self._states, self._u_last, self._taint_until = before
+            if done:
+                self._residuals(k[i:i + done], U[i:i + done], Z[i:i + done])
+        if done > 0:
+            gu, gd = ph.g_up[:done], ph.g_down[:done]
+            for d, traj in enumerate((gu, gd)):
+                zero = (traj == 0.0) & valid[:done]
+                any_zero = zero.any(axis=0)
+                idx = done - 1 - np.argmax(zero[::-1], axis=0)
+                self._last_zero[any_zero, d] = k[i + idx[any_zero]]
+            self.ph_state = np.stack([gu[-1], gd[-1]], axis=1)
+            stat[i: i + done] = np.maximum(gu, gd)
+            R[i: i + done] = res[:done]
+            Rn[i: i + done] = rn[:done]
+            have = valid[:done].any(axis=1)
+            for r in np.flatnonzero(have)[-self._recent.maxlen:].tolist():
+                self._recent.append((int(k[i + r]), rn[r].copy()))
+            self._last_k = int(k[i + done - 1])
+            if have[-1]:
+                self.last_residuals, self.last_normalized = res[done - 1], rn[done - 1]
+            else:
+                self.last_residuals = self.last_normalized = None
+        if not len(hit):
+            return j
+        stop = i + done
+        events += self.update(Sample(k=int(k[stop]), timestamp_ns=int(t_ns[stop]), u=U[stop],
+                                     z=Z[stop], gap=0))
+        if self.last_residuals is not None:
+            R[stop], Rn[stop] = self.last_residuals, self.last_normalized
+        stat[stop] = self.statistics
+        return stop + 1
+
+    # -- the state machine -----------------------------------------------------------------
+    def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
+        self.ph_state, alarm = page_hinkley_step(self.ph_state, rn, self.delta, self.thresholds)
+        self._last_zero[(self.ph_state == 0.0) & ~np.isnan(rn)[:, None]] = k
+        if not alarm.any():
+            return []
+        alarming = np.flatnonzero(alarm)
+        col = np.where(alarm[alarming] > 0, 0, 1)
+        change_point = int(np.min(self._last_zero[alarming, col])) + 1
+        s = self.settings
+        first = self._recent[0][0]
+        onsets = [kf for kf in range(change_point - s.onset_before, k + 1) if kf >= first]
+        onsets = onsets[-s.max_onsets:] or [k]
+        start = max(first, min(onsets) - s.pre_samples)
+        rows = [(kk, r) for kk, r in self._recent if kk >= start]
+        self.mode = DIAGNOSE
+        self._diag = {"k_d": k, "onsets": onsets, "start": start,
+                      "next_check": k + s.min_samples,
+                      "k": [kk for kk, _ in rows], "r": [r for _, r in rows]}
+        event = FaultEvent(kind="detected", sample=k, timestamp_ns=t, detected_sample=k,
+                           onset_sample=change_point,
+                           residuals=tuple(self.residual_names[i] for i in alarming))
+        self.events.append(event)
+        return [event]
+
+    def _diagnose(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
+        d, s = self._diag, self.settings
+        d["k"].append(k)
+        d["r"].append(rn)
+        since = k - d["k_d"]
+        if k < d["next_check"] and since < s.max_samples:
+            return []
+        d["next_check"] = k + s.check_every
+        found, tried = self.isolate()
+        if found is not None:
+            return self._accept(k, t, found)
+        if since >= s.max_samples:
+            return self._unexplained(k, t, tried)
+        return []
+
+    # -- isolation -------------------------------------------------------------------------
+    def isolate(self) -> tuple[dict | None, list[dict]]:
+        """Test the hypotheses on the diagnosis window: (the accepted one or None, the best
+        few tried, for an "unexplained" event)."""
+        d = self._diag
+        kk = np.asarray(d["k"], dtype=np.int64)
+        Rn = np.asarray(d["r"], dtype=float)  # (N, q) normalised, NaN missing
+        valid = ~np.isnan(Rn)
+        Rv = np.where(valid, Rn, 0.0)
+        n_eq = max(int(valid.sum()), 1)
+        zero_cost = (Rv**2).sum(axis=0)  # (q,) cost of each output if it stays at zero
+        tried: list[dict] = []
+        passing = []
+        for i in range(self.p):
+            outs = np.flatnonzero(self._paths[:, i])
+            if len(outs) == 0:
+                continue
+            best_h = None
+            for kf in d["onsets"]:
+                res = self._actuator_test(i, outs, kf, kk, Rn, Rv, valid, zero_cost, n_eq)
+                if best_h is None or (res["passes"], -res["distance"]) > (best_h["passes"],
+                                                                          -best_h["distance"]):
+                    best_h = res
+            tried.append(best_h)
+            if best_h["passes"]:
+                passing.append(best_h)
+        if passing:
+            return min(passing, key=lambda h: h["distance"]), tried
+        sensors = []
+        for j in range(self.q):
+            best_h = None
+            for kf in d["onsets"]:
+                res = self._sensor_test(j, kf, kk, Rv, valid, zero_cost, n_eq)
+                if best_h is None or res["cost"] < best_h["cost"]:
+                    best_h = res
+            tried.append(best_h)
+            if best_h["passes"]:
+                sensors.append(best_h)
+        if sensors:
+            return min(sensors, key=lambda h: h["cost"]), tried
+        return None, sorted(tried, key=lambda h: h["cost"])
+
+    def _actuator_test(self, i, outs, kf, kk, Rn, Rv, valid, zero_cost, n_eq) -> dict:
+        s = self.settings
+        # (a) amplitude through the models: r_j / sigma_j = lambda s_ji(k - kf) / sigma_j.
+        X = np.zeros_like(Rv)
+        after = kk >= kf
+        for j in outs:
+            pair = self._pair_of[(int(j), i)]
+            step = np.zeros(len(kk))
+            step[after] = pair.step_response(int(kk[-1] - kf + 1))[kk[after] - kf]
+            X[:, j] = step / self.sigma[j]
+        X = X * valid
+        info = float((X**2).sum())
+        lam = float((X * Rv).sum()) / info if info > 0 else 0.0
+        cost = float(((Rv - lam * X) ** 2).sum())
+        scale = cost / max(n_eq - 1, 1)
+        var = scale / info if info > 0 else np.inf
+        fits = scale <= s.max_fit_variance
+        # (b) the free fit of the residual's step response on each output the path reaches.
+        gamma_ok, distance = True, 0.0
+        for j in outs:
+            pair = self._pair_of[(int(j), i)]
+            # Samples without any residual have no row: index by sample number.
+            r = np.full(int(kk[-1] - kk[0] + 1), np.nan)
+            r[kk - kk[0]] = Rn[:, j]
+            onset_row = int(kf - kk[0])
+            fit = fit_step(r, onset_row, len(pair.b), len(pair.f), pair.delay,
+                           f_starts=(np.asarray(pair.f),))
+            f_hat = np.asarray(pair.f)
+            if len(f_hat):
+                norm = float(np.linalg.norm(f_hat))
+                gamma_ok &= bool(np.all(np.sqrt(fit.var_f) <= s.gamma * norm))
+                distance = max(distance, float(np.linalg.norm(fit.f - f_hat)) / norm)
+            else:
+                g = fit.static_gain
+                gamma_ok &= bool(np.sqrt(np.sum(fit.var_b)) <= s.gamma * abs(g))
+        passes = bool(fits and gamma_ok and distance <= s.kappa)
+        return {"target": "actuator", "index": i, "name": self.input_names[i], "onset": int(kf),
+                "estimates": {"lambda": lam}, "variances": {"lambda": float(var)},
+                "cost": cost, "distance": distance, "gamma_ok": gamma_ok, "fits": fits,
+                "passes": passes}
+
+    def _sensor_test(self, j, kf, kk, Rv, valid, zero_cost, n_eq) -> dict:
+        s = self.settings
+        x = (kk >= kf) & valid[:, j]
+        n_after = int(x.sum())
+        b = float(Rv[x, j].mean()) if n_after else 0.0  # normalised units
+        cost_j = float(((Rv[:, j] - b * x) ** 2).sum())
+        cost = cost_j + float(zero_cost.sum() - zero_cost[j])
+        scale = cost / max(n_eq - 1, 1)
+        var = scale / n_after if n_after else np.inf
+        fits = scale <= s.max_fit_variance
+        gamma_ok = bool(np.sqrt(var) <= s.gamma * abs(b))
+        sig = self.sigma[j]
+        return {"target": "sensor", "index": j, "name": self.output_names[j], "onset": int(kf),
+                "estimates": {"bias": float(b * sig)}, "variances": {"bias": float(var * sig**2)},
+                "cost": cost, "distance": 0.0, "gamma_ok": gamma_ok, "fits": fits,
+                "passes": bool(fits and gamma_ok)}
+
+    # -- outcomes --------------------------------------------------------------------------
+    def _unexplained(self, k: int, t: int, tried: list[dict]) -> list[FaultEvent]:
+        keys = ("target", "index", "name", "estimates", "onset")
+        event = FaultEvent(kind="unexplained", sample=k, timestamp_ns=t,
+                           detected_sample=self._diag["k_d"],
+                           candidates=tuple({key: h[key] for key in keys} for h in tried[:3]))
+        self.events.append(event)
+        self.mode = MONITOR
+        self._restart_detector(k)
+        self._recent.clear()
+        return [event]
+
+    def _accept(self, k: int, t: int, h: dict) -> list[FaultEvent]:
+        d = self._diag
+        onset = h["onset"]
+        event = FaultEvent(kind="accepted", sample=k, timestamp_ns=t, target=h["target"],
+                           index=h["index"], name=h["name"], estimates=dict(h["estimates"]),
+                           variances=dict(h["variances"]), onset_sample=onset,
+                           detected_sample=d["k_d"], accepted_sample=k)
+        entry = {"target": h["target"], "index": h["index"], "onset": onset}
+        entry.update(h["estimates"])
+        self.compensation.append(entry)
+        if h["target"] == "actuator" and self._states is not None:
+            # Section 3.3 by superposition: the models' state after sample k moves by lambda
+            # times the state a unit step applied from the onset leaves in each path.
+            lam, steps = h["estimates"]["lambda"], k - onset + 1
+            new = []
+            for pair, zi in zip(self.model.pairs, self._states, strict=True):
+                if pair.input == h["index"] and pair.state_size and steps > 0:
+                    _, zf = lfilter(pair.num, pair.den, np.ones(steps),
+                                    zi=np.zeros(pair.state_size))
+                    zi = zi + lam * zf
+                new.append(zi)
+            self._states = new
+        self.mode = MONITOR
+        self._restart_detector(k)
+        self._recent.clear()
+        self.events.append(event)
+        return [event]
+

@@ -1,0 +1,217 @@
+"""The output_error method's config section (seed 003) and its diagnoser builder.
+
+Layout (``canfdi identify`` writes it from a fault-free log)::
+
+    method: output_error
+    output_error:
+      models:                          # one entry per (output, input) pair
+        - {output: T1, input: u1, b: [0.45], f: [-0.85], delay: 1}   # B(q)/F(q) q^-delay
+        - {output: T1, input: u3, path: false}                      # no path (also: unlisted)
+      operating_point: {u: [...], y: [...]}   # y_hat = y + sum G (u_c - u)
+      residual_std: [...]              # per output; default: the config's noise.measurement
+      long_run_variance: [...]         # per output, the residual's long-run / plain variance
+      gamma: 0.2                       # decision tests (canfdi.core.output_error)
+      kappa: 0.1
+      min_samples: 48                  # L - l0: samples after the alarm before deciding
+      max_samples: 400
+      pre_samples: 10                  # l0
+      onset_before: 3
+      max_onsets: 10
+      max_fit_variance: 4.0
+      check_every: 10
+      max_hold: 10
+      settle: 0.01
+      fit: {...}                       # free-form notes of `canfdi identify` (ignored here)
+
+b are the numerator coefficients b_0.., f the denominator coefficients f_1.. of a monic F
+(the 1 implied). Page-Hinkley drift and false-alarm interval come from ``detection:``.
+
+Thresholds: the OE residual of a well identified model is the measurement noise itself, white,
+so no simulation is needed to calibrate: Siegmund's threshold for the false-alarm interval,
+bounded by the same formula on the residual's long-run variance (measured on the
+identification data: model error colours the residual), see canfdi.core.output_error.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from canfdi.config import ConfigError, MonitorConfig
+from canfdi.core.oe_model import OeModel, OePair
+from canfdi.core.output_error import OeSettings, OutputErrorDiagnoser, oe_thresholds
+
+__all__ = ["build_output_error_diagnoser", "output_error_section", "parse_output_error"]
+
+SECTION = "output_error"
+_KEYS = {"models", "operating_point", "residual_std", "long_run_variance", "gamma", "kappa",
+         "min_samples", "max_samples", "pre_samples", "onset_before", "max_onsets",
+         "max_fit_variance", "check_every", "max_hold", "settle", "fit"}
+# field -> (type, lower bound, upper bound), inclusive
+_SETTINGS = {
+    "gamma": (float, 1e-9, 1e6), "kappa": (float, 1e-9, 1e6),
+    "min_samples": (int, 1, 10**6), "max_samples": (int, 1, 10**7),
+    "pre_samples": (int, 0, 10**4), "onset_before": (int, 0, 10**4),
+    "max_onsets": (int, 1, 1000), "max_fit_variance": (float, 1.0, 1e12),
+    "check_every": (int, 1, 10**6), "max_hold": (int, 0, 10**6), "settle": (float, 1e-9, 0.5),
+}
+
+
+def _number(value: Any, field: str) -> float:
+    if isinstance(value, str):
+        try:  # PyYAML reads 1.0e7 without an exponent sign as a string
+            value = float(value)
+        except ValueError:
+            raise ConfigError(field, f"expected a number, got {value!r}") from None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
+        raise ConfigError(field, f"expected a finite number, got {value!r}")
+    return float(value)
+
+
+def _numbers(value: Any, field: str, size: int | None = None) -> list[float]:
+    if not isinstance(value, list):
+        raise ConfigError(field, f"expected a list of numbers, got {value!r}")
+    out = [_number(v, f"{field}[{i}]") for i, v in enumerate(value)]
+    if size is not None and len(out) != size:
+        raise ConfigError(field, f"expected {size} values, got {len(out)}")
+    return out
+
+
+def _pair(entry: Any, where: str, inputs: list[str], outputs: list[str]) -> OePair | None:
+    if not isinstance(entry, dict):
+        raise ConfigError(where, "expected a mapping {output, input, b, f, delay}")
+    unknown = set(entry) - {"output", "input", "b", "f", "delay", "path"}
+    if unknown:
+        raise ConfigError(f"{where}.{sorted(unknown)[0]}",
+                          "unknown key (allowed: b, delay, f, input, output, path)")
+    for key, names in (("output", outputs), ("input", inputs)):
+        if entry.get(key) not in names:
+            raise ConfigError(f"{where}.{key}", f"expected one of {', '.join(names)}, got "
+                                                f"{entry.get(key)!r}")
+    path = entry.get("path", True)
+    if not isinstance(path, bool):
+        raise ConfigError(f"{where}.path", f"expected true or false, got {path!r}")
+    if not path:
+        return None
+    b = _numbers(entry.get("b"), f"{where}.b")
+    if not b:
+        raise ConfigError(f"{where}.b", "needs at least one coefficient (or path: false)")
+    f = _numbers(entry.get("f", []), f"{where}.f")
+    delay = entry.get("delay", 1)
+    if isinstance(delay, bool) or not isinstance(delay, int) or not 0 <= delay <= 1000:
+        raise ConfigError(f"{where}.delay", f"expected an integer in [0, 1000], got {delay!r}")
+    pair = OePair(output=outputs.index(entry["output"]), input=inputs.index(entry["input"]),
+                  b=tuple(b), f=tuple(f), delay=delay)
+    if f and pair.pole_radius >= 1.0:
+        raise ConfigError(f"{where}.f", f"F(q) is not stable (a pole of modulus "
+                                        f"{pair.pole_radius:.4g}): an OE model must be")
+    return pair
+
+
+def parse_output_error(config: MonitorConfig) -> tuple[OeModel, np.ndarray, np.ndarray,
+                                                       OeSettings]:
+    """(model, residual std (q,), long-run variance ratios (q,), settings) of the config's
+    output_error section; ConfigError naming the field on bad input."""
+    sec = config.method_options
+    if not isinstance(sec, dict) or not sec:
+        raise ConfigError(SECTION, "missing section (run `canfdi identify` to write it)")
+    for key in sec:
+        if key not in _KEYS:
+            raise ConfigError(f"{SECTION}.{key}",
+                              f"unknown key (allowed: {', '.join(sorted(_KEYS))})")
+    inputs, outputs = config.inputs, config.outputs
+    models = sec.get("models")
+    if not isinstance(models, list) or not models:
+        raise ConfigError(f"{SECTION}.models", "expected a non-empty list of pairs")
+    pairs, seen = [], set()
+    for n, entry in enumerate(models):
+        where = f"{SECTION}.models[{n}]"
+        pair = _pair(entry, where, inputs, outputs)
+        key = (entry["output"], entry["input"])
+        if key in seen:
+            raise ConfigError(where, f"pair {key[0]} <- {key[1]} given twice")
+        seen.add(key)
+        if pair is not None:
+            pairs.append(pair)
+    if not pairs:
+        raise ConfigError(f"{SECTION}.models", "no pair has a path")
+    op = sec.get("operating_point") or {}
+    if not isinstance(op, dict) or set(op) - {"u", "y"}:
+        raise ConfigError(f"{SECTION}.operating_point", "expected a mapping {u: [...], y: [...]}")
+    u0 = _numbers(op.get("u", [0.0] * len(inputs)), f"{SECTION}.operating_point.u", len(inputs))
+    y0 = _numbers(op.get("y", [0.0] * len(outputs)), f"{SECTION}.operating_point.y",
+                  len(outputs))
+    model = OeModel(pairs=tuple(pairs), u0=np.array(u0), y0=np.array(y0))
+    if "residual_std" in sec:
+        sigma = np.array(_numbers(sec["residual_std"], f"{SECTION}.residual_std", len(outputs)))
+        field = f"{SECTION}.residual_std"
+    else:
+        sigma = config.design.measurement_std
+        field = "noise.measurement"
+        if sigma is None:
+            raise ConfigError(f"{SECTION}.residual_std",
+                              "needed (or noise.measurement): the residuals' noise level")
+    if np.any(np.asarray(sigma) <= 0):
+        raise ConfigError(field, "every residual standard deviation must be > 0")
+    long_run = np.array(_numbers(sec.get("long_run_variance", [1.0] * len(outputs)),
+                                 f"{SECTION}.long_run_variance", len(outputs)))
+    if np.any(long_run <= 0):
+        raise ConfigError(f"{SECTION}.long_run_variance", "ratios must be > 0")
+    values: dict[str, Any] = {}
+    for name, (kind, lo, hi) in _SETTINGS.items():
+        if name not in sec:
+            continue
+        field = f"{SECTION}.{name}"
+        v = sec[name]
+        if kind is int:
+            if isinstance(v, bool) or not isinstance(v, int):
+                raise ConfigError(field, f"expected an integer, got {v!r}")
+        else:
+            v = _number(v, field)
+        if not lo <= v <= hi:
+            raise ConfigError(field, f"must be in [{lo}, {hi}], got {v!r}")
+        values[name] = v
+    settings = OeSettings(drift=config.detection.drift,
+                          false_alarm_interval=config.detection.false_alarm_interval, **values)
+    if settings.max_samples < settings.min_samples:
+        raise ConfigError(f"{SECTION}.max_samples",
+                          f"must be >= min_samples ({settings.min_samples})")
+    return model, np.asarray(sigma, dtype=float), long_run, settings
+
+
+def build_output_error_diagnoser(config: MonitorConfig) -> OutputErrorDiagnoser:
+    """The seed 003 diagnoser the config's output_error section describes."""
+    model, sigma, long_run, settings = parse_output_error(config)
+    thresholds = oe_thresholds(settings.drift, settings.false_alarm_interval, long_run)
+    return OutputErrorDiagnoser(model, sigma, thresholds, settings, config.inputs,
+                                config.outputs)
+
+
+def output_error_section(model: OeModel, sigma: np.ndarray, long_run: np.ndarray,
+                         inputs: list[str], outputs: list[str],
+                         fit: dict | None = None, **settings: Any) -> dict:
+    """The YAML-ready output_error section of an identified model (pairs without a path are
+    listed with ``path: false``)."""
+    entries = []
+    have = {(pr.output, pr.input): pr for pr in model.pairs}
+    for j, out in enumerate(outputs):
+        for i, inp in enumerate(inputs):
+            pr = have.get((j, i))
+            if pr is None:
+                entries.append({"output": out, "input": inp, "path": False})
+            else:
+                entries.append({"output": out, "input": inp,
+                                "b": [float(f"{x:.10g}") for x in pr.b],
+                                "f": [float(f"{x:.10g}") for x in pr.f], "delay": pr.delay})
+    sec: dict[str, Any] = {
+        "models": entries,
+        "operating_point": {"u": [float(f"{x:.10g}") for x in model.u0],
+                            "y": [float(f"{x:.10g}") for x in model.y0]},
+        "residual_std": [float(f"{x:.6g}") for x in sigma],
+        "long_run_variance": [float(f"{max(x, 1.0):.4g}") for x in long_run],
+    }
+    sec.update(settings)
+    if fit:
+        sec["fit"] = fit
+    return sec
