@@ -11,11 +11,12 @@ import sys
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from canfdi import __version__
-from canfdi.cli import bench, capture, demo, design, export, replay, run, sim, soak
+from canfdi.cli import bench, capture, demo, design, export, replay, report, run, sim, soak
 
 VERBS = {
     "run": run, "demo": demo, "design": design, "sim": sim, "capture": capture, "replay": replay,
     "bench": bench, "soak": soak, "export": export,
+    "report": report,
 }
 
 
