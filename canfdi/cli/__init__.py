@@ -13,10 +13,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from canfdi import __version__
 from canfdi.cli import bench, capture, demo, design, export, replay, report, run, sim, soak
 
+# isort: split
+from canfdi.cli import identify  # the output_error method's model fitting (seed 003)
+
 VERBS = {
     "run": run, "demo": demo, "design": design, "sim": sim, "capture": capture, "replay": replay,
     "bench": bench, "soak": soak, "export": export,
     "report": report,
+    "identify": identify,
 }
 
 
