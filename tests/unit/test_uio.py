@@ -1,0 +1,160 @@
+"""canfdi.core.uio and the UioDiagnoser: (CE)^+ decoupling, the diagonal actuator map, the
+GRGS fault angles, and update_block against update (NaN values and gaps included)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from canfdi.config import ConfigError, load_config
+from canfdi.core.records import Sample
+from canfdi.core.uio import decouple, design_uio, fault_angles, flag_function
+from canfdi.method_uio import build_uio_diagnoser, parse_uio_options
+from tests.reproduction.test_seed004_vtol import CONFIG
+
+
+@pytest.fixture(scope="module")
+def config():
+    return load_config(CONFIG)
+
+
+@pytest.fixture(scope="module")
+def model(config):
+    return config.model.discretize()
+
+
+@pytest.fixture(scope="module")
+def design(config, model):
+    return design_uio(model.A, model.B, model.C, model.F, model.dt,
+                      measurement_std=np.full(4, 0.01), input_names=config.inputs,
+                      output_names=config.outputs)
+
+
+def _simulate(model, n, d=None, u=None, f_act=None, f_sens=None, seed=0):
+    rng = np.random.default_rng(seed)
+    u = rng.standard_normal((n, model.p)) if u is None else u
+    x = np.zeros(model.n)
+    Y = np.empty((n, model.q))
+    for k in range(n):
+        Y[k] = model.C @ x + (0.0 if f_sens is None else f_sens[k])
+        ua = u[k] + (0.0 if f_act is None else f_act[k])
+        x = model.A @ x + model.B @ ua + (0.0 if d is None else model.F[:, 0] * d[k])
+    return np.hstack([Y, u])
+
+
+def test_decoupling_projects_out_the_unknown_input(model):
+    dec = decouple(model.A, model.B, model.C, model.F)
+    assert np.abs(dec.Pi @ model.F).max() < 1e-14  # Pi E = 0
+    assert np.abs(dec.H @ model.C @ model.F).max() < 1e-14  # H CE = 0
+    with pytest.raises(ValueError, match="rank"):
+        decouple(model.A, model.B, model.C[:2], np.array([[0.0], [0.0], [1.0], [0.0]]))
+
+
+def test_residuals_do_not_see_the_unknown_input(model, design):
+    """Any d(k), however large, leaves every front-end output at round-off."""
+    rng = np.random.default_rng(1)
+    n = 2000
+    u = rng.standard_normal((n, model.p))
+    clean = design.fir.batch(_simulate(model, n, u=u))
+    dist = design.fir.batch(_simulate(model, n, u=u, d=50.0 * rng.standard_normal(n)))
+    scale = np.abs(dist - clean).max(axis=0) / design.front_std
+    assert scale.max() < 1e-8
+    assert np.abs(clean).max() < 1e-9
+
+
+def test_actuator_map_is_diagonal_and_exact(model, design):
+    """FIDF output j is actuator j's fault (one sample late), whatever the other does."""
+    n = 400
+    f = np.zeros((n, 2))
+    f[100:, 0] = 1.0
+    f[200:, 1] = -0.5 * np.sin(np.arange(200) * 0.1)
+    o = design.fir.batch(_simulate(model, n, f_act=f))  # row j: sample j + S
+    S = design.fir.S
+    fhat = o[:, :2]  # fhat(k-1) at sample k
+    np.testing.assert_allclose(fhat[:-1], f[S - 1: n - 1][:-1], atol=1e-8)
+    np.testing.assert_allclose(design.fault_dc[:2, :2], np.eye(2), atol=1e-9)
+
+
+@pytest.mark.parametrize("i", range(4))
+def test_sensor_fault_direction_is_column_i_of_hf0(model, design, i):
+    """A bias on sensor i leaves GRGS residual i at zero and moves the others along column i
+    of Hf(0): its fault angle is zero, the smallest."""
+    n = 300
+    f = np.zeros((n, 4))
+    f[100:, i] = 1.0
+    o = design.fir.batch(_simulate(model, n, f_sens=f))
+    r = o[-1, 2:]
+    assert abs(r[i]) < 1e-10
+    theta = fault_angles(r, design.Hf0)
+    assert np.argmin(theta) == i and theta[i] < 1e-6
+    assert np.all(np.abs(np.delete(design.Hf0[:, i], i)) > 0) and design.Hf0[i, i] == 0
+    assert flag_function(r) > 0
+    # A negative bias: eq 23's angle is 180 degrees, the unsigned one zero.
+    assert fault_angles(-r, design.Hf0)[i] == pytest.approx(np.pi)
+    assert fault_angles(-r, design.Hf0, signed=False)[i] < 1e-6
+
+
+def _records(config, seed=3):
+    from firmware_sim.scenario import parse_scenario
+    from firmware_sim.simulate import Simulator
+
+    sc = parse_scenario({"name": "t", "plant": "vtol", "duration": 6.0, "seed": seed,
+                         "faults": [{"target": "actuator", "index": 0, "onset": 2.0,
+                                     "lambda": 1.0},
+                                    {"target": "sensor", "index": 3, "onset": 4.0,
+                                     "bias": 1.0}]})
+    ch = Simulator(sc).advance(600)
+    k, U, Z = ch.k.copy(), ch.u_c.copy(), ch.z.copy()
+    rng = np.random.default_rng(seed)
+    Z[rng.random(Z.shape) < 0.01] = np.nan  # lost values
+    U[rng.random(U.shape) < 0.005] = np.nan
+    keep = np.ones(len(k), bool)
+    keep[[50, 51, 52, 400]] = False  # a short gap and a one-sample gap
+    keep[120:140] = False  # a long gap: the window restarts
+    return k[keep], (k[keep] * 10_000_000), U[keep], Z[keep]
+
+
+@pytest.mark.parametrize("chunk", [1, 7, 1000])
+def test_update_block_equals_update(config, chunk):
+    k, t, U, Z = _records(config)
+    a = build_uio_diagnoser(config)
+    b = build_uio_diagnoser(config)
+    events_a, rows = [], []
+    for i in range(len(k)):
+        events_a += a.update(Sample(k=int(k[i]), timestamp_ns=int(t[i]), u=U[i], z=Z[i]))
+        rows.append(np.full(6, np.nan) if a.last_residuals is None else a.last_residuals)
+    events_b, res = [], []
+    for i in range(0, len(k), chunk):
+        out = b.update_block(k[i:i + chunk], t[i:i + chunk], U[i:i + chunk], Z[i:i + chunk])
+        events_b += out.events
+        res.append(out.residuals)
+    assert events_a == events_b
+    np.testing.assert_array_equal(np.vstack(res), np.array(rows))
+    assert [e.kind for e in events_a][:2] == ["detected", "accepted"]
+    assert events_a[1].target == "actuator" and events_a[1].index == 0
+
+
+def test_nan_makes_only_the_residuals_reading_it_missing(config):
+    dg = build_uio_diagnoser(config)
+    z, u = np.zeros(4), np.zeros(2)
+    for k in range(10):
+        dg.update(Sample(k=k, timestamp_ns=k, u=u, z=z))
+    z_lost = z.copy()
+    z_lost[0] = np.nan  # v_h lost: GRGS scheme 0 (blind to v_h) still computes
+    dg.update(Sample(k=10, timestamp_ns=10, u=u, z=z_lost))
+    r = dg.last_residuals
+    assert not np.isnan(r[2]) and np.isnan(r[3:]).all() and np.isnan(r[:2]).all()
+
+
+@pytest.mark.parametrize(("options", "field"), [
+    ({"angle_threshold": 0}, "uio.angle_threshold"),
+    ({"sensor_pole": "fast"}, "uio.sensor_pole"),
+    ({"min_samples": 2.5}, "uio.min_samples"),
+    ({"min_samples": 50, "max_samples": 10}, "uio.max_samples"),
+    ({"poles": [1]}, "uio.poles"),
+    ([1, 2], "uio"),
+])
+def test_bad_options_name_their_field(options, field):
+    with pytest.raises(ConfigError) as info:
+        parse_uio_options(options)
+    assert info.value.field == field
