@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -35,7 +36,30 @@ def open_bus(interface: str, channel: str, bitrate: int | None = None,
         kwargs["bitrate"] = bitrate
     if receive_own_messages:
         kwargs["receive_own_messages"] = True
-    return can.Bus(**kwargs)
+    bus = can.Bus(**kwargs)
+    _enlarge_receive_buffer(bus)
+    return bus
+
+
+# A SocketCAN socket's default receive buffer (about 200 KiB) holds well under a second of a
+# saturated bus; a monitor busy for a moment (GC, a slow disk, a loaded host) must not lose
+# frames in the kernel.
+RECEIVE_BUFFER_BYTES = 8 * 2**20
+
+
+def _enlarge_receive_buffer(bus: can.BusABC) -> None:
+    sock = getattr(bus, "socket", None)
+    if not isinstance(sock, socket.socket):
+        return
+    # SO_RCVBUFFORCE passes net.core.rmem_max when privileged; else SO_RCVBUF up to it.
+    for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        if option is None:
+            continue
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, option, RECEIVE_BUFFER_BYTES)
+            return
+        except OSError:
+            continue
 
 
 class BusBridge(can.Listener):

@@ -217,3 +217,17 @@ def test_systemd_units_verify():
         assert res.returncode == 0 and not problems, res.stdout + res.stderr
     finally:
         shutil.rmtree(tmp)
+
+
+def test_the_monitor_socket_gets_a_large_receive_buffer():
+    """A busy moment of the monitor must not lose frames in the kernel's socket queue."""
+    import socket
+
+    from canfdi.service import RECEIVE_BUFFER_BYTES, open_bus
+
+    bus = open_bus("socketcan", "vcan0")
+    try:
+        size = bus.socket.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    finally:
+        bus.shutdown()
+    assert size >= RECEIVE_BUFFER_BYTES  # the kernel doubles the value it is given
