@@ -16,11 +16,15 @@ from canfdi.cli import bench, capture, demo, design, export, replay, report, run
 # isort: split
 from canfdi.cli import identify  # the output_error method's model fitting (seed 003)
 
+# isort: split
+from canfdi.cli import evaluate  # issue 10: Monte Carlo evaluation of the diagnosis
+
 VERBS = {
     "run": run, "demo": demo, "design": design, "sim": sim, "capture": capture, "replay": replay,
     "bench": bench, "soak": soak, "export": export,
     "report": report,
     "identify": identify,
+    "evaluate": evaluate,
 }
 
 

@@ -1,0 +1,351 @@
+"""`canfdi evaluate`: Monte Carlo over generated fault scenarios through the monitor's diagnoser.
+
+Issue 10. The work is in canfdi.evaluate (generation, simulation, matching, metrics); this
+module parses arguments, prints and plots. Like soak and demo, it needs the plant emulator.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from canfdi.cli.common import DEFAULT_CONFIG_DIR, config_error, load_config_or_exit
+from canfdi.config import ConfigError
+
+HELP = """\
+Monte Carlo evaluation of the diagnosis: generate --runs fault scenarios for --plant, run each
+through the emulated plant and a fresh copy of the diagnoser the config describes (built and
+calibrated once; its batch path, update_block), match the events to the injected faults and
+report detection rate, detection delay (mean, 95th percentile, in samples), isolation
+accuracy with a confusion matrix, false alarms per hour of fault-free time, missed faults and
+relative estimate errors, overall, per fault-to-noise bin, per fault kind and per channel.
+
+Scenarios (seeded: run i draws from SeedSequence(--seed).spawn(runs)[i]): 0..--max-faults
+consecutive faults, never repaired, on distinct channels the parity design says are
+detectable (undetectable ones are listed, not drawn): actuator bias (lambda), actuator scale
+(eta) or sensor bias. Magnitudes are drawn log-uniformly in fault-to-noise ratio (FNR,
+--fnr LO HI): the steady change the fault makes in the residual most sensitive to it, in that
+residual's noise standard deviations (the "best f/n" of `canfdi design` times the fault's size,
+over the run's noise scale; an actuator scale's size is |eta - 1| times the rms of the
+fault-free command). The measurement noise of each run is the config's times a factor drawn
+log-uniformly in [1/--noise-spread, --noise-spread]. Onsets follow a fault-free lead-in of 300
+to 1000 samples and are identification.max_samples + 1000 samples apart (--spacing), so each
+fault can be detected and diagnosed before the next; runs with no fault are fault-free time.
+Values are rounded to the DBC's signal resolution, as the bus carries them (--no-quantize:
+exact).
+
+Matching: a detection in [onset, next onset) belongs to that fault (delay = detection sample -
+onset); a detection before the first onset, or after that fault's diagnosis was accepted, is a
+false alarm; a fault with no detection in its segment is missed. Isolation is correct when the
+accepted channel is the injected one ("exact") or the injected one is among the accepted
+event's candidates (twins with the same residual signature, e.g. the DC motor's i_a and
+i_f_plus_i_a: "candidate"); isolation accuracy is correct / faults with an accepted diagnosis.
+Relative estimate error: |estimate - true| / |true| for eta, for lambda when the true lambda is
+nonzero and for a sensor bias; a fault's error is its largest; over correctly isolated faults.
+False alarms per hour count over fault-free samples: from the first residual to the first
+onset (the whole run without faults) and from each acceptance to the next onset.
+
+--method chooses the default config deploy/config/<plant>.yaml (parity), <plant>_oe.yaml
+(output_error) or <plant>_uio.yaml (uio); --config gives any. -o DIR writes
+<plant>_<method>.png (detection delay and isolation accuracy against FNR) and
+<plant>_<method>.json. Progress on stderr; --json prints one object. Exit status 0, or 2 on bad
+arguments or config."""
+
+METHOD_SUFFIX = {"parity": "", "output_error": "_oe", "uio": "_uio"}
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    from firmware_sim.plants import PLANTS
+
+    p = sub.add_parser("evaluate", help="Monte Carlo evaluation: detection, isolation, delays",
+                       description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--plant", required=True, metavar="PLANT",
+                   help=f"emulated plant: {', '.join(PLANTS)}")
+    p.add_argument("--method", choices=list(METHOD_SUFFIX), default=None,
+                   help="diagnosis method; picks deploy/config/<plant>[_oe|_uio].yaml "
+                        "(default: parity, or the --config's)")
+    p.add_argument("--config", type=Path, default=None, metavar="FILE",
+                   help="monitor config (default: by --plant and --method)")
+    p.add_argument("--runs", type=int, default=100, metavar="N",
+                   help="generated runs (default 100)")
+    p.add_argument("--seed", type=int, default=1, metavar="S", help="master seed (default 1)")
+    p.add_argument("--max-faults", type=int, default=3, metavar="K",
+                   help="at most K consecutive faults per run; 0..K uniformly (default 3)")
+    p.add_argument("--fnr", type=float, nargs=2, default=(0.5, 50.0), metavar=("LO", "HI"),
+                   help="fault-to-noise ratio range, drawn log-uniformly (default 0.5 50)")
+    p.add_argument("--noise-spread", type=float, default=1.25, metavar="X",
+                   help="noise factor drawn log-uniformly in [1/X, X] (default 1.25; 1: the "
+                        "config's noise)")
+    p.add_argument("--kinds", default="actuator_bias,actuator_scale,sensor_bias",
+                   metavar="LIST", help="fault kinds to draw, comma-separated (default all: "
+                                        "actuator_bias,actuator_scale,sensor_bias)")
+    p.add_argument("--spacing", type=int, default=None, metavar="SAMPLES",
+                   help="samples between onsets (default identification.max_samples + 1000)")
+    p.add_argument("--no-quantize", action="store_true",
+                   help="feed exact values, not rounded to the DBC's signal resolution")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("-o", "--output", type=Path, default=None, metavar="DIR",
+                   help="write <plant>_<method>.png and .json into DIR")
+    p.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
+
+
+def _fail(message: str) -> int:
+    print(f"canfdi evaluate: {message}", file=sys.stderr)
+    return 2
+
+
+def _config_path(args: argparse.Namespace) -> Path | int:
+    if args.config is not None:
+        return args.config
+    method = args.method or "parity"
+    path = DEFAULT_CONFIG_DIR / f"{args.plant}{METHOD_SUFFIX[method]}.yaml"
+    if not path.exists():
+        return _fail(f"no {method} config for {args.plant} yet: {path} does not exist "
+                     "(give one with --config)")
+    return path
+
+
+def _check_args(args: argparse.Namespace) -> str | None:
+    from canfdi.evaluate import FAULT_KINDS
+    from firmware_sim.plants import PLANTS
+
+    if args.plant not in PLANTS:
+        return f"--plant: unknown plant {args.plant!r} (known: {', '.join(PLANTS)})"
+    if args.runs < 1:
+        return "--runs: at least 1"
+    if args.seed < 0:
+        return "--seed: an integer >= 0"
+    if args.max_faults < 0:
+        return "--max-faults: an integer >= 0"
+    lo, hi = args.fnr
+    if not (0 < lo <= hi and math.isfinite(hi)):
+        return "--fnr: 0 < LO <= HI"
+    if not (args.noise_spread >= 1 and math.isfinite(args.noise_spread)):
+        return "--noise-spread: a number >= 1"
+    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
+    bad = [k for k in kinds if k not in FAULT_KINDS]
+    if bad or not kinds:
+        return f"--kinds: {', '.join(bad) or '(empty)'}: not among {', '.join(FAULT_KINDS)}"
+    args.kinds = kinds
+    if args.spacing is not None and args.spacing < 100:
+        return "--spacing: at least 100 samples"
+    return None
+
+
+def run(args: argparse.Namespace) -> int:
+    problem = _check_args(args)
+    if problem:
+        return _fail(problem)
+    path = _config_path(args)
+    if isinstance(path, int):
+        return path
+    config = load_config_or_exit(path, "evaluate")
+    if isinstance(config, int):
+        return config
+    if args.method is not None and config.method != args.method:
+        return _fail(f"--method {args.method}, but {path} is a {config.method} config")
+    from firmware_sim.plants import make_plant
+
+    plant = make_plant(args.plant)
+    if (tuple(config.inputs), tuple(config.outputs)) != (plant.input_names, plant.output_names):
+        return config_error(ConfigError(
+            "signals", f"the {args.plant} plant has inputs {list(plant.input_names)}, outputs "
+                       f"{list(plant.output_names)}; this config has inputs {config.inputs}, "
+                       f"outputs {config.outputs}"), "evaluate")
+    start = time.monotonic()
+
+    def progress(msg: str) -> None:
+        if not args.no_progress:
+            print(f"canfdi evaluate [{time.monotonic() - start:6.1f} s] {msg}", file=sys.stderr,
+                  flush=True)
+
+    try:
+        result = evaluate(config, args, progress)
+    except (ConfigError, ValueError) as exc:
+        return config_error(exc, "evaluate")
+    result["config"] = str(path)
+    result["wall_s"] = time.monotonic() - start
+    if args.output is not None:
+        args.output.mkdir(parents=True, exist_ok=True)
+        stem = args.output / f"{args.plant}_{config.method}"
+        plot(result, stem.with_suffix(".png"))
+        stem.with_suffix(".json").write_text(json.dumps(result, indent=2) + "\n")
+        result["files"] = [str(stem.with_suffix(".png")), str(stem.with_suffix(".json"))]
+        progress(f"wrote {stem}.png and {stem}.json")
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print_report(result)
+    return 0
+
+
+def evaluate(config, args: argparse.Namespace, progress) -> dict[str, Any]:
+    from canfdi.evaluate import aggregate, plan_runs, run_evaluation, setup_from_config
+    from canfdi.monitor import build_diagnoser
+
+    progress(f"designing and calibrating the {config.method} monitor")
+    setup = setup_from_config(config, args.plant, spacing=args.spacing)
+    specs = plan_runs(setup, args.runs, args.seed, max_faults=args.max_faults,
+                      fnr_range=tuple(args.fnr), noise_spread=args.noise_spread,
+                      kinds=args.kinds)
+    base = build_diagnoser(config)
+    preprocess = None
+    if not args.no_quantize:
+        try:
+            from canfdi.cli.soak import _bus_resolution, _quantize
+
+            u_sig, z_sig = _bus_resolution(config)
+            preprocess = lambda U, Z: (_quantize(U, u_sig), _quantize(Z, z_sig))  # noqa: E731
+        except (ValueError, OSError) as exc:
+            progress(f"no bus resolution ({exc}): exact values")
+    total = sum(s.samples for s in specs)
+    progress(f"{len(specs)} runs, {sum(len(s.faults) for s in specs)} faults, "
+             f"{total:,} samples")
+    outcomes = run_evaluation(config, setup, specs, preprocess=preprocess, progress=progress,
+                              diagnoser=base)
+    metrics = aggregate(outcomes, setup.dt)
+    result: dict[str, Any] = {
+        "plant": args.plant, "method": config.method, "seed": args.seed,
+        "settings": {"max_faults": args.max_faults, "fnr_range": list(args.fnr),
+                     "noise_spread": args.noise_spread, "kinds": list(args.kinds),
+                     "spacing_samples": setup.spacing, "lead_samples": list(setup.lead),
+                     "quantized": preprocess is not None, "dt": setup.dt},
+        "channels": [{"channel": c.label, "target": c.target, "index": c.index,
+                      "unit_fault_to_noise": c.gap, "detectable": c.detectable,
+                      "reason": c.reason} for c in setup.channels],
+        "undetectable": [c.label for c in setup.channels if not c.detectable],
+    }
+    result.update(metrics)
+    result["fault_list"] = [dict(f.as_dict(), run=o.run, noise_scale=o.noise_scale)
+                            for o in outcomes for f in o.faults]
+    result["false_alarm_list"] = [dict(a, run=o.run) for o in outcomes for a in o.false_alarms]
+    return result
+
+
+# -- output --------------------------------------------------------------------------------------
+
+def _f(x: float | None, fmt: str = ".3g") -> str:
+    return "-" if x is None else format(x, fmt)
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{100 * x:.1f}%"
+
+
+def print_report(r: dict[str, Any]) -> None:
+    s = r["settings"]
+    print(f"evaluation of {r['config']} ({r['method']}) on the emulated {r['plant']}: "
+          f"{r['runs']} runs, seed {r['seed']}, {r['wall_s']:.1f} s")
+    print(f"  faults drawn: 0..{s['max_faults']} per run, {', '.join(s['kinds'])}; "
+          f"fault-to-noise {s['fnr_range'][0]:g}..{s['fnr_range'][1]:g}, noise x "
+          f"1/{s['noise_spread']:g}..{s['noise_spread']:g}, onsets {s['spacing_samples']} "
+          f"samples apart{', bus resolution' if s['quantized'] else ', exact values'}")
+    if r["undetectable"]:
+        print(f"  not drawn (the design says undetectable): {', '.join(r['undetectable'])}")
+    iso = r["isolation"]
+    rows = [
+        ("faults", f"{r['faults']} in {r['runs']} runs ({r['runs_fault_free']} fault-free)"),
+        ("detection rate", f"{_pct(r['detection_rate'])} ({r['detected']} detected, "
+                           f"{r['missed']} missed)"),
+        ("delay (samples)", f"mean {_f(r['delay_mean_samples'])}, median "
+                            f"{_f(r['delay_median_samples'])}, p95 {_f(r['delay_p95_samples'])}"
+                            f", max {_f(r['delay_max_samples'])}"),
+        ("decisions", f"{r['accepted']} accepted, {r['unexplained']} unexplained, "
+                      f"{r['undecided']} undecided"),
+        ("isolation", f"{_pct(r['isolation_accuracy'])} of accepted ({iso['exact']} exact, "
+                      f"{iso['candidate']} among twin candidates, {iso['design_twin']} a design "
+                      f"twin, {iso['wrong']} wrong); exact only "
+                      f"{_pct(r['isolation_accuracy_exact'])}"),
+        ("false alarms", f"{r['false_alarms']} in {r['fault_free_hours']:.3g} h fault-free = "
+                         f"{_f(r['false_alarms_per_hour'])} per hour "
+                         f"({r['false_alarms_before_fault']} before a fault, "
+                         f"{r['false_alarms_after_accepted']} after an accepted diagnosis)"),
+        ("estimate error", f"median {_pct(r['estimate_error_median'])}, p95 "
+                           f"{_pct(r['estimate_error_p95'])} over {r['estimate_errors']} faults"),
+    ]
+    for name, value in rows:
+        print(f"  {name:<17}{value}")
+    print("\nby fault-to-noise ratio:")
+    print(f"  {'FNR':<11}{'faults':>7}{'detected':>10}{'delay mean':>12}{'delay p95':>11}"
+          f"{'isolated':>10}{'est. err':>10}")
+    for b in r["by_fnr"]:
+        print(f"  {b['fnr_lo']:>4g}-{b['fnr_hi']:<5g}{b['faults']:>7}"
+              f"{_pct(b['detection_rate']):>10}{_f(b['delay_mean_samples']):>12}"
+              f"{_f(b['delay_p95_samples']):>11}{_pct(b['isolation_accuracy']):>10}"
+              f"{_pct(b['estimate_error_median']):>10}")
+    print("\nby kind / channel:")
+    for name, b in list(r["by_kind"].items()) + list(r["by_channel"].items()):
+        print(f"  {name:<28}{b['faults']:>4} faults, detected {_pct(b['detection_rate'])}, "
+              f"delay mean {_f(b['delay_mean_samples'])}, isolated "
+              f"{_pct(b['isolation_accuracy'])}, est. err {_pct(b['estimate_error_median'])}")
+    conf = r["confusion"]
+    if conf:
+        cols = list(next(iter(conf.values())))
+        width = max(8, *(len(c) + 1 for c in cols))
+        print("\nconfusion (rows: injected channel; columns: diagnosed):")
+        print(f"  {'':<28}" + "".join(f"{c:>{width}}" for c in cols))
+        for row, counts in conf.items():
+            print(f"  {row:<28}" + "".join(f"{counts[c]:>{width}}" for c in cols))
+    for f in r.get("files", []):
+        print(f"wrote {f}")
+
+
+def plot(r: dict[str, Any], path: Path) -> None:
+    """Detection delay and isolation accuracy against fault-to-noise ratio, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    faults = r["fault_list"]
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7.5, 7), sharex=True)
+    det = [f for f in faults if f["delay"] is not None]
+    missed = [f for f in faults if f["delay"] is None]
+    ax1.scatter([f["fnr"] for f in det], [max(f["delay"], 0) + 1 for f in det], s=12,
+                alpha=0.6, label="detected fault (delay + 1)")
+    if missed:
+        top = max([f["delay"] + 1 for f in det], default=10) * 2
+        ax1.scatter([f["fnr"] for f in missed], [top] * len(missed), marker="x", color="red",
+                    label="missed")
+    centers, means, p95s, acc, rate = [], [], [], [], []
+    for b in r["by_fnr"]:
+        if not b["faults"]:
+            continue
+        c = math.sqrt(b["fnr_lo"] * b["fnr_hi"])
+        centers.append(c)
+        means.append(None if b["delay_mean_samples"] is None else b["delay_mean_samples"] + 1)
+        p95s.append(None if b["delay_p95_samples"] is None else b["delay_p95_samples"] + 1)
+        acc.append(b["isolation_accuracy"])
+        rate.append(b["detection_rate"])
+
+    def line(ax, xs, ys, **kw):
+        pts = [(x, y) for x, y in zip(xs, ys, strict=True) if y is not None]
+        if pts:
+            ax.plot(*zip(*pts, strict=True), marker="o", **kw)
+
+    line(ax1, centers, means, color="black", label="bin mean")
+    line(ax1, centers, p95s, color="gray", linestyle="--", label="bin 95th percentile")
+    ax1.set_xscale("log")
+    ax1.set_yscale("log")
+    ax1.set_ylabel("detection delay + 1 (samples)")
+    ax1.legend(fontsize=8)
+    ax1.grid(True, which="both", alpha=0.3)
+    ax1.set_title(f"canfdi evaluate: {r['plant']}, {r['method']}, {r['runs']} runs")
+    line(ax2, centers, acc, color="tab:green", label="isolation accuracy (of accepted)")
+    line(ax2, centers, rate, color="tab:blue", linestyle="--", label="detection rate")
+    for lo in [b["fnr_lo"] for b in r["by_fnr"]] + [r["by_fnr"][-1]["fnr_hi"]]:
+        ax2.axvline(lo, color="gray", alpha=0.2)
+    ax2.set_ylim(-0.05, 1.05)
+    ax2.set_xscale("log")
+    ax2.set_xlabel("fault-to-noise ratio (residual noise standard deviations)")
+    ax2.set_ylabel("fraction of faults")
+    ax2.legend(fontsize=8, loc="lower right")
+    ax2.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

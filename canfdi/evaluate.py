@@ -1,0 +1,617 @@
+"""Monte Carlo evaluation of a diagnoser (issue 10, `canfdi evaluate`).
+
+Generated scenarios (seeded) run through the emulated plant (firmware_sim.simulate) and through
+a fresh copy of the diagnoser the config describes (its batch path, ``update_block``); the events
+are matched to the injected faults and summarised.
+
+Four pieces, each usable alone:
+
+1. ``plan_runs``: the scenarios. Run i draws from its own generator
+   (``SeedSequence(seed).spawn(runs)[i]``), so it is the same whatever ``runs`` is. Each run has
+   0..max_faults consecutive, never repaired faults, on distinct channels drawn among those the
+   parity design says are detectable (undetectable channels are listed, never drawn), each
+   kind drawn among actuator bias (lambda), actuator scale (eta) and sensor bias. Onsets are
+   spaced by ``spacing`` samples (enough to detect and diagnose before the next); the first
+   comes after a fault-free lead-in, and runs with no fault give fault-free time too.
+2. ``run_evaluation``: simulation and diagnosis.
+3. ``match_run`` (pure): events against injected faults.
+4. ``aggregate`` (pure): the metrics.
+
+Fault-to-noise ratio (FNR). For a fault of constant size f on channel c:
+``FNR = |f| * G_c / noise_scale``, where G_c is the design's best unit fault-to-noise gap for c
+(max over the residuals that respond to c of |response to a unit constant fault| / residual
+noise std, at the config's noise: the "best f/n" column of `canfdi design`) and noise_scale is
+the run's measurement noise over the config's. f is the bias for a sensor bias or an actuator
+bias (lambda), and |eta - 1| * rms(u_c) for an actuator scale (rms of that actuator's command in
+a fault-free run of the plant). In words: the steady change the fault makes in the residual most
+sensitive to it, in that residual's noise standard deviations. Magnitudes are drawn
+log-uniformly in FNR.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from canfdi.core.records import FaultEvent
+
+if TYPE_CHECKING:
+    from canfdi.config import MonitorConfig
+    from canfdi.core.design import Design
+
+__all__ = ["FAULT_KINDS", "FNR_BINS", "Channel", "EvaluationSetup", "FaultOutcome",
+           "InjectedFault", "RunOutcome", "RunSpec", "aggregate", "label", "match_run",
+           "plan_runs", "relative_errors", "run_evaluation", "setup_from_config"]
+
+FAULT_KINDS = ("actuator_bias", "actuator_scale", "sensor_bias")
+#: Edges of the fault-to-noise bins the report and the plot use.
+FNR_BINS = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
+
+
+def label(target: str | None, index: int | None, names: dict[str, Sequence[str]] | None = None
+          ) -> str:
+    """'a:V' / 's:i_f' (or 'a:0' / 's:1' without names), as residual names are written."""
+    if target is None or index is None:
+        return "?"
+    prefix = "a" if target == "actuator" else "s"
+    if names is not None:
+        return f"{prefix}:{names[target][index]}"
+    return f"{prefix}:{index}"
+
+
+# -- what is injected ----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class InjectedFault:
+    """One injected fault.
+
+    target : "actuator" or "sensor"; index : 0-based channel; name : the signal's name.
+    kind : one of FAULT_KINDS. onset_sample : first faulty sample k.
+    params : the true parameters: {"eta", "lambda"} for actuators, {"bias"} for sensors.
+    fnr : fault-to-noise ratio (module docstring).
+    """
+
+    target: str
+    index: int
+    name: str
+    kind: str
+    onset_sample: int
+    params: dict[str, float]
+    fnr: float = math.nan
+
+    @property
+    def label(self) -> str:
+        return f"{'a' if self.target == 'actuator' else 's'}:{self.name}"
+
+    def scenario_entry(self, dt: float) -> dict[str, Any]:
+        """The fault as firmware_sim.scenario.parse_scenario takes it."""
+        out: dict[str, Any] = {"target": self.target, "index": self.index,
+                               "onset": self.onset_sample * dt}
+        if self.target == "actuator":
+            out.update(eta=float(self.params.get("eta", 1.0)),
+                       **{"lambda": float(self.params.get("lambda", 0.0))})
+        else:
+            out["bias"] = float(self.params["bias"])
+        return out
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"target": self.target, "index": self.index, "name": self.name,
+                "channel": self.label, "kind": self.kind, "onset_sample": self.onset_sample,
+                "params": dict(self.params), "fnr": self.fnr}
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One generated run: ``samples`` samples at ``noise_scale`` times the config's measurement
+    noise, scenario seed ``seed``, faults in onset order."""
+
+    run: int
+    seed: int
+    samples: int
+    noise_scale: float
+    faults: tuple[InjectedFault, ...]
+
+    def scenario_dict(self, plant: str, dt: float, measurement_std: np.ndarray) -> dict:
+        """The scenario as firmware_sim.scenario.parse_scenario takes it."""
+        return {
+            "name": f"evaluate_{plant}_{self.run}", "plant": plant,
+            "duration": self.samples * dt, "seed": self.seed,
+            "noise": {"measurement": [float(v) for v in measurement_std * self.noise_scale],
+                      "process": 0.0},
+            "faults": [f.scenario_entry(dt) for f in self.faults],
+        }
+
+
+@dataclass(frozen=True)
+class Channel:
+    """A fault channel of the design: its unit gap G (residual noise stds per unit constant
+    fault, at the config's noise) and whether the design says it is detectable."""
+
+    target: str
+    index: int
+    name: str
+    gap: float
+    detectable: bool
+    reason: str = ""
+
+    @property
+    def label(self) -> str:
+        return f"{'a' if self.target == 'actuator' else 's'}:{self.name}"
+
+
+@dataclass(frozen=True)
+class EvaluationSetup:
+    """What plan_runs needs to know about a plant and its monitor.
+
+    dt : sample period (s). channels : every actuator and sensor channel.
+    u_rms : (p,) rms of each fault-free command (actuator scale faults' FNR).
+    measurement_std : (q,) the config's sensor noise.
+    spacing : samples between consecutive onsets; lead : (min, max) samples before the first.
+    twins : label -> labels with the same residual signature (design.confused_with).
+    """
+
+    plant: str
+    dt: float
+    channels: tuple[Channel, ...]
+    u_rms: np.ndarray
+    measurement_std: np.ndarray
+    spacing: int
+    lead: tuple[int, int]
+    twins: dict[str, frozenset[str]] = field(default_factory=dict)
+
+    @property
+    def detectable(self) -> list[Channel]:
+        return [c for c in self.channels if c.detectable]
+
+
+def setup_from_config(config: MonitorConfig, plant: str, design: Design | None = None,
+                      spacing: int | None = None, lead: tuple[int, int] = (300, 1000)
+                      ) -> EvaluationSetup:
+    """The channels, gaps and twins of the config's parity design, and the plant's nominal
+    command level (one fault-free 30 s run at the config's noise).
+
+    spacing defaults to identification.max_samples + 1000: a fault detected up to 1000 samples
+    after its onset can still be decided before the next one."""
+    from canfdi.core.design import design_bank
+    from firmware_sim.plants import make_plant
+    from firmware_sim.scenario import parse_scenario
+    from firmware_sim.simulate import simulate
+
+    design = design or design_bank(config.model, config.inputs, config.outputs, config.design)
+    plant_obj = make_plant(plant)
+    dt = float(config.model.dt or plant_obj.dt)
+    meas = (np.asarray(config.design.measurement_std, dtype=float) * np.ones(design.model.q)
+            if config.design.measurement_std is not None
+            else np.asarray(plant_obj.noise_defaults().measurement, dtype=float))
+    responds = design.responds
+    sigma = np.array([r.noise_std for r in design.actuators + design.sensors])
+    p = design.model.p
+    channels = []
+    for kind, j, det in design.detectability:
+        col = j if kind == "actuator" else p + j
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratios = np.abs(design.gain[:, col]) / sigma
+        ok = np.isfinite(ratios) & responds[:, col]
+        gap = float(ratios[ok].max()) if ok.any() else 0.0
+        names = design.input_names if kind == "actuator" else design.output_names
+        detectable = bool(det.detectable) and bool(responds[:, col].any()) and gap > 0
+        reason = "" if detectable else (det.reason or "no residual responds to it")
+        channels.append(Channel(kind, j, names[j], gap, detectable, reason))
+    confused = design.confused_with()
+    labels = [c.label for c in channels]
+    order = {(c.target, c.index): i for i, c in enumerate(channels)}
+    twins = {}
+    for c in channels:
+        col = c.index if c.target == "actuator" else p + c.index
+        twins[c.label] = frozenset(labels[order[("actuator", k) if k < p else ("sensor", k - p)]]
+                                   for k in confused[col])
+    nominal = parse_scenario({"plant": plant, "duration": 30.0, "seed": 0,
+                              "noise": {"measurement": [float(v) for v in meas],
+                                        "process": 0.0}})
+    u_rms = np.sqrt(np.mean(simulate(nominal).u_c ** 2, axis=0))
+    spacing = spacing if spacing is not None else config.identification.max_samples + 1000
+    return EvaluationSetup(plant=plant, dt=dt, channels=tuple(channels), u_rms=u_rms,
+                           measurement_std=meas, spacing=int(spacing), lead=lead, twins=twins)
+
+
+def plan_runs(setup: EvaluationSetup, runs: int, seed: int, *, max_faults: int = 3,
+              fnr_range: tuple[float, float] = (0.5, 50.0), noise_spread: float = 1.25,
+              kinds: Sequence[str] = FAULT_KINDS, max_eta_change: float = 0.9
+              ) -> list[RunSpec]:
+    """``runs`` generated runs (module docstring).
+
+    Per run: the number of faults uniform in 0..max_faults (at most the number of detectable
+    channels); channels without replacement, uniform among the detectable ones; an actuator's
+    kind uniform among the actuator kinds allowed; FNR log-uniform in fnr_range; noise_scale
+    log-uniform in [1/noise_spread, noise_spread]; a lead-in uniform in setup.lead, then one
+    onset every setup.spacing samples (plus up to a tenth of it at random); a fault-free run
+    lasts lead + spacing. An actuator scale keeps |eta - 1| <= max_eta_change when decreasing
+    (eta stays positive) and takes eta = 1 + d otherwise.
+    """
+    act_kinds = [k for k in kinds if k.startswith("actuator")]
+    sens = "sensor_bias" in kinds
+    pool = [c for c in setup.detectable
+            if (c.target == "actuator" and act_kinds) or (c.target == "sensor" and sens)]
+    if not pool:
+        raise ValueError("no detectable channel takes the fault kinds asked for")
+    children = np.random.SeedSequence(seed).spawn(runs)
+    lo, hi = np.log(fnr_range[0]), np.log(fnr_range[1])
+    out = []
+    for i, child in enumerate(children):
+        rng = np.random.default_rng(child)
+        n_faults = int(rng.integers(0, min(max_faults, len(pool)) + 1))
+        noise_scale = float(np.exp(rng.uniform(-np.log(noise_spread), np.log(noise_spread))))
+        lead = int(rng.integers(setup.lead[0], setup.lead[1] + 1))
+        chosen = rng.choice(len(pool), size=n_faults, replace=False)
+        k = lead
+        faults = []
+        for c_i in chosen:
+            c = pool[int(c_i)]
+            fnr = float(np.exp(rng.uniform(lo, hi)))
+            size = fnr * noise_scale / c.gap  # the constant fault with that FNR
+            sign = 1.0 if rng.random() < 0.5 else -1.0
+            if c.target == "sensor":
+                kind, params = "sensor_bias", {"bias": float(sign * size)}
+            else:
+                kind = str(act_kinds[int(rng.integers(len(act_kinds)))])
+                if kind == "actuator_scale" and setup.u_rms[c.index] > 0:
+                    d = size / setup.u_rms[c.index]
+                    if sign < 0 and d > max_eta_change:
+                        sign = 1.0
+                    params = {"eta": float(1.0 + sign * d), "lambda": 0.0}
+                else:
+                    kind, params = "actuator_bias", {"eta": 1.0, "lambda": float(sign * size)}
+            faults.append(InjectedFault(c.target, c.index, c.name, kind, k, params, fnr))
+            k += setup.spacing + int(rng.integers(0, setup.spacing // 10 + 1))
+        samples = k if faults else lead + setup.spacing
+        out.append(RunSpec(run=i, seed=int(rng.integers(0, 2**31 - 1)), samples=samples,
+                           noise_scale=noise_scale, faults=tuple(faults)))
+    return out
+
+
+# -- matching ------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class FaultOutcome:
+    """What the diagnoser made of one injected fault.
+
+    detected_sample : first detection in [onset, next onset) (None: missed); delay = that -
+        onset (samples).
+    decision : "accepted" (a diagnosis accepted for a detection of this fault), "unexplained"
+        (its detections all ended unexplained), "none" (missed, or detected and undecided by the
+        end of the run).
+    diagnosed : the channel label accepted ("unexplained" / "none" otherwise).
+    isolation : "exact" (accepted target and index are the truth), "candidate" (the truth is
+        among the accepted event's candidates: a twin with the same signature), "design_twin"
+        (another channel the design says has the same signature, not listed as a candidate),
+        "wrong", or None when nothing was accepted.
+    estimate : the estimates of the accepted (or candidate) channel that matched the truth.
+    errors : relative estimate error per parameter (relative_errors); error : their maximum.
+    """
+
+    fault: InjectedFault
+    detected_sample: int | None
+    delay: int | None
+    decision: str
+    diagnosed: str
+    isolation: str | None
+    accepted_sample: int | None = None
+    estimate: dict[str, float] = field(default_factory=dict)
+    errors: dict[str, float] = field(default_factory=dict)
+    extra_channels: int = 0
+
+    @property
+    def detected(self) -> bool:
+        return self.detected_sample is not None
+
+    @property
+    def correct(self) -> bool:
+        return self.isolation in ("exact", "candidate")
+
+    @property
+    def error(self) -> float | None:
+        return max(self.errors.values()) if self.errors else None
+
+    def as_dict(self) -> dict[str, Any]:
+        out = self.fault.as_dict()
+        out.update(detected_sample=self.detected_sample, delay=self.delay,
+                   decision=self.decision, diagnosed=self.diagnosed, isolation=self.isolation,
+                   accepted_sample=self.accepted_sample, estimate=dict(self.estimate),
+                   errors=dict(self.errors), error=self.error,
+                   extra_channels=self.extra_channels)
+        return out
+
+
+@dataclass(frozen=True)
+class RunOutcome:
+    """One run matched: per-fault outcomes, false alarms ({"sample", "context"}: context
+    "before_fault" or "after_accepted"), and the fault-free samples they were counted over."""
+
+    faults: tuple[FaultOutcome, ...]
+    false_alarms: tuple[dict, ...]
+    fault_free_samples: int
+    samples: int
+    run: int = 0
+    noise_scale: float = 1.0
+
+
+def relative_errors(fault: InjectedFault, estimates: dict[str, float]) -> dict[str, float]:
+    """|estimate - true| / |true| per parameter: eta always (the true eta is 1 for a bias), lambda
+    only when its true value is nonzero, a sensor's bias. Missing estimates are skipped."""
+    out = {}
+    for key in ("eta", "lambda", "bias"):
+        if key not in fault.params or key not in estimates:
+            continue
+        true = float(fault.params[key])
+        if key == "lambda" and true == 0.0:
+            continue
+        if true == 0.0:
+            continue
+        out[key] = abs(float(estimates[key]) - true) / abs(true)
+    return out
+
+
+def _isolate(fault: InjectedFault, accepted: list[FaultEvent],
+             twins: dict[str, frozenset[str]] | None, names: dict | None
+             ) -> tuple[str, str, dict[str, float], int]:
+    """(isolation, diagnosed label, matching estimates, extra channels) of one decision."""
+    def lab(e: FaultEvent) -> str:
+        if e.name is not None:
+            return f"{'a' if e.target == 'actuator' else 's'}:{e.name}"
+        return label(e.target, e.index, names)
+
+    extra = len(accepted) - 1
+    for e in accepted:
+        if e.target == fault.target and e.index == fault.index:
+            return "exact", lab(e), dict(e.estimates), extra
+    for e in accepted:
+        for c in e.candidates:
+            if c.get("target") == fault.target and c.get("index") == fault.index:
+                return "candidate", lab(e), dict(c.get("estimates", {})), extra
+    first = accepted[0]
+    if twins is not None and lab(first) in twins.get(fault.label, frozenset()):
+        return "design_twin", lab(first), {}, extra
+    return "wrong", lab(first), {}, extra
+
+
+def match_run(faults: Sequence[InjectedFault], events: Sequence[FaultEvent], samples: int,
+              first_monitored: int = 0, twins: dict[str, frozenset[str]] | None = None,
+              names: dict | None = None, run: int = 0, noise_scale: float = 1.0
+              ) -> RunOutcome:
+    """Match one run's events to its injected faults.
+
+    Rules (faults sorted by onset; fault i owns the segment [onset_i, onset_{i+1}) or to the
+    end of the run):
+
+    - a detection in fault i's segment before fault i is accepted belongs to fault i (the first
+      one gives its detection sample; re-detections after an "unexplained" end stay its own);
+    - a detection before the first onset, or in a segment after that segment's fault was
+      accepted, is a false alarm ("before_fault" / "after_accepted");
+    - fault i is missed when no detection falls in its segment;
+    - its decision is the first detection of its own whose diagnosis was accepted (accepted
+      events are tied to detections by detected_sample, so a decision may come after the next
+      onset), else "unexplained" if one ended so, else "none";
+    - fault-free samples: from first_monitored (the first sample with residuals) to the first
+      onset (to the end in a run without faults), plus each segment from its fault's acceptance
+      to its end.
+
+    Parameters
+    ----------
+    faults : the injected faults; events : the diagnoser's events of the run, in order.
+    samples : samples in the run. twins : label -> same-signature labels (design).
+    names : {"actuator": input names, "sensor": output names} for events without a name.
+    """
+    faults = sorted(faults, key=lambda f: f.onset_sample)
+    onsets = [f.onset_sample for f in faults]
+    ends = [*onsets[1:], samples]
+    detections = sorted((e for e in events if e.kind == "detected"), key=lambda e: e.sample)
+    accepted_by: dict[int, list[FaultEvent]] = {}
+    unexplained = set()
+    for e in events:
+        if e.kind == "accepted":
+            accepted_by.setdefault(e.detected_sample, []).append(e)
+        elif e.kind == "unexplained":
+            unexplained.add(e.detected_sample)
+    own: list[list[FaultEvent]] = [[] for _ in faults]
+    accepted_at: list[int | None] = [None] * len(faults)
+    false_alarms = []
+    for d in detections:
+        seg = next((i for i in range(len(faults)) if onsets[i] <= d.sample < ends[i]), None)
+        if seg is None:
+            false_alarms.append({"sample": d.sample, "context": "before_fault"})
+            continue
+        if accepted_at[seg] is not None and d.sample >= accepted_at[seg]:
+            false_alarms.append({"sample": d.sample, "context": "after_accepted"})
+            continue
+        own[seg].append(d)
+        acc = accepted_by.get(d.sample)
+        if acc and accepted_at[seg] is None:
+            accepted_at[seg] = min(e.accepted_sample if e.accepted_sample is not None
+                                   else e.sample for e in acc)
+    outcomes = []
+    for i, f in enumerate(faults):
+        if not own[i]:
+            outcomes.append(FaultOutcome(f, None, None, "none", "none", None))
+            continue
+        first = own[i][0].sample
+        decided = next((d for d in own[i] if d.sample in accepted_by), None)
+        if decided is None:
+            decision = ("unexplained" if any(d.sample in unexplained for d in own[i])
+                        else "none")
+            outcomes.append(FaultOutcome(f, first, first - f.onset_sample, decision, decision,
+                                         None))
+            continue
+        acc = accepted_by[decided.sample]
+        isolation, diagnosed, est, extra = _isolate(f, acc, twins, names)
+        errors = relative_errors(f, est) if isolation in ("exact", "candidate") else {}
+        outcomes.append(FaultOutcome(f, first, first - f.onset_sample, "accepted", diagnosed,
+                                     isolation, accepted_at[i], est, errors, extra))
+    if faults:
+        free = max(0, onsets[0] - first_monitored)
+        for i in range(len(faults)):
+            if accepted_at[i] is not None:
+                free += max(0, ends[i] - max(accepted_at[i], first_monitored))
+    else:
+        free = max(0, samples - first_monitored)
+    return RunOutcome(tuple(outcomes), tuple(false_alarms), free, samples, run, noise_scale)
+
+
+# -- metrics -------------------------------------------------------------------------------------
+
+def _stats(values: Sequence[float]) -> dict[str, float | None]:
+    if not values:
+        return {"mean": None, "median": None, "p95": None, "max": None}
+    a = np.asarray(values, dtype=float)
+    return {"mean": float(a.mean()), "median": float(np.median(a)),
+            "p95": float(np.percentile(a, 95)), "max": float(a.max())}
+
+
+def _ratio(num: int, den: int) -> float | None:
+    return num / den if den else None
+
+
+def _summary(outs: Sequence[FaultOutcome]) -> dict[str, Any]:
+    """Detection, delay, isolation and error figures of a set of fault outcomes."""
+    n = len(outs)
+    detected = [o for o in outs if o.detected]
+    accepted = [o for o in outs if o.decision == "accepted"]
+    iso = {k: sum(o.isolation == k for o in accepted)
+           for k in ("exact", "candidate", "design_twin", "wrong")}
+    correct = iso["exact"] + iso["candidate"]
+    delays = _stats([o.delay for o in detected])
+    errors = _stats([o.error for o in outs if o.error is not None])
+    return {
+        "faults": n, "detected": len(detected), "missed": n - len(detected),
+        "detection_rate": _ratio(len(detected), n),
+        "delay_mean_samples": delays["mean"], "delay_median_samples": delays["median"],
+        "delay_p95_samples": delays["p95"], "delay_max_samples": delays["max"],
+        "accepted": len(accepted),
+        "unexplained": sum(o.decision == "unexplained" for o in outs),
+        "undecided": sum(o.detected and o.decision == "none" for o in outs),
+        "isolation": iso,
+        "isolation_accuracy": _ratio(correct, len(accepted)),
+        "isolation_accuracy_exact": _ratio(iso["exact"], len(accepted)),
+        "isolated_correctly_of_all": _ratio(correct, n),
+        "estimate_error_median": errors["median"], "estimate_error_p95": errors["p95"],
+        "estimate_errors": sum(o.error is not None for o in outs),
+    }
+
+
+def aggregate(runs: Sequence[RunOutcome], dt: float,
+              bins: Sequence[float] = FNR_BINS) -> dict[str, Any]:
+    """The metrics of matched runs.
+
+    detection_rate = detected / faults; delays over detected faults (numpy percentile, linear
+    interpolation); isolation_accuracy = correctly isolated (exact or among the candidates) /
+    faults with an accepted diagnosis (isolation_accuracy_exact: exact only); confusion[true
+    channel][diagnosed channel, "unexplained" or "none"] counts every fault once;
+    false_alarms_per_hour = false alarms / (fault-free samples * dt / 3600);
+    estimate_error_* over the correctly isolated faults, each fault's error being the largest
+    relative error of its parameters. by_fnr: the same per fault-to-noise bin [lo, hi) (faults
+    below the first edge or at/above the last go to the end bins); by_kind: per fault kind.
+    """
+    outs = [o for r in runs for o in r.faults]
+    out: dict[str, Any] = {"runs": len(runs),
+                           "runs_fault_free": sum(not r.faults for r in runs)}
+    out.update(_summary(outs))
+    params: dict[str, list[float]] = {}
+    for o in outs:
+        for k, v in o.errors.items():
+            params.setdefault(k, []).append(v)
+    out["estimate_error_by_parameter"] = {k: _stats(v) for k, v in sorted(params.items())}
+    rows = sorted({o.fault.label for o in outs})
+    cols = sorted(({o.diagnosed for o in outs} | set(rows)) - {"unexplained", "none"})
+    cols += ["unexplained", "none"]
+    confusion = {r: {c: 0 for c in cols} for r in rows}
+    for o in outs:
+        confusion[o.fault.label][o.diagnosed] += 1
+    out["confusion"] = confusion
+    fa = [a for r in runs for a in r.false_alarms]
+    free = sum(r.fault_free_samples for r in runs)
+    hours = free * dt / 3600.0
+    out.update(
+        false_alarms=len(fa),
+        false_alarms_before_fault=sum(a["context"] == "before_fault" for a in fa),
+        false_alarms_after_accepted=sum(a["context"] == "after_accepted" for a in fa),
+        fault_free_samples=free, fault_free_hours=hours,
+        false_alarms_per_hour=(len(fa) / hours) if hours > 0 else None,
+        samples=sum(r.samples for r in runs),
+    )
+    edges = list(bins)
+    by_fnr = []
+    for b in range(len(edges) - 1):
+        lo, hi = edges[b], edges[b + 1]
+        sel = [o for o in outs
+               if (lo <= o.fault.fnr < hi) or (b == 0 and o.fault.fnr < lo)
+               or (b == len(edges) - 2 and o.fault.fnr >= hi)]
+        entry = {"fnr_lo": lo, "fnr_hi": hi}
+        entry.update(_summary(sel))
+        by_fnr.append(entry)
+    out["by_fnr"] = by_fnr
+    out["by_kind"] = {k: _summary([o for o in outs if o.fault.kind == k])
+                      for k in FAULT_KINDS if any(o.fault.kind == k for o in outs)}
+    out["by_channel"] = {c: _summary([o for o in outs if o.fault.label == c]) for c in rows}
+    return out
+
+
+# -- running -------------------------------------------------------------------------------------
+
+def run_evaluation(config: MonitorConfig, setup: EvaluationSetup, specs: Sequence[RunSpec], *,
+                   block: int = 2000,
+                   preprocess: Callable[[np.ndarray, np.ndarray], tuple] | None = None,
+                   progress: Callable[[str], None] = lambda msg: None,
+                   diagnoser=None) -> list[RunOutcome]:
+    """Simulate each run and diagnose it with a fresh copy of the config's diagnoser (built
+    and calibrated once) through ``update_block`` in blocks of ``block`` samples.
+
+    preprocess(U, Z) -> (U, Z) is applied to the simulated commands and measurements first
+    (the CLI rounds them to the DBC's resolution, as the bus does)."""
+    from canfdi.monitor import build_diagnoser
+    from firmware_sim.scenario import parse_scenario
+    from firmware_sim.simulate import simulate
+
+    base = diagnoser if diagnoser is not None else build_diagnoser(config)
+    design = getattr(base, "design", None)
+    memo = {id(design): design} if design is not None else {}
+    names = {"actuator": list(config.inputs), "sensor": list(config.outputs)}
+    dt_ns = round(setup.dt * 1e9)
+    outcomes = []
+    last = time.monotonic()
+    for n, spec in enumerate(specs):
+        scenario = parse_scenario(spec.scenario_dict(setup.plant, setup.dt,
+                                                     setup.measurement_std))
+        chunk = simulate(scenario)
+        U, Z = chunk.u_c, chunk.z
+        if preprocess is not None:
+            U, Z = preprocess(U, Z)
+        dg = copy.deepcopy(base, dict(memo))
+        events: list[FaultEvent] = []
+        first_monitored = None
+        for i in range(0, len(chunk.k), block):
+            k = chunk.k[i: i + block]
+            res = dg.update_block(k, k * dt_ns, U[i: i + block], Z[i: i + block])
+            events.extend(res.events)
+            if first_monitored is None:
+                have = np.flatnonzero(~np.isnan(res.residuals).all(axis=1))
+                if len(have):
+                    first_monitored = int(k[have[0]])
+        outcome = match_run(spec.faults, events, len(chunk.k),
+                            first_monitored if first_monitored is not None else len(chunk.k),
+                            setup.twins, names, spec.run, spec.noise_scale)
+        outcomes.append(outcome)
+        now = time.monotonic()
+        if now - last >= 2.0 or n == len(specs) - 1:
+            last = now
+            faults = sum(len(o.faults) for o in outcomes)
+            det = sum(f.detected for o in outcomes for f in o.faults)
+            ok = sum(f.correct for o in outcomes for f in o.faults)
+            fa = sum(len(o.false_alarms) for o in outcomes)
+            progress(f"run {n + 1}/{len(specs)}: {faults} faults, {det} detected, "
+                     f"{ok} isolated, {fa} false alarms")
+    return outcomes
