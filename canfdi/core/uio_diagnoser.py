@@ -107,6 +107,10 @@ class UioDiagnoser:
                                      + self.S + 8)
         self._recent: deque = deque(maxlen=settings.onset_lookback + self.S + 1)
         self.events: list[FaultEvent] = []
+        # One entry per accepted fault: {"event", "ranking"}, the ranking listing every
+        # hypothesis by angle with its estimate, the FIDF's own lambda or the GRGS bias and
+        # the paper's eq 23b angle theta_i (grgs_angle_deg).
+        self.isolations: list[dict] = []
         self.compensation: list[dict] = []
         self.reset()
 
@@ -356,6 +360,7 @@ class UioDiagnoser:
             D = self.design.fault_dc / fit["se"][:, None]
             angles = np.degrees(fault_angles(fit["mu"] / fit["se"], D, signed=False))
             candidates = self._candidates(fit, angles, np.argsort(angles))[:3]
+        # As in canfdi.core.diagnoser, an unexplained event lists the best few hypotheses.
         event = FaultEvent(kind="unexplained", sample=k, timestamp_ns=t,
                            detected_sample=self._diag["k_d"], candidates=candidates)
         self.events.append(event)
@@ -374,8 +379,10 @@ class UioDiagnoser:
         event = FaultEvent(kind="accepted", sample=k, timestamp_ns=t, target=target,
                            index=index, name=name, estimates={key: est},
                            variances={key: se**2}, onset_sample=onset,
-                           detected_sample=self._diag["k_d"], accepted_sample=k,
-                           candidates=self._candidates(fit, angles, order))
+                           detected_sample=self._diag["k_d"], accepted_sample=k)
+        # The angles are no candidates in the FaultEvent sense (channels explaining the data
+        # equally well: the monitor prints them as such); they go with the event here.
+        self.isolations.append({"event": event, "ranking": self._candidates(fit, angles, order)})
         self.compensation.append({"target": target, "index": index, "onset": onset, key: est})
         self._rerun(onset)
         self.mode = MONITOR

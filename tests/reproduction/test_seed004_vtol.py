@@ -55,7 +55,8 @@ def test_actuator_biases_each_isolated_in_its_own_residual():
         assert abs(event.onset_sample - onset) <= 3
         assert event.detected_sample - onset <= 10
         # The identification filter's own residual (the diagonal map) says the same.
-        own = event.candidates[0]
+        assert event.candidates == ()
+        own = next(i["ranking"][0] for i in monitor.diagnoser.isolations if i["event"] is event)
         assert own["index"] == event.index
         assert own["fidf_lambda"] == pytest.approx(event.estimates["lambda"], rel=0.05)
     # The second fault moved its own FIDF residual, not the first's: the diagonal map.
@@ -75,8 +76,10 @@ def test_sensor_bias_isolated_by_the_smallest_angle(index):
     assert event.estimates["bias"] == pytest.approx(1.0, rel=0.05)
     assert abs(event.onset_sample - 200) <= 3
     # Smallest angle: over all fault columns and over the paper's GRGS angles alone.
-    assert event.candidates[0]["index"] == index and event.candidates[0]["target"] == "sensor"
-    grgs = {c["index"]: c["grgs_angle_deg"] for c in event.candidates if c["target"] == "sensor"}
+    assert event.candidates == ()  # nothing explains the data as well
+    ranking = monitor.diagnoser.isolations[0]["ranking"]
+    assert ranking[0]["index"] == index and ranking[0]["target"] == "sensor"
+    grgs = {c["index"]: c["grgs_angle_deg"] for c in ranking if c["target"] == "sensor"}
     assert min(grgs, key=grgs.get) == index
     assert grgs[index] < 5.0
 
