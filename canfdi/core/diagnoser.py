@@ -16,8 +16,9 @@ every hypothesis outside its ambiguity group costs at least ``isolation_margin``
 log-likelihood-ratio margin on the normalised residuals) and its estimates have settled (standard
 deviation below ``settle_rel_std`` of their size) and it leaves about the noise (residual variance
 per equation at most ``max_fit_variance`` times nominal: a transient such as one corrupt sample
-is no persistent fault, and no step fits it). Hypotheses with the same residual signature
-(canfdi.core.design) fit equally well forever; the event then lists them all as candidates.
+is no persistent fault, and no step fits it). Hypotheses whose bias signatures over the window
+are proportional fit equally well forever (the ambiguity group); the event then lists them all
+as candidates, with the size each would have.
 No acceptance by ``max_samples``: an "unexplained" event and the detector restarts.
 
 ACCEPT. The estimate is folded into a compensation applied from k_f on (z_j - b, or
@@ -191,6 +192,14 @@ def _long_run_variance(bank: ResidualBank, measurement_std: np.ndarray,
     return np.maximum(exact, means.var(axis=0, ddof=1) * block)
 
 
+def _proportional(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> bool:
+    """Whether two signatures are multiples of each other (and nonzero)."""
+    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    if na == 0.0 or nb == 0.0:
+        return False
+    return abs(float(a @ b)) >= (1.0 - tol) * na * nb
+
+
 class Diagnoser:
     """Streaming diagnoser: ``update(sample) -> events``.
 
@@ -226,13 +235,16 @@ class Diagnoser:
             self.hypotheses.append(Hypothesis("sensors", joint[0], "+".join(
                 design.output_names[j] for j in joint), members=tuple(joint)))
         self.d = max(h.n_params for h in self.hypotheses)
-        # Hypotheses whose faults have the same residual signature (design.confused_with) fit
-        # the data equally well forever: they are reported together, never told apart.
-        confused = design.confused_with()
-        column = {h: (h.index if h.target == "actuator" else model.p + h.index)
-                  for h in self.hypotheses if h.target != "sensors"}
-        self._twins = {h: {g for g in column if column[g] in confused[column[h]]}
-                       for h in column}
+        # Hypotheses whose bias signatures over the window are proportional (a sensor's Gz_j,
+        # an actuator's lambda part Gu_j) fit a bias equally well forever: they are reported
+        # together, never told apart. (The design's isolability table, which compares only
+        # which residuals respond, is coarser: T1 and u1 of the winding machine share their
+        # residuals but not their signatures, and the data tell them apart.)
+        single = [h for h in self.hypotheses if h.target != "sensors"]
+        signature = {h: (self.bank.Gu if h.target == "actuator" else self.bank.Gz)[h.index]
+                     .ravel() for h in single}
+        self._twins = {h: {g for g in single if g != h
+                           and _proportional(signature[h], signature[g])} for h in single}
         for h in self.hypotheses:
             self._twins.setdefault(h, set())
         self.delta = settings.drift
@@ -592,11 +604,13 @@ class Diagnoser:
         gj = self.bank.Gz[j].ravel()
         out = [{"target": "sensor", "index": j, "name": self.design.output_names[j],
                 "estimates": {"bias": bias}}]
-        for g in sorted(self._twins[h], key=lambda g: g.index):
-            gt = self.bank.Gz[g.index].ravel()
+        for g in sorted(self._twins[h], key=lambda g: (g.target, g.index)):
+            # An actuator twin's bias lambda enters through Gu as a sensor bias does through Gz.
+            actuator = g.target == "actuator"
+            gt = (self.bank.Gu if actuator else self.bank.Gz)[g.index].ravel()
             ratio = float(gt @ gj) / float(gt @ gt)
-            out.append({"target": "sensor", "index": g.index, "name": g.name,
-                        "estimates": {"bias": bias * ratio}})
+            out.append({"target": g.target, "index": g.index, "name": g.name,
+                        "estimates": {"lambda" if actuator else "bias": bias * ratio}})
         return tuple(out)
 
     def _accept(self, k: int, t: int, best: int, kb: int, theta: np.ndarray, var: np.ndarray,

@@ -203,3 +203,13 @@ def test_long_run_variance_of_the_residuals_matches_their_autocovariance():
             for lag in range(bank.S + 1)]
     empirical = acov[0] + 2 * np.sum(acov[1:], axis=0)
     np.testing.assert_allclose(exact, empirical, rtol=0.05, atol=0.02)
+
+
+def test_twins_are_the_hypotheses_with_proportional_bias_signatures():
+    """DC motor: i_a and i_f_plus_i_a reach the residuals identically (twins). Winding machine:
+    T1 and u1 share their residuals but not their signatures, so they are told apart."""
+    labels = {h.label: {g.label for g in t} for h, t in build_diagnoser(CONFIG)._twins.items()}
+    assert labels["sensor:i_a"] == {"sensor:i_f_plus_i_a"}
+    assert labels["sensor:i_f"] == set() and labels["actuator:V"] == set()
+    winding = build_diagnoser(load_config(REPO / "deploy" / "config" / "winding_machine.yaml"))
+    assert all(not t for t in winding._twins.values())
