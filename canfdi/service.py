@@ -15,6 +15,7 @@ import asyncio
 import contextlib
 import logging
 import socket
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -51,8 +52,10 @@ def _enlarge_receive_buffer(bus: can.BusABC) -> None:
     sock = getattr(bus, "socket", None)
     if not isinstance(sock, socket.socket):
         return
-    # SO_RCVBUFFORCE passes net.core.rmem_max when privileged; else SO_RCVBUF up to it.
-    for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+    # SO_RCVBUFFORCE passes net.core.rmem_max when privileged (CAP_NET_ADMIN); else SO_RCVBUF
+    # up to it. Python's socket module does not name SO_RCVBUFFORCE: Linux's value is 33.
+    force = getattr(socket, "SO_RCVBUFFORCE", 33 if sys.platform.startswith("linux") else None)
+    for option in (force, socket.SO_RCVBUF):
         if option is None:
             continue
         try:

@@ -2,6 +2,7 @@
 
 import asyncio
 import json
+import os
 import subprocess
 import sys
 
@@ -119,3 +120,23 @@ def test_python_can_logs_replay_to_the_same_diagnoses(tmp_path, suffix):
         for key, value in b["estimate"].items():
             # Text formats keep microsecond timestamps and full payloads: same numbers.
             assert a["estimate"][key] == pytest.approx(value, rel=1e-9)
+
+
+def test_a_socket_bus_gets_a_large_receive_buffer():
+    """open_bus enlarges the socket's receive queue (here a UDP socket stands in for a
+    SocketCAN one; the vcan test checks the real thing)."""
+    import socket
+
+    from canfdi.service import RECEIVE_BUFFER_BYTES, _enlarge_receive_buffer
+
+    class SocketBus:
+        socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+
+    bus = SocketBus()
+    before = bus.socket.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    _enlarge_receive_buffer(bus)
+    after = bus.socket.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    bus.socket.close()
+    if os.geteuid() == 0:  # privileged: past net.core.rmem_max
+        assert after >= RECEIVE_BUFFER_BYTES
+    assert after >= before
