@@ -130,9 +130,10 @@ def test_a_socket_bus_gets_a_large_receive_buffer():
     from canfdi.service import RECEIVE_BUFFER_BYTES, _enlarge_receive_buffer
 
     class SocketBus:
-        socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        pass
 
     bus = SocketBus()
+    bus.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     before = bus.socket.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
     _enlarge_receive_buffer(bus)
     after = bus.socket.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
