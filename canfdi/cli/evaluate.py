@@ -81,9 +81,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--noise-spread", type=float, default=1.25, metavar="X",
                    help="noise factor drawn log-uniformly in [1/X, X] (default 1.25; 1: the "
                         "config's noise)")
-    p.add_argument("--kinds", default="actuator_bias,actuator_scale,sensor_bias",
-                   metavar="LIST", help="fault kinds to draw, comma-separated (default all: "
-                                        "actuator_bias,actuator_scale,sensor_bias)")
+    p.add_argument("--kinds", default=None, metavar="LIST",
+                   help="fault kinds to draw, comma-separated, among actuator_bias, "
+                        "actuator_scale, sensor_bias (default: the method's fault model: all "
+                        "three for parity; the additive ones, actuator_bias and sensor_bias, "
+                        "for output_error (seed 003) and uio (seed 004))")
     p.add_argument("--spacing", type=int, default=None, metavar="SAMPLES",
                    help="samples between onsets (default identification.max_samples + 1000)")
     p.add_argument("--no-quantize", action="store_true",
@@ -127,14 +129,23 @@ def _check_args(args: argparse.Namespace) -> str | None:
         return "--fnr: 0 < LO <= HI"
     if not (args.noise_spread >= 1 and math.isfinite(args.noise_spread)):
         return "--noise-spread: a number >= 1"
-    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
-    bad = [k for k in kinds if k not in FAULT_KINDS]
-    if bad or not kinds:
-        return f"--kinds: {', '.join(bad) or '(empty)'}: not among {', '.join(FAULT_KINDS)}"
-    args.kinds = kinds
+    if args.kinds is not None:
+        kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
+        bad = [k for k in kinds if k not in FAULT_KINDS]
+        if bad or not kinds:
+            return (f"--kinds: {', '.join(bad) or '(empty)'}: not among "
+                    f"{', '.join(FAULT_KINDS)}")
+        args.kinds = kinds
     if args.spacing is not None and args.spacing < 100:
         return "--spacing: at least 100 samples"
     return None
+
+
+# The fault model of each method: seed 003's and seed 004's faults are additive (biases); the
+# parity method also identifies an actuator's scale (eta).
+METHOD_KINDS = {"parity": ("actuator_bias", "actuator_scale", "sensor_bias"),
+                "output_error": ("actuator_bias", "sensor_bias"),
+                "uio": ("actuator_bias", "sensor_bias")}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -149,6 +160,8 @@ def run(args: argparse.Namespace) -> int:
         return config
     if args.method is not None and config.method != args.method:
         return _fail(f"--method {args.method}, but {path} is a {config.method} config")
+    if args.kinds is None:
+        args.kinds = list(METHOD_KINDS[config.method])
     from firmware_sim.plants import make_plant
 
     plant = make_plant(args.plant)

@@ -73,3 +73,16 @@ def test_the_text_report(capsys):
 def test_bad_arguments_exit_2(capsys, args, words):
     assert main(["evaluate", *args, "--no-progress"]) == 2
     assert words in capsys.readouterr().err
+
+
+def test_a_method_is_evaluated_on_its_own_fault_model(capsys):
+    """uio (seed 004) and output_error (seed 003) model additive faults: no scale faults are
+    drawn for them unless asked; parity draws all three kinds."""
+    rc = main(["evaluate", "--plant", "vtol", "--method", "uio", "--runs", "2", "--json",
+               "--no-progress"])
+    r = json.loads(capsys.readouterr().out)
+    assert rc == 0 and r["settings"]["kinds"] == ["actuator_bias", "sensor_bias"]
+    assert all(f["kind"] != "actuator_scale" for f in r["fault_list"])
+    rc = main(["evaluate", "--plant", "vtol", "--runs", "1", "--json", "--no-progress"])
+    r = json.loads(capsys.readouterr().out)
+    assert rc == 0 and "actuator_scale" in r["settings"]["kinds"]
