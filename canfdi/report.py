@@ -395,7 +395,14 @@ def estimate_trajectory(contents: LogContents, event: FaultEvent) -> Trajectory 
     S = bank.S
     pos = ks[:, None] - S + np.arange(S + 1)[None, :]
     mask = (pos >= k_f).astype(float)  # (N, S+1)
-    if event.target == "actuator":
+    # The diagnoser's bias-only actuator hypothesis fixes eta at 1 (variance 0): fit lambda.
+    bias_only = event.target == "actuator" and event.variances.get("eta") == 0.0
+    if bias_only:
+        phi = (mask @ bank.Gu[event.index].T)[:, :, None]
+        names = ["lambda"]
+        accepted = np.array([event.estimates["lambda"]])
+        col = [0]
+    elif event.target == "actuator":
         u = _compensated_input(contents, event, pos)
         gu = bank.Gu[event.index]  # (m, S+1)
         phi = np.stack([np.einsum("ms,ns->nm", gu, mask * u), mask @ gu.T], axis=2)
@@ -428,7 +435,7 @@ def estimate_trajectory(contents: LogContents, event: FaultEvent) -> Trajectory 
     cost = np.maximum(rr - np.einsum("ni,ni->n", theta, b), 0.0)
     scale = cost / np.maximum(n_res - d, 1)
     var = np.diagonal(P, axis1=1, axis2=2) * scale[:, None]
-    if event.target == "actuator":
+    if event.target == "actuator" and not bias_only:
         theta[:, 0] += 1.0  # u = eta u_c + lambda: the regression estimates eta - 1
     values, std = theta[:, col], np.sqrt(np.maximum(var[:, col], 0.0))
     mismatch = float(np.max(np.abs(values[-1] - accepted)

@@ -97,8 +97,10 @@ class DiagnoserSettings:
 class Hypothesis:
     """One fault hypothesis.
 
-    target : "actuator", "sensor", or "sensors" (biases on several sensors at once: seed 001
-        eq. 41, over a largest set of sensors whose signatures are linearly independent).
+    target : "actuator" (u = eta u_c + lambda, eq. 24), "actuator_bias" (the same with eta = 1:
+        a bias alone, one parameter), "sensor", or "sensors" (biases on several sensors at
+        once: seed 001 eq. 41, over a largest set of sensors whose signatures are linearly
+        independent).
     index, name : the channel (for "sensors": the first member).
     members : the sensor indices of a "sensors" hypothesis.
     """
@@ -114,7 +116,8 @@ class Hypothesis:
 
     @property
     def n_params(self) -> int:
-        return {"actuator": 2, "sensor": 1}.get(self.target, len(self.members))
+        return {"actuator": 2, "actuator_bias": 1, "sensor": 1}.get(self.target,
+                                                                     len(self.members))
 
 
 def calibrate_thresholds(bank: ResidualBank, measurement_std: np.ndarray,
@@ -229,6 +232,11 @@ class Diagnoser:
             rows = [i for i, r in enumerate(design.actuators + design.sensors) if r.vector.exists]
             if responds[rows, col].any():
                 keep.append(h)
+        # A bias alone is the actuator fault with eta = 1: one parameter, so it settles far
+        # sooner when the command's excitation cannot yet tell eta from lambda, and the
+        # penalty on the second parameter makes it win unless eta really differs from 1.
+        keep += [Hypothesis("actuator_bias", h.index, h.name) for h in keep
+                 if h.target == "actuator"]
         self.hypotheses = keep
         joint = self._independent_sensors([h.index for h in keep if h.target == "sensor"])
         if len(joint) > 1:
@@ -241,7 +249,7 @@ class Diagnoser:
         # which residuals respond, is coarser: T1 and u1 of the winding machine share their
         # residuals but not their signatures, and the data tell them apart.)
         single = [h for h in self.hypotheses if h.target != "sensors"]
-        signature = {h: (self.bank.Gu if h.target == "actuator" else self.bank.Gz)[h.index]
+        signature = {h: (self.bank.Gz if h.target == "sensor" else self.bank.Gu)[h.index]
                      .ravel() for h in single}
         self._twins = {h: {g for g in single if g != h
                            and _proportional(signature[h], signature[g])} for h in single}
@@ -502,6 +510,8 @@ class Diagnoser:
             elif h.target == "sensors":
                 for c, j in enumerate(h.members):
                     out[h_i, :, :, c] = zs[j]
+            elif h.target == "actuator_bias":
+                out[h_i, :, :, 0] = ub[h.index]
             else:
                 out[h_i, :, :, 0] = ua[h.index]
                 out[h_i, :, :, 1] = ub[h.index]
@@ -582,6 +592,9 @@ class Diagnoser:
         if h.target == "actuator":
             est = {"eta": float(1.0 + th[0]), "lambda": float(th[1])}
             variances = {"eta": float(var[0]), "lambda": float(var[1])} if var is not None else {}
+        elif h.target == "actuator_bias":
+            est = {"eta": 1.0, "lambda": float(th[0])}
+            variances = {"eta": 0.0, "lambda": float(var[0])} if var is not None else {}
         elif h.target == "sensor":
             est = {"bias": float(th[0])}
             variances = {"bias": float(var[0])} if var is not None else {}
@@ -590,7 +603,8 @@ class Diagnoser:
             est = {names[j]: float(th[c]) for c, j in enumerate(h.members)}
             variances = ({names[j]: float(var[c]) for c, j in enumerate(h.members)}
                          if var is not None else {})
-        out = {"target": h.target, "index": h.index, "name": h.name, "estimates": est}
+        target = "actuator" if h.target == "actuator_bias" else h.target
+        out = {"target": target, "index": h.index, "name": h.name, "estimates": est}
         if var is not None:
             out["variances"] = variances
         return out
@@ -604,7 +618,9 @@ class Diagnoser:
         gj = self.bank.Gz[j].ravel()
         out = [{"target": "sensor", "index": j, "name": self.design.output_names[j],
                 "estimates": {"bias": bias}}]
-        for g in sorted(self._twins[h], key=lambda g: (g.target, g.index)):
+        # (An actuator's bias-only variant shares its signature: list the actuator once.)
+        for g in sorted((g for g in self._twins[h] if g.target != "actuator_bias"),
+                        key=lambda g: (g.target, g.index)):
             # An actuator twin's bias lambda enters through Gu as a sensor bias does through Gz.
             actuator = g.target == "actuator"
             gt = (self.bank.Gu if actuator else self.bank.Gz)[g.index].ravel()
@@ -620,7 +636,7 @@ class Diagnoser:
         onset = int(d["onsets"][kb])
         th = theta[best, kb]
         faults = []  # (target, index, estimates, variances, candidates)
-        if h.target == "actuator":
+        if h.target in ("actuator", "actuator_bias"):
             desc = self._describe(best, th, var)
             faults.append(("actuator", h.index, desc["estimates"], desc["variances"], ()))
         else:

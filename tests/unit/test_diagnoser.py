@@ -210,6 +210,25 @@ def test_twins_are_the_hypotheses_with_proportional_bias_signatures():
     T1 and u1 share their residuals but not their signatures, so they are told apart."""
     labels = {h.label: {g.label for g in t} for h, t in build_diagnoser(CONFIG)._twins.items()}
     assert labels["sensor:i_a"] == {"sensor:i_f_plus_i_a"}
-    assert labels["sensor:i_f"] == set() and labels["actuator:V"] == set()
+    assert labels["sensor:i_f"] == set()
+    # An actuator and its bias-only variant share their bias signature, nothing else does.
+    assert labels["actuator:V"] == {"actuator_bias:V"}
     winding = build_diagnoser(load_config(REPO / "deploy" / "config" / "winding_machine.yaml"))
-    assert all(not t for t in winding._twins.values())
+    assert all({g.index for g in t} == {h.index} and {g.target for g in t} | {h.target}
+               == {"actuator", "actuator_bias"} for h, t in winding._twins.items() if t)
+    assert not winding._twins[next(h for h in winding.hypotheses if h.label == "sensor:T1")]
+
+
+def test_a_pure_actuator_bias_is_identified_with_one_parameter():
+    """u = u_c + lambda: the bias-only hypothesis (eta fixed at 1) wins over (eta, lambda), whose
+    second parameter must pay the isolation margin; a scale fault still needs both."""
+    run = simulate(_scenario([{"target": "actuator", "index": 0, "onset": 10.0,
+                               "lambda": -4.0}]))
+    (bias,) = [e for e in _feed(build_diagnoser(CONFIG), run) if e.kind == "accepted"]
+    assert (bias.target, bias.index) == ("actuator", 0)
+    assert bias.estimates["eta"] == 1.0 and bias.variances["eta"] == 0.0
+    assert bias.estimates["lambda"] == pytest.approx(-4.0, rel=0.01)
+    run = simulate(_scenario([{"target": "actuator", "index": 0, "onset": 10.0, "eta": 1.3}],
+                             noise=0.0))
+    (scale,) = [e for e in _feed(build_diagnoser(CONFIG), run) if e.kind == "accepted"]
+    assert scale.estimates["eta"] == pytest.approx(1.3, abs=1e-6)
