@@ -182,7 +182,12 @@ class OutputErrorDiagnoser:
         for pair in model.pairs:
             self._taint[pair.input, pair.output] = settling_samples(pair.pole_radius,
                                                                     s.settle) + pair.delay
-        self.warmup = int(self._taint.max()) if model.pairs else 0
+        # The models start at rest on the input; the plant is wherever its excitation left
+        # it, tens of noise stds away. Its transient must fall far below the noise before the
+        # residuals count (settle^2), or Page-Hinkley's drift accumulates it: canfdi evaluate
+        # found start-up alarms about 110 samples in, just after a settle-based warm-up.
+        self.warmup = (max(settling_samples(pr.pole_radius, s.settle ** 2) + pr.delay
+                           for pr in model.pairs) if model.pairs else 0)
         self._pair_of = {(pr.output, pr.input): pr for pr in model.pairs}
         self._recent: deque = deque(maxlen=s.max_onsets + s.onset_before + s.pre_samples + 8)
         self.compensation: list[dict] = []
