@@ -38,6 +38,9 @@ Frame statuses (``STATUS_NAMES``, int8 codes in the batch forms):
 ``crc``         E2E CRC mismatch (the payload, counter or ID was corrupted)
 ``duplicate``   the same message and counter again while that sample is held
 ``stale``       a counter older than the pending sample's (a late or replayed frame)
+``jump``        a counter further ahead than the time since the last frame allows (the drive
+                sends one sample per period), not confirmed by the next frame: a random frame
+                that passed the 8-bit CRC, which would otherwise open a sample of garbage
 =============== ============================================================================
 
 The first three are valid; every other status is counted by reason and never enters a sample.
@@ -85,14 +88,14 @@ __all__ = [
 
 STATUS_NAMES: tuple[str, ...] = (
     "ok", "monitor", "unused", "unknown_id", "extended", "remote", "error_frame", "fd", "dlc",
-    "crc", "duplicate", "stale",
+    "crc", "duplicate", "stale", "jump",
 )
 STATUS_CODES: dict[str, int] = {name: code for code, name in enumerate(STATUS_NAMES)}
 VALID_STATUSES: frozenset[str] = frozenset({"ok", "monitor", "unused"})
 _INVALID_NAMES = tuple(name for name in STATUS_NAMES if name not in VALID_STATUSES)
 
 (_OK, _MONITOR, _UNUSED, _UNKNOWN_ID, _EXTENDED, _REMOTE, _ERROR_FRAME, _FD, _DLC, _CRC,
- _DUPLICATE, _STALE) = range(len(STATUS_NAMES))
+ _DUPLICATE, _STALE, _JUMP) = range(len(STATUS_NAMES))
 _N_VALID = 3  # codes below this are valid (ok, monitor, unused)
 
 
@@ -108,6 +111,9 @@ _FAST_MAX_ELAPSED = 127
 # the numpy calls around them cost more than the machine's ~2 us a frame (measured).
 _SLOW_SPAN = 32
 _FAST_MIN_PERIODS = 4
+# Periods a counter may run ahead of the clock (jitter, a burst after the drive's transmit queue
+# was held up) before a forward step needs a second frame to confirm it.
+_JUMP_SLACK = 3
 
 # Samples assembled by push_batch, a run at a time: k, timestamp_ns, gap (B,) int64 and the
 # flat [u, z] rows (B, p + q) float64.
@@ -499,6 +505,7 @@ class SampleAssembler:
         self._last_delivered = -1  # latest sample handed out, complete or broken
         self._last_gap = 0  # gap of the sample _accept just completed
         self._partial: tuple[int, int, int, list[float]] | None = None  # broken, to hand out
+        self._jump: int | None = None  # an unconfirmed counter jump: the sample it would open
         self._counts = [0] * len(STATUS_NAMES)
         self._complete = 0
         self._broken = 0
@@ -847,6 +854,7 @@ class SampleAssembler:
         self._t_ref = int(done[-1])
         self._seen = self._full
         self._open = False
+        self._jump = None
         self._last_gap = 0
         self._complete += g
         self._buffer[:] = flat[-1].tolist()
@@ -941,9 +949,17 @@ class SampleAssembler:
                 if not self._open:
                     return _STALE
                 self._t_ref = t
+                self._jump = None
                 return _OK
             if k < k_cur:
                 return _STALE
+            if k - k_cur > elapsed + _JUMP_SLACK:
+                # Ahead of the clock: garbage that passed the CRC (1 in 256 random frames), or
+                # a drive restarted with a new count, which its next frame confirms (same or
+                # next sample).
+                if self._jump is None or not 0 <= k - self._jump <= 1:
+                    self._jump = k
+                    return _JUMP
             if self._open:
                 self._close_broken()
             self._missing += k - k_cur - 1
@@ -951,6 +967,7 @@ class SampleAssembler:
         self._seen = 0
         self._open = True
         self._t_ref = t
+        self._jump = None
         return _OK
 
     def _accept(self, slot: int) -> bool:

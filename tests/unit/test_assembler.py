@@ -162,7 +162,7 @@ def test_clean_traffic_assembles_every_sample_to_the_dbc_resolution():
         "frames_received": 3 * n, "frames_valid": 3 * n, "frames_invalid": 0,
         "invalid_by_reason": dict.fromkeys(
             ("unknown_id", "extended", "remote", "error_frame", "fd", "dlc", "crc",
-             "duplicate", "stale"), 0),
+             "duplicate", "stale", "jump"), 0),
         "samples_complete": n, "samples_broken": 0, "samples_missing": 0, "duplicates": 0,
     }
 
@@ -388,10 +388,38 @@ def test_counter_step_over_128_without_elapsed_time_is_stale():
     push_all(assembler, [(0, *f[1:]) for f in frames])
     base = frames[0][2]
     assert assembler.push(0, CMD, protect(CMD, base, 129))[0] == "stale"
-    assert assembler.push(0, CMD, protect(CMD, base, 128))[0] == "ok"
+    # 128 ahead with no time elapsed: a jump, until a second frame confirms the new count.
+    assert assembler.push(0, CMD, protect(CMD, base, 128))[0] == "jump"
+    assert assembler.push(0, CURRENTS, protect(CURRENTS, frames[1][2], 128))[0] == "ok"
     stats = assembler.stats
     assert stats["samples_missing"] == 127
     assert stats["invalid_by_reason"]["stale"] == 1
+    assert stats["invalid_by_reason"]["jump"] == 1
+
+
+def test_a_counter_ahead_of_the_clock_is_garbage_unless_the_next_frame_confirms_it():
+    """A random frame passing the 8-bit CRC with a counter d ahead (d up to 128) would open a
+    sample of garbage and make the drive's next d samples stale. One period after sample 4,
+    a frame claiming sample 40 is a jump; the drive's sample 5 then goes on normally. A drive
+    restarted with a new count is followed after one lost frame."""
+    frames = frames_of(10)
+    i = index_of(frames, CMD, 5)
+    t = frames[i][0]
+    garbage = (t - 1000, CURRENTS, protect(CURRENTS, frames[1][2], 40), 0)
+    frames.insert(i, garbage)
+    statuses, samples, stats = run(frames)
+    assert statuses[i] == "jump" and statuses.count("jump") == 1
+    assert [s.k for s in samples] == list(range(10))
+    assert stats["samples_complete"] == 10 and stats["samples_missing"] == 0
+    assert_values_are_the_drives(samples, 10)
+    # A restart: from period 10 on the drive counts from 100 (90 ahead of the clock).
+    later = [(t_, fid, protect(fid, data, (data[1] + 90) % 256), f)
+             for t_, fid, data, f in frames_of(5, k0=10)]
+    statuses, samples, _ = run(frames + later)
+    tail = statuses[len(frames):]
+    assert tail[0] == "jump" and set(tail[1:]) == {"ok"}
+    assert [s.k for s in samples][-5:] == [100, 101, 102, 103, 104]
+    assert lost_messages(samples[-5]) == {CMD}  # its first frame was the unconfirmed jump
 
 
 @pytest.mark.parametrize("lost", [200, 1000, 1023])

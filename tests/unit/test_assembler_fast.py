@@ -42,7 +42,7 @@ from tests.unit.test_busmap import DT_NS, as_log, dc_motor_map
 N_CLEAN = 20_480
 # Everything the state machine keeps between frames.
 _STATE = ("_buffer", "_seen", "_open", "_k", "_t_ref", "_last_complete", "_last_delivered",
-          "_last_gap", "_partial", "_counts", "_complete", "_broken", "_missing")
+          "_last_gap", "_partial", "_jump", "_counts", "_complete", "_broken", "_missing")
 
 
 def log_of(frames) -> tuple[np.ndarray, ...]:
