@@ -626,11 +626,11 @@ def plot_overview(contents: LogContents, path: Path) -> Path:
         elif panel == "g":
             if contents.thresholds is not None:
                 ratio = res.stat / contents.thresholds[None, :]
-                ax.set_ylabel("PH statistic g / h")
+                ax.set_ylabel(f"{_statistic_name(contents)[0]} / h")
                 ax.axhline(1.0, color="k", lw=1.2, label="threshold (g = h)")
             else:
                 ratio = res.stat
-                ax.set_ylabel("PH statistic g")
+                ax.set_ylabel(_statistic_name(contents)[0])
             x, G = decimate(res.k, ratio)
             for i, name in enumerate(res.names):
                 ax.plot(x, G[:, i], lw=0.8, label=name, color=_residual_colour(i))
@@ -661,6 +661,14 @@ def _run_label(contents: LogContents) -> str:
     return f"config {name}, method {method}, {n:,} samples, dt = {contents.dt:g} s"
 
 
+def _statistic_name(contents: LogContents) -> tuple[str, str]:
+    """(short, long) name of the detection statistic the log's method records: Page-Hinkley,
+    or for the uio method the threshold test on the filtered residual."""
+    if contents.metadata.get("method") == "uio":
+        return "|r|/σ", "threshold-test statistic |r|/σ"
+    return "PH statistic g", "Page-Hinkley statistic"
+
+
 def plot_residuals(contents: LogContents, path: Path) -> Path:
     """Seed 001 Figs. 1-2: per residual r/sigma (+/-3 sigma band) and its Page-Hinkley
     statistic against the threshold, over the whole run."""
@@ -676,13 +684,14 @@ def plot_residuals(contents: LogContents, path: Path) -> Path:
         ax_r.plot(x, Rn[:, i], lw=0.7, color=colour, label=f"{name}: r / σ")
         ax_r.axhspan(-3, 3, color="0.6", alpha=0.25, label="±3σ noise")
         ax_r.set_ylabel(f"{name}\nr / σ")
-        ax_g.plot(x, G[:, i], lw=0.8, color=colour, label=f"{name}: PH statistic g")
+        ax_g.plot(x, G[:, i], lw=0.8, color=colour,
+                  label=f"{name}: {_statistic_name(contents)[0]}")
         if contents.thresholds is not None:
             h = contents.thresholds[i]
             ax_g.axhline(h, color="tab:red", lw=1.2, label=f"threshold h = {h:.3g}")
             top = np.nanmax(G[:, i]) if np.isfinite(G[:, i]).any() else h
             ax_g.set_ylim(0.0, max(1.3 * h, min(1.1 * top, 4.0 * h)))
-        ax_g.set_ylabel("g")
+        ax_g.set_ylabel(_statistic_name(contents)[0].split()[-1])  # g, or |r|/σ
         for e in detections:
             if name in e.residuals:
                 for ax in (ax_r, ax_g):
@@ -698,7 +707,7 @@ def plot_residuals(contents: LogContents, path: Path) -> Path:
     for ax in axes[0]:
         _time_axis(ax, contents.dt)
     axes[0, 0].set_title("normalised residual r / σ")
-    axes[0, 1].set_title("Page-Hinkley statistic against its threshold")
+    axes[0, 1].set_title(f"{_statistic_name(contents)[1]} against its threshold")
     marks = [m for m in _marks(contents) if m[1] == "injected onset (truth)"]
     marks += [(e.sample, "detected (this residual in alarm)", "tab:red", "--")
               for e in detections]
@@ -756,10 +765,10 @@ def plot_fault(contents: LogContents, number: int, event: FaultEvent, row: dict 
         if contents.thresholds is not None:
             ratio = res.stat[sel] / contents.thresholds[None, :]
             ax.axhline(1.0, color="k", lw=1.2, label="threshold (g = h)")
-            ax.set_ylabel("PH statistic g / h")
+            ax.set_ylabel(f"{_statistic_name(contents)[0]} / h")
         else:
             ratio = res.stat[sel]
-            ax.set_ylabel("PH statistic g")
+            ax.set_ylabel(_statistic_name(contents)[0])
         xg, G = decimate(x, ratio)
         for i, name in enumerate(res.names):
             ax.plot(xg, G[:, i], lw=0.8, label=name, color=_residual_colour(i))
@@ -975,13 +984,14 @@ def make_report(log: str | Path, out_dir: str | Path, config_path: Path | None =
     figures: list[tuple[str, str]] = []
     say("overview.png")
     plot_overview(contents, out / "overview.png")
+    stat_name = _statistic_name(contents)[1]
     figures.append(("overview.png", "The whole run: inputs, outputs, normalised residuals, "
-                                    "Page-Hinkley statistics over their thresholds, events."))
+                                    f"{stat_name}s over their thresholds, events."))
     if contents.residuals is not None:
         say("residuals.png")
         plot_residuals(contents, out / "residuals.png")
         figures.append(("residuals.png", "Each residual r/σ with the ±3σ noise band, and its "
-                                         "Page-Hinkley statistic against its threshold h."))
+                                         f"{stat_name} against its threshold h."))
     for n, (event, row) in enumerate(zip(contents.accepted, rows, strict=True), 1):
         file = f"fault_{n}_{_safe(str(event.target))}_{_safe(str(event.name))}.png"
         say(file)
