@@ -32,6 +32,7 @@ from scipy import optimize, stats
 
 __all__ = [
     "Alarm",
+    "ChangePointDetector",
     "PageHinkley",
     "PageHinkleyResult",
     "ThresholdDetector",
@@ -41,6 +42,7 @@ __all__ = [
     "calibrate_threshold",
     "false_alarm_interval",
     "mean_detection_delay",
+    "onset_candidates",
     "page_hinkley_batch",
     "page_hinkley_step",
     "threshold_alarms",
@@ -537,6 +539,74 @@ def page_hinkley_batch(
         assert result is not None
         return result
     return _run_plain(u, d, hh, g0)
+
+
+class ChangePointDetector:
+    """Two-sided Page-Hinkley per residual that also dates the change: for each statistic it
+    keeps the last sample where it was zero after a (non-missing) residual, so an alarm's change
+    point is the sample after that. The streaming form (``step``) and the block form (``run``)
+    leave the same state. A diagnoser restarts it after each decision.
+
+    Parameters
+    ----------
+    m : number of residuals; delta : drift; h : (m,) thresholds (noise-std units).
+    """
+
+    def __init__(self, m: int, delta: float, h: ArrayLike) -> None:
+        self.m = m
+        self.delta = delta
+        self.h = np.asarray(h, dtype=float)
+        self.restart()
+
+    def restart(self, k: int = -1) -> None:
+        """Zero the statistics; a change point cannot predate sample k."""
+        self.state = np.zeros((self.m, 2))
+        self.last_zero = np.full((self.m, 2), k, dtype=np.int64)
+
+    @property
+    def statistics(self) -> NDArray[np.float64]:
+        """(m,) the larger statistic of each residual."""
+        return self.state.max(axis=1)
+
+    def step(self, k: int, rn: NDArray[np.float64]) -> NDArray[np.int8]:
+        """Sample k's normalised residuals (m,) (NaN = missing); the (m,) alarm signs."""
+        self.state, alarm = page_hinkley_step(self.state, rn, self.delta, self.h)
+        self.last_zero[(self.state == 0.0) & ~np.isnan(rn)[:, None]] = k
+        return alarm
+
+    def run(self, k: NDArray[np.int64], rn: NDArray[np.float64]
+            ) -> tuple[PageHinkleyResult, int]:
+        """Rows of samples k (N,), residuals rn (N, m): the batch result and ``done``, the rows
+        before the first alarm row (N without one). The state advances over those rows only:
+        the alarm row is left for ``step``."""
+        ph = page_hinkley_batch(rn, self.delta, self.h, state=self.state)
+        hit = np.flatnonzero(ph.alarms.any(axis=1))
+        done = int(hit[0]) if len(hit) else len(rn)
+        if done > 0:
+            valid = ~np.isnan(rn[:done])
+            for d, traj in enumerate((ph.g_up[:done], ph.g_down[:done])):
+                zero = (traj == 0.0) & valid
+                any_zero = zero.any(axis=0)
+                idx = done - 1 - np.argmax(zero[::-1], axis=0)
+                self.last_zero[any_zero, d] = k[idx[any_zero]]
+            self.state = np.stack([ph.g_up[done - 1], ph.g_down[done - 1]], axis=1)
+        return ph, done
+
+    def change_point(self, alarm: NDArray[np.int8]) -> int:
+        """The earliest sample after which an alarming statistic last was zero, plus one."""
+        alarming = np.flatnonzero(alarm)
+        col = np.where(alarm[alarming] > 0, 0, 1)
+        return int(np.min(self.last_zero[alarming, col])) + 1
+
+
+def onset_candidates(change_point: int, k: int, first: int, before: int,
+                     at_most: int) -> list[int]:
+    """Fault onsets to try after an alarm at k: noise may lift the statistic a little before
+    the fault, so from ``before`` samples ahead of the change point up to the alarm itself,
+    none before ``first`` (the oldest sample kept), the latest ``at_most`` of them ([k] when
+    none is left)."""
+    onsets = [kf for kf in range(change_point - before, k + 1) if kf >= first]
+    return onsets[-at_most:] or [k]
 
 
 class PageHinkley:

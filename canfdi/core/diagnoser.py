@@ -36,9 +36,9 @@ import numpy as np
 
 from canfdi.core.design import Design
 from canfdi.core.detect import (
+    ChangePointDetector,
     calibrate_threshold,
-    page_hinkley_batch,
-    page_hinkley_step,
+    onset_candidates,
     threshold_for_false_alarm_interval,
 )
 from canfdi.core.records import FaultEvent, Sample
@@ -255,7 +255,7 @@ class Diagnoser:
                            and _proportional(signature[h], signature[g])} for h in single}
         for h in self.hypotheses:
             self._twins.setdefault(h, set())
-        self.delta = settings.drift
+        self.detector = ChangePointDetector(self.bank.m, settings.drift, self.thresholds)
         n_onsets = settings.max_onsets
         self._history: deque = deque(maxlen=self.bank.S + n_onsets + 8)
         self._recent: deque = deque(maxlen=n_onsets + 8)
@@ -289,9 +289,7 @@ class Diagnoser:
 
     def _restart_detector(self, k: int = -1) -> None:
         """Zero the Page-Hinkley statistics; a change point cannot predate sample k."""
-        m = self.bank.m
-        self.ph_state = np.zeros((m, 2))
-        self._last_zero = np.full((m, 2), k, dtype=np.int64)
+        self.detector.restart(k)
         self._diag = None
 
     @property
@@ -301,7 +299,7 @@ class Diagnoser:
     @property
     def statistics(self) -> np.ndarray:
         """(m,) the larger Page-Hinkley statistic of each residual."""
-        return self.ph_state.max(axis=1)
+        return self.detector.statistics
 
     # -- compensation ----------------------------------------------------------------------
     def _compensate(self, k: int, z: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -384,22 +382,10 @@ class Diagnoser:
         E = np.vstack([self.bank.tail, X])
         res = self.bank.batch(E)  # row r: the residuals at X row r, as update would give them
         rn = res / self.bank.sigma
-        valid = ~np.isnan(rn)
-        have = valid.any(axis=1)  # rows where update returns residuals (not all missing)
-        ph = page_hinkley_batch(rn, self.delta, self.thresholds, state=self.ph_state)
-        hit = np.flatnonzero(ph.alarms.any(axis=1))
-        alarm_row = int(hit[0]) if len(hit) else None
-        done = alarm_row if alarm_row is not None else len(X)
+        have = ~np.isnan(rn).all(axis=1)  # rows where update returns residuals
+        ph, done = self.detector.run(k[i:j], rn)
         if done > 0:
-            gu, gd = ph.g_up[:done], ph.g_down[:done]
-            # Last sample where each statistic was zero after a residual, as update records it.
-            for d, traj in enumerate((gu, gd)):
-                zero = (traj == 0.0) & valid[:done]
-                any_zero = zero.any(axis=0)
-                idx = done - 1 - np.argmax(zero[::-1], axis=0)
-                self._last_zero[any_zero, d] = k[i + idx[any_zero]]
-            self.ph_state = np.stack([gu[-1], gd[-1]], axis=1)
-            stat[i: i + done] = np.maximum(gu, gd)
+            stat[i: i + done] = np.maximum(ph.g_up[:done], ph.g_down[:done])
             R[i: i + done] = res[:done]
             Rn[i: i + done] = rn[:done]
             # Bring the streaming state up to date with rows i..i+done-1.
@@ -414,9 +400,9 @@ class Diagnoser:
                 self.last_residuals, self.last_normalized = res[done - 1], rn[done - 1]
             else:
                 self.last_residuals = self.last_normalized = None
-        if alarm_row is None:
+        if done == len(X):
             return j
-        stop = i + alarm_row
+        stop = i + done
         events += self.update(Sample(k=int(k[stop]), timestamp_ns=int(t_ns[stop]), u=U[stop],
                                      z=Z[stop], gap=0))
         if self.last_residuals is not None:
@@ -454,22 +440,14 @@ class Diagnoser:
         return self._diagnose(k, sample.timestamp_ns, window, rn)
 
     def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
-        self.ph_state, alarm = page_hinkley_step(self.ph_state, rn, self.delta, self.thresholds)
-        self._last_zero[(self.ph_state == 0.0) & ~np.isnan(rn)[:, None]] = k
+        alarm = self.detector.step(k, rn)
         if not alarm.any():
             return []
         alarming = np.flatnonzero(alarm)
-        col = np.where(alarm[alarming] > 0, 0, 1)
-        change_point = int(np.min(self._last_zero[alarming, col])) + 1
+        change_point = self.detector.change_point(alarm)
         s = self.settings
-        first = self._recent[0][0]
-        # Noise may lift the statistic a little before the fault, so the change point can be
-        # early: try every onset from a few samples before it up to the alarm itself, at most
-        # max_onsets of them (the latest ones).
-        onsets = [kf for kf in range(change_point - s.onset_before, k + 1) if kf >= first]
-        onsets = onsets[-s.max_onsets:]
-        if not onsets:
-            onsets = [k]
+        onsets = onset_candidates(change_point, k, self._recent[0][0], s.onset_before,
+                                  s.max_onsets)
         self._start_diagnosis(k, onsets)
         for kk, window, rnn in self._recent:
             if kk >= min(onsets):

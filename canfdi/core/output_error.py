@@ -80,8 +80,8 @@ import numpy as np
 from scipy.signal import lfilter
 
 from canfdi.core.detect import (
-    page_hinkley_batch,
-    page_hinkley_step,
+    ChangePointDetector,
+    onset_candidates,
     threshold_for_false_alarm_interval,
 )
 from canfdi.core.diagnoser import BlockResult
@@ -174,7 +174,7 @@ class OutputErrorDiagnoser:
         self.thresholds = np.asarray(thresholds, dtype=float).reshape(self.q)
         self.settings = settings
         self.input_names, self.output_names = list(input_names), list(output_names)
-        self.delta = settings.drift
+        self.detector = ChangePointDetector(self.q, settings.drift, self.thresholds)
         s = settings
         self._paths = model.has_path()
         # taint[i, j]: samples residual j stays missing after a held (lost) command u_i.
@@ -209,8 +209,7 @@ class OutputErrorDiagnoser:
         self.last_normalized: np.ndarray | None = None
 
     def _restart_detector(self, k: int = -1) -> None:
-        self.ph_state = np.zeros((self.q, 2))
-        self._last_zero = np.full((self.q, 2), k, dtype=np.int64)
+        self.detector.restart(k)
         self._diag: dict | None = None
 
     @property
@@ -220,7 +219,7 @@ class OutputErrorDiagnoser:
     @property
     def statistics(self) -> np.ndarray:
         """(q,) the larger Page-Hinkley statistic of each residual."""
-        return self.ph_state.max(axis=1)
+        return self.detector.statistics
 
     # -- the residual ----------------------------------------------------------------------
     def _lambda(self, k: np.ndarray) -> np.ndarray:
@@ -362,27 +361,18 @@ class OutputErrorDiagnoser:
         the sample that raised an alarm, which ``update`` handled)."""
         before = self._snapshot()
         res, rn = self._residuals(k[i:j], U[i:j], Z[i:j])
-        valid = ~np.isnan(rn)
-        ph = page_hinkley_batch(rn, self.delta, self.thresholds, state=self.ph_state)
-        hit = np.flatnonzero(ph.alarms.any(axis=1))
-        done = int(hit[0]) if len(hit) else j - i
-        if len(hit):
+        ph, done = self.detector.run(k[i:j], rn)
+        alarmed = done < j - i
+        if alarmed:
             # Redo the models up to the alarm row only: update() takes the alarm sample.
             self._states, self._u_last, self._taint_until = before
             if done:
                 self._residuals(k[i:i + done], U[i:i + done], Z[i:i + done])
         if done > 0:
-            gu, gd = ph.g_up[:done], ph.g_down[:done]
-            for d, traj in enumerate((gu, gd)):
-                zero = (traj == 0.0) & valid[:done]
-                any_zero = zero.any(axis=0)
-                idx = done - 1 - np.argmax(zero[::-1], axis=0)
-                self._last_zero[any_zero, d] = k[i + idx[any_zero]]
-            self.ph_state = np.stack([gu[-1], gd[-1]], axis=1)
-            stat[i: i + done] = np.maximum(gu, gd)
+            stat[i: i + done] = np.maximum(ph.g_up[:done], ph.g_down[:done])
             R[i: i + done] = res[:done]
             Rn[i: i + done] = rn[:done]
-            have = valid[:done].any(axis=1)
+            have = ~np.isnan(rn[:done]).all(axis=1)
             for r in np.flatnonzero(have)[-self._recent.maxlen:].tolist():
                 self._recent.append((int(k[i + r]), rn[r].copy()))
             self._last_k = int(k[i + done - 1])
@@ -390,7 +380,7 @@ class OutputErrorDiagnoser:
                 self.last_residuals, self.last_normalized = res[done - 1], rn[done - 1]
             else:
                 self.last_residuals = self.last_normalized = None
-        if not len(hit):
+        if not alarmed:
             return j
         stop = i + done
         events += self.update(Sample(k=int(k[stop]), timestamp_ns=int(t_ns[stop]), u=U[stop],
@@ -402,17 +392,14 @@ class OutputErrorDiagnoser:
 
     # -- the state machine -----------------------------------------------------------------
     def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
-        self.ph_state, alarm = page_hinkley_step(self.ph_state, rn, self.delta, self.thresholds)
-        self._last_zero[(self.ph_state == 0.0) & ~np.isnan(rn)[:, None]] = k
+        alarm = self.detector.step(k, rn)
         if not alarm.any():
             return []
         alarming = np.flatnonzero(alarm)
-        col = np.where(alarm[alarming] > 0, 0, 1)
-        change_point = int(np.min(self._last_zero[alarming, col])) + 1
+        change_point = self.detector.change_point(alarm)
         s = self.settings
         first = self._recent[0][0]
-        onsets = [kf for kf in range(change_point - s.onset_before, k + 1) if kf >= first]
-        onsets = onsets[-s.max_onsets:] or [k]
+        onsets = onset_candidates(change_point, k, first, s.onset_before, s.max_onsets)
         start = max(first, min(onsets) - s.pre_samples)
         rows = [(kk, r) for kk, r in self._recent if kk >= start]
         self.mode = DIAGNOSE

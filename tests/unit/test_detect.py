@@ -12,6 +12,7 @@ from scipy import signal
 from canfdi.core.detect import (
     SIEGMUND_OVERSHOOT,
     Alarm,
+    ChangePointDetector,
     PageHinkley,
     ThresholdDetector,
     alarms_to_events,
@@ -20,6 +21,7 @@ from canfdi.core.detect import (
     calibrate_threshold,
     false_alarm_interval,
     mean_detection_delay,
+    onset_candidates,
     page_hinkley_batch,
     page_hinkley_step,
     threshold_alarms,
@@ -495,3 +497,32 @@ def test_calibrate_threshold_rejects_bad_arguments():
         calibrate_threshold(np.zeros(10), 0.5, 100.0)
     with pytest.raises(ValueError, match="tol"):
         calibrate_threshold(np.zeros((10, 1)), 0.5, 100.0, tol=0.0)
+
+
+def test_change_point_detector_block_form_leaves_the_streaming_state():
+    """run() stops before the first alarm row with the state and change points that step()
+    reaches on the same rows; the change point dates the alarm."""
+    rng = np.random.default_rng(5)
+    rn = rng.standard_normal((400, 3))
+    rn[rng.random(rn.shape) < 0.1] = np.nan
+    rn[300:, 1] += 3.0  # a change at sample 300 on residual 1
+    k = np.arange(1000, 1400)
+    h = np.array([40.0, 8.0, 40.0])
+    block, stream = ChangePointDetector(3, 0.5, h), ChangePointDetector(3, 0.5, h)
+    ph, done = block.run(k, rn)
+    assert 300 < done < 320 and ph.alarms[done].any() and not ph.alarms[:done].any()
+    for r in range(done):
+        assert not stream.step(int(k[r]), rn[r]).any()
+    np.testing.assert_allclose(block.state, stream.state, rtol=1e-12, atol=1e-12)  # cumsum
+    np.testing.assert_array_equal(block.last_zero, stream.last_zero)
+    alarm = stream.step(int(k[done]), rn[done])
+    assert alarm[1] == 1 and abs(stream.change_point(alarm) - 1300) <= 5
+    stream.restart(1400)
+    assert (stream.statistics == 0).all() and (stream.last_zero == 1400).all()
+
+
+def test_onset_candidates():
+    assert onset_candidates(100, 110, 0, 3, 16) == list(range(97, 111))
+    assert onset_candidates(100, 110, 0, 3, 5) == list(range(106, 111))
+    assert onset_candidates(100, 110, 99, 3, 16) == list(range(99, 111))
+    assert onset_candidates(100, 110, 200, 3, 16) == [110]
