@@ -209,6 +209,7 @@ FRAME_STATUSES = (
     "fd",
     "duplicate",
     "stale",
+    "jump",
 )
 """Frame statuses the recorder knows in advance (the assembler's, and ``"sent"``)."""
 FRAME_DTYPE = np.dtype(

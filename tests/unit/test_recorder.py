@@ -26,6 +26,7 @@ from canfdi.recorder import (
     FLAG_EXTENDED,
     FLAG_FD,
     FRAME_DTYPE,
+    FRAME_STATUSES,
     FRAMES_ENCODING,
     MESSAGE_ENCODING,
     METADATA_NAME,
@@ -1000,3 +1001,11 @@ def test_rows_buffered_at_close_while_failing_are_dropped(tmp_path: Path) -> Non
     assert rec.messages_dropped == 8 and rec.buffered == 2
     rec.close()
     assert rec.messages_dropped == 10 and rec.messages_written == 0
+
+
+def test_the_recorder_knows_every_status_of_the_assembler() -> None:
+    """FRAME_STATUSES lists the assembler's statuses in advance (plus "sent"): a status added
+    there must be added here too, or the table of every block would change mid-log."""
+    from canfdi.assembler import STATUS_NAMES
+
+    assert set(STATUS_NAMES) | {"sent"} == set(FRAME_STATUSES)
