@@ -583,10 +583,7 @@ class SampleAssembler:
                 for dest, value in zip(self._dests[slot], values, strict=True):
                     buffer[dest] = value
                 if self._accept(slot):
-                    p = self._p
-                    out.append(Sample(k=self._k, timestamp_ns=timestamp_ns,
-                                      u=np.array(buffer[:p]), z=np.array(buffer[p:]),
-                                      gap=self._last_gap))
+                    out.append(self._sample(self._k, timestamp_ns, self._last_gap, buffer))
             return STATUS_NAMES[code], out
         self._counts[code] += 1
         return STATUS_NAMES[code], []
@@ -616,8 +613,12 @@ class SampleAssembler:
             return []
         k, t, gap, row = self._partial
         self._partial = None
+        return [self._sample(k, t, gap, row)]
+
+    def _sample(self, k: int, t: int, gap: int, row: list[float]) -> Sample:
+        """A Sample of flat [u, z] values (copied)."""
         p = self._p
-        return [Sample(k=k, timestamp_ns=t, u=np.array(row[:p]), z=np.array(row[p:]), gap=gap)]
+        return Sample(k=k, timestamp_ns=t, u=np.array(row[:p]), z=np.array(row[p:]), gap=gap)
 
     def push_batch(
         self,
