@@ -11,7 +11,7 @@ from canfdi.bench import make_traffic
 from canfdi.config import load_config
 from canfdi.monitor import Monitor
 from canfdi.recorder import McapRecorder, read_frames
-from tests.conftest import REPO
+from tests.conftest import REPO, feed_frame_log
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
 
@@ -133,12 +133,7 @@ def test_missing_config_file_exits_2(tmp_path):
 
 
 def _diagnose_log(log) -> Monitor:
-    monitor = Monitor(load_config(CONFIG))
-    for i in range(0, len(log.ids), 4096):
-        sl = slice(i, i + 4096)
-        monitor.on_frames(log.t_ns[sl], log.ids[sl], log.dlc[sl], log.payloads[sl])
-    monitor.finish()
-    return monitor
+    return feed_frame_log(Monitor(load_config(CONFIG)), log)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -8,17 +8,12 @@ from canfdi.config import load_config
 from canfdi.monitor import Monitor
 from firmware_sim.emitter import frame_log
 from firmware_sim.scenario import load_scenario, parse_scenario
-from tests.conftest import REPO
+from tests.conftest import REPO, feed_frame_log
 
 
 def _diagnose(config: str, scenario) -> list:
     monitor = Monitor(load_config(REPO / "deploy" / "config" / config))
-    log = frame_log(scenario)
-    for i in range(0, len(log.ids), 4096):
-        sl = slice(i, i + 4096)
-        monitor.on_frames(log.t_ns[sl], log.ids[sl], log.dlc[sl], log.payloads[sl])
-    monitor.finish()
-    return monitor.events
+    return feed_frame_log(monitor, frame_log(scenario)).events
 
 
 def _accepted(events) -> list:

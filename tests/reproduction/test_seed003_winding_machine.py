@@ -18,8 +18,8 @@ import pytest
 
 from canfdi.config import load_config
 from canfdi.monitor import Monitor
+from tests.conftest import REPO, feed_frame_log
 
-REPO = Path(__file__).resolve().parents[2]
 CONFIG = REPO / "deploy" / "config" / "winding_machine_oe.yaml"
 
 
@@ -46,13 +46,8 @@ def diagnose(scenario: str, config: Path = CONFIG, sink=None) -> Monitor:
     from firmware_sim.emitter import frame_log
     from firmware_sim.scenario import load_scenario
 
-    log = frame_log(load_scenario(scenario))
-    monitor = Monitor(load_config(config), sink=sink)
-    for i in range(0, len(log.ids), 4096):
-        sl = slice(i, i + 4096)
-        monitor.on_frames(log.t_ns[sl], log.ids[sl], log.dlc[sl], log.payloads[sl])
-    monitor.finish()
-    return monitor
+    return feed_frame_log(Monitor(load_config(config), sink=sink),
+                          frame_log(load_scenario(scenario)))
 
 
 def _only_fault(monitor: Monitor):

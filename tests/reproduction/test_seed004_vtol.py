@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,20 +14,14 @@ from canfdi.config import load_config
 from canfdi.monitor import Monitor
 from firmware_sim.emitter import frame_log
 from firmware_sim.scenario import load_scenario, parse_scenario
+from tests.conftest import REPO, feed_frame_log
 
-REPO = Path(__file__).resolve().parents[2]
 CONFIG = REPO / "deploy" / "config" / "vtol_uio.yaml"
 SENSORS = ["v_h", "v_v", "pitch_rate", "v_v_plus_rate_plus_angle"]
 
 
 def _diagnose(scenario, config=CONFIG) -> Monitor:
-    monitor = Monitor(load_config(config))
-    log = frame_log(scenario)
-    for i in range(0, len(log.ids), 4096):
-        sl = slice(i, i + 4096)
-        monitor.on_frames(log.t_ns[sl], log.ids[sl], log.dlc[sl], log.payloads[sl])
-    monitor.finish()
-    return monitor
+    return feed_frame_log(Monitor(load_config(config)), frame_log(scenario))
 
 
 def sensor_scenario(index: int):
