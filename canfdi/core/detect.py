@@ -47,6 +47,7 @@ __all__ = [
     "page_hinkley_step",
     "threshold_alarms",
     "threshold_for_false_alarm_interval",
+    "threshold_for_long_run_variance",
     "threshold_from_false_alarm",
 ]
 
@@ -539,6 +540,23 @@ def page_hinkley_batch(
         assert result is not None
         return result
     return _run_plain(u, d, hh, g0)
+
+
+def threshold_for_long_run_variance(delta: float, arl0: float, long_run: ArrayLike
+                                    ) -> NDArray[np.float64]:
+    """Thresholds (m,) for residuals of long-run variance ratios ``long_run`` (m,) (the sum of
+    all autocovariances over the variance; 1 for white noise).
+
+    Long excursions of a correlated residual behave as white noise of std sqrt(L) (the Brownian
+    limit), so Siegmund's threshold on that scale, sqrt(L) h(delta / sqrt(L), arl0), bounds
+    them; never below the white-noise threshold h(delta, arl0). Ratios below 1 count as 1.
+    """
+    white = threshold_for_false_alarm_interval(delta, arl0)
+    out = []
+    for ratio in np.asarray(long_run, dtype=float).ravel():
+        lr = float(np.sqrt(max(float(ratio), 1.0)))
+        out.append(max(white, lr * threshold_for_false_alarm_interval(delta / lr, arl0)))
+    return np.array(out)
 
 
 class ChangePointDetector:

@@ -39,7 +39,7 @@ from canfdi.core.detect import (
     ChangePointDetector,
     calibrate_threshold,
     onset_candidates,
-    threshold_for_false_alarm_interval,
+    threshold_for_long_run_variance,
 )
 from canfdi.core.records import FaultEvent, Sample
 from canfdi.core.residuals import ResidualBank
@@ -163,16 +163,12 @@ def _calibrate(bank: ResidualBank, measurement_std: np.ndarray, process_std: np.
     h_lo = np.asarray(calibrate_threshold(rn, drift, arl_lo, tol=0.02), dtype=float)
     slope = np.maximum(h_hi - h_lo, 0.0) / np.log(arl_hi / arl_lo)
     h = h_hi + slope * np.log(max(interval, arl_hi) / arl_hi)
-    white = threshold_for_false_alarm_interval(drift, interval)
     # Far beyond the record the extrapolation runs low for strongly correlated residuals (the
     # 10^7-sample soak found s:omega_r, a 5-sample moving sum, alarming every ~1.3e6 samples
-    # at a 1e7 target). Long excursions of a correlated residual behave as white noise of its
-    # long-run variance (Brownian limit): Siegmund's threshold on that scale bounds them.
-    long_run = np.sqrt(np.maximum(_long_run_variance(bank, measurement_std, process_std, rn),
-                                  1.0))
-    brownian = np.array([lr * threshold_for_false_alarm_interval(drift / lr, interval)
-                         for lr in long_run])
-    return np.maximum(np.maximum(h, white), brownian)
+    # at a 1e7 target): bound it by Siegmund's threshold on the long-run variance (which is
+    # never below the white-noise one).
+    long_run = _long_run_variance(bank, measurement_std, process_std, rn)
+    return np.maximum(h, threshold_for_long_run_variance(drift, interval, long_run))
 
 
 def _long_run_variance(bank: ResidualBank, measurement_std: np.ndarray,

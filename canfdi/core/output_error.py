@@ -82,7 +82,7 @@ from scipy.signal import lfilter
 from canfdi.core.detect import (
     ChangePointDetector,
     onset_candidates,
-    threshold_for_false_alarm_interval,
+    threshold_for_long_run_variance,
 )
 from canfdi.core.diagnoser import BlockResult
 from canfdi.core.oe_model import OeModel, fit_step, pair_initial_state, simulate
@@ -138,15 +138,10 @@ def settling_samples(radius: float, settle: float) -> int:
 def oe_thresholds(drift: float, interval: float, long_run: np.ndarray) -> np.ndarray:
     """(q,) Page-Hinkley thresholds (noise stds) for a false-alarm interval (samples).
 
-    White residuals: Siegmund's threshold. A residual of long-run variance ratio L > 1 (model
-    error colours it) behaves, over long excursions, as white noise of std sqrt(L): Siegmund's
-    threshold on that scale bounds it (canfdi.core.diagnoser does the same)."""
-    white = threshold_for_false_alarm_interval(drift, interval)
-    out = []
-    for ratio in np.asarray(long_run, dtype=float):
-        lr = math.sqrt(max(float(ratio), 1.0))
-        out.append(max(white, lr * threshold_for_false_alarm_interval(drift / lr, interval)))
-    return np.array(out)
+    The OE residual is the measurement noise itself, white unless model error colours it:
+    Siegmund's threshold, bounded for a residual of long-run variance ratio L > 1 as the
+    parity diagnoser's (canfdi.core.detect.threshold_for_long_run_variance)."""
+    return threshold_for_long_run_variance(drift, interval, long_run)
 
 
 class OutputErrorDiagnoser:

@@ -26,6 +26,7 @@ from canfdi.core.detect import (
     page_hinkley_step,
     threshold_alarms,
     threshold_for_false_alarm_interval,
+    threshold_for_long_run_variance,
     threshold_from_false_alarm,
 )
 
@@ -526,3 +527,12 @@ def test_onset_candidates():
     assert onset_candidates(100, 110, 0, 3, 5) == list(range(106, 111))
     assert onset_candidates(100, 110, 99, 3, 16) == list(range(99, 111))
     assert onset_candidates(100, 110, 200, 3, 16) == [110]
+
+
+def test_threshold_for_long_run_variance():
+    """White residuals (L <= 1) get Siegmund's threshold; a 5-sample moving sum (L = 5, the DC
+    motor's s:omega_r) gets sqrt(5) h(0.5 / sqrt(5)): 69.9 at 1e7 samples."""
+    white = threshold_for_false_alarm_interval(0.5, 1e7)
+    h = threshold_for_long_run_variance(0.5, 1e7, [0.3, 1.0, 5.0])
+    assert h[0] == h[1] == white
+    assert h[2] == pytest.approx(69.94, abs=0.01) and h[2] > white
