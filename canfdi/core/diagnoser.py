@@ -214,7 +214,7 @@ class Diagnoser:
         self.design = design
         self.settings = settings
         self.bank = ResidualBank(design)
-        self.thresholds = np.asarray(thresholds, dtype=float).reshape(self.bank.m)
+        thresholds = np.asarray(thresholds, dtype=float).reshape(self.bank.m)
         model = design.model
         self.q, self.p = model.q, model.p
         self.hypotheses = [Hypothesis("actuator", j, n) for j, n in
@@ -251,7 +251,7 @@ class Diagnoser:
                            and _proportional(signature[h], signature[g])} for h in single}
         for h in self.hypotheses:
             self._twins.setdefault(h, set())
-        self.detector = ChangePointDetector(self.bank.m, settings.drift, self.thresholds)
+        self.detector = ChangePointDetector(self.bank.m, settings.drift, thresholds)
         n_onsets = settings.max_onsets
         self._history: deque = deque(maxlen=self.bank.S + n_onsets + 8)
         self._recent: deque = deque(maxlen=n_onsets + 8)
@@ -291,6 +291,16 @@ class Diagnoser:
     @property
     def residual_names(self) -> list[str]:
         return self.bank.names
+
+    @property
+    def thresholds(self) -> np.ndarray:
+        """(m,) Page-Hinkley thresholds in noise stds: the detector's (settable, e.g. scaled by
+        a sensitivity check)."""
+        return self.detector.h
+
+    @thresholds.setter
+    def thresholds(self, value: np.ndarray) -> None:
+        self.detector.h = np.asarray(value, dtype=float).reshape(self.detector.m)
 
     @property
     def statistics(self) -> np.ndarray:

@@ -166,10 +166,10 @@ class OutputErrorDiagnoser:
         self.sigma = np.asarray(sigma, dtype=float).reshape(self.q)
         if np.any(~np.isfinite(self.sigma)) or np.any(self.sigma <= 0):
             raise ValueError("sigma: residual standard deviations must be finite and > 0")
-        self.thresholds = np.asarray(thresholds, dtype=float).reshape(self.q)
+        thresholds = np.asarray(thresholds, dtype=float).reshape(self.q)
         self.settings = settings
         self.input_names, self.output_names = list(input_names), list(output_names)
-        self.detector = ChangePointDetector(self.q, settings.drift, self.thresholds)
+        self.detector = ChangePointDetector(self.q, settings.drift, thresholds)
         s = settings
         self._paths = model.has_path()
         # taint[i, j]: samples residual j stays missing after a held (lost) command u_i.
@@ -210,6 +210,16 @@ class OutputErrorDiagnoser:
     @property
     def residual_names(self) -> list[str]:
         return [f"oe:{name}" for name in self.output_names]
+
+    @property
+    def thresholds(self) -> np.ndarray:
+        """(m,) Page-Hinkley thresholds in noise stds: the detector's (settable, e.g. scaled by
+        a sensitivity check)."""
+        return self.detector.h
+
+    @thresholds.setter
+    def thresholds(self, value: np.ndarray) -> None:
+        self.detector.h = np.asarray(value, dtype=float).reshape(self.detector.m)
 
     @property
     def statistics(self) -> np.ndarray:
