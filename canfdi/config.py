@@ -31,14 +31,14 @@ Layout::
     detection:                     # optional; Page-Hinkley on each normalised residual
       drift: 0.5                   # delta, in residual noise standard deviations
       false_alarm_interval: 1.0e7  # samples between false alarms per residual (calibration)
-    identification:                # optional; see canfdi.core.diagnoser.DiagnoserSettings
+    identification:                # optional; see canfdi.methods.parity.diagnoser.DiagnoserSettings
       min_samples: 200
       max_samples: 2000
       settle_rel_std: 0.01
       isolation_margin: 50.0
       max_fit_variance: 4.0        # accept only fits leaving about noise (a spike: no)
-    output_error: {...}            # the output_error method's section (canfdi.method_oe)
-    uio: {...}                     # the uio method's section (canfdi.method_uio)
+    output_error: {...}            # the output_error method's section (canfdi.methods.output_error.config)
+    uio: {...}                     # the uio method's section (canfdi.methods.uio.config)
     recording:                     # optional; MCAP logs of `canfdi run`
       directory: logs
       rotate_mib: 256
@@ -109,7 +109,7 @@ class DetectionConfig:
 
 @dataclass(frozen=True)
 class IdentificationConfig:
-    """When a hypothesis is accepted (see canfdi.core.diagnoser)."""
+    """When a hypothesis is accepted (see canfdi.methods.parity.diagnoser)."""
 
     min_samples: int = 200
     max_samples: int = 2000

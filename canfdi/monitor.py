@@ -17,18 +17,18 @@ from typing import Any, Protocol
 import numpy as np
 
 from canfdi import __version__
-from canfdi.assembler import STATUS_NAMES, BusMap, SampleAssembler
+from canfdi.bus.assembler import STATUS_NAMES, BusMap, SampleAssembler
+from canfdi.bus.e2e import protect
 from canfdi.config import MonitorConfig
 from canfdi.core.design import Design, design_bank, design_to_dict
-from canfdi.core.diagnoser import (
+from canfdi.core.records import FaultEvent, Sample
+from canfdi.core.residuals import ResidualBank
+from canfdi.methods.parity.diagnoser import (
     BlockResult,
     Diagnoser,
     DiagnoserSettings,
     calibrate_thresholds,
 )
-from canfdi.core.records import FaultEvent, Sample
-from canfdi.core.residuals import ResidualBank
-from canfdi.e2e import protect
 
 __all__ = ["Monitor", "OutFrame", "RecordSink", "build_diagnoser", "messages_to_arrays",
            "summary_json"]
@@ -60,7 +60,7 @@ _STATUS = {"starting": 0, "monitoring": 1, "diagnosing": 2, "degraded": 3, "bus_
 
 
 class RecordSink(Protocol):
-    """Where the monitor's records go (canfdi.recorder.McapRecorder fits)."""
+    """Where the monitor's records go (canfdi.io.recorder.McapRecorder fits)."""
 
     def write_frame(self, timestamp_ns: int, frame_id: int, data: bytes, status: str,
                     extended: bool = False) -> None: ...
@@ -89,8 +89,8 @@ class OutFrame:
 
 
 class DiagnoserLike(Protocol):
-    """What the monitor needs of a diagnosis method: `canfdi.core.diagnoser.Diagnoser` (parity,
-    seed 001); `canfdi.method_oe` and `canfdi.method_uio` build the others. Residual arrays
+    """What the monitor needs of a diagnosis method: `canfdi.methods.parity.diagnoser.Diagnoser` (parity,
+    seed 001); `canfdi.methods.output_error.config` and `canfdi.methods.uio.config` build the others. Residual arrays
     are (m,) in ``residual_names`` order; events use the FaultEvent contract (kinds detected,
     accepted, unexplained; estimates eta/lambda for actuators, bias for sensors)."""
 
@@ -117,11 +117,11 @@ def build_diagnoser(config: MonitorConfig, design: Design | None = None) -> Diag
     """The diagnoser a config describes (its ``method``): design, calibrated thresholds,
     settings."""
     if config.method == "output_error":
-        from canfdi.method_oe import build_output_error_diagnoser
+        from canfdi.methods.output_error.config import build_output_error_diagnoser
 
         return build_output_error_diagnoser(config)
     if config.method == "uio":
-        from canfdi.method_uio import build_uio_diagnoser
+        from canfdi.methods.uio.config import build_uio_diagnoser
 
         return build_uio_diagnoser(config)
     design = design or design_bank(config.model, config.inputs, config.outputs, config.design)
@@ -216,7 +216,7 @@ class Monitor:
         Parameters
         ----------
         t_ns : (N,) int64 arrival times; ids, dlc : (N,); payloads : (N, 8) uint8;
-        flags : (N,) bit mask (canfdi.assembler FLAG_*), default 0.
+        flags : (N,) bit mask (canfdi.bus.assembler FLAG_*), default 0.
         """
         if len(ids) == 0:
             return []

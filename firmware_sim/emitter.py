@@ -3,7 +3,7 @@
 Every control period k the drive sends each of its DBC messages once (sender DRIVE), carrying
 the command u_c(k), the measurements z(k) and the references, with the alive counter k mod 256
 and the E2E CRC (dbc/README.md). Frames are encoded a block of samples at a time with the
-precompiled layouts of canfdi.codec; sending is paced in real time (``speed`` 1), faster
+precompiled layouts of canfdi.bus.codec; sending is paced in real time (``speed`` 1), faster
 (``speed`` N) or as fast as the bus takes them (``speed`` 0).
 
 For tests, frames can be dropped, delayed (jitter), sent with a wrong CRC or a wrong DLC.
@@ -24,8 +24,8 @@ import can
 import numpy as np
 
 from canfdi import dbc as dbc_files
-from canfdi.codec import MessageLayout, compile_layout
-from canfdi.e2e import protect_batch
+from canfdi.bus.codec import MessageLayout, compile_layout
+from canfdi.bus.e2e import protect_batch
 from firmware_sim.plants import Plant
 from firmware_sim.scenario import Scenario
 from firmware_sim.simulate import SimChunk, Simulator

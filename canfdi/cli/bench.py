@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     import os
 
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    from canfdi.bench import run_bench
+    from canfdi.tools.bench import run_bench
 
     config = load_config_or_exit(args.config, "bench")
     if isinstance(config, int):

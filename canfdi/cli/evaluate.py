@@ -1,6 +1,6 @@
 """`canfdi evaluate`: Monte Carlo over generated fault scenarios through the monitor's diagnoser.
 
-Issue 10. The work is in canfdi.evaluate (generation, simulation, matching, metrics); this
+Issue 10. The work is in canfdi.tools.evaluate (generation, simulation, matching, metrics); this
 module parses arguments, prints and plots. Like soak and demo, it needs the plant emulator.
 """
 
@@ -113,7 +113,7 @@ def _config_path(args: argparse.Namespace) -> Path | int:
 
 
 def _check_args(args: argparse.Namespace) -> str | None:
-    from canfdi.evaluate import FAULT_KINDS
+    from canfdi.tools.evaluate import FAULT_KINDS
     from firmware_sim.plants import PLANTS
 
     if args.plant not in PLANTS:
@@ -198,8 +198,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def evaluate(config, args: argparse.Namespace, progress) -> dict[str, Any]:
-    from canfdi.evaluate import aggregate, plan_runs, run_evaluation, setup_from_config
     from canfdi.monitor import build_diagnoser
+    from canfdi.tools.evaluate import aggregate, plan_runs, run_evaluation, setup_from_config
 
     progress(f"designing and calibrating the {config.method} monitor")
     setup = setup_from_config(config, args.plant, spacing=args.spacing)

@@ -38,8 +38,8 @@ def export_frames(log: Path, out: Path, fmt: str, progress=None) -> int:
     """Write every frame of ``log`` to ``out`` in format ``fmt``; returns the frame count."""
     import can
 
-    from canfdi.codec import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
-    from canfdi.recorder import iter_frame_blocks
+    from canfdi.bus.codec import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
+    from canfdi.io.recorder import iter_frame_blocks
 
     writer_class = {"blf": can.BLFWriter, "asc": can.ASCWriter,
                     "log": can.CanutilsLogWriter, "csv": can.CSVWriter}[fmt]
@@ -64,7 +64,7 @@ def export_frames(log: Path, out: Path, fmt: str, progress=None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from canfdi.recorder import log_segments
+    from canfdi.io.recorder import log_segments
 
     try:
         segments = log_segments(args.log)

@@ -14,7 +14,7 @@ HELP = """\
 Identify the parallel output-error models of seed 003 from a fault-free log: for every output,
 y = y0 + sum_i B_i(q)/F_i(q) q^-d (u_c,i - u0), fitted by the OE prediction-error method
 (Steiglitz-McBride start, then Levenberg-Marquardt on the simulation error;
-canfdi.core.oe_model). The log is an MCAP written by `canfdi demo -o`, `run` or `capture`, or
+canfdi.methods.output_error.model). The log is an MCAP written by `canfdi demo -o`, `run` or `capture`, or
 a python-can log (.log .asc .blf .trc .csv); its frames are decoded and assembled with the
 config's DBC and signals.
 
@@ -81,7 +81,7 @@ def _samples(path: Path, config):
     """(k, U, Z) of a log, assembled from its frames with the config's DBC."""
     import numpy as np
 
-    from canfdi.assembler import BusMap, SampleAssembler
+    from canfdi.bus.assembler import BusMap, SampleAssembler
     from canfdi.cli.replay import PYTHON_CAN_SUFFIXES, mcap_blocks, python_can_blocks
 
     asm = SampleAssembler(BusMap.from_config(config), config.model.dt or 1.0)
@@ -127,7 +127,7 @@ def identify(k, U, Z, inputs, outputs, fixed: dict, delay: int, min_snr: float, 
     """Fit every output; returns {"model", "sigma", "long_run", "fits": per output report}."""
     import numpy as np
 
-    from canfdi.core.oe_model import OeModel, fit_miso, long_run_ratio
+    from canfdi.methods.output_error.model import OeModel, fit_miso, long_run_ratio
 
     Ug, Zg = _regular(k, U, Z)
     u0 = Ug.mean(axis=0)
@@ -200,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
     import yaml
 
     from canfdi.config import read_yaml
-    from canfdi.method_oe import output_error_section
+    from canfdi.methods.output_error.config import output_error_section
 
     config = load_config_or_exit(args.config, "identify")
     if isinstance(config, int):
@@ -260,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
     # The decision settings are written out (at their defaults) so that the file shows them.
     from dataclasses import asdict
 
-    from canfdi.core.output_error import OeSettings
+    from canfdi.methods.output_error.diagnoser import OeSettings
 
     settings = {key: value for key, value in asdict(OeSettings()).items()
                 if key not in ("drift", "false_alarm_interval")}

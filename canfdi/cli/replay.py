@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 from canfdi.cli.common import config_error, format_event, load_config_or_exit, print_comparison
 
 if TYPE_CHECKING:
-    from canfdi.recorder import FrameArrays
+    from canfdi.io.recorder import FrameArrays
 
 HELP = """\
 Run the monitor offline over a log: an MCAP written by canfdi (run, demo, capture), whose raw
@@ -38,7 +38,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def mcap_frames(path: Path) -> Iterator[tuple[int, int, bytes, bool, bool]]:
     """(timestamp_ns, id, data, extended, error) of the frames a canfdi MCAP received."""
-    from canfdi.recorder import iter_frame_blocks
+    from canfdi.io.recorder import iter_frame_blocks
 
     for block in iter_frame_blocks(path):
         received = block.status != "sent"  # the monitor's own: a live monitor does not hear them
@@ -50,10 +50,10 @@ def mcap_frames(path: Path) -> Iterator[tuple[int, int, bytes, bool, bool]]:
 
 
 def mcap_frame_arrays(path: Path) -> FrameArrays:
-    """The frames a canfdi MCAP received, as arrays (`canfdi.recorder.FrameArrays`): every
+    """The frames a canfdi MCAP received, as arrays (`canfdi.io.recorder.FrameArrays`): every
     segment, in order, without the monitor's own transmissions (status "sent"). Error frames
     have status "error_frame"; `FrameArrays.payloads` gives payloads longer than 8 bytes."""
-    from canfdi.recorder import read_frames
+    from canfdi.io.recorder import read_frames
 
     frames = _scanned_frames(path)
     if frames is None:
@@ -71,8 +71,8 @@ def frame_array_blocks(path: Path, frames_per_block: int = 65536):
 
     import numpy as np
 
-    from canfdi.mcapscan import UnsupportedLog, scan_topic
-    from canfdi.recorder import TOPIC_FRAMES, FrameArrays, _frame_block, log_segments
+    from canfdi.io.recorder import TOPIC_FRAMES, FrameArrays, _frame_block, log_segments
+    from canfdi.io.scan import UnsupportedLog, scan_topic
 
     fields = ("t_ns", "id", "dlc", "data", "extended", "status", "flags")
 
@@ -111,12 +111,12 @@ def frame_array_blocks(path: Path, frames_per_block: int = 65536):
 
 
 def _scanned_frames(path: Path):
-    """The frame blocks of every segment through canfdi.mcapscan (fast), or None when a
+    """The frame blocks of every segment through canfdi.io.scan (fast), or None when a
     segment needs the full reader (an old one-frame-per-message log, an unusual chunk)."""
     import numpy as np
 
-    from canfdi.mcapscan import UnsupportedLog, scan_topic
-    from canfdi.recorder import TOPIC_FRAMES, FrameArrays, _frame_block, log_segments
+    from canfdi.io.recorder import TOPIC_FRAMES, FrameArrays, _frame_block, log_segments
+    from canfdi.io.scan import UnsupportedLog, scan_topic
 
     blocks = []
     try:
@@ -142,7 +142,7 @@ def _scanned_frames(path: Path):
 def mcap_blocks(path: Path, frames_per_block: int = 65536):
     """(t_ns, ids, dlc, flags, payloads) blocks of a canfdi MCAP's received frames: the fast
     scanner when it can read the log, the full reader otherwise (older layouts)."""
-    from canfdi.mcapscan import UnsupportedLog
+    from canfdi.io.scan import UnsupportedLog
 
     try:
         for arr in frame_array_blocks(path, frames_per_block):
@@ -174,7 +174,7 @@ def python_can_blocks(path: Path, frames_per_block: int = 65536):
 
 
 def truth_of(path: Path) -> list[dict] | None:
-    from canfdi.recorder import read_metadata
+    from canfdi.io.recorder import read_metadata
 
     try:
         meta = read_metadata(path)

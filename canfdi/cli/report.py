@@ -39,7 +39,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from canfdi.report import ReportError, make_report
+    from canfdi.tools.report import ReportError, make_report
 
     out = args.output or args.log.with_name(args.log.stem + "_report")
 

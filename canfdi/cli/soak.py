@@ -358,7 +358,7 @@ def _detection(run: int, event, res, row: int, names: list[str], thresholds: np.
 
 def _bus_resolution(config: MonitorConfig) -> tuple[list, list]:
     """Per model input and output, its DBC signal layout (what encode/decode does to it)."""
-    from canfdi.assembler import BusMap
+    from canfdi.bus.assembler import BusMap
 
     bus_map = BusMap.from_config(config)
     u: list = [None] * bus_map.p

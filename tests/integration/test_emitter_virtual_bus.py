@@ -9,7 +9,7 @@ import can
 import numpy as np
 
 from canfdi import dbc as dbc_files
-from canfdi import e2e
+from canfdi.bus import e2e
 from firmware_sim.emitter import Disturbance, emit
 from firmware_sim.scenario import load_scenario, parse_scenario
 from firmware_sim.simulate import simulate

@@ -7,8 +7,8 @@ import can
 import numpy as np
 import pytest
 
-from canfdi.codec import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE
-from canfdi.recorder import McapRecorder, read_frames
+from canfdi.bus.codec import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE
+from canfdi.io.recorder import McapRecorder, read_frames
 from tests.conftest import REPO
 
 T0 = 1_795_000_000_000_000_000

@@ -25,8 +25,7 @@ import pytest
 
 from canfdi.cli.common import recording_counts
 from canfdi.config import load_config
-from canfdi.monitor import Monitor
-from canfdi.recorder import (
+from canfdi.io.recorder import (
     McapRecorder,
     log_segments,
     read_frames,
@@ -34,6 +33,7 @@ from canfdi.recorder import (
     read_metadata,
     read_samples,
 )
+from canfdi.monitor import Monitor
 from canfdi.service import MonitorService
 from firmware_sim.emitter import emit
 from firmware_sim.scenario import load_scenario
@@ -134,7 +134,7 @@ def test_full_disk_under_the_service_degrades_then_resumes(tmp_path, caplog):
     of dc_motor_consecutive are accepted then): every fault still gets its FDI_FAULT frame,
     FDI_STATUS says "degraded" during the episode only, the recorder warns once when it fails
     and once when it resumes (in run-0001.mcap), and its counters say what was lost."""
-    caplog.set_level(logging.INFO, logger="canfdi.recorder")
+    caplog.set_level(logging.INFO, logger="canfdi.io.recorder")
     config = load_config(CONFIG)
     scenario = load_scenario("dc_motor_consecutive")
     monitor = Monitor(config)
@@ -195,7 +195,7 @@ def test_full_disk_under_the_service_degrades_then_resumes(tmp_path, caplog):
     assert runs == [False, True, False], states
 
     # The recorder: one warning per episode, counters, a second segment.
-    messages = [r.getMessage() for r in caplog.records if r.name == "canfdi.recorder"]
+    messages = [r.getMessage() for r in caplog.records if r.name == "canfdi.io.recorder"]
     assert len([m for m in messages if "failed" in m]) == 1, messages
     assert len([m for m in messages if "resumed" in m]) == 1, messages
     assert recorder.last_error is not None and recorder.last_error.errno == errno.ENOSPC

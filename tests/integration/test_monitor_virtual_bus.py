@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from canfdi import dbc as dbc_files
-from canfdi import e2e
+from canfdi.bus import e2e
 from canfdi.cli.demo import run_demo
 from canfdi.config import load_config
-from canfdi.recorder import McapRecorder, read_frames
+from canfdi.io.recorder import McapRecorder, read_frames
 from firmware_sim.scenario import load_scenario, parse_scenario
 from tests.conftest import REPO
 

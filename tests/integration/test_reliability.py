@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import yaml
 
-from canfdi.bench import make_traffic
 from canfdi.config import load_config
+from canfdi.io.recorder import McapRecorder, read_frames
 from canfdi.monitor import Monitor
-from canfdi.recorder import McapRecorder, read_frames
+from canfdi.tools.bench import make_traffic
 from tests.conftest import REPO, feed_frame_log
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"

@@ -9,9 +9,9 @@ import pytest
 
 from canfdi.cli import main
 from canfdi.config import load_config
+from canfdi.io.recorder import McapRecorder
 from canfdi.monitor import Monitor
-from canfdi.recorder import McapRecorder
-from canfdi.report import decimate
+from canfdi.tools.report import decimate
 from firmware_sim.emitter import frame_log
 from firmware_sim.scenario import load_scenario
 from tests.conftest import REPO

@@ -11,7 +11,7 @@ import pytest
 import yaml
 from scipy.stats import chi2
 
-from canfdi.assembler import BusMap
+from canfdi.bus.assembler import BusMap
 from canfdi.cli import main
 from canfdi.cli.soak import _bus_resolution, _quantize, rate_lower_bound, rate_upper_bound
 from canfdi.config import load_config

@@ -18,7 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from canfdi import dbc as dbc_files
-from canfdi.assembler import (
+from canfdi.bus.assembler import (
     FLAG_ERROR,
     FLAG_EXTENDED,
     FLAG_FD,
@@ -27,7 +27,7 @@ from canfdi.assembler import (
     SampleAssembler,
     assemble_batch,
 )
-from canfdi.e2e import protect
+from canfdi.bus.e2e import protect
 from tests.unit.test_busmap import DT_NS, as_log, dc_motor_map, drive_traffic
 
 DT = DT_NS / 1e9

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from canfdi.assembler import (
+from canfdi.bus.assembler import (
     FLAG_ERROR,
     FLAG_EXTENDED,
     FLAG_FD,
@@ -26,7 +26,7 @@ from canfdi.assembler import (
     SampleAssembler,
     assemble_batch,
 )
-from canfdi.e2e import protect
+from canfdi.bus.e2e import protect
 from tests.unit.test_assembler import (
     DT,
     STATUS_FRAME,

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from canfdi import dbc as dbc_files
-from canfdi.assembler import STATUS_CODES, STATUS_NAMES, BusMap
+from canfdi.bus.assembler import STATUS_CODES, STATUS_NAMES, BusMap
+from canfdi.bus.e2e import check, protect
 from canfdi.config import BusConfig, ConfigError, load_config
-from canfdi.e2e import check, protect
 from firmware_sim.emitter import FrameEncoder
 from firmware_sim.scenario import load_scenario
 from firmware_sim.simulate import SimChunk, Simulator

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from canfdi import dbc as dbc_files
-from canfdi.codec import compile_layout
+from canfdi.bus.codec import compile_layout
 
 
 def _messages():

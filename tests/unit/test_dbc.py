@@ -17,7 +17,7 @@ import pytest
 from cantools.database.can import Database, Message, Signal
 
 from canfdi import dbc as dbc_package
-from canfdi import e2e
+from canfdi.bus import e2e
 
 REPO = Path(__file__).resolve().parents[2]
 DBC_DIR = REPO / "dbc"

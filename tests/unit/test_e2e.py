@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from canfdi import e2e
+from canfdi.bus import e2e
 
 IDS = st.integers(min_value=0, max_value=0x7FF)
 PAYLOADS = st.binary(min_size=2, max_size=8)

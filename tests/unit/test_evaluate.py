@@ -1,4 +1,4 @@
-"""canfdi.evaluate: matching events to injected faults and the metrics, against hand counts."""
+"""canfdi.tools.evaluate: matching events to injected faults and the metrics, against hand counts."""
 
 import itertools
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from canfdi.core.records import FaultEvent
-from canfdi.evaluate import (
+from canfdi.tools.evaluate import (
     Channel,
     EvaluationSetup,
     InjectedFault,

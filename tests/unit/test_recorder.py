@@ -1,4 +1,4 @@
-"""Tests of canfdi.recorder: MCAP round trip of the block topics, truncation, kill -9,
+"""Tests of canfdi.io.recorder: MCAP round trip of the block topics, truncation, kill -9,
 rotation, disk full, and reading the older one-row-per-message layout."""
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from mcap.writer import Writer
 
 from canfdi.cli.replay import mcap_frame_arrays, mcap_frames
 from canfdi.core.records import FaultEvent, Sample
-from canfdi.recorder import (
+from canfdi.io.recorder import (
     FLAG_EXTENDED,
     FLAG_FD,
     FRAME_DTYPE,
@@ -742,7 +742,7 @@ def test_explicit_flush_writes_the_buffers_and_ends_the_chunk(tmp_path: Path) ->
 
 CHILD = """
 import sys, time
-from canfdi.recorder import McapRecorder
+from canfdi.io.recorder import McapRecorder
 
 rec = McapRecorder(sys.argv[1], flush_interval=0.2)
 i = 0
@@ -937,7 +937,7 @@ def test_disk_full_drops_then_resumes(
         clock=clock,
         opener=disk.open,
     )
-    caplog.set_level(logging.WARNING, logger="canfdi.recorder")
+    caplog.set_level(logging.WARNING, logger="canfdi.io.recorder")
 
     def frames(start: int, stop: int) -> None:
         for i in range(start, stop):
@@ -1006,6 +1006,6 @@ def test_rows_buffered_at_close_while_failing_are_dropped(tmp_path: Path) -> Non
 def test_the_recorder_knows_every_status_of_the_assembler() -> None:
     """FRAME_STATUSES lists the assembler's statuses in advance (plus "sent"): a status added
     there must be added here too, or the table of every block would change mid-log."""
-    from canfdi.assembler import STATUS_NAMES
+    from canfdi.bus.assembler import STATUS_NAMES
 
     assert set(STATUS_NAMES) | {"sent"} == set(FRAME_STATUSES)

@@ -12,7 +12,7 @@ The config's ``uio:`` section (all optional)::
       onset_lookback: 50       # samples before the alarm kept for the onset fit
 
 The false-alarm interval comes from the shared ``detection:`` section (drift is unused: the
-alarm is a threshold on the weighted residuals, canfdi.core.uio_diagnoser), the
+alarm is a threshold on the weighted residuals, canfdi.methods.uio.diagnoser), the
 measurement noise from ``noise:``. The model (continuous with dt, or discrete) is discretised
 with a zero-order hold (StateSpace.discretize), the unknown-input direction E being its F.
 """
@@ -22,8 +22,8 @@ from __future__ import annotations
 import numpy as np
 
 from canfdi.config import ConfigError, MonitorConfig
-from canfdi.core.uio import design_uio
-from canfdi.core.uio_diagnoser import UioDiagnoser, UioSettings, uio_thresholds
+from canfdi.methods.uio.design import design_uio
+from canfdi.methods.uio.diagnoser import UioDiagnoser, UioSettings, uio_thresholds
 
 __all__ = ["build_uio_diagnoser", "parse_uio_options"]
 

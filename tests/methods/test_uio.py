@@ -1,4 +1,4 @@
-"""canfdi.core.uio and the UioDiagnoser: (CE)^+ decoupling, the diagonal actuator map, the
+"""canfdi.methods.uio.design and the UioDiagnoser: (CE)^+ decoupling, the diagonal actuator map, the
 GRGS fault angles, and update_block against update (NaN values and gaps included)."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import pytest
 
 from canfdi.config import ConfigError, load_config
 from canfdi.core.records import Sample
-from canfdi.core.uio import decouple, design_uio, fault_angles, flag_function
-from canfdi.method_uio import build_uio_diagnoser, parse_uio_options
+from canfdi.methods.uio.config import build_uio_diagnoser, parse_uio_options
+from canfdi.methods.uio.design import decouple, design_uio, fault_angles, flag_function
 from tests.reproduction.test_seed004_vtol import CONFIG
 
 

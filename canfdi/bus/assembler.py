@@ -57,7 +57,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from canfdi.codec import (
+from canfdi.bus.codec import (
     FLAG_ERROR,
     FLAG_EXTENDED,
     FLAG_FD,
@@ -65,9 +65,9 @@ from canfdi.codec import (
     MessageLayout,
     compile_layout,
 )
+from canfdi.bus.e2e import CRC8_XOROUT, crc8, data_id, e2e_check_batch
 from canfdi.config import ConfigError, MonitorConfig
 from canfdi.core.records import Sample
-from canfdi.e2e import CRC8_XOROUT, crc8, data_id, e2e_check_batch
 
 if TYPE_CHECKING:
     from cantools.database.can import Database

@@ -31,7 +31,7 @@ _MESSAGE = struct.Struct("<HIQQ")
 
 
 class UnsupportedLog(ValueError):
-    """The scanner cannot read this file; use canfdi.recorder's readers instead."""
+    """The scanner cannot read this file; use canfdi.io.recorder's readers instead."""
 
 
 def _string(buf: memoryview, pos: int) -> tuple[str, int]:

@@ -1,6 +1,6 @@
 """The seed 004 diagnoser: FIDF + GRGS residuals -> threshold -> fault angles -> accept.
 
-MONITOR. Each sample goes through the deadbeat front end of canfdi.core.uio (FIR over S+1
+MONITOR. Each sample goes through the deadbeat front end of canfdi.methods.uio.design (FIR over S+1
 samples: the FIDF's fhat(k-1) and the GRGS scalars), then the first-order weights (the
 paper's Hf(q) = (1 - a) / (q - a)); a weighted residual beyond h noise stds raises the alarm,
 h set for the false-alarm interval from the noise model (`uio_thresholds`; the paper flags a
@@ -34,9 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
-from canfdi.core.diagnoser import BlockResult
 from canfdi.core.records import FaultEvent, Sample
-from canfdi.core.uio import UioDesign, fault_angles, flag_function
+from canfdi.methods.parity.diagnoser import BlockResult
+from canfdi.methods.uio.design import UioDesign, fault_angles, flag_function
 
 __all__ = ["UioDiagnoser", "UioSettings", "uio_thresholds"]
 
@@ -84,7 +84,7 @@ class UioDiagnoser:
 
     Parameters
     ----------
-    design : canfdi.core.uio.design_uio's result; settings : UioSettings;
+    design : canfdi.methods.uio.design.design_uio's result; settings : UioSettings;
     thresholds : (p+m,) alarm thresholds on |normalised residual| (uio_thresholds);
     input_names, output_names : the model's channel names.
     """
@@ -360,7 +360,7 @@ class UioDiagnoser:
             D = self.design.fault_dc / fit["se"][:, None]
             angles = np.degrees(fault_angles(fit["mu"] / fit["se"], D, signed=False))
             candidates = self._candidates(fit, angles, np.argsort(angles))[:3]
-        # As in canfdi.core.diagnoser, an unexplained event lists the best few hypotheses.
+        # As in canfdi.methods.parity.diagnoser, an unexplained event lists the best few hypotheses.
         event = FaultEvent(kind="unexplained", sample=k, timestamp_ns=t,
                            detected_sample=self._diag["k_d"], candidates=candidates)
         self.events.append(event)

@@ -385,7 +385,7 @@ def long_run_ratio(r: np.ndarray, block: int = 50) -> float:
     """Long-run variance of a residual over its variance (1 for white noise), by batch means.
 
     A Page-Hinkley threshold for white noise is too low for a correlated residual (model error
-    colours the OE residual); this ratio scales it (see canfdi.core.output_error)."""
+    colours the OE residual); this ratio scales it (see canfdi.methods.output_error.diagnoser)."""
     r = np.asarray(r, dtype=float)
     r = r[~np.isnan(r)]
     n_blocks = len(r) // block

@@ -76,7 +76,7 @@ class ReportError(ValueError):
 class LogContents:
     """What a log holds, as arrays; None or empty where the log lacks it (see ``notes``).
 
-    samples : canfdi.recorder.SampleArrays or None; residuals : ResidualArrays or None.
+    samples : canfdi.io.recorder.SampleArrays or None; residuals : ResidualArrays or None.
     thresholds : (m,) Page-Hinkley thresholds in residuals.names order, or None.
     events : every FaultEvent of ``/canfdi/events`` in order.
     truth : the injected faults (demo logs) or None.
@@ -181,7 +181,7 @@ def read_log_contents(path: str | Path, config_path: Path | None = None,
     ReportError
         No such file, not an MCAP file, an unreadable --config, or a log the readers reject.
     """
-    from canfdi.recorder import (
+    from canfdi.io.recorder import (
         TOPIC_EVENTS,
         log_segments,
         read_log,
@@ -364,8 +364,8 @@ def estimate_trajectory(contents: LogContents, event: FaultEvent) -> Trajectory 
     """The running least-squares estimates of an accepted fault (see the module docstring),
     or None when the log cannot give them (then ``contents.notes`` says why)."""
     from canfdi.core.design import design_bank
-    from canfdi.core.diagnoser import DiagnoserSettings
     from canfdi.core.residuals import ResidualBank
+    from canfdi.methods.parity.diagnoser import DiagnoserSettings
 
     cfg, res = contents.config, contents.residuals
     label = f"{event.target} {event.name}"

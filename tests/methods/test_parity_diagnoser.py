@@ -189,7 +189,7 @@ def test_one_corrupt_sample_is_never_diagnosed_as_a_fault(channel, size):
 def test_long_run_variance_of_the_residuals_matches_their_autocovariance():
     """The threshold bound for correlated residuals uses each residual's long-run variance;
     for white measurement noise it is exact, e.g. 5 for s:omega_r (a 5-sample moving sum)."""
-    from canfdi.core.diagnoser import _long_run_variance
+    from canfdi.methods.parity.diagnoser import _long_run_variance
 
     bank = build_diagnoser(CONFIG).bank
     rng = np.random.default_rng(0)

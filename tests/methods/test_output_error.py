@@ -9,10 +9,10 @@ import pytest
 from scipy.signal import lfilter
 
 from canfdi.config import ConfigError, load_config, read_yaml
-from canfdi.core.oe_model import OePair, fit_miso, fit_step
-from canfdi.core.output_error import OeSettings, OutputErrorDiagnoser, settling_samples
 from canfdi.core.records import Sample
-from canfdi.method_oe import build_output_error_diagnoser, parse_output_error
+from canfdi.methods.output_error.config import build_output_error_diagnoser, parse_output_error
+from canfdi.methods.output_error.diagnoser import OeSettings, OutputErrorDiagnoser, settling_samples
+from canfdi.methods.output_error.model import OePair, fit_miso, fit_step
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = REPO / "deploy" / "config" / "winding_machine_oe.yaml"
@@ -78,7 +78,7 @@ def test_step_fit_tells_a_filtered_step_from_a_step():
 
 def _diagnoser(settings: OeSettings | None = None) -> OutputErrorDiagnoser:
     model, sigma, long_run, s = parse_output_error(load_config(CONFIG))
-    from canfdi.core.output_error import oe_thresholds
+    from canfdi.methods.output_error.diagnoser import oe_thresholds
 
     s = settings or s
     return OutputErrorDiagnoser(model, sigma, oe_thresholds(s.drift, s.false_alarm_interval,

@@ -117,9 +117,9 @@ def _feed(monitor, traffic: Traffic, block: int = 4096,
 def run_bench(config, frames: int = 1_000_000, quick: bool = False,
               progress: Callable[[str], None] | None = None, workdir: Path | None = None) -> dict:
     """Measure everything; returns the JSON-ready result."""
-    from canfdi.assembler import BusMap
+    from canfdi.bus.assembler import BusMap
+    from canfdi.io.recorder import McapRecorder
     from canfdi.monitor import Monitor
-    from canfdi.recorder import McapRecorder
 
     say = progress or (lambda msg: None)
     tmp = Path(workdir or tempfile.mkdtemp(prefix="canfdi-bench-"))

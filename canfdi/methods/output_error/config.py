@@ -10,7 +10,7 @@ Layout (``canfdi identify`` writes it from a fault-free log)::
       operating_point: {u: [...], y: [...]}   # y_hat = y + sum G (u_c - u)
       residual_std: [...]              # per output; default: the config's noise.measurement
       long_run_variance: [...]         # per output, the residual's long-run / plain variance
-      gamma: 0.2                       # decision tests (canfdi.core.output_error)
+      gamma: 0.2                       # decision tests (canfdi.methods.output_error.diagnoser)
       kappa: 0.1
       min_samples: 48                  # L - l0: samples after the alarm before deciding
       max_samples: 400
@@ -29,7 +29,7 @@ b are the numerator coefficients b_0.., f the denominator coefficients f_1.. of 
 Thresholds: the OE residual of a well identified model is the measurement noise itself, white,
 so no simulation is needed to calibrate: Siegmund's threshold for the false-alarm interval,
 bounded by the same formula on the residual's long-run variance (measured on the
-identification data: model error colours the residual), see canfdi.core.output_error.
+identification data: model error colours the residual), see canfdi.methods.output_error.diagnoser.
 """
 
 from __future__ import annotations
@@ -39,8 +39,8 @@ from typing import Any
 import numpy as np
 
 from canfdi.config import ConfigError, MonitorConfig
-from canfdi.core.oe_model import OeModel, OePair
-from canfdi.core.output_error import OeSettings, OutputErrorDiagnoser, oe_thresholds
+from canfdi.methods.output_error.diagnoser import OeSettings, OutputErrorDiagnoser, oe_thresholds
+from canfdi.methods.output_error.model import OeModel, OePair
 
 __all__ = ["build_output_error_diagnoser", "output_error_section", "parse_output_error"]
 

@@ -20,7 +20,7 @@ layout.
     "frames": base64 string, "long": {row: hex}}`` (``"long"`` only when needed). ``frames``
     packs N little-endian 24-byte records of `FRAME_DTYPE`: ``t_ns`` int64 (arrival or send
     time), ``id`` uint32, ``dlc`` uint8, ``flags`` uint8 (`FLAG_EXTENDED` = bit 0 for a 29-bit
-    ID; bits 1-3 `FLAG_REMOTE`, `FLAG_ERROR`, `FLAG_FD` as in `canfdi.assembler`), ``status``
+    ID; bits 1-3 `FLAG_REMOTE`, `FLAG_ERROR`, `FLAG_FD` as in `canfdi.bus.assembler`), ``status``
     uint8 (an index into the message's ``statuses``), a pad byte, and ``data`` 8 bytes (the
     payload, zero-padded). A frame's payload is its first min(dlc, 8) data bytes, unless
     ``"long"`` holds its full payload (as hex, keyed by its row in the block as a decimal
@@ -128,7 +128,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 from numpy.typing import ArrayLike, NDArray
 
 from canfdi import __version__
-from canfdi.codec import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
+from canfdi.bus.codec import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
 
 if TYPE_CHECKING:
     from canfdi.core.records import FaultEvent, Sample
@@ -174,7 +174,7 @@ logger = logging.getLogger(__name__)
 
 if not hasattr(Writer, "flush"):  # pragma: no cover - depends on the installed mcap
     # Without Writer.flush a chunk only ends when full, which breaks the crash-loss bound.
-    raise ImportError("canfdi.recorder needs an mcap package whose Writer has flush() (1.6+)")
+    raise ImportError("canfdi.io.recorder needs an mcap package whose Writer has flush() (1.6+)")
 
 TOPIC_FRAMES = "/can/frames"
 TOPIC_SAMPLES = "/canfdi/samples"
