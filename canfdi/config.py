@@ -31,14 +31,14 @@ Layout::
     detection:                     # optional; Page-Hinkley on each normalised residual
       drift: 0.5                   # delta, in residual noise standard deviations
       false_alarm_interval: 1.0e7  # samples between false alarms per residual (calibration)
-    identification:                # optional; see canfdi.methods.parity.diagnoser.DiagnoserSettings
+    identification:                # optional; the parity method's (canfdi.methods.parity)
       min_samples: 200
       max_samples: 2000
       settle_rel_std: 0.01
       isolation_margin: 50.0
       max_fit_variance: 4.0        # accept only fits leaving about noise (a spike: no)
-    output_error: {...}            # the output_error method's section (canfdi.methods.output_error.config)
-    uio: {...}                     # the uio method's section (canfdi.methods.uio.config)
+    output_error: {...}            # the output_error method's own section
+    uio: {...}                     # the uio method's own section
     recording:                     # optional; MCAP logs of `canfdi run`
       directory: logs
       rotate_mib: 256
@@ -50,15 +50,27 @@ measurements (dbc/README.md); each must be in exactly one message sent by DRIVE.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import dataclasses
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
+from canfdi import methods
 from canfdi.core.design import DesignOptions
 from canfdi.core.model import ModelError, StateSpace
+from canfdi.core.settings import (
+    BusConfig,
+    ConfigError,
+    DetectionConfig,
+    IdentificationConfig,
+    MonitorConfig,
+    Option,
+    RecordingConfig,
+    parse_options,
+    section,
+)
 
 __all__ = [
     "BusConfig",
@@ -72,98 +84,19 @@ __all__ = [
     "read_yaml",
 ]
 
-
-class ConfigError(ValueError):
-    """A configuration problem; ``field`` is the dotted path of the offending key."""
-
-    def __init__(self, field: str, message: str) -> None:
-        super().__init__(f"{field}: {message}")
-        self.field = field
-
-
-# The diagnosis methods (seed 001 parity, seed 003 output error, seed 004 unknown-input
-# decoupling); each non-parity method reads its own section, named after it.
-METHODS = ("parity", "output_error", "uio")
-_TOP_KEYS = {"name", "description", "method", "model", "signals", "noise", "design", "bus",
-             "detection", "identification", "recording", "output_error", "uio"}
-
-
-@dataclass(frozen=True)
-class BusConfig:
-    """Where the drive's frames are: python-can arguments and the DBC file."""
-
-    interface: str = "virtual"
-    channel: str = "canfdi"
-    bitrate: int | None = None
-    dbc: str | None = None
-    status_period: float = 1.0
-
-
-@dataclass(frozen=True)
-class DetectionConfig:
-    """Page-Hinkley settings: drift delta (noise stds) and the false-alarm interval (samples)."""
-
-    drift: float = 0.5
-    false_alarm_interval: float = 1.0e7
-
-
-@dataclass(frozen=True)
-class IdentificationConfig:
-    """When a hypothesis is accepted (see canfdi.methods.parity.diagnoser)."""
-
-    min_samples: int = 200
-    max_samples: int = 2000
-    settle_rel_std: float = 0.01
-    isolation_margin: float = 50.0
-    max_fit_variance: float = 4.0
-
-
-@dataclass(frozen=True)
-class RecordingConfig:
-    """MCAP logging of `canfdi run`."""
-
-    directory: str = "logs"
-    rotate_mib: float = 256.0
-    rotate_minutes: float = 60.0
-
-
-@dataclass(frozen=True)
-class MonitorConfig:
-    """A parsed monitor configuration."""
-
-    name: str
-    description: str
-    model: StateSpace
-    inputs: list[str]
-    outputs: list[str]
-    unknown_inputs: list[str]
-    unknown_outputs: list[str]
-    design: DesignOptions
-    bus: BusConfig = BusConfig()
-    detection: DetectionConfig = DetectionConfig()
-    identification: IdentificationConfig = IdentificationConfig()
-    recording: RecordingConfig = RecordingConfig()
-    path: Path | None = None
-    method: str = "parity"
-    method_options: dict = field(default_factory=dict)
-
-
-def _check_keys(data: dict, allowed: set[str], where: str) -> None:
-    for key in data:
-        if key not in allowed:
-            raise ConfigError(f"{where}.{key}" if where else str(key),
-                              f"unknown key (allowed: {', '.join(sorted(allowed))})")
-
-
-def _section(data: dict, key: str, required: bool = False) -> dict:
-    value = data.get(key)
-    if value is None:
-        if required:
-            raise ConfigError(key, "missing section")
-        return {}
-    if not isinstance(value, dict):
-        raise ConfigError(key, f"expected a mapping, got {type(value).__name__}")
-    return value
+# The sections every config may have; each method adds its own (canfdi.methods).
+_COMMON_KEYS = ("name", "description", "method", "model", "signals", "noise", "design", "bus",
+                "detection", "identification", "recording")
+_BUS = {"interface": Option(str), "channel": Option(str), "bitrate": Option(int, 1),
+        "dbc": Option(str), "status_period": Option(float, 0.01, 3600.0)}
+_DETECTION = {"drift": Option(float, 0.0, 100.0),
+              "false_alarm_interval": Option(float, 10.0, 1e15)}
+_IDENTIFICATION = {"min_samples": Option(int, 1, 10**7), "max_samples": Option(int, 1, 10**7),
+                   "settle_rel_std": Option(float, 1e-9, 1.0),
+                   "isolation_margin": Option(float, 0.0, 1e12),
+                   "max_fit_variance": Option(float, 1.0, 1e12)}
+_RECORDING = {"directory": Option(str), "rotate_mib": Option(float, 0.01, 1e7),
+              "rotate_minutes": Option(float, 0.01, 1e7)}
 
 
 def _names(value: Any, field: str, count: int | None) -> list[str]:
@@ -201,17 +134,21 @@ def _window(value: Any, field: str) -> int | None:
 
 
 def parse_config(data: Any, path: Path | None = None) -> MonitorConfig:
-    """Validate a loaded YAML document and build a MonitorConfig."""
+    """Validate a loaded YAML document and build a MonitorConfig (the method's own section
+    parsed by its registry entry)."""
     if not isinstance(data, dict):
         raise ConfigError("(top level)", "expected a mapping")
-    _check_keys(data, _TOP_KEYS, "")
+    method = methods.get(data.get("method", "parity"))
+    own = {m.section for m in map(methods.get, methods.names()) if m.section}
+    parse_options(data, {}, "", extra=(*_COMMON_KEYS, *own))
     try:
-        model = StateSpace.from_dict(_section(data, "model", required=True))
+        model = StateSpace.from_dict(section(data, "model", required=True))
     except ModelError as exc:
         raise ConfigError(exc.field, str(exc).split(": ", 1)[1]) from None
 
-    signals = _section(data, "signals", required=True)
-    _check_keys(signals, {"inputs", "outputs", "unknown_inputs", "unknown_outputs"}, "signals")
+    signals = section(data, "signals", required=True)
+    parse_options(signals, {}, "signals",
+                  extra=("inputs", "outputs", "unknown_inputs", "unknown_outputs"))
     inputs = _names(signals.get("inputs"), "signals.inputs", model.p)
     outputs = _names(signals.get("outputs"), "signals.outputs", model.q)
     unknown_inputs = _names(signals.get("unknown_inputs"), "signals.unknown_inputs",
@@ -219,99 +156,42 @@ def parse_config(data: Any, path: Path | None = None) -> MonitorConfig:
     unknown_outputs = _names(signals.get("unknown_outputs"), "signals.unknown_outputs",
                              model.r1 if "unknown_outputs" in signals else None)
 
-    noise = _section(data, "noise")
-    _check_keys(noise, {"measurement", "process"}, "noise")
+    noise = section(data, "noise")
+    parse_options(noise, {}, "noise", extra=("measurement", "process"))
     meas = _stds(noise.get("measurement"), "noise.measurement", model.q, None)
     proc = _stds(noise.get("process"), "noise.process", model.n, None)
     if meas is not None and proc is not None and not np.any(meas) and not np.any(proc):
         raise ConfigError("noise", "all standard deviations are zero: no threshold can be derived")
 
-    design = _section(data, "design")
-    _check_keys(design, {"actuator_window", "sensor_window", "max_window"}, "design")
-    max_window = design.get("max_window", 10)
-    if isinstance(max_window, bool) or not isinstance(max_window, int) or not 0 <= max_window <= 50:
-        raise ConfigError("design.max_window",
-                          f"expected an integer in [0, 50], got {max_window!r}")
+    design = section(data, "design")
+    max_window = parse_options(design, {"max_window": Option(int, 0, 50)}, "design",
+                               extra=("actuator_window", "sensor_window")).get("max_window", 10)
     options = DesignOptions(
         actuator_window=_window(design.get("actuator_window"), "design.actuator_window"),
         sensor_window=_window(design.get("sensor_window"), "design.sensor_window"),
         max_window=max_window, measurement_std=meas, process_std=proc,
     )
-    bus = _dataclass_section(data, "bus", BusConfig, {
-        "interface": (str, None), "channel": (str, None), "bitrate": (int, (1, None)),
-        "dbc": (str, None), "status_period": (float, (0.01, 3600.0)),
-    })
-    detection = _dataclass_section(data, "detection", DetectionConfig, {
-        "drift": (float, (0.0, 100.0)), "false_alarm_interval": (float, (10.0, 1e15)),
-    })
-    identification = _dataclass_section(data, "identification", IdentificationConfig, {
-        "min_samples": (int, (1, 10**7)), "max_samples": (int, (1, 10**7)),
-        "settle_rel_std": (float, (1e-9, 1.0)), "isolation_margin": (float, (0.0, 1e12)),
-        "max_fit_variance": (float, (1.0, 1e12)),
-    })
+    bus = BusConfig(**parse_options(data.get("bus"), _BUS, "bus"))
+    detection = DetectionConfig(**parse_options(data.get("detection"), _DETECTION, "detection"))
+    identification = IdentificationConfig(**parse_options(data.get("identification"),
+                                                          _IDENTIFICATION, "identification"))
     if identification.max_samples < identification.min_samples:
         raise ConfigError("identification.max_samples",
                           f"must be >= min_samples ({identification.min_samples})")
-    recording = _dataclass_section(data, "recording", RecordingConfig, {
-        "directory": (str, None), "rotate_mib": (float, (0.01, 1e7)),
-        "rotate_minutes": (float, (0.01, 1e7)),
-    })
+    recording = RecordingConfig(**parse_options(data.get("recording"), _RECORDING, "recording"))
     name = data.get("name", path.stem if path else "model")
     if not isinstance(name, str) or not name:
         raise ConfigError("name", "expected a non-empty string")
     description = data.get("description", "")
     if not isinstance(description, str):
         raise ConfigError("description", "expected a string")
-    method = data.get("method", "parity")
-    if method not in METHODS:
-        raise ConfigError("method", f"expected one of {', '.join(METHODS)}, got {method!r}")
-    # The method's own section stays a mapping here: its module validates it (naming fields
-    # "<method>.<key>") when the diagnoser is built.
-    method_options = _section(data, method) if method != "parity" else {}
-    return MonitorConfig(name=name, description=description, model=model, inputs=inputs,
-                         outputs=outputs, unknown_inputs=unknown_inputs,
-                         unknown_outputs=unknown_outputs, design=options, bus=bus,
-                         detection=detection, identification=identification,
-                         recording=recording, path=path, method=method,
-                         method_options=method_options)
-
-
-def _dataclass_section(data: dict, key: str, cls, spec: dict):
-    """Parse an optional flat section into ``cls``; spec maps field -> (type, (lo, hi) or None).
-
-    Ranges are inclusive; None as a bound means unbounded. Integers are accepted for floats.
-    """
-    section = _section(data, key)
-    _check_keys(section, set(spec), key)
-    values = {}
-    for name, (kind, bounds) in spec.items():
-        if name not in section or section[name] is None:
-            continue
-        value = section[name]
-        field = f"{key}.{name}"
-        if kind is str:
-            if not isinstance(value, str) or not value:
-                raise ConfigError(field, f"expected a non-empty string, got {value!r}")
-        elif kind is int:
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ConfigError(field, f"expected an integer, got {value!r}")
-        else:
-            if isinstance(value, str):
-                # PyYAML (YAML 1.1) reads 1.0e7 without a sign in the exponent as a string.
-                try:
-                    value = float(value)
-                except ValueError:
-                    raise ConfigError(field, f"expected a number, got {value!r}") from None
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ConfigError(field, f"expected a number, got {value!r}")
-            value = float(value)
-        if bounds is not None:
-            lo, hi = bounds
-            if (lo is not None and value < lo) or (hi is not None and value > hi):
-                raise ConfigError(field, f"must be in [{lo}, {hi if hi is not None else 'inf'}]"
-                                         f", got {value!r}")
-        values[name] = value
-    return cls(**values)
+    config = MonitorConfig(name=name, description=description, model=model, inputs=inputs,
+                           outputs=outputs, unknown_inputs=unknown_inputs,
+                           unknown_outputs=unknown_outputs, design=options, bus=bus,
+                           detection=detection, identification=identification,
+                           recording=recording, path=path, method=method.name)
+    raw = data.get(method.section) if method.section else None
+    return dataclasses.replace(config, method_options=method.parse_options(raw, config))
 
 
 def read_yaml(path: Path, error: type[ValueError], field: str) -> Any:

@@ -40,7 +40,7 @@ def snapshot(monitor: Any) -> dict[str, Any]:
                               "threshold": float(dg.thresholds[i])})
     state = "capturing" if dg is None else ("diagnosing" if dg.mode == "diagnose"
                                             else "monitoring")
-    faults = [dict(c) for c in (dg.compensation if dg is not None else [])]
+    faults = [c.as_dict() for c in (dg.compensation if dg is not None else [])]
     events = [e.as_dict() for e in monitor.events[-5:]]
     return {"state": state, "residuals": residuals, "faults": faults,
             "frames": dict(monitor.assembler.stats), "samples": monitor.samples,

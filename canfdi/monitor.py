@@ -16,42 +16,17 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from canfdi import __version__
-from canfdi.bus.assembler import STATUS_NAMES, BusMap, SampleAssembler
+from canfdi import __version__, methods
+from canfdi.bus.assembler import SampleAssembler
+from canfdi.bus.dbc import BusMap
 from canfdi.bus.e2e import protect
-from canfdi.config import MonitorConfig
-from canfdi.core.design import Design, design_bank, design_to_dict
+from canfdi.bus.frames import STATUS_NAMES, FrameBlock
+from canfdi.core.protocol import DIAGNOSE, Diagnoser
 from canfdi.core.records import FaultEvent, Sample
-from canfdi.core.residuals import ResidualBank
-from canfdi.methods.parity.diagnoser import (
-    BlockResult,
-    Diagnoser,
-    DiagnoserSettings,
-    calibrate_thresholds,
-)
+from canfdi.core.settings import MonitorConfig
 
-__all__ = ["Monitor", "OutFrame", "RecordSink", "build_diagnoser", "messages_to_arrays",
-           "summary_json"]
+__all__ = ["Monitor", "OutFrame", "RecordSink", "summary_json"]
 
-
-def messages_to_arrays(messages: list, now: float | None = None) -> tuple[np.ndarray, ...]:
-    """python-can Messages as (t_ns, ids, dlc, flags) (N,) int64 and payloads (N, 8) uint8,
-    the block form `Monitor.on_frames` takes. One comprehension per field: several times
-    faster than filling arrays item by item. A message without a timestamp gets ``now``."""
-    import time
-
-    n = len(messages)
-    now = time.time() if now is None else now
-    t_ns = (np.fromiter([m.timestamp or now for m in messages], np.float64, n) * 1e9
-            ).astype(np.int64)
-    ids = np.fromiter([m.arbitration_id for m in messages], np.int64, n)
-    dlc = np.fromiter([len(m.data) for m in messages], np.int64, n)
-    flags = np.fromiter([m.is_extended_id | (m.is_remote_frame << 1)
-                         | (m.is_error_frame << 2) | (m.is_fd << 3) for m in messages],
-                        np.int64, n)
-    payloads = np.frombuffer(b"".join([bytes(m.data[:8]).ljust(8, b"\0") for m in messages]),
-                             dtype=np.uint8).reshape(n, 8)
-    return t_ns, ids, dlc, flags, payloads
 
 _KIND = {"actuator": 1, "sensor": 2}
 _STATE = {"detected": 1, "accepted": 3}
@@ -69,10 +44,8 @@ class RecordSink(Protocol):
     def write_residuals(self, timestamp_ns: int, k: int, names: list[str], r: np.ndarray,
                         normalized: np.ndarray, statistic: np.ndarray) -> None: ...
     def write_event(self, event: FaultEvent) -> None: ...
-    def write_frames(self, t_ns: np.ndarray, ids: np.ndarray, dlc: np.ndarray,
-                     payloads: np.ndarray, statuses: np.ndarray, *,
-                     status_names: tuple[str, ...] | None = None,
-                     flags: np.ndarray | None = None) -> None: ...
+    def write_frames(self, block: FrameBlock, statuses: np.ndarray,
+                     status_names: tuple[str, ...]) -> None: ...
     def write_samples(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
                       gap: np.ndarray, input_names: list[str],
                       output_names: list[str]) -> None: ...
@@ -86,60 +59,6 @@ class OutFrame:
 
     frame_id: int
     data: bytes
-
-
-class DiagnoserLike(Protocol):
-    """What the monitor needs of a diagnosis method: `canfdi.methods.parity.diagnoser.Diagnoser` (parity,
-    seed 001); `canfdi.methods.output_error.config` and `canfdi.methods.uio.config` build the others. Residual arrays
-    are (m,) in ``residual_names`` order; events use the FaultEvent contract (kinds detected,
-    accepted, unexplained; estimates eta/lambda for actuators, bias for sensors)."""
-
-    thresholds: np.ndarray
-    mode: str  # "monitor" or "diagnose"
-    compensation: list[dict]  # one entry per accepted fault
-    last_residuals: np.ndarray | None
-    last_normalized: np.ndarray | None
-    events: list[FaultEvent]
-
-    @property
-    def residual_names(self) -> list[str]: ...
-
-    @property
-    def statistics(self) -> np.ndarray: ...
-
-    def update(self, sample: Sample) -> list[FaultEvent]: ...
-
-    def update_block(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
-                     gap: np.ndarray | None = None) -> BlockResult: ...
-
-
-def build_diagnoser(config: MonitorConfig, design: Design | None = None) -> DiagnoserLike:
-    """The diagnoser a config describes (its ``method``): design, calibrated thresholds,
-    settings."""
-    if config.method == "output_error":
-        from canfdi.methods.output_error.config import build_output_error_diagnoser
-
-        return build_output_error_diagnoser(config)
-    if config.method == "uio":
-        from canfdi.methods.uio.config import build_uio_diagnoser
-
-        return build_uio_diagnoser(config)
-    design = design or design_bank(config.model, config.inputs, config.outputs, config.design)
-    bank = ResidualBank(design)
-    meas = (config.design.measurement_std if config.design.measurement_std is not None
-            else np.ones(design.model.q))
-    thresholds = calibrate_thresholds(bank, meas, config.design.process_std, design.model,
-                                      config.detection.drift,
-                                      config.detection.false_alarm_interval)
-    ident = config.identification
-    settings = DiagnoserSettings(
-        drift=config.detection.drift,
-        false_alarm_interval=config.detection.false_alarm_interval,
-        min_samples=ident.min_samples, max_samples=ident.max_samples,
-        settle_rel_std=ident.settle_rel_std, isolation_margin=ident.isolation_margin,
-        max_fit_variance=ident.max_fit_variance,
-    )
-    return Diagnoser(design, settings, thresholds)
 
 
 class Monitor:
@@ -157,11 +76,8 @@ class Monitor:
                  record_residuals: bool = True, diagnose: bool = True) -> None:
         self.config = config
         self.bus_map = BusMap.from_config(config)
-        # The parity design is the parity method's (and `canfdi design`'s); the other methods
-        # build their own from the config.
-        self.design = (design_bank(config.model, config.inputs, config.outputs, config.design)
-                       if config.method == "parity" else None)
-        self.diagnoser = build_diagnoser(config, self.design) if diagnose else None
+        self.method = methods.get(config.method)
+        self.diagnoser: Diagnoser | None = self.method.build(config) if diagnose else None
         self.dt = config.model.dt or 1.0
         self.assembler = SampleAssembler(self.bus_map, self.dt)
         self.sink = sink
@@ -182,8 +98,9 @@ class Monitor:
             "config_yaml": cfg.path.read_text() if cfg.path and cfg.path.exists() else "",
             "method": cfg.method,
         }
-        if self.design is not None:
-            out["design_json"] = json.dumps(design_to_dict(self.design))
+        design = self.method.describe(cfg) if self.method.describe is not None else None
+        if design is not None:
+            out["design_json"] = json.dumps(design)
         if self.diagnoser is not None:
             out["residuals_json"] = json.dumps(self.diagnoser.residual_names)
             out["thresholds_json"] = json.dumps([float(h) for h in self.diagnoser.thresholds])
@@ -208,24 +125,16 @@ class Monitor:
             out.extend(self.on_sample(sample))
         return out
 
-    def on_frames(self, t_ns: np.ndarray, ids: np.ndarray, dlc: np.ndarray,
-                  payloads: np.ndarray, flags: np.ndarray | None = None) -> list[OutFrame]:
+    def on_frames(self, block: FrameBlock) -> list[OutFrame]:
         """Process a block of received frames at once (the fast path: vectorised decode and
-        assembly, residuals and detection over the whole block; same results as on_frame).
-
-        Parameters
-        ----------
-        t_ns : (N,) int64 arrival times; ids, dlc : (N,); payloads : (N, 8) uint8;
-        flags : (N,) bit mask (canfdi.bus.assembler FLAG_*), default 0.
-        """
-        if len(ids) == 0:
+        assembly, residuals and detection over the whole block; same results as on_frame)."""
+        if block.size == 0:
             return []
         if self.first_timestamp_ns is None:
-            self.first_timestamp_ns = int(t_ns[0])
-        log = self.assembler.push_batch(t_ns, ids, dlc, payloads, flags)
+            self.first_timestamp_ns = int(block.t_ns[0])
+        log = self.assembler.push_batch(block)
         if self.sink is not None:
-            self.sink.write_frames(t_ns, ids, dlc, payloads, log.statuses,
-                                   status_names=STATUS_NAMES, flags=flags)
+            self.sink.write_frames(block, log.statuses, STATUS_NAMES)
         return self.on_samples(log.k, log.timestamp_ns, log.u, log.z, log.gap)
 
     def on_samples(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
@@ -308,7 +217,7 @@ class Monitor:
         """The periodic FDI_STATUS heartbeat."""
         dg = self.diagnoser
         if state is None:
-            state = "diagnosing" if dg is not None and dg.mode == "diagnose" else "monitoring"
+            state = "diagnosing" if dg is not None and dg.mode == DIAGNOSE else "monitoring"
         stats = self.assembler.stats
         return self._encode("FDI_STATUS", {
             "State": _STATUS[state],

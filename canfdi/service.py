@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 
 import can
 
-from canfdi.monitor import Monitor, OutFrame, messages_to_arrays
+from canfdi.bus.frames import FrameBlock
+from canfdi.monitor import Monitor, OutFrame
 
 __all__ = ["BusBridge", "MonitorService", "ServiceStats", "open_bus"]
 
@@ -252,17 +253,17 @@ class MonitorService:
             # path catches up. Both paths give the same results (the tests compare them).
             self._process_each(frames)
             return
-        t_ns, ids, dlc, flags, payloads = messages_to_arrays(frames)
+        block = FrameBlock.from_messages(frames)
         self.stats.frames += n
         samples_before = self.monitor.samples
-        replies = self.monitor.on_frames(t_ns, ids, dlc, payloads, flags)
+        replies = self.monitor.on_frames(block)
         if replies:
             self.send(replies)
         if self.latencies is not None and self.monitor.samples > samples_before:
             # Arrival of the frame that completed each sample -> the sample handled (and any
             # fault frame sent): the monitor's reaction time.
             done = time.time_ns()
-            self.latencies.append(done - int(t_ns[-1]))
+            self.latencies.append(done - int(block.t_ns[-1]))
 
     def _process_each(self, frames: list) -> None:
         monitor = self.monitor

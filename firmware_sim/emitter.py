@@ -26,6 +26,7 @@ import numpy as np
 from canfdi import dbc as dbc_files
 from canfdi.bus.codec import MessageLayout, compile_layout
 from canfdi.bus.e2e import protect_batch
+from canfdi.bus.frames import FrameBlock
 from firmware_sim.plants import Plant
 from firmware_sim.scenario import Scenario
 from firmware_sim.simulate import SimChunk, Simulator
@@ -252,15 +253,12 @@ async def emit(
 class FrameLog:
     """A scenario's drive frames as arrays, in arrival order.
 
-    t_ns : (N,) int64 arrival times (sample k's frames from k dt on); ids, dlc : (N,) int64;
-    payloads : (N, 8) uint8, zero-padded beyond each DLC; stats : what was injected;
-    truth : the scenario's injected faults; chunk : the simulated run.
+    frames : the frames (canfdi.bus.frames.FrameBlock), sample k's from k dt on;
+    stats : what was injected; truth : the scenario's injected faults; chunk : the simulated
+    run.
     """
 
-    t_ns: np.ndarray
-    ids: np.ndarray
-    dlc: np.ndarray
-    payloads: np.ndarray
+    frames: FrameBlock
     stats: EmitStats
     truth: list[dict]
     chunk: SimChunk
@@ -304,6 +302,7 @@ def frame_log(scenario: Scenario, disturbance: Disturbance | None = None,
     stats.frames_wrong_dlc = int(wrong.sum())
     stats.frames_sent = int(keep.sum())
     order = np.argsort(t[keep], kind="stable")
-    return FrameLog(t_ns=t[keep][order], ids=ids[keep][order].astype(np.int64),
-                    dlc=dlc[keep][order].astype(np.int64),
-                    payloads=data[keep][order], stats=stats, truth=sim.truth(), chunk=chunk)
+    n_kept = int(keep.sum())
+    frames = FrameBlock(t[keep][order], ids[keep][order], dlc[keep][order],
+                        np.zeros(n_kept, dtype=np.uint8), data[keep][order])
+    return FrameLog(frames=frames, stats=stats, truth=sim.truth(), chunk=chunk)

@@ -1,4 +1,4 @@
-"""From CAN frames to samples: the bus map (DBC -> model vectors) and the sample assembler.
+"""From CAN frames to samples: the sample assembler, streaming and batch.
 
 The bus contract (``dbc/README.md``, DESIGN.md "The bus contract"): in control period k the
 drive sends each of its DBC messages once, every one carrying the E2E header (CRC-8 in byte 0,
@@ -9,21 +9,14 @@ whose messages were lost is *broken*: it is delivered when a later counter close
 keeps every residual that does not read them. Each sample carries ``gap`` = samples missing
 entirely (no valid frame at all) just before it.
 
-Two layers:
-
-* `BusMap` compiles the DBC once: which drive messages carry the model's inputs u and outputs z,
-  where each signal sits in the payload, the CRC register after each message's Data ID, and
-  which IDs are the monitor's own ``FDI_*`` frames. `BusMap.decode_frame` checks and decodes one
-  frame with integer shifts and masks (no cantools on the hot path); `BusMap.decode_frames` does
-  a whole log with numpy.
-* `SampleAssembler` is the streaming state machine: `SampleAssembler.push` takes one frame
+`BusMap` (canfdi.bus.dbc) decodes the frames; `SampleAssembler` is the streaming state machine: `SampleAssembler.push` takes one frame
   (timestamps are passed in, nothing here reads a clock or does I/O) and returns its status and
   the sample it completed. `SampleAssembler.push_batch` and `assemble_batch` (a recorded log)
   take frames by the block with a vectorised decode; runs of regular periods, whose outcome the
   state machine's rules fix in advance, are assembled with numpy too, and every other frame goes
   through the same state machine, so replay and live runs see identical samples and statistics.
 
-Frame statuses (``STATUS_NAMES``, int8 codes in the batch forms):
+Frame statuses (canfdi.bus.frames ``STATUS_NAMES``, int8 codes in the batch forms):
 
 =============== ============================================================================
 ``ok``          a drive frame accepted into the pending sample
@@ -49,60 +42,32 @@ The first three are valid; every other status is counted by reason and never ent
 from __future__ import annotations
 
 import math
-import struct
-from collections.abc import Sequence
-from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from canfdi.bus.codec import (
+from canfdi.bus.dbc import BusMap
+from canfdi.bus.frames import (
     FLAG_ERROR,
     FLAG_EXTENDED,
     FLAG_FD,
     FLAG_REMOTE,
-    MessageLayout,
-    compile_layout,
+    STATUS_CODES,
+    STATUS_NAMES,
+    VALID_STATUSES,
+    FrameBlock,
 )
-from canfdi.bus.e2e import CRC8_XOROUT, crc8, data_id, e2e_check_batch
-from canfdi.config import ConfigError, MonitorConfig
 from canfdi.core.records import Sample
 
-if TYPE_CHECKING:
-    from cantools.database.can import Database
+__all__ = ["AssembledLog", "SampleAssembler", "assemble_batch"]
 
-__all__ = [
-    "FLAG_ERROR",
-    "FLAG_EXTENDED",
-    "FLAG_FD",
-    "FLAG_REMOTE",
-    "STATUS_CODES",
-    "STATUS_NAMES",
-    "VALID_STATUSES",
-    "AssembledLog",
-    "BusMap",
-    "SampleAssembler",
-    "assemble_batch",
-]
-
-STATUS_NAMES: tuple[str, ...] = (
-    "ok", "monitor", "unused", "unknown_id", "extended", "remote", "error_frame", "fd", "dlc",
-    "crc", "duplicate", "stale", "jump",
-)
-STATUS_CODES: dict[str, int] = {name: code for code, name in enumerate(STATUS_NAMES)}
-VALID_STATUSES: frozenset[str] = frozenset({"ok", "monitor", "unused"})
 _INVALID_NAMES = tuple(name for name in STATUS_NAMES if name not in VALID_STATUSES)
-
 (_OK, _MONITOR, _UNUSED, _UNKNOWN_ID, _EXTENDED, _REMOTE, _ERROR_FRAME, _FD, _DLC, _CRC,
  _DUPLICATE, _STALE, _JUMP) = range(len(STATUS_NAMES))
 _N_VALID = 3  # codes below this are valid (ok, monitor, unused)
 
-
-_E2E_HEADER = {"CRC": (0, 8), "Counter": (8, 8)}
-_MAX_STD_ID = 0x7FF
 _COUNTER_MODULUS = 256
-_F32 = struct.Struct("<f")
 # The batch fast path takes frames at most this many periods apart: the unwrap rule then
 # rounds n to 0 (the plain counter rule) with a full period to spare for float rounding.
 _FAST_MAX_ELAPSED = 127
@@ -118,330 +83,6 @@ _JUMP_SLACK = 3
 # Samples assembled by push_batch, a run at a time: k, timestamp_ns, gap (B,) int64 and the
 # flat [u, z] rows (B, p + q) float64.
 _Block = tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]
-
-# Message kinds in the ID table; their codes double as the valid frame statuses.
-_KIND_DRIVE, _KIND_MONITOR, _KIND_UNUSED = _OK, _MONITOR, _UNUSED
-
-
-def _has_e2e_header(layout: MessageLayout) -> bool:
-    found = {sig.name: (sig.start, sig.length) for sig in layout.signals}
-    return all(found.get(name) == place for name, place in _E2E_HEADER.items())
-
-
-def _crc_seed(frame_id: int) -> int:
-    # The CRC register after the Data ID is a constant of the ID: precompute it so a frame's
-    # check only runs over its own payload bytes (crc8 returns the register XOR-ed out).
-    return crc8(data_id(frame_id)) ^ CRC8_XOROUT
-
-
-class BusMap:
-    """Where the model's inputs and outputs are on the bus, compiled from a DBC.
-
-    Build it with `from_config` or `from_dbc`. Attributes (read-only by convention):
-
-    dbc_label : str, the DBC's name or path, for messages.
-    input_names, output_names : (p,), (q,) model signal names, in the model's order.
-    layouts : (M,) compiled layouts of the used drive messages (those carrying at least one
-        model signal), in ascending ID order; a message's position is its *slot*.
-    slot_of : frame_id -> (slot, dlc) of the used drive messages.
-    fields : (M,) per slot, the (signal, vector 'u' or 'z', index) triples of its model
-        signals, in the order of the values `decode_frame` returns.
-    monitor_layouts : compiled layouts of the messages sent by FDI (the monitor's own frames).
-    monitor_ids : their IDs.
-    unused_ids : IDs of the other DBC messages (drive messages with no model signal, ...).
-    n_signals_max : width of the values array of `decode_frames` (most fields in one slot).
-    """
-
-    def __init__(
-        self,
-        dbc_label: str,
-        input_names: Sequence[str],
-        output_names: Sequence[str],
-        layouts: Sequence[MessageLayout],
-        fields: Sequence[Sequence[tuple[str, str, int]]],
-        monitor_layouts: Sequence[MessageLayout],
-        unused_layouts: Sequence[MessageLayout],
-    ) -> None:
-        self.dbc_label = dbc_label
-        self.input_names = tuple(input_names)
-        self.output_names = tuple(output_names)
-        self.layouts = tuple(layouts)
-        self.fields = tuple(tuple(f) for f in fields)
-        if len(self.fields) != len(self.layouts):
-            raise ValueError(f"fields: one entry per layout expected ({len(self.layouts)}), "
-                             f"got {len(self.fields)}")
-        self.slot_of = {lay.frame_id: (slot, lay.dlc) for slot, lay in enumerate(self.layouts)}
-        self.monitor_layouts = tuple(monitor_layouts)
-        self.monitor_ids = frozenset(lay.frame_id for lay in monitor_layouts)
-        self.unused_ids = frozenset(lay.frame_id for lay in unused_layouts)
-        self.n_signals_max = max((len(f) for f in self.fields), default=0)
-        p = len(self.input_names)
-        # Each slot's values land at these positions of the flat [u, z] buffer.
-        self._dests = tuple(tuple(j if vec == "u" else p + j for _, vec, j in f)
-                            for f in self.fields)
-        # One look-up per frame: id -> (kind, slot, dlc, crc seed or -1, decode program).
-        entries: dict[int, tuple] = {}
-        kinds = ((_KIND_MONITOR, monitor_layouts), (_KIND_UNUSED, unused_layouts))
-        for kind, group in kinds:
-            for lay in group:
-                seed = _crc_seed(lay.frame_id) if _has_e2e_header(lay) else -1
-                entries[lay.frame_id] = (kind, -1, lay.dlc, seed, ())
-        for slot, (lay, f) in enumerate(zip(self.layouts, self.fields, strict=True)):
-            program = []
-            for name, _, _ in f:
-                sig = lay.signal(name)
-                sign = 1 << (sig.length - 1) if sig.signed and not sig.is_float else 0
-                program.append((sig.start, sig.mask, sign, sig.scale, sig.offset, sig.is_float))
-            entries[lay.frame_id] = (_KIND_DRIVE, slot, lay.dlc, _crc_seed(lay.frame_id),
-                                     tuple(program))
-        self._entries = entries
-        # Dense tables over the 11-bit ID space for the vectorised decode.
-        self._kind_table = np.full(_MAX_STD_ID + 1, _UNKNOWN_ID, dtype=np.int8)
-        self._slot_table = np.full(_MAX_STD_ID + 1, -1, dtype=np.int16)
-        self._dlc_table = np.full(_MAX_STD_ID + 1, -1, dtype=np.int16)
-        self._protected_table = np.zeros(_MAX_STD_ID + 1, dtype=bool)
-        for frame_id, (kind, slot, dlc, seed, _) in entries.items():
-            self._kind_table[frame_id] = kind
-            self._slot_table[frame_id] = slot
-            self._dlc_table[frame_id] = dlc
-            self._protected_table[frame_id] = seed >= 0
-
-    @property
-    def p(self) -> int:
-        """Number of model inputs."""
-        return len(self.input_names)
-
-    @property
-    def q(self) -> int:
-        """Number of model outputs."""
-        return len(self.output_names)
-
-    def __repr__(self) -> str:
-        used = ", ".join(f"{lay.name}=0x{lay.frame_id:X}" for lay in self.layouts)
-        return f"BusMap({self.dbc_label}: {used}; p={self.p}, q={self.q})"
-
-    # -- construction -------------------------------------------------------------------------
-
-    @classmethod
-    def from_config(cls, config: MonitorConfig) -> BusMap:
-        """Load ``config.bus.dbc`` and map ``config.inputs`` and ``config.outputs`` onto it.
-
-        ``bus.dbc`` is the name of a DBC shipped in ``canfdi.dbc`` (``motor_drive``) or a path
-        to a DBC file, relative to the config file's directory (or the working directory when
-        the config has no path).
-
-        Raises
-        ------
-        ConfigError
-            ``bus.dbc`` when no DBC is configured, it cannot be found or loaded, or a drive
-            message lacks the E2E header; ``signals.inputs[i]`` / ``signals.outputs[j]`` when a
-            name is in no DRIVE message, or in more than one.
-        """
-        value = config.bus.dbc
-        if value is None:
-            raise ConfigError("bus.dbc", "a DBC file is needed to read the bus")
-        database, label = _load_dbc(value, config.path)
-        return cls.from_dbc(database, config.inputs, config.outputs, label)
-
-    @classmethod
-    def from_dbc(
-        cls,
-        database: Database,
-        input_names: Sequence[str],
-        output_names: Sequence[str],
-        dbc_label: str,
-    ) -> BusMap:
-        """Map model signal names onto a loaded cantools database.
-
-        Parameters
-        ----------
-        database : cantools CAN database (e.g. ``canfdi.dbc.load("motor_drive")``).
-        input_names : (p,) names of the model inputs u, each a signal of exactly one message
-            sent by DRIVE.
-        output_names : (q,) names of the model outputs z, likewise.
-        dbc_label : how to name the database in error messages (its name or path).
-
-        Returns
-        -------
-        BusMap
-
-        Raises
-        ------
-        ConfigError
-            As for `from_config`.
-        """
-        drive, monitor, unused = [], [], []
-        for message in sorted(database.messages, key=lambda m: m.frame_id):
-            senders = message.senders or []
-            try:
-                layout = compile_layout(message)
-            except ValueError as exc:
-                raise ConfigError("bus.dbc", f"{dbc_label}: {exc}") from None
-            if "DRIVE" in senders:
-                drive.append(layout)
-            elif "FDI" in senders:
-                monitor.append(layout)
-            else:
-                unused.append(layout)
-        where: dict[str, list[MessageLayout]] = {}
-        for layout in drive:
-            for sig in layout.signals:
-                if sig.name not in _E2E_HEADER:
-                    where.setdefault(sig.name, []).append(layout)
-        fields: dict[int, list[tuple[str, str, int]]] = {}
-        for vector, names, key in (("u", input_names, "inputs"), ("z", output_names, "outputs")):
-            for j, name in enumerate(names):
-                field = f"signals.{key}[{j}]"
-                found = where.get(name, [])
-                if name in _E2E_HEADER:
-                    raise ConfigError(field, f"'{name}' is the E2E header of every message of "
-                                             f"{dbc_label}, not a model signal")
-                if not found:
-                    raise ConfigError(field, f"no signal '{name}' in any DRIVE message of "
-                                             f"{dbc_label}")
-                if len(found) > 1:
-                    names_found = ", ".join(lay.name for lay in found)
-                    raise ConfigError(field, f"signal '{name}' is in {len(found)} DRIVE messages "
-                                             f"of {dbc_label} ({names_found}); it must be in "
-                                             "exactly one")
-                fields.setdefault(found[0].frame_id, []).append((name, vector, j))
-        used = [lay for lay in drive if lay.frame_id in fields]
-        for layout in used:
-            if not _has_e2e_header(layout):
-                raise ConfigError("bus.dbc", f"{dbc_label}: {layout.name} has no E2E header "
-                                             "(CRC at bits 0|8, Counter at 8|8); samples cannot "
-                                             "be assembled without it")
-        # Sorted by payload position so that values come out in the order of the message.
-        ordered = [sorted(fields[lay.frame_id], key=lambda f, lay=lay: lay.signal(f[0]).start)
-                   for lay in used]
-        unused += [lay for lay in drive if lay.frame_id not in fields]
-        return cls(dbc_label, input_names, output_names, used, ordered, monitor, unused)
-
-    # -- decoding -----------------------------------------------------------------------------
-
-    def decode_frame(
-        self, frame_id: int, data: bytes | bytearray
-    ) -> tuple[str, int, tuple[float, ...]]:
-        """Check and decode one classic 11-bit data frame.
-
-        Parameters
-        ----------
-        frame_id : arbitration ID.
-        data : (dlc,) payload.
-
-        Returns
-        -------
-        status : "ok", "monitor", "unused", "unknown_id", "dlc" or "crc".
-        slot : the message's slot for frames of a used drive message (also when "dlc" or
-            "crc"), else -1.
-        values : for "ok", the physical values of ``fields[slot]`` in that order; else ().
-        """
-        entry = self._entries.get(frame_id)
-        if entry is None:
-            return "unknown_id", -1, ()
-        kind, slot, dlc, seed, program = entry
-        if len(data) != dlc:
-            return "dlc", slot, ()
-        if seed >= 0 and crc8(data[1:], seed) != data[0]:
-            return "crc", slot, ()
-        if kind != _KIND_DRIVE:
-            return STATUS_NAMES[kind], -1, ()
-        # A payload shorter than 8 bytes reads as if zero-padded: from_bytes needs no padding.
-        word = int.from_bytes(data, "little")
-        values = []
-        for start, mask, sign, scale, offset, is_float in program:
-            raw = (word >> start) & mask
-            if is_float:
-                values.append(_F32.unpack(raw.to_bytes(4, "little"))[0])
-                continue
-            if raw & sign:
-                raw -= sign << 1
-            values.append(raw * scale + offset)
-        return "ok", slot, tuple(values)
-
-    def decode_frames(
-        self, ids: ArrayLike, dlc: ArrayLike, payloads: ArrayLike
-    ) -> tuple[NDArray[np.int8], NDArray[np.int16], NDArray[np.float64], NDArray[np.int16]]:
-        """`decode_frame` for a whole log at once (all frames taken as classic 11-bit data).
-
-        Parameters
-        ----------
-        ids : (N,) non-negative arbitration IDs; IDs above 0x7FF are "unknown_id".
-        dlc : (N,) payload lengths, >= 0.
-        payloads : (N, 8) uint8, zero- or garbage-padded beyond each frame's DLC.
-
-        Returns
-        -------
-        status : (N,) int8 codes into `STATUS_NAMES` (ok, monitor, unused, unknown_id, dlc,
-            crc).
-        slot : (N,) int16, as for `decode_frame` (-1 when not a used drive message).
-        values : (N, n_signals_max) float64; row i holds ``fields[slot[i]]``'s values for "ok"
-            frames, NaN elsewhere.
-        counters : (N,) int16, byte 1 of frames with a payload of 2 bytes or more, else -1.
-        """
-        ids = np.asarray(ids)
-        dlc = np.asarray(dlc)
-        payloads = np.asarray(payloads)
-        n = _check_log_shapes(ids, dlc, payloads)
-        known_id = ids <= _MAX_STD_ID
-        lookup = np.where(known_id, ids, 0).astype(np.intp)
-        kind = np.where(known_id, self._kind_table[lookup], _UNKNOWN_ID).astype(np.int8)
-        slot = np.where(known_id, self._slot_table[lookup], -1).astype(np.int16)
-        status = kind.copy()
-        known = kind != _UNKNOWN_ID
-        bad_dlc = known & (dlc != self._dlc_table[lookup])
-        status[bad_dlc] = _DLC
-        check = known & ~bad_dlc & self._protected_table[lookup]
-        rows = np.flatnonzero(check)
-        if rows.size:
-            crc_ok = e2e_check_batch(ids[rows], payloads[rows], dlc[rows])
-            status[rows[~crc_ok]] = _CRC
-        values = np.full((n, self.n_signals_max), np.nan)
-        for s, (layout, f) in enumerate(zip(self.layouts, self.fields, strict=True)):
-            rows = np.flatnonzero((status == _OK) & (slot == s))
-            if rows.size:
-                decoded = layout.decode(payloads[rows])
-                for col, (name, _, _) in enumerate(f):
-                    values[rows, col] = decoded[name]
-        counters = np.where(dlc >= 2, payloads[:, 1].astype(np.int16), np.int16(-1))
-        return status, slot, values, counters
-
-
-def _load_dbc(value: str, config_path: Path | None) -> tuple[Database, str]:
-    """The database named or pointed to by ``bus.dbc``, and a label for messages."""
-    import cantools
-
-    from canfdi import dbc as dbc_files
-
-    if Path(value).name == value and value.removesuffix(".dbc") in dbc_files.available():
-        return dbc_files.load(value), value.removesuffix(".dbc")
-    candidate = Path(value).expanduser()
-    if not candidate.is_absolute() and config_path is not None:
-        candidate = Path(config_path).parent / candidate
-    if not candidate.is_file():
-        shipped = ", ".join(dbc_files.available()) or "none"
-        raise ConfigError("bus.dbc", f"no DBC file {candidate} and no shipped DBC named "
-                                     f"{value!r} (shipped: {shipped})")
-    try:
-        database = cantools.database.load_file(candidate, database_format="dbc", strict=True)
-    except (OSError, ValueError, cantools.database.Error) as exc:
-        raise ConfigError("bus.dbc", f"cannot load {candidate}: {exc}") from None
-    return database, str(candidate)  # type: ignore[return-value]
-
-
-def _check_log_shapes(ids: np.ndarray, dlc: np.ndarray, payloads: np.ndarray) -> int:
-    if payloads.ndim != 2 or payloads.shape[1] != 8 or payloads.dtype != np.uint8:
-        raise ValueError(f"payloads must be an (N, 8) uint8 array, got shape {payloads.shape} "
-                         f"dtype {payloads.dtype}")
-    n = payloads.shape[0]
-    for name, array in (("ids", ids), ("dlc", dlc)):
-        if array.shape != (n,) or (n and not np.issubdtype(array.dtype, np.integer)):
-            raise ValueError(f"{name} must be an ({n},) integer array to match payloads, got "
-                             f"shape {array.shape} dtype {array.dtype}")
-        if n and array.min() < 0:
-            raise ValueError(f"{name} must be >= 0, got {array.min()} at index "
-                             f"{int(np.argmin(array))}")
-    return n
 
 
 class AssembledLog(NamedTuple):
@@ -620,24 +261,13 @@ class SampleAssembler:
         p = self._p
         return Sample(k=k, timestamp_ns=t, u=np.array(row[:p]), z=np.array(row[p:]), gap=gap)
 
-    def push_batch(
-        self,
-        timestamps_ns: ArrayLike,
-        ids: ArrayLike,
-        dlc: ArrayLike,
-        payloads: ArrayLike,
-        flags: ArrayLike | None = None,
-    ) -> AssembledLog:
+    def push_batch(self, block: FrameBlock) -> AssembledLog:
         """`push` for a block of frames, in order, with a vectorised decode.
 
         Parameters
         ----------
-        timestamps_ns : (N,) int64 arrival times.
-        ids : (N,) arbitration IDs.
-        dlc : (N,) payload lengths.
-        payloads : (N, 8) uint8, padded beyond each DLC.
-        flags : (N,) ints, bit mask of `FLAG_EXTENDED`, `FLAG_REMOTE`, `FLAG_ERROR`, `FLAG_FD`;
-            default all 0.
+        block : the frames (`canfdi.bus.frames.FrameBlock`); their flags decide error, remote,
+            FD and extended frames as `push` does.
 
         Returns
         -------
@@ -654,21 +284,9 @@ class SampleAssembler:
         sends the frames up to the next such run through the state machine (about 2 us a
         frame).
         """
-        timestamps_ns = np.asarray(timestamps_ns)
-        ids = np.asarray(ids)
-        dlc = np.asarray(dlc)
-        payloads = np.asarray(payloads)
-        n = _check_log_shapes(ids, dlc, payloads)
-        if timestamps_ns.shape != (n,) or (n and not np.issubdtype(timestamps_ns.dtype,
-                                                                    np.integer)):
-            raise ValueError(f"timestamps_ns must be an ({n},) integer array, got shape "
-                             f"{timestamps_ns.shape} dtype {timestamps_ns.dtype}")
-        status, slot, values, counters = self.bus_map.decode_frames(ids, dlc, payloads)
-        if flags is not None:
-            flags = np.asarray(flags)
-            if flags.shape != (n,) or (n and not np.issubdtype(flags.dtype, np.integer)):
-                raise ValueError(f"flags must be an ({n},) integer array, got shape "
-                                 f"{flags.shape} dtype {flags.dtype}")
+        timestamps_ns, flags = block.t_ns, block.flags
+        status, slot, values, counters = self.bus_map.decode_frames(block)
+        if flags.any():
             # Same precedence as push: error, remote, FD, extended.
             status = np.select(
                 [(flags & FLAG_ERROR) != 0, (flags & FLAG_REMOTE) != 0, (flags & FLAG_FD) != 0,
@@ -984,22 +602,14 @@ class SampleAssembler:
         return True
 
 
-def assemble_batch(
-    bus_map: BusMap,
-    dt: float,
-    timestamps_ns: ArrayLike,
-    ids: ArrayLike,
-    dlc: ArrayLike,
-    payloads: ArrayLike,
-    flags: ArrayLike | None = None,
-) -> AssembledLog:
+def assemble_batch(bus_map: BusMap, dt: float, block: FrameBlock) -> AssembledLog:
     """Assemble a whole recorded log (offline replay).
 
     Parameters
     ----------
     bus_map : the compiled DBC mapping.
     dt : control period, seconds.
-    timestamps_ns, ids, dlc, payloads, flags : as for `SampleAssembler.push_batch`.
+    block : the log's frames (`canfdi.bus.frames.FrameBlock`).
 
     Returns
     -------
@@ -1008,7 +618,7 @@ def assemble_batch(
     incomplete at the end of the log is delivered as broken).
     """
     assembler = SampleAssembler(bus_map, dt)
-    log = assembler.push_batch(timestamps_ns, ids, dlc, payloads, flags)
+    log = assembler.push_batch(block)
     last = assembler.flush()
     if last:
         (s,) = last

@@ -16,15 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FLAG_ERROR", "FLAG_EXTENDED", "FLAG_FD", "FLAG_REMOTE", "MessageLayout",
-           "SignalLayout", "compile_layout"]
-
-# Bits of a frame's ``flags`` in the block forms (python-can's Message booleans), shared by the
-# assembler, the recorder's frame blocks and the service.
-FLAG_EXTENDED = 1
-FLAG_REMOTE = 2
-FLAG_ERROR = 4
-FLAG_FD = 8
+__all__ = ["MessageLayout", "SignalLayout", "compile_layout"]
 
 
 @dataclass(frozen=True)

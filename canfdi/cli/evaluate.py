@@ -198,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def evaluate(config, args: argparse.Namespace, progress) -> dict[str, Any]:
-    from canfdi.monitor import build_diagnoser
+    from canfdi.methods import build_diagnoser
     from canfdi.tools.evaluate import aggregate, plan_runs, run_evaluation, setup_from_config
 
     progress(f"designing and calibrating the {config.method} monitor")

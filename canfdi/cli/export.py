@@ -38,7 +38,7 @@ def export_frames(log: Path, out: Path, fmt: str, progress=None) -> int:
     """Write every frame of ``log`` to ``out`` in format ``fmt``; returns the frame count."""
     import can
 
-    from canfdi.bus.codec import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
+    from canfdi.bus.frames import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
     from canfdi.io.recorder import iter_frame_blocks
 
     writer_class = {"blf": can.BLFWriter, "asc": can.ASCWriter,

@@ -81,15 +81,14 @@ def _samples(path: Path, config):
     """(k, U, Z) of a log, assembled from its frames with the config's DBC."""
     import numpy as np
 
-    from canfdi.bus.assembler import BusMap, SampleAssembler
-    from canfdi.cli.replay import PYTHON_CAN_SUFFIXES, mcap_blocks, python_can_blocks
+    from canfdi.bus.assembler import SampleAssembler
+    from canfdi.bus.dbc import BusMap
+    from canfdi.io.logs import frame_blocks
 
     asm = SampleAssembler(BusMap.from_config(config), config.model.dt or 1.0)
-    blocks = (python_can_blocks(path) if path.suffix.lower() in PYTHON_CAN_SUFFIXES
-              else mcap_blocks(path))
     ks, us, zs = [], [], []
-    for t_ns, ids, dlc, flags, payloads in blocks:
-        log = asm.push_batch(t_ns, ids, dlc, payloads, flags)
+    for block in frame_blocks(path):
+        log = asm.push_batch(block)
         ks.append(log.k)
         us.append(log.u)
         zs.append(log.z)
@@ -218,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     if args.log.suffix.lower() == ".mcap" and not args.force:
-        from canfdi.cli.replay import truth_of
+        from canfdi.io.logs import truth_of
 
         truth = truth_of(args.log)
         if truth:

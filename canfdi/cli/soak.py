@@ -164,7 +164,7 @@ def soak(config: MonitorConfig, scenario: Scenario, *, samples: int, runs: int, 
     verdict against 1 / false_alarm_interval) and detection_list (run, k, change point, and
     each alarming residual's normalised value, statistic and threshold at the alarm).
     """
-    from canfdi.monitor import build_diagnoser
+    from canfdi.methods import build_diagnoser
     from firmware_sim.ensemble import DcMotorEnsemble
 
     per_run = math.ceil(samples / runs)
@@ -358,7 +358,7 @@ def _detection(run: int, event, res, row: int, names: list[str], thresholds: np.
 
 def _bus_resolution(config: MonitorConfig) -> tuple[list, list]:
     """Per model input and output, its DBC signal layout (what encode/decode does to it)."""
-    from canfdi.bus.assembler import BusMap
+    from canfdi.bus.dbc import BusMap
 
     bus_map = BusMap.from_config(config)
     u: list = [None] * bus_map.p

@@ -1,24 +1,50 @@
-"""Fault identification by recursive least squares (Chan, Hua & Zhang 2006, section IV).
+"""Least squares, the one copy: recursive least squares in information form (Chan, Hua & Zhang
+2006, section IV, eqs. 30-32), step, batch and one-shot.
 
-Once a fully decoupled residual has isolated a fault, its size is estimated by fitting a
-linear fault model to the residual, which is linear in the unknown fault parameters:
+Once a fault is detected, its size is estimated by fitting a model linear in the fault's
+parameters to the residuals: ``r(k) = phi(k) theta + n(k)`` with ``m`` residual rows and ``d``
+parameters per sample (an actuator's ``theta = [eta - 1, lambda]``, eq. 29; a sensor bias
+vector, eq. 41; an output-error path's step amplitude, seed 003). Every fit a method does goes
+through this module.
 
-* actuator ``i`` (eqs. 24-29): ``u_i = eta_i * u_ic + lambda_i`` gives the scalar regression
-  ``r_i(k) = phi_i(k) theta_i + n(k)`` with ``phi_i = [v_i^T Hc Uc(k), v_i^T Hc E]`` and
-  ``theta_i = [eta_i - 1, lambda_i]``;
-* sensors (eqs. 34-41): ``z = y + f`` gives the vector regression
-  ``r(k) = V I* f + n(k)`` with one row per sensor-insensitive residual and ``theta = f``.
+The recursion of eqs. 30-32 with ``P`` reset to ``P0 = I / prior_precision`` at the alarm is the
+same estimator as accumulating the information
 
-Both are solved by the recursive least-squares update of eqs. 30-32, generalised here to
-``m`` residual rows at once and to a forgetting factor ``lam`` in ``(0, 1]`` so that a
-fault that changes after it has been identified is still tracked. The update comes in
-two equivalent forms, in the style of ``scipy.signal.lfilter(b, a, x, zi) -> (y, zf)``:
+    J_k = J_0 + sum_i phi_i^T phi_i,    h_k = J_0 theta_0 + sum_i phi_i^T r_i,
+    theta_k = J_k^{-1} h_k,             P_k = J_k^{-1},
 
-* :func:`rls_step` absorbs one sample and returns the new :class:`RlsState`;
-* :func:`rls_batch` absorbs ``N`` samples at once, vectorised in information form, and
-  gives the same numbers as ``N`` calls of :func:`rls_step` (to rounding).
+with ``J_0 = prior_precision I``; the residual cost ``sum_i |r_i - phi_i theta_k|^2`` (plus the
+prior's term) comes from the same sums, ``c_k = rr_k - theta_k . h_k``. That form serves the
+diagnosers best (thousands of hypotheses and onsets fitted at once by broadcasting, a solve only
+when a decision is due) and the report (a whole trajectory by cumulative sums), so it is the one
+kept; tests/unit/test_identify.py checks it against eqs. 30-32 written out.
 
-:class:`RecursiveLeastSquares` is a thin streaming wrapper around the two.
+The functions work on `RlsState` the way ``scipy.signal.lfilter(b, a, x, zi) -> (y, zf)`` works on
+its state:
+
+* `rls_init` starts (or, at an alarm, restarts: the covariance reset) an estimator;
+* `rls_update` absorbs one sample's rows (a NaN residual is a missing row: no equation);
+* `rls_step` is `rls_update` returning the innovation ``r - phi theta_prev`` as well;
+* `rls_solve` gives the estimate, its covariance and the cost;
+* `rls_batch` absorbs N samples at once and gives the whole trajectory: the same numbers as N
+  calls of `rls_step` (to rounding);
+* `least_squares` is the one-shot fit of a batch (SVD, for badly conditioned regressors such as
+  the Steiglitz-McBride iteration of canfdi.methods.output_error).
+
+Every state may carry leading batch dimensions (one estimator per hypothesis and onset, say):
+``J`` (..., d, d), ``h`` (..., d).
+
+`RecursiveLeastSquares` is a thin streaming wrapper.
+
+Examples
+--------
+>>> import numpy as np
+>>> rng = np.random.default_rng(0)
+>>> phi = rng.normal(size=(500, 1, 2))
+>>> r = phi @ np.array([1.0, -2.0])
+>>> result = rls_batch(rls_init(2), phi, r)
+>>> np.round(result.theta[-1], 6)
+array([ 1., -2.])
 """
 
 from __future__ import annotations
@@ -27,607 +53,326 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.signal import lfilter
+
+from canfdi.core._check import check_shape
 
 __all__ = [
+    "LeastSquaresFit",
     "RecursiveLeastSquares",
     "RlsBatchResult",
+    "RlsSolution",
     "RlsState",
-    "actuator_estimate",
-    "actuator_regressor",
+    "least_squares",
     "rls_batch",
     "rls_init",
+    "rls_solve",
     "rls_step",
-    "sensor_regressor",
+    "rls_update",
 ]
 
 FloatArray = NDArray[np.float64]
 
-# Smallest block the batch form retries with after the trace bound forced it onto the
-# sequential step: small enough not to waste much when the bound keeps triggering, large
-# enough that the per-call overhead of the vectorised pass is amortised.
-_MIN_WINDOW = 256
-
-
-def _shape_error(name: str, expected: str, got: tuple[int, ...]) -> ValueError:
-    return ValueError(f"{name} must have shape {expected}, got {got}")
-
-
-def _readonly(a: FloatArray) -> FloatArray:
-    a.flags.writeable = False
-    return a
+DEFAULT_PRIOR_PRECISION = 1e-8
+"""``J_0 = 1e-8 I``: ``P_0 = 1e8 I``, "know nothing" for parameters of any sensible size."""
 
 
 @dataclass(frozen=True, eq=False)
 class RlsState:
-    """State of a recursive least-squares estimator.
-
-    The arrays are copied and made read-only on construction, so a state can be kept
-    (e.g. as a checkpoint) and fed to :func:`rls_step` or :func:`rls_batch` again later.
+    """The information an estimator has absorbed (possibly one per leading batch index).
 
     Attributes
     ----------
-    theta : ndarray, shape (d,)
-        Current parameter estimate.
-    P : ndarray, shape (d, d)
-        Current error covariance (symmetric positive definite); ``diag(P)`` are the
-        variances of the estimates up to the noise variance.
+    J : ndarray, shape (..., d, d)
+        Information matrix ``J_0 + sum phi^T phi`` (the inverse of the covariance ``P``).
+    h : ndarray, shape (..., d)
+        Information vector ``J_0 theta_0 + sum phi^T r``.
+    rr : ndarray, shape broadcastable to (...)
+        ``theta_0 . J_0 theta_0 + sum |r|^2``: with ``h`` and ``J`` it gives the cost.
     n : int
-        Number of samples (time steps, not residual rows) absorbed since the last
-        :func:`rls_init`.
+        Samples (time steps) absorbed since `rls_init`.
+    n_eq : int
+        Residual rows absorbed (missing rows not counted): the degrees of freedom of the cost.
     """
 
-    theta: FloatArray
-    P: FloatArray
+    J: FloatArray
+    h: FloatArray
+    rr: FloatArray
     n: int = 0
-
-    def __post_init__(self) -> None:
-        theta = np.array(self.theta, dtype=float)
-        if theta.ndim != 1 or theta.shape[0] == 0:
-            raise _shape_error("theta", "(d,) with d >= 1", theta.shape)
-        d = theta.shape[0]
-        P = np.array(self.P, dtype=float)
-        if P.shape != (d, d):
-            raise _shape_error("P", f"(d, d) = ({d}, {d})", P.shape)
-        if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(P))):
-            raise ValueError("theta and P must be finite")
-        n = int(self.n)
-        if n < 0:
-            raise ValueError(f"n must be >= 0, got {n}")
-        object.__setattr__(self, "theta", _readonly(theta))
-        object.__setattr__(self, "P", _readonly(P))
-        object.__setattr__(self, "n", n)
+    n_eq: int = 0
 
     @property
     def d(self) -> int:
         """Number of parameters."""
-        return int(self.theta.shape[0])
+        return int(self.h.shape[-1])
 
 
-def _make_state(theta: FloatArray, P: FloatArray, n: int) -> RlsState:
-    # Internal results are already validated float arrays; skipping __post_init__ keeps the
-    # per-sample cost of the streaming path down.
-    state = object.__new__(RlsState)
-    object.__setattr__(state, "theta", _readonly(np.array(theta, dtype=float)))
-    object.__setattr__(state, "P", _readonly(np.array(P, dtype=float)))
-    object.__setattr__(state, "n", int(n))
-    return state
+@dataclass(frozen=True, eq=False)
+class RlsSolution:
+    """`rls_solve`'s result.
+
+    theta : (..., d) estimates; P : (..., d, d) their covariance up to the noise variance
+    (``J^{-1}``); cost : (...) residual sum of squares at theta (prior term included);
+    dof : residual rows minus parameters (at least 1), to scale P by ``cost / dof``.
+    """
+
+    theta: FloatArray
+    P: FloatArray
+    cost: FloatArray
+    dof: int
+
+    @property
+    def variances(self) -> FloatArray:
+        """(..., d) the estimates' variances: ``diag(P) cost / dof``."""
+        scale = np.maximum(np.asarray(self.cost, dtype=float) / self.dof, 1e-300)
+        return np.diagonal(self.P, axis1=-2, axis2=-1) * scale[..., None]
 
 
 @dataclass(frozen=True, eq=False)
 class RlsBatchResult:
-    """What :func:`rls_batch` produced for ``N`` samples of ``m`` rows and ``d`` parameters.
+    """What `rls_batch` produced for N samples.
 
-    Attributes
-    ----------
-    theta : ndarray, shape (N, d)
-        Estimate after each sample.
-    variances : ndarray, shape (N, d)
-        ``diag(P)`` after each sample: the variances of the estimates (up to the noise
-        variance).
-    innovations : ndarray, shape (N, m)
-        A-priori residuals ``r_k - phi_k theta_{k-1}``.
-    state : RlsState
-        State after the last sample; pass it to the next call to process in chunks.
-    fallback_samples : int
-        How many samples went through the sequential step because the trace bound was
-        active (0 when the whole batch was done in information form).
+    theta : (N, ..., d) estimate after each sample; variances : (N, ..., d) ``diag(P)`` after
+    each sample (up to the noise variance); cost : (N, ...) residual cost after each sample;
+    innovations : (N, ..., m) a-priori residuals ``r_k - phi_k theta_{k-1}`` (NaN for missing
+    rows); state : the state after the last sample, to pass to the next call.
     """
 
     theta: FloatArray
     variances: FloatArray
+    cost: FloatArray
     innovations: FloatArray
     state: RlsState
-    fallback_samples: int
 
 
-def _check_hyper(forgetting: float, trace_max: float) -> tuple[float, float]:
-    lam = float(forgetting)
-    if not 0.0 < lam <= 1.0:
-        raise ValueError(f"forgetting must be in (0, 1], got {forgetting!r}")
-    tmax = float(trace_max)
-    if not tmax > 0.0:
-        raise ValueError(f"trace_max must be > 0 (inf disables the bound), got {trace_max!r}")
-    return lam, tmax
+def rls_init(d: int, prior_precision: float = DEFAULT_PRIOR_PRECISION,
+             theta0: ArrayLike | None = None, shape: tuple[int, ...] = ()) -> RlsState:
+    """Start (or restart) an estimator: ``P = I / prior_precision`` around ``theta0``.
 
-
-def _check_p0(p0: float) -> float:
-    p = float(p0)
-    if not (np.isfinite(p) and p > 0.0):
-        raise ValueError(f"p0 must be finite and > 0, got {p0!r}")
-    return p
-
-
-def rls_init(d: int, p0: float = 1e4, theta0: ArrayLike | None = None) -> RlsState:
-    """Start (or restart) an estimator with ``P = p0 * I``.
-
-    Calling it again on a running estimator is the covariance reset: with a large ``P``
-    the next few samples dominate, so an abrupt change of the fault parameters is
-    followed within about ``d`` samples even with ``forgetting = 1``.
+    Calling it again on a running estimator is the covariance reset of eqs. 30-32: the samples
+    after it decide, so an abrupt change of the parameters is followed within about ``d``
+    samples.
 
     Parameters
     ----------
-    d : int
-        Number of parameters, >= 1.
-    p0 : float
-        Initial variance of every parameter; large means "know nothing".
-    theta0 : array_like, shape (d,), optional
-        Initial estimate (e.g. the current one, on a reset); zeros by default.
-
-    Returns
-    -------
-    RlsState
-        ``theta`` shape (d,), ``P`` shape (d, d), ``n = 0``.
+    d : number of parameters, >= 1.
+    prior_precision : ``1 / P_0``, > 0 (small: know nothing).
+    theta0 : (d,) or (*shape, d) prior estimate; zeros by default.
+    shape : leading batch shape (one estimator per index).
     """
     if isinstance(d, bool) or not isinstance(d, int | np.integer) or d < 1:
-        raise ValueError(f"d must be an integer >= 1, got {d!r}")
-    p = _check_p0(p0)
+        raise ValueError(f"d: expected an integer >= 1, got {d!r}")
+    prior = float(prior_precision)
+    if not (np.isfinite(prior) and prior > 0.0):
+        raise ValueError(f"prior_precision: expected a finite number > 0, got {prior_precision!r}")
+    J = np.broadcast_to(np.eye(d) * prior, (*shape, d, d)).copy()
     if theta0 is None:
-        theta = np.zeros(d)
-    else:
-        theta = np.array(theta0, dtype=float)
-        if theta.shape != (d,):
-            raise _shape_error("theta0", f"(d,) = ({d},)", theta.shape)
-        if not np.all(np.isfinite(theta)):
-            raise ValueError("theta0 must be finite")
-    return RlsState(theta=theta, P=p * np.eye(d), n=0)
+        return RlsState(J=J, h=np.zeros((*shape, d)), rr=np.zeros(shape))
+    theta = np.broadcast_to(np.asarray(theta0, dtype=float), (*shape, d))
+    check_shape("theta0", theta, (*shape, d), finite=True)
+    h = theta * prior
+    return RlsState(J=J, h=h.copy(), rr=np.einsum("...i,...i->...", theta, h))
 
 
-def _check_rows(phi: ArrayLike, r: ArrayLike, d: int) -> tuple[FloatArray, FloatArray]:
+def _rows(phi: ArrayLike, r: ArrayLike, d: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """phi (..., m, d) and r (..., m) with missing rows zeroed, and the valid-row mask."""
     phi_a = np.asarray(phi, dtype=float)
-    if phi_a.ndim != 2 or phi_a.shape[1] != d or phi_a.shape[0] == 0:
-        raise _shape_error("phi", f"(m, d) = (m, {d}) with m >= 1", phi_a.shape)
-    m = phi_a.shape[0]
+    if phi_a.ndim < 2 or phi_a.shape[-1] != d:
+        raise ValueError(f"phi: expected shape (..., m, {d}), got {phi_a.shape}")
     r_a = np.asarray(r, dtype=float)
-    if r_a.ndim == 0 and m == 1:
+    if r_a.ndim == 0:
         r_a = r_a.reshape(1)
-    if r_a.shape != (m,):
-        raise _shape_error("r", f"(m,) = ({m},)", r_a.shape)
-    if not (np.all(np.isfinite(phi_a)) and np.all(np.isfinite(r_a))):
-        raise ValueError("phi and r must be finite")
-    return phi_a, r_a
+    if r_a.shape[-1] != phi_a.shape[-2]:
+        raise ValueError(f"r: expected shape (..., {phi_a.shape[-2]}), got {r_a.shape}")
+    valid = ~np.isnan(r_a)
+    if valid.all():
+        return phi_a, r_a, valid
+    # A missing residual (its window read a lost value) gives no equation.
+    return phi_a * valid[..., None], np.where(valid, r_a, 0.0), valid
 
 
-def _step(
-    theta: FloatArray,
-    P: FloatArray,
-    phi: FloatArray,
-    r: FloatArray,
-    lam: float,
-    trace_max: float,
-) -> tuple[FloatArray, FloatArray, FloatArray, bool]:
-    """Unchecked eqs. 30-32 with forgetting; returns (theta, P, innovation, clipped)."""
-    PphiT = P @ phi.T
-    S = phi @ PphiT
-    m = S.shape[0]
-    if m == 1:
-        # A 1x1 solve costs several times a division, and m == 1 is the actuator case
-        # that runs once per sample per actuator.
-        K = PphiT / (lam + S[0, 0])
-    else:
-        S = S + lam * np.eye(m)
-        # S is symmetric, so P phi^T S^{-1} = (S^{-1} phi P^T)^T: one solve, no inverse.
-        K = np.linalg.solve(S, PphiT.T).T
-    e = r - phi @ theta
-    theta = theta + K @ e
-    P = (P - K @ (phi @ P)) / lam
-    # The textbook update loses symmetry by rounding and, divided by lam < 1 every step,
-    # the antisymmetric part grows until P is no longer a covariance.
-    P = 0.5 * (P + P.T)
-    tr = float(P.trace())
-    clipped = tr > trace_max
-    if clipped:
-        # Without excitation P grows like lam^-k (estimator wind-up); one burst of data
-        # after that would throw the estimate around, so P is kept bounded.
-        P = P * (trace_max / tr)
-    return theta, P, e, clipped
-
-
-def rls_step(
-    state: RlsState,
-    phi: ArrayLike,
-    r: ArrayLike,
-    forgetting: float = 1.0,
-    trace_max: float = 1e8,
-) -> tuple[RlsState, FloatArray]:
-    """Absorb one sample of ``m`` residual rows (eqs. 30-32 with forgetting).
-
-    ``K = P phi^T (lam I + phi P phi^T)^{-1}``, ``theta += K (r - phi theta)``,
-    ``P = (P - K phi P) / lam``, symmetrised, and scaled down to ``trace(P) == trace_max``
-    whenever it would exceed it.
+def rls_update(state: RlsState, phi: ArrayLike, r: ArrayLike) -> RlsState:
+    """Absorb one sample: ``m`` residual rows ``r = phi theta + noise``.
 
     Parameters
     ----------
-    state : RlsState
-        State before the sample; ``theta`` shape (d,), ``P`` shape (d, d).
-    phi : array_like, shape (m, d)
-        Regressor rows: ``m = 1`` for an actuator (eq. 29, see
-        :func:`actuator_regressor`), ``m = q`` for the sensors (eq. 41, see
-        :func:`sensor_regressor`).
-    r : array_like, shape (m,)
-        Residuals; a scalar is accepted when ``m == 1``.
-    forgetting : float
-        Forgetting factor ``lam`` in (0, 1]; 1 weights all samples equally, smaller
-        values track changing parameters with a memory of about ``1 / (1 - lam)`` samples.
-    trace_max : float
-        Upper bound on ``trace(P)`` (``inf`` disables it).
+    state : the estimator(s), batch shape (...).
+    phi : (..., m, d) regressor rows (broadcast against the state's batch shape).
+    r : (m,) or (..., m) residuals; NaN marks a missing row (no equation).
 
     Returns
     -------
-    state : RlsState
-        State after the sample, ``n`` incremented by one.
-    innovation : ndarray, shape (m,)
-        A-priori residual ``r - phi theta_prev``.
-
-    Raises
-    ------
-    ValueError
-        If ``phi`` or ``r`` has the wrong shape or is not finite, or a hyper-parameter is
-        out of range.
+    RlsState with the sample absorbed (a new state; the input is not modified).
     """
-    lam, tmax = _check_hyper(forgetting, trace_max)
-    phi_a, r_a = _check_rows(phi, r, state.d)
-    theta, P, e, _ = _step(state.theta, state.P, phi_a, r_a, lam, tmax)
-    return _make_state(theta, P, state.n + 1), e
+    phi_a, r_a, valid = _rows(phi, r, state.d)
+    J = state.J + np.einsum("...mi,...mj->...ij", phi_a, phi_a)
+    h = state.h + np.einsum("...mi,...m->...i", phi_a, r_a)
+    rr = state.rr + np.einsum("...m,...m->...", r_a, r_a)
+    return RlsState(J=J, h=h, rr=rr, n=state.n + 1, n_eq=state.n_eq + int(valid.sum()))
 
 
-def _check_batch(Phi: ArrayLike, R: ArrayLike, d: int) -> tuple[FloatArray, FloatArray]:
-    Phi_a = np.asarray(Phi, dtype=float)
-    if Phi_a.ndim != 3 or Phi_a.shape[2] != d or Phi_a.shape[1] == 0:
-        raise _shape_error("Phi", f"(N, m, d) = (N, m, {d}) with m >= 1", Phi_a.shape)
-    N, m, _ = Phi_a.shape
+def rls_solve(state: RlsState) -> RlsSolution:
+    """The estimate of every estimator of the state, its covariance and its cost.
+
+    Raises numpy.linalg.LinAlgError when an information matrix is singular (a zero prior
+    precision with too few equations).
+    """
+    theta = np.linalg.solve(state.J, state.h[..., None])[..., 0]
+    cost = state.rr - np.einsum("...i,...i->...", theta, state.h)
+    return RlsSolution(theta=theta, P=np.linalg.inv(state.J), cost=cost,
+                       dof=max(state.n_eq - state.d, 1))
+
+
+def rls_step(state: RlsState, phi: ArrayLike, r: ArrayLike) -> tuple[RlsState, FloatArray]:
+    """`rls_update` that also returns the innovation ``r - phi theta_prev`` ((..., m); NaN for
+    missing rows), as eqs. 30-32 use it."""
+    theta = rls_solve(state).theta
+    innovation = np.asarray(r, dtype=float) - np.einsum("...mi,...i->...m",
+                                                       np.asarray(phi, dtype=float), theta)
+    return rls_update(state, phi, r), innovation
+
+
+def rls_batch(state: RlsState, Phi: ArrayLike, R: ArrayLike) -> RlsBatchResult:
+    """Absorb N samples at once and give the trajectory: N calls of `rls_step` in one pass
+    (cumulative sums of the information, one batched solve).
+
+    Parameters
+    ----------
+    state : the estimator before the first sample (no batch dimensions).
+    Phi : (N, m, d) regressors; R : (N, m) residuals, NaN for missing rows ((N,) when m = 1).
+
+    Returns
+    -------
+    RlsBatchResult: theta, variances (diag P), cost, innovations, and the final state.
+    """
+    d = state.d
+    if state.h.shape != (d,):
+        raise ValueError(f"state: rls_batch takes one estimator, got batch shape "
+                         f"{state.h.shape[:-1]}")
+    Phi_a = check_shape("Phi", Phi, ("N", "m", d), dtype=float)
+    n, m, _ = Phi_a.shape
     R_a = np.asarray(R, dtype=float)
     if R_a.ndim == 1 and m == 1:
-        R_a = R_a.reshape(-1, 1)
-    if R_a.shape != (N, m):
-        raise _shape_error("R", f"(N, m) = ({N}, {m})", R_a.shape)
-    if not (np.all(np.isfinite(Phi_a)) and np.all(np.isfinite(R_a))):
-        raise ValueError("Phi and R must be finite")
-    return Phi_a, R_a
+        R_a = R_a[:, None]
+    R_a = check_shape("R", R_a, (n, m))
+    phi_v, r_v, valid = _rows(Phi_a, R_a, d)
+    J = state.J + np.cumsum(np.einsum("nmi,nmj->nij", phi_v, phi_v), axis=0)
+    h = state.h + np.cumsum(np.einsum("nmi,nm->ni", phi_v, r_v), axis=0)
+    rr = state.rr + np.cumsum(np.einsum("nm,nm->n", r_v, r_v))
+    n_eq = state.n_eq + np.cumsum(valid.sum(axis=1))
+    theta = np.linalg.solve(J, h[..., None])[..., 0]
+    P = np.linalg.inv(J)
+    cost = rr - np.einsum("ni,ni->n", theta, h)
+    prev = np.concatenate([rls_solve(state).theta[None], theta[:-1]]) if n else theta
+    innovations = np.where(valid, R_a - np.einsum("nmi,ni->nm", Phi_a, prev), np.nan)
+    final = (RlsState(J=J[-1], h=h[-1], rr=rr[-1], n=state.n + n, n_eq=int(n_eq[-1]))
+             if n else state)
+    return RlsBatchResult(theta=theta, variances=np.diagonal(P, axis1=1, axis2=2).copy(),
+                          cost=cost, innovations=innovations, state=final)
 
 
-def _solve_prefix(M: FloatArray, rhs: FloatArray) -> tuple[int, FloatArray]:
-    """Batched ``solve(M, rhs)`` over a prefix, halved until no ``M_k`` in it is
-    numerically singular; returns ``(length, solution)``."""
-    L = M.shape[0]
-    while L > 0:
-        try:
-            return L, np.linalg.solve(M[:L], rhs[:L])
-        except np.linalg.LinAlgError:
-            # A numerically singular M_k means an unexcited direction whose variance is far
-            # beyond any trace bound, so the sample is clipped anyway and only the prefix
-            # before it is needed.
-            L //= 2
-    return 0, rhs[:0]
+@dataclass(frozen=True, eq=False)
+class LeastSquaresFit:
+    """`least_squares`'s result: theta (d,) or (d, c), cost (the weighted residual sum of
+    squares, float or (c,)), dof = rows - rank (at least 1), rank, and the weighted regressors
+    the unscaled covariance ``(X^T W X)^+`` (d, d) is computed from on demand."""
+
+    theta: FloatArray
+    cost: float | FloatArray
+    dof: int
+    rank: int
+    weighted_regressors: FloatArray
+
+    @property
+    def covariance(self) -> FloatArray:
+        """(d, d) ``(X^T W X)^+``: the estimates' covariance up to the noise variance."""
+        Xw = self.weighted_regressors
+        return np.linalg.pinv(Xw.T @ Xw)
 
 
-def _batch_segment(
-    theta0: FloatArray,
-    P0: FloatArray,
-    Phi: FloatArray,
-    R: FloatArray,
-    lam: float,
-    trace_max: float,
-) -> tuple[int, bool, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Information-form pass up to (excluding) the first sample the trace bound would clip.
-
-    Returns ``(k, triggered, theta (k, d), variances (k, d), innovations (k, m), P_k)``;
-    ``triggered`` is False when the pass stopped early only because an ``M_k`` was
-    numerically singular, so that the caller resumes in information form rather than with
-    the sequential step.
-    """
-    L, m, d = Phi.shape
-    nothing = (np.empty((0, d)), np.empty((0, d)), np.empty((0, m)), P0)
-    # The recursion runs in whitened coordinates theta = theta0 + C beta with P0 = C C^T,
-    # where the prior on beta is the identity: J_k = C^{-T} M_k C^{-1} and h_k = C^{-T} g_k
-    # with M_0 = I, g_0 = 0. Inverting P0 instead would lose most digits once P0 is
-    # ill-conditioned (wound up in one direction, well known in another), which is what
-    # forgetting with poor excitation produces; and theta0 never passes through a solve.
-    try:
-        w, U = np.linalg.eigh(0.5 * (P0 + P0.T))
-    except np.linalg.LinAlgError:
-        return (0, True, *nothing)
-    C = U * np.sqrt(np.clip(w, 0.0, None))
-    Psi = Phi @ C
-    den = [1.0, -lam]
-    # M_k = lam M_{k-1} + psi_k^T psi_k and g_k = lam g_{k-1} + psi_k^T (r_k - phi_k theta0)
-    # are first-order IIR filters run along time.
-    eye = np.eye(d)
-    M, _ = lfilter([1.0], den, np.einsum("kmi,kmj->kij", Psi, Psi), axis=0, zi=lam * eye[None])
-    e0 = R - Phi @ theta0
-    g = lfilter([1.0], den, np.einsum("kmi,km->ki", Psi, e0), axis=0)
-    rhs = np.concatenate([g[:, :, None], np.broadcast_to(C.T, (L, d, d))], axis=2)
-    solved, sol = _solve_prefix(M, rhs)
-    X = C @ sol
-    P = X[:, :, 1:]
-    # "not <=" also stops at a non-finite or non-positive trace (a solve gone wrong),
-    # leaving that sample to the sequential step.
-    tr = np.trace(P, axis1=1, axis2=2)
-    bad = ~((tr <= trace_max) & (tr > 0.0))
-    if bad.any():
-        k, triggered = int(np.argmax(bad)), True
-    else:
-        k, triggered = solved, solved == 0
-    if k == 0:
-        return (0, triggered, *nothing)
-    theta = theta0 + X[:k, :, 0]
-    prev = np.concatenate([theta0[None, :], theta[:-1]], axis=0)
-    innov = R[:k] - np.einsum("kmi,ki->km", Phi[:k], prev)
-    var = np.diagonal(P[:k], axis1=1, axis2=2).copy()
-    P_last = 0.5 * (P[k - 1] + P[k - 1].T)
-    return k, triggered, theta, var, innov, P_last
-
-
-def rls_batch(
-    state: RlsState,
-    Phi: ArrayLike,
-    R: ArrayLike,
-    forgetting: float = 1.0,
-    trace_max: float = 1e8,
-) -> RlsBatchResult:
-    """Absorb ``N`` samples at once; the same result as ``N`` calls of :func:`rls_step`.
-
-    While the trace bound is inactive the update is exactly the information form
-    ``J_k = lam J_{k-1} + phi_k^T phi_k``, ``h_k = lam h_{k-1} + phi_k^T r_k``,
-    ``theta_k = J_k^{-1} h_k`` with ``J_0 = P_0^{-1}``, ``h_0 = J_0 theta_0``; the
-    exponentially weighted sums are computed with :func:`scipy.signal.lfilter` and the
-    solves batched (in coordinates whitened by ``P_0 = C C^T``, so that ``P_0`` is never
-    inverted: ``J_k = C^{-T} M_k C^{-1}`` with ``M_0 = I``). From the first sample where
-    ``trace(P_k)`` would exceed ``trace_max``, the samples go through the sequential step
-    until the bound is inactive again, then the vectorised pass resumes. Chunking does not
-    change the result: pass ``result.state`` to the next call.
+def least_squares(X: ArrayLike, y: ArrayLike, weights: ArrayLike | None = None) -> LeastSquaresFit:
+    """One-shot weighted least squares ``min sum w_i (y_i - X_i theta)^2`` (by SVD).
 
     Parameters
     ----------
-    state : RlsState
-        State before the first sample; ``theta`` shape (d,), ``P`` shape (d, d).
-    Phi : array_like, shape (N, m, d)
-        Regressor rows of every sample (``N`` may be 0).
-    R : array_like, shape (N, m)
-        Residuals of every sample; shape (N,) is accepted when ``m == 1``.
-    forgetting : float
-        Forgetting factor ``lam`` in (0, 1].
-    trace_max : float
-        Upper bound on ``trace(P)`` (``inf`` disables it).
+    X : (N, d) regressors; y : (N,) or (N, c) data (c right-hand sides share X); weights : (N,)
+    non-negative row weights (default 1). Rows with a NaN in y or X are left out.
 
     Returns
     -------
-    RlsBatchResult
-        ``theta`` (N, d), ``variances`` (N, d), ``innovations`` (N, m), the final
-        ``state`` (``n`` advanced by ``N``) and ``fallback_samples``.
-
-    Raises
-    ------
-    ValueError
-        If ``Phi`` or ``R`` has the wrong shape or is not finite, or a hyper-parameter is
-        out of range.
+    LeastSquaresFit; theta is (d,) or (d, c), cost a float or (c,).
     """
-    lam, tmax = _check_hyper(forgetting, trace_max)
-    d = state.d
-    Phi_a, R_a = _check_batch(Phi, R, d)
-    N, m, _ = Phi_a.shape
-    theta_out = np.empty((N, d))
-    var_out = np.empty((N, d))
-    innov_out = np.empty((N, m))
-    theta: FloatArray = np.array(state.theta)
-    P: FloatArray = np.array(state.P)
-    k = 0
-    window = N
-    fallback = 0
-    while k < N:
-        stop = min(N, k + window)
-        done, triggered, th, var, inn, P_seg = _batch_segment(
-            theta, P, Phi_a[k:stop], R_a[k:stop], lam, tmax
-        )
-        if done:
-            theta_out[k : k + done] = th
-            var_out[k : k + done] = var
-            innov_out[k : k + done] = inn
-            theta, P = th[-1], P_seg
-        k += done
-        if k == stop:
-            window *= 2
-            continue
-        # Retry with a block about twice as long as the one that succeeded, so that a
-        # bound that keeps triggering costs O(N) overall rather than O(N^2).
-        window = max(_MIN_WINDOW, 2 * done)
-        if not triggered:
-            continue
-        while k < N:
-            theta, P, e, clipped = _step(theta, P, Phi_a[k], R_a[k], lam, tmax)
-            theta_out[k] = theta
-            var_out[k] = np.diag(P)
-            innov_out[k] = e
-            k += 1
-            fallback += 1
-            if not clipped:
-                break
-    return RlsBatchResult(
-        theta=theta_out,
-        variances=var_out,
-        innovations=innov_out,
-        state=_make_state(theta, P, state.n + N),
-        fallback_samples=fallback,
-    )
-
-
-def actuator_regressor(g: ArrayLike, Uc: ArrayLike) -> FloatArray:
-    """Regressor of the actuator fault model (eqs. 27-29).
-
-    With ``U = eta Uc + lambda E`` the actuator-``i`` residual is
-    ``r = (eta - 1) g . Uc + lambda sum(g)``, i.e. ``r = phi theta`` with
-    ``phi = [g . Uc, sum(g)]`` and ``theta = [eta - 1, lambda]``; ``sum(g)`` is
-    ``v_i^T Hc E`` because ``v_i`` annihilates the other actuators' columns (eq. 10).
-
-    Parameters
-    ----------
-    g : array_like, shape (s+1,)
-        ``v_i^T Hc`` restricted to actuator ``i``'s columns, oldest sample first.
-    Uc : array_like, shape (s+1,) or (N, s+1)
-        Window ``[u_ic(k-s), ..., u_ic(k)]`` of actuator ``i``'s commanded input, or one
-        window per row for a batch (e.g. from
-        ``numpy.lib.stride_tricks.sliding_window_view(u_ic, s + 1)``).
-
-    Returns
-    -------
-    ndarray, shape (1, 2) or (N, 1, 2)
-        ``phi`` for :func:`rls_step`, or ``Phi`` for :func:`rls_batch`.
-    """
-    g_a = np.asarray(g, dtype=float)
-    if g_a.ndim != 1 or g_a.shape[0] == 0:
-        raise _shape_error("g", "(s+1,)", g_a.shape)
-    w = g_a.shape[0]
-    U = np.asarray(Uc, dtype=float)
-    if U.ndim not in (1, 2) or U.shape[-1] != w:
-        raise _shape_error("Uc", f"(s+1,) or (N, s+1) with s+1 = {w}", U.shape)
-    gu = U @ g_a
-    phi = np.stack([gu, np.full_like(gu, g_a.sum())], axis=-1)
-    return phi[..., None, :]
-
-
-def actuator_estimate(theta: ArrayLike) -> tuple[FloatArray | float, FloatArray | float]:
-    """Fault-model parameters from an actuator estimate ``theta = [eta - 1, lambda]``.
-
-    Parameters
-    ----------
-    theta : array_like, shape (2,) or (N, 2)
-        One estimate or a trajectory (e.g. ``RlsBatchResult.theta``).
-
-    Returns
-    -------
-    eta : float or ndarray, shape (N,)
-        Scaling factor (1 for a healthy actuator).
-    lam : float or ndarray, shape (N,)
-        Bias (0 for a healthy actuator).
-    """
-    t = np.asarray(theta, dtype=float)
-    if t.ndim not in (1, 2) or t.shape[-1] != 2:
-        raise _shape_error("theta", "(2,) or (N, 2)", t.shape)
-    # ``+ 0.0`` makes a copy for a trajectory and a plain scalar for a single estimate.
-    return t[..., 0] + 1.0, t[..., 1] + 0.0
-
-
-def sensor_regressor(V: ArrayLike, q: int, s: int) -> FloatArray:
-    """Regressor of the sensor fault model (eqs. 36-41): ``phi = V I*``.
-
-    ``I* = [I_q; I_q; ...; I_q]`` stacks ``s+1`` identities, so ``V I*`` sums the ``s+1``
-    column blocks of ``V``; with ``theta = f`` the residuals are ``r = phi f``.
-
-    Parameters
-    ----------
-    V : array_like, shape (m, (s+1) q)
-        Parity row vectors ``v_i^T`` stacked, columns ordered like
-        ``Z = [z(k-s); ...; z(k)]``.
-    q : int
-        Number of sensors, >= 1.
-    s : int
-        Order of the parity space, >= 0.
-
-    Returns
-    -------
-    ndarray, shape (m, q)
-        ``phi`` for :func:`rls_step` (constant in time; broadcast to (N, m, q) for
-        :func:`rls_batch`).
-    """
-    for name, val, lo in (("q", q, 1), ("s", s, 0)):
-        if isinstance(val, bool) or not isinstance(val, int | np.integer) or val < lo:
-            raise ValueError(f"{name} must be an integer >= {lo}, got {val!r}")
-    V_a = np.asarray(V, dtype=float)
-    cols = (s + 1) * q
-    if V_a.ndim != 2 or V_a.shape[1] != cols or V_a.shape[0] == 0:
-        raise _shape_error("V", f"(m, (s+1) q) = (m, {cols}) with m >= 1", V_a.shape)
-    return V_a.reshape(V_a.shape[0], s + 1, q).sum(axis=1)
+    X_a = check_shape("X", X, ("N", "d"), dtype=float)
+    y_a = np.asarray(y, dtype=float)
+    if y_a.shape[:1] != X_a.shape[:1] or y_a.ndim not in (1, 2):
+        raise ValueError(f"y: expected shape ({X_a.shape[0]},) or ({X_a.shape[0]}, c), got "
+                         f"{y_a.shape}")
+    keep = ~np.isnan(X_a).any(axis=1) & ~np.isnan(y_a.reshape(len(y_a), -1)).any(axis=1)
+    w = np.ones(len(X_a)) if weights is None else check_shape("weights", weights,
+                                                              (len(X_a),), dtype=float)
+    sw = np.sqrt(np.where(keep, w, 0.0))
+    Xw = np.where(keep[:, None], X_a, 0.0) * sw[:, None]
+    yw = np.where(keep.reshape(-1, *([1] * (y_a.ndim - 1))), y_a, 0.0) * sw.reshape(
+        -1, *([1] * (y_a.ndim - 1)))
+    theta, _, rank, _ = np.linalg.lstsq(Xw, yw, rcond=None)
+    resid = yw - Xw @ theta
+    cost = (resid**2).sum(axis=0)
+    return LeastSquaresFit(theta=theta, cost=float(cost) if np.ndim(cost) == 0 else cost,
+                           dof=max(int(keep.sum()) - int(rank), 1), rank=int(rank),
+                           weighted_regressors=Xw)
 
 
 class RecursiveLeastSquares:
-    """Streaming recursive least squares: a thin wrapper around :func:`rls_step`.
+    """Streaming recursive least squares: a thin wrapper around `rls_step`.
 
     Parameters
     ----------
-    n_params : int
-        Number of parameters ``d`` (2 for an actuator, ``q`` for the sensors).
-    forgetting : float
-        Forgetting factor in (0, 1].
-    p0 : float
-        Initial (and reset) variance of every parameter.
-    trace_max : float
-        Upper bound on ``trace(P)`` against wind-up (``inf`` disables it).
+    n_params : number of parameters d.
+    prior_precision : ``1 / P_0`` at start and at each `reset`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> est = RecursiveLeastSquares(1)
+    >>> for x in (1.0, 2.0, 3.0):
+    ...     _ = est.update(np.array([[x]]), np.array([2.0 * x]))
+    >>> round(float(est.theta[0]), 9)
+    2.0
     """
 
-    def __init__(
-        self,
-        n_params: int,
-        forgetting: float = 1.0,
-        p0: float = 1e4,
-        trace_max: float = 1e8,
-    ) -> None:
-        _check_hyper(forgetting, trace_max)
+    def __init__(self, n_params: int, prior_precision: float = DEFAULT_PRIOR_PRECISION) -> None:
         self.n_params = n_params
-        self.forgetting = forgetting
-        self.p0 = p0
-        self.trace_max = trace_max
-        self._state = rls_init(n_params, p0)
+        self.prior_precision = prior_precision
+        self._state = rls_init(n_params, prior_precision)
 
     def reset(self, theta0: ArrayLike | None = None) -> None:
-        """Covariance reset: ``P = p0 I`` and ``theta = theta0`` (shape (d,), zeros if None)."""
-        self._state = rls_init(self.n_params, self.p0, theta0)
+        """Covariance reset: ``P = P_0`` around ``theta0`` (zeros if None)."""
+        self._state = rls_init(self.n_params, self.prior_precision, theta0)
 
     def update(self, phi: ArrayLike, r: ArrayLike) -> FloatArray:
-        """Absorb one sample; ``phi`` shape (m, d), ``r`` shape (m,).
-
-        Returns
-        -------
-        ndarray, shape (m,)
-            The innovation ``r - phi theta_prev``.
-        """
-        self._state, e = rls_step(self._state, phi, r, self.forgetting, self.trace_max)
-        return e
+        """Absorb one sample (phi (m, d), r (m,)); returns the innovation (m,)."""
+        self._state, innovation = rls_step(self._state, phi, r)
+        return innovation
 
     def update_batch(self, Phi: ArrayLike, R: ArrayLike) -> RlsBatchResult:
-        """Absorb ``N`` samples at once; ``Phi`` shape (N, m, d), ``R`` shape (N, m)."""
-        result = rls_batch(self._state, Phi, R, self.forgetting, self.trace_max)
+        """Absorb N samples at once (Phi (N, m, d), R (N, m))."""
+        result = rls_batch(self._state, Phi, R)
         self._state = result.state
         return result
 
     @property
     def state(self) -> RlsState:
-        """The current :class:`RlsState` (immutable)."""
+        """The current state (immutable)."""
         return self._state
 
     @property
     def theta(self) -> FloatArray:
         """Current estimate, shape (d,)."""
-        return self._state.theta
+        return rls_solve(self._state).theta
 
     @property
     def covariance(self) -> FloatArray:
-        """Current error covariance ``P``, shape (d, d)."""
-        return self._state.P
-
-    @property
-    def variances(self) -> FloatArray:
-        """``diag(P)``, shape (d,): the variances of the estimates."""
-        return np.diag(self._state.P).copy()
+        """``P = J^{-1}``, shape (d, d)."""
+        return np.linalg.inv(self._state.J)
 
     @property
     def n_samples(self) -> int:

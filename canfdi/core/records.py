@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["FaultEvent", "Sample"]
+__all__ = ["BlockResult", "Compensation", "FaultEvent", "Sample", "compensate"]
 
 
 @dataclass(frozen=True)
@@ -64,3 +64,82 @@ class FaultEvent:
         out["candidates"] = list(self.candidates)
         out["residuals"] = list(self.residuals)
         return out
+
+
+@dataclass(frozen=True)
+class BlockResult:
+    """What a diagnoser's ``update_block`` did for N samples.
+
+    events : the events, in order.
+    residuals, normalized : (N, m), NaN where a sample had no residual (window filling, lost
+        values).
+    statistic : (N, m) each residual's detection statistic after each sample.
+    """
+
+    events: list[FaultEvent]
+    residuals: np.ndarray
+    normalized: np.ndarray
+    statistic: np.ndarray
+
+
+@dataclass(frozen=True)
+class Compensation:
+    """An accepted fault folded into the data from its onset on (seed 003 Section 3.3).
+
+    target : "actuator" (the command becomes ``eta u_c + lam``) or "sensor" (the measurement
+        becomes ``z - bias``).
+    index : the channel, 0-based; onset : the first sample it applies to.
+    eta, lam, bias : the accepted estimates (``lam`` is the paper's lambda).
+    scale : whether the method estimates eta (its events report it); False: eta is 1.
+    """
+
+    target: str
+    index: int
+    onset: int
+    eta: float = 1.0
+    lam: float = 0.0
+    bias: float = 0.0
+    scale: bool = False
+
+    def as_dict(self) -> dict[str, float | int | str]:
+        """{"target", "index", "onset"} and the estimates, named as in FaultEvent."""
+        out: dict[str, float | int | str] = {"target": self.target, "index": self.index,
+                                             "onset": self.onset}
+        if self.target == "sensor":
+            out["bias"] = self.bias
+        else:
+            if self.scale:
+                out["eta"] = self.eta
+            out["lambda"] = self.lam
+        return out
+
+
+def compensate(entries: tuple[Compensation, ...] | list[Compensation], k: np.ndarray,
+               Z: np.ndarray | None, U: np.ndarray | None
+               ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Samples with the accepted faults undone, in the order they were accepted.
+
+    Parameters
+    ----------
+    entries : the compensation, oldest first.
+    k : (N,) sample indices; Z : (N, q) measurements; U : (N, p) commands (either may be None:
+        it is left out).
+
+    Returns
+    -------
+    (Z, U) compensated: new arrays (the inputs are not modified), None where given None.
+    """
+    Z = None if Z is None else np.array(Z, dtype=float)
+    U = None if U is None else np.array(U, dtype=float)
+    for c in entries:
+        out = Z if c.target == "sensor" else U
+        if out is None:
+            continue
+        on = k >= c.onset
+        if not on.any():
+            continue
+        if c.target == "sensor":
+            out[on, c.index] -= c.bias
+        else:
+            out[on, c.index] = c.eta * out[on, c.index] + c.lam
+    return Z, U

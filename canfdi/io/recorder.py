@@ -128,7 +128,15 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 from numpy.typing import ArrayLike, NDArray
 
 from canfdi import __version__
-from canfdi.bus.codec import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
+from canfdi.bus.frames import (
+    FLAG_ERROR,
+    FLAG_EXTENDED,
+    FLAG_FD,
+    FLAG_REMOTE,
+    SENT,
+    STATUS_NAMES,
+    FrameBlock,
+)
 
 if TYPE_CHECKING:
     from canfdi.core.records import FaultEvent, Sample
@@ -156,7 +164,7 @@ __all__ = [
     "TOPIC_RESIDUALS_PLOT",
     "TOPIC_SAMPLES",
     "TOPIC_STATUS",
-    "FrameArrays",
+    "FrameBlock",
     "LogReader",
     "McapRecorder",
     "ResidualArrays",
@@ -195,22 +203,7 @@ TOPICS = (
 FRAMES_ENCODING = "canfdi.frames.v1"
 SAMPLES_ENCODING = "canfdi.samples.v1"
 RESIDUALS_ENCODING = "canfdi.residuals.v1"
-FRAME_STATUSES = (
-    "ok",
-    "crc",
-    "dlc",
-    "unknown_id",
-    "monitor",
-    "sent",
-    "unused",
-    "extended",
-    "remote",
-    "error_frame",
-    "fd",
-    "duplicate",
-    "stale",
-    "jump",
-)
+FRAME_STATUSES = (*STATUS_NAMES, SENT)
 """Frame statuses the recorder knows in advance (the assembler's, and ``"sent"``)."""
 FRAME_DTYPE = np.dtype(
     [
@@ -1011,61 +1004,41 @@ class McapRecorder:
 
     def write_frames(
         self,
-        t_ns: ArrayLike,
-        ids: ArrayLike,
-        dlc: ArrayLike,
-        payloads: ArrayLike,
-        statuses: str | Sequence[str] | ArrayLike,
-        extended: ArrayLike | None = None,
-        *,
+        block: FrameBlock,
+        statuses: str | Sequence[str] | ArrayLike | None = None,
         status_names: Sequence[str] | None = None,
-        flags: ArrayLike | None = None,
     ) -> None:
         """Buffer a block of raw CAN frames for `TOPIC_FRAMES`, vectorised.
 
         Parameters
         ----------
-        t_ns : (N,) int
-            Arrival (or send) times, ns since the epoch.
-        ids : (N,) int
-            Arbitration ids.
-        dlc : (N,) int
-            Data length codes; a frame's payload is its first min(dlc, 8) bytes.
-        payloads : (N, 8) uint8
-            Payloads, padded beyond each DLC (the padding is recorded as given).
-        statuses : str, sequence of str, (N,) array of str, or (N,) integer array
+        block : FrameBlock
+            The frames (canfdi.bus.frames); the payload padding beyond each DLC is recorded as
+            given.
+        statuses : str, sequence of str, (N,) array of str, or (N,) integer array, optional
             Every frame's status (one string: all of them); integer codes index
-            ``status_names`` (e.g. the assembler's codes into its ``STATUS_NAMES``: the fastest
-            form).
-        extended : (N,) bool, optional
-            29-bit identifiers (`FLAG_EXTENDED`); default none.
+            ``status_names`` (e.g. the assembler's codes into canfdi.bus.frames'
+            ``STATUS_NAMES``: the fastest form). Default: the block's own ``status``.
         status_names : sequence of str, optional
             The names of integer ``statuses``.
-        flags : (N,) int, optional
-            More `FLAG_REMOTE`, `FLAG_ERROR`, `FLAG_FD` bits, OR-ed with ``extended``.
 
         Raises
         ------
         ValueError
-            After `close`, or for arrays of the wrong shape.
+            After `close`, or for a block with no statuses given or held.
         """
         now = self._begin_write()
-        t = np.asarray(t_ns)
-        n = len(t)
+        n = block.size
+        if statuses is None:
+            if block.status is None:
+                raise ValueError("write_frames: the block holds no statuses and none are given")
+            statuses = block.status
         records = np.zeros(n, dtype=FRAME_DTYPE)
-        records["t_ns"] = _column(t, n, "t_ns")
-        records["id"] = _column(ids, n, "ids")
-        records["dlc"] = _column(dlc, n, "dlc")
-        data = np.asarray(payloads)
-        if data.shape != (n, _MAX_DATA):
-            raise ValueError(f"payloads must be ({n}, 8), got shape {data.shape}")
-        records["data"] = data
-        bits = np.zeros(n, dtype=np.uint8)
-        if extended is not None:
-            bits |= _column(extended, n, "extended").astype(bool)
-        if flags is not None:
-            bits |= _column(flags, n, "flags").astype(np.uint8)
-        records["flags"] = bits
+        records["t_ns"] = block.t_ns
+        records["id"] = block.id
+        records["dlc"] = block.dlc
+        records["data"] = block.data
+        records["flags"] = block.flags
         records["status"] = self._status_array(statuses, n, status_names)
         if not n:
             return
@@ -1842,75 +1815,6 @@ def read_metadata(path: str | Path) -> dict[str, str]:
 # ------------------------------------------------------------------------------------------
 
 
-class FrameArrays(NamedTuple):
-    """Raw frames of a log as arrays, row i the i-th frame recorded.
-
-    Attributes
-    ----------
-    t_ns : (N,) int64
-        Arrival (or send) times, ns since the epoch.
-    id : (N,) uint32
-        Arbitration ids.
-    dlc : (N,) uint8
-        Data length codes.
-    data : (N, 8) uint8
-        Payloads, zero-padded (the first 8 bytes of a longer payload).
-    extended : (N,) bool
-        29-bit identifiers.
-    status : (N,) str
-        Every frame's status (``"ok"``, ``"crc"``, ``"sent"``...).
-    flags : (N,) uint8
-        `FLAG_EXTENDED`, `FLAG_REMOTE`, `FLAG_ERROR`, `FLAG_FD` bits.
-    long : dict of int to bytes
-        Full payload of the rows whose payload is not ``data[i, :min(dlc[i], 8)]`` (CAN FD);
-        usually empty. Use `payloads` for every frame's bytes.
-    """
-
-    t_ns: NDArray[np.int64]
-    id: NDArray[np.uint32]
-    dlc: NDArray[np.uint8]
-    data: NDArray[np.uint8]
-    extended: NDArray[np.bool_]
-    status: NDArray[np.str_]
-    flags: NDArray[np.uint8]
-    long: dict[int, bytes]
-
-    @property
-    def size(self) -> int:
-        """Number of frames."""
-        return len(self.t_ns)
-
-    def payloads(self) -> list[bytes]:
-        """Every frame's payload bytes, in order."""
-        flat = np.ascontiguousarray(self.data).tobytes()
-        lengths = np.minimum(self.dlc, _MAX_DATA).tolist()
-        out = [flat[8 * i : 8 * i + n] for i, n in enumerate(lengths)]
-        for row, data in self.long.items():
-            out[row] = data
-        return out
-
-    def select(self, rows: ArrayLike) -> FrameArrays:
-        """The frames of a boolean mask or of integer row indices, in that order."""
-        index = np.asarray(rows)
-        if index.dtype == np.bool_:
-            index = np.flatnonzero(index)
-        long: dict[int, bytes] = {}
-        if self.long:
-            long = {
-                new: self.long[old] for new, old in enumerate(index.tolist()) if old in self.long
-            }
-        return FrameArrays(
-            self.t_ns[index],
-            self.id[index],
-            self.dlc[index],
-            self.data[index],
-            self.extended[index],
-            self.status[index],
-            self.flags[index],
-            long,
-        )
-
-
 class SampleArrays(NamedTuple):
     """Decoded samples of a log: ``(k, t_ns, gap, U, Z, input_names, output_names)``.
 
@@ -1960,7 +1864,7 @@ def _check_block(message: Mapping[str, Any], encoding: str, topic: str) -> int:
     return int(message["count"])
 
 
-def _frame_block(message: Mapping[str, Any]) -> FrameArrays:
+def _frame_block(message: Mapping[str, Any]) -> FrameBlock:
     count = _check_block(message, FRAMES_ENCODING, TOPIC_FRAMES)
     records = np.frombuffer(binascii.a2b_base64(message["frames"]), dtype=FRAME_DTYPE)
     if len(records) != count:
@@ -1969,57 +1873,48 @@ def _frame_block(message: Mapping[str, Any]) -> FrameArrays:
     codes = records["status"]
     if count and int(codes.max()) >= len(names):
         raise ValueError(f"a {TOPIC_FRAMES} block has a status code beyond its statuses")
-    flags = records["flags"].copy()
-    return FrameArrays(
+    return FrameBlock(
         records["t_ns"].copy(),
         records["id"].copy(),
         records["dlc"].copy(),
+        records["flags"].copy(),
         records["data"].copy(),
-        (flags & FLAG_EXTENDED) != 0,
-        names[codes] if count else np.empty(0, dtype=str),
-        flags,
-        {int(row): bytes.fromhex(data) for row, data in message.get("long", {}).items()},
+        status=names[codes] if count else np.empty(0, dtype=str),
+        long={int(row): bytes.fromhex(data) for row, data in message.get("long", {}).items()},
     )
 
 
-def _frame_rows(rows: list[tuple[int, Mapping[str, Any]]]) -> FrameArrays:
+def _frame_rows(rows: list[tuple[int, Mapping[str, Any]]]) -> FrameBlock:
     """Frames of the one-frame-per-message layout: ``{"id", "extended", "dlc", "data": hex,
     "status"}`` at the message's log time."""
     n = len(rows)
     payloads = [bytes.fromhex(m["data"]) for _, m in rows]
     dlc = [int(m.get("dlc", len(p))) for (_, m), p in zip(rows, payloads, strict=True)]
     extended = np.array([bool(m.get("extended", False)) for _, m in rows], dtype=bool)
-    return FrameArrays(
+    return FrameBlock(
         np.array([t for t, _ in rows], dtype=np.int64),
         np.array([m["id"] for _, m in rows], dtype=np.uint32),
         np.array(dlc, dtype=np.uint8),
+        extended.astype(np.uint8),
         np.frombuffer(
             b"".join(p[:_MAX_DATA].ljust(_MAX_DATA, b"\0") for p in payloads), dtype=np.uint8
         ).reshape(n, _MAX_DATA),
-        extended,
-        np.array([str(m.get("status", "ok")) for _, m in rows], dtype=str),
-        extended.astype(np.uint8),
-        {i: p for i, (p, d) in enumerate(zip(payloads, dlc, strict=True)) if len(p) != min(d, 8)},
+        status=np.array([str(m.get("status", "ok")) for _, m in rows], dtype=str),
+        long={i: p for i, (p, d) in enumerate(zip(payloads, dlc, strict=True))
+              if len(p) != min(d, 8)},
     )
 
 
-def _no_frames() -> FrameArrays:
-    return FrameArrays(
-        np.empty(0, dtype=np.int64),
-        np.empty(0, dtype=np.uint32),
-        np.empty(0, dtype=np.uint8),
-        np.empty((0, _MAX_DATA), dtype=np.uint8),
-        np.empty(0, dtype=bool),
-        np.empty(0, dtype=str),
-        np.empty(0, dtype=np.uint8),
-        {},
-    )
+def _no_frames() -> FrameBlock:
+    empty = FrameBlock.empty()
+    return FrameBlock(empty.t_ns, empty.id, empty.dlc, empty.flags, empty.data,
+                      status=np.empty(0, dtype=str))
 
 
 _OLD_ROWS_PER_BLOCK = 4096
 
 
-def iter_frame_blocks(path: str | Path, *, segments: bool = True) -> Iterator[FrameArrays]:
+def iter_frame_blocks(path: str | Path, *, segments: bool = True) -> Iterator[FrameBlock]:
     """The raw frames of a log, a block at a time: constant memory for any log length.
 
     Reads the segments in order, tolerating a truncated end as `read_log` does (a block cut
@@ -2036,7 +1931,7 @@ def iter_frame_blocks(path: str | Path, *, segments: bool = True) -> Iterator[Fr
 
     Yields
     ------
-    FrameArrays
+    FrameBlock
         The frames of one block, in recording order.
 
     Raises
@@ -2065,7 +1960,7 @@ def iter_frame_blocks(path: str | Path, *, segments: bool = True) -> Iterator[Fr
         yield _frame_rows(rows)
 
 
-def read_frames(path: str | Path, *, segments: bool = True) -> FrameArrays:
+def read_frames(path: str | Path, *, segments: bool = True) -> FrameBlock:
     """Every raw frame of a log, as arrays.
 
     Parameters
@@ -2078,7 +1973,7 @@ def read_frames(path: str | Path, *, segments: bool = True) -> FrameArrays:
 
     Returns
     -------
-    FrameArrays
+    FrameBlock
         All the frames in recording order (including the monitor's own, status ``"sent"``).
 
     Raises
@@ -2089,17 +1984,7 @@ def read_frames(path: str | Path, *, segments: bool = True) -> FrameArrays:
         For a ``/can/frames`` message of an unknown layout.
     """
     blocks = list(iter_frame_blocks(path, segments=segments))
-    if not blocks:
-        return _no_frames()
-    if len(blocks) == 1:
-        return blocks[0]
-    long: dict[int, bytes] = {}
-    offset = 0
-    for block in blocks:
-        long.update((offset + row, data) for row, data in block.long.items())
-        offset += block.size
-    fields = zip(*(block[:-1] for block in blocks), strict=True)
-    return FrameArrays(*(np.concatenate(parts) for parts in fields), long)
+    return FrameBlock.concat(blocks) if blocks else _no_frames()
 
 
 def _block_floats(columns: Mapping[str, Any], names: list[str], n: int) -> np.ndarray:

@@ -13,33 +13,13 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Traffic", "bus_limit", "make_traffic", "run_bench"]
+from canfdi.bus.frames import FrameBlock
 
-
-@dataclass
-class Traffic:
-    """Protected drive frames: t_ns, ids, dlc (N,); payloads (N, 8) uint8."""
-
-    t_ns: np.ndarray
-    ids: np.ndarray
-    dlc: np.ndarray
-    payloads: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.ids)
-
-    def messages(self, count: int | None = None) -> list:
-        import can
-
-        n = len(self) if count is None else min(count, len(self))
-        return [can.Message(timestamp=self.t_ns[i] / 1e9, arbitration_id=int(self.ids[i]),
-                            data=self.payloads[i, : self.dlc[i]].tobytes(),
-                            is_extended_id=False) for i in range(n)]
+__all__ = ["bus_limit", "make_traffic", "run_bench"]
 
 
 def frame_bits(dlc: int, stuffed: bool) -> int:
@@ -63,7 +43,7 @@ def bus_limit(dlcs: list[int], bitrate: float = 1e6) -> tuple[float, float]:
     return bitrate / plain, bitrate / stuffed
 
 
-def make_traffic(frames: int, scenario: str = "dc_motor_nominal") -> Traffic:
+def make_traffic(frames: int, scenario: str = "dc_motor_nominal") -> FrameBlock:
     """About ``frames`` drive frames of a scenario (repeated past its duration)."""
     from firmware_sim.emitter import FrameEncoder
     from firmware_sim.scenario import load_scenario
@@ -85,7 +65,7 @@ def make_traffic(frames: int, scenario: str = "dc_motor_nominal") -> Traffic:
     # Frames of a period 100 us apart, periods dt apart.
     t = (np.repeat(chunk.t, per) * 1e9).astype(np.int64) + np.tile(np.arange(per) * 100_000,
                                                                    samples)
-    return Traffic(t_ns=t, ids=ids, dlc=dlc, payloads=P)
+    return FrameBlock(t, ids, dlc, np.zeros(n, dtype=np.uint8), P)
 
 
 def _rss_mib() -> float:
@@ -103,13 +83,12 @@ def _timed(fn: Callable[[], object]) -> tuple[float, float]:
     return time.perf_counter() - w0, time.process_time() - c0
 
 
-def _feed(monitor, traffic: Traffic, block: int = 4096,
+def _feed(monitor, traffic: FrameBlock, block: int = 4096,
           on_block: Callable[[int], None] | None = None) -> None:
-    n = len(traffic)
+    n = traffic.size
     for i in range(0, n, block):
         j = min(n, i + block)
-        monitor.on_frames(traffic.t_ns[i:j], traffic.ids[i:j], traffic.dlc[i:j],
-                          traffic.payloads[i:j])
+        monitor.on_frames(traffic.slice(i, j))
         if on_block is not None:
             on_block(j)
 
@@ -117,7 +96,7 @@ def _feed(monitor, traffic: Traffic, block: int = 4096,
 def run_bench(config, frames: int = 1_000_000, quick: bool = False,
               progress: Callable[[str], None] | None = None, workdir: Path | None = None) -> dict:
     """Measure everything; returns the JSON-ready result."""
-    from canfdi.bus.assembler import BusMap
+    from canfdi.bus.dbc import BusMap
     from canfdi.io.recorder import McapRecorder
     from canfdi.monitor import Monitor
 
@@ -134,7 +113,7 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
 
     say(f"generating {frames:,} drive frames")
     traffic = make_traffic(frames)
-    n = len(traffic)
+    n = traffic.size
 
     # -- throughput from memory: decode -> assemble -> diagnose -> record ------------------
     say("throughput from memory (decode, assemble, diagnose, record)")
@@ -182,11 +161,10 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     from canfdi import dbc as dbc_files
 
     db = dbc_files.load(config.bus.dbc)
-    wall_ours, _ = _timed(lambda: bus_map.decode_frames(traffic.ids, traffic.dlc,
-                                                       traffic.payloads))
+    wall_ours, _ = _timed(lambda: bus_map.decode_frames(traffic))
     sub = min(n, 30_000 if quick else 100_000)
-    datas = [traffic.payloads[i, : traffic.dlc[i]].tobytes() for i in range(sub)]
-    ids = traffic.ids[:sub].tolist()
+    datas = [traffic.data[i, : traffic.dlc[i]].tobytes() for i in range(sub)]
+    ids = traffic.id[:sub].tolist()
     msgs = {m.frame_id: m for m in db.messages}
     wall_ct, _ = _timed(lambda: [msgs[i].decode(d, decode_choices=False)
                                  for i, d in zip(ids, datas, strict=True)])
@@ -198,7 +176,7 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     say("capture: MCAP against python-can BLF")
     import can
 
-    messages = traffic.messages(sub)
+    messages = traffic.to_messages(sub)
     cap = Monitor(config, diagnose=False)
     cap_rec = McapRecorder(tmp / "capture.mcap", metadata=cap.metadata(),
                            float_encoding="base64")
@@ -235,20 +213,20 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
 def _replay_rate(config, path: Path) -> tuple[float, int]:
     """(samples/s, samples) of `canfdi replay`'s block path over a log: read, decode,
     assemble, residuals, detection (diagnosis included, no recording)."""
-    from canfdi.cli.replay import frame_array_blocks
+    from canfdi.io.logs import frame_blocks
     from canfdi.monitor import Monitor
 
     replayer = Monitor(config, record_residuals=False)
 
     def replay() -> None:
-        for arr in frame_array_blocks(path):
-            replayer.on_frames(arr.t_ns, arr.id, arr.dlc, arr.data, arr.flags)
+        for block in frame_blocks(path):
+            replayer.on_frames(block)
 
     wall, _ = _timed(replay)
     return replayer.samples / wall, replayer.samples
 
 
-def _virtual_bus(config, traffic: Traffic, count: int) -> dict:
+def _virtual_bus(config, traffic: FrameBlock, count: int) -> dict:
     """Frames/s the service consumes from a virtual bus fed as fast as python-can sends."""
     import can
 
@@ -256,7 +234,7 @@ def _virtual_bus(config, traffic: Traffic, count: int) -> dict:
     from canfdi.service import MonitorService
 
     channel = f"canfdi-bench-{os.getpid()}"
-    messages = traffic.messages(count)
+    messages = traffic.to_messages(count)
     monitor = Monitor(config)
 
     async def main() -> float:
@@ -306,7 +284,7 @@ def _latency(config, bus_fps: float, seconds: float) -> dict:
     frames_per_s = 0.5 * bus_fps
     count = int(frames_per_s * seconds)
     traffic = make_traffic(count, scenario="dc_motor_consecutive")
-    messages = traffic.messages()
+    messages = traffic.to_messages()
     channel = f"canfdi-latency-{os.getpid()}"
     latencies: list[int] = []
     monitor = Monitor(config)

@@ -572,7 +572,7 @@ def run_evaluation(config: MonitorConfig, setup: EvaluationSetup, specs: Sequenc
 
     preprocess(U, Z) -> (U, Z) is applied to the simulated commands and measurements first
     (the CLI rounds them to the DBC's resolution, as the bus does)."""
-    from canfdi.monitor import build_diagnoser
+    from canfdi.methods import build_diagnoser
     from firmware_sim.scenario import parse_scenario
     from firmware_sim.simulate import simulate
 

@@ -21,13 +21,12 @@ demo) and writes into ``out_dir``:
     detected, accepted, estimates +/- std, truth, error.
 
 Estimate trajectories. A log holds the accepted estimate of each fault only (``/canfdi/events``;
-the monitor writes nothing on ``/canfdi/estimates``). The trajectory is recomputed from the
-log itself: the diagnoser's least squares (information form, prior precision as the
-diagnoser's, forgetting factor 1, P reset at the alarm) of the accepted hypothesis at the
-accepted onset, over the logged normalised residuals and the regressors of the residual bank
-designed from the log's embedded config (seed 001 eqs. 29 and 41). Its last value is the
-accepted estimate (checked: `Trajectory.mismatch`). Nothing is re-diagnosed, so this is fast for
-any log length. Logs of other methods (output_error, uio), or without residuals or config, get
+the monitor writes nothing on ``/canfdi/estimates``). The log's method recomputes the trajectory
+from the log itself when it can (canfdi.methods: ``estimate_history``; the parity method refits
+the accepted hypothesis at the accepted onset over the logged residuals with its own regressors
+and the one least squares, canfdi.methods.parity.history). Its last value is the accepted
+estimate (checked: `Trajectory.mismatch`). Nothing is re-diagnosed, so this is fast for any log
+length. Methods without a history (output_error, uio), or logs without residuals or config, get
 the accepted estimates as points.
 
 Large logs are decimated for plotting (min and max per bucket, at most `MAX_POINTS` points per
@@ -332,120 +331,34 @@ class Trajectory:
     source: str
 
 
-def _group(contents: LogContents, event: FaultEvent) -> list[FaultEvent]:
-    """The accepted events of the same acceptance (a joint sensor fit gives several)."""
-    return [e for e in contents.accepted
-            if e.accepted_sample == event.accepted_sample
-            and e.detected_sample == event.detected_sample and e.target == event.target]
-
-
-def _compensated_input(contents: LogContents, event: FaultEvent, pos: np.ndarray
-                       ) -> np.ndarray:
-    """(N, S+1) input ``event.index`` at sample indices pos, with the compensation of the
-    actuator faults accepted before this one applied (as the diagnoser did); 0 where the log
-    has no value (such windows' residuals are missing anyway)."""
-    smp = contents.samples
-    j = event.index
-    if smp is None:
-        return np.zeros(pos.shape)
-    idx = np.clip(np.searchsorted(smp.k, pos), 0, len(smp.k) - 1)
-    found = smp.k[idx] == pos
-    u = np.where(found, smp.U[idx, j], np.nan)
-    for e in contents.accepted:
-        if (e.accepted_sample is None or e.accepted_sample >= event.detected_sample
-                or e.target != "actuator" or e.index != j):
-            continue
-        on = pos >= e.onset_sample
-        u = np.where(on, e.estimates["eta"] * u + e.estimates["lambda"], u)
-    return np.nan_to_num(u)
-
-
 def estimate_trajectory(contents: LogContents, event: FaultEvent) -> Trajectory | None:
-    """The running least-squares estimates of an accepted fault (see the module docstring),
-    or None when the log cannot give them (then ``contents.notes`` says why)."""
-    from canfdi.core.design import design_bank
-    from canfdi.core.residuals import ResidualBank
-    from canfdi.methods.parity.diagnoser import DiagnoserSettings
+    """The running estimates of an accepted fault, recomputed from the log by its method
+    (canfdi.methods: ``estimate_history``), or None when the log or the method cannot give them
+    (then ``contents.notes`` says why)."""
+    from canfdi import methods
 
-    cfg, res = contents.config, contents.residuals
+    cfg = contents.config
     label = f"{event.target} {event.name}"
-    if res is None or cfg is None:
-        return None
-    if cfg.method != "parity":
-        contents.notes.append(f"{label}: method {cfg.method}: no estimate history in the log, "
-                              f"accepted estimates only")
+    if contents.residuals is None or cfg is None:
         return None
     if event.onset_sample is None or event.accepted_sample is None:
         return None
-    try:
-        bank = ResidualBank(design_bank(cfg.model, cfg.inputs, cfg.outputs, cfg.design))
-    except ValueError as exc:
-        contents.notes.append(f"{label}: the config's design fails ({exc}): no trajectory")
+    method = methods.get(cfg.method)
+    if method.estimate_history is None:
+        contents.notes.append(f"{label}: method {cfg.method}: no estimate history in the log, "
+                              f"accepted estimates only")
         return None
-    if list(bank.names) != list(res.names):
-        contents.notes.append(f"{label}: the config's residuals {bank.names} are not the "
-                              f"log's {res.names} (wrong --config?): no trajectory")
+    history = method.estimate_history(cfg, contents, event)
+    if history is None:
         return None
-    group = _group(contents, event)
-    k_f, k_a = event.onset_sample, event.accepted_sample
-    rows = (res.k >= k_f) & (res.k <= k_a)
-    ks, rn = res.k[rows], res.Rn[rows]
-    if len(ks) == 0:
-        return None
-    S = bank.S
-    pos = ks[:, None] - S + np.arange(S + 1)[None, :]
-    mask = (pos >= k_f).astype(float)  # (N, S+1)
-    # The diagnoser's bias-only actuator hypothesis fixes eta at 1 (variance 0): fit lambda.
-    bias_only = event.target == "actuator" and event.variances.get("eta") == 0.0
-    if bias_only:
-        phi = (mask @ bank.Gu[event.index].T)[:, :, None]
-        names = ["lambda"]
-        accepted = np.array([event.estimates["lambda"]])
-        col = [0]
-    elif event.target == "actuator":
-        u = _compensated_input(contents, event, pos)
-        gu = bank.Gu[event.index]  # (m, S+1)
-        phi = np.stack([np.einsum("ms,ns->nm", gu, mask * u), mask @ gu.T], axis=2)
-        names = ["eta", "lambda"]
-        accepted = np.array([event.estimates["eta"], event.estimates["lambda"]])
-        col = [0, 1]
-    else:
-        members = [e.index for e in group] if len(group) > 1 else [event.index]
-        phi = np.stack([mask @ bank.Gz[j].T for j in members], axis=2)
-        names = ["bias"]
-        c = members.index(event.index)
-        accepted = np.array([event.estimates["bias"]])
-        col = [c]
-    phi = phi / bank.sigma[None, :, None]
-    valid = ~np.isnan(rn)
-    phi = phi * valid[:, :, None]
-    rv = np.where(valid, rn, 0.0)
-    d = phi.shape[2]
-    prior = DiagnoserSettings().prior_precision
-    A = prior * np.eye(d) + np.cumsum(np.einsum("nmi,nmj->nij", phi, phi), axis=0)
-    b = np.cumsum(np.einsum("nmi,nm->ni", phi, rv), axis=0)
-    rr = np.cumsum((rv * rv).sum(axis=1))
-    n_res = np.cumsum(valid.sum(axis=1))
-    try:
-        theta = np.linalg.solve(A, b[..., None])[..., 0]
-        P = np.linalg.inv(A)
-    except np.linalg.LinAlgError:
-        contents.notes.append(f"{label}: singular least squares: no trajectory")
-        return None
-    cost = np.maximum(rr - np.einsum("ni,ni->n", theta, b), 0.0)
-    scale = cost / np.maximum(n_res - d, 1)
-    var = np.diagonal(P, axis1=1, axis2=2) * scale[:, None]
-    if event.target == "actuator" and not bias_only:
-        theta[:, 0] += 1.0  # u = eta u_c + lambda: the regression estimates eta - 1
-    values, std = theta[:, col], np.sqrt(np.maximum(var[:, col], 0.0))
-    mismatch = float(np.max(np.abs(values[-1] - accepted)
+    accepted = np.array([event.estimates[name] for name in history.names])
+    mismatch = float(np.max(np.abs(history.values[-1] - accepted)
                             / np.maximum(np.abs(accepted), 1e-9)))
     if mismatch > 1e-3:
         contents.notes.append(f"{label}: the recomputed estimate ends {mismatch:.1%} from the "
                               f"accepted one (log and config disagree?)")
-    joint = " (joint fit of " + ", ".join(e.name for e in group) + ")" if len(group) > 1 else ""
-    return Trajectory(k=ks, names=names, values=values, std=std, mismatch=mismatch,
-                      source="least squares over the log's residuals" + joint)
+    return Trajectory(k=history.k, names=history.names, values=history.values, std=history.std,
+                      mismatch=mismatch, source=history.source)
 
 
 # ------------------------------------------------------------------------------------------
@@ -662,11 +575,16 @@ def _run_label(contents: LogContents) -> str:
 
 
 def _statistic_name(contents: LogContents) -> tuple[str, str]:
-    """(short, long) name of the detection statistic the log's method records: Page-Hinkley,
-    or for the uio method the threshold test on the filtered residual."""
-    if contents.metadata.get("method") == "uio":
-        return "|r|/σ", "threshold-test statistic |r|/σ"
-    return "PH statistic g", "Page-Hinkley statistic"
+    """(short, long) name of the detection statistic the log's method records (its registry
+    entry says: Page-Hinkley for most)."""
+    from canfdi import methods
+
+    name = contents.metadata.get("method") or (contents.config.method if contents.config
+                                               else "parity")
+    try:
+        return methods.get(name).statistic
+    except ValueError:  # a method this installation does not know: name it generically
+        return "statistic", "detection statistic"
 
 
 def plot_residuals(contents: LogContents, path: Path) -> Path:

@@ -7,7 +7,7 @@ import can
 import numpy as np
 import pytest
 
-from canfdi.bus.codec import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE
+from canfdi.bus.frames import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, FrameBlock
 from canfdi.io.recorder import McapRecorder, read_frames
 from tests.conftest import REPO
 
@@ -29,7 +29,7 @@ def log(tmp_path_factory):
     flags[rng.random(n) < 0.01] = FLAG_ERROR
     status = rng.choice(["ok", "crc", "dlc", "sent", "unknown_id"], n)
     with McapRecorder(path, block_frames=512) as rec:
-        rec.write_frames(t, ids, dlc, data, status, flags=flags)
+        rec.write_frames(FrameBlock(t, ids, dlc, flags, data), status)
     return path
 
 

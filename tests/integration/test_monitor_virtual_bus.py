@@ -52,7 +52,7 @@ def _faults(monitor):
 def test_actuator_case_detected_fast_and_identified_within_2_percent():
     monitor, _, _, _ = _run(load_scenario("dc_motor_actuator"))
     (fault,) = _faults(monitor)
-    s = monitor.design.actuator_window
+    s = monitor.diagnoser.design.actuator_window
     assert (fault["kind"], fault["index"]) == ("actuator", 0)
     assert 1000 <= fault["detected_sample"] <= 1000 + s + 3
     assert fault["estimate"]["eta"] == pytest.approx(2.0, rel=0.02)

@@ -76,7 +76,7 @@ def test_report_of_a_log_without_residuals_says_what_is_missing(tmp_path, capsys
     log = tmp_path / "cap<&>.mcap"
     with McapRecorder(log, metadata=monitor.metadata()) as recorder:
         monitor.sink = recorder
-        monitor.on_frames(frames.t_ns, frames.ids, frames.dlc, frames.payloads)
+        monitor.on_frames(frames.frames)
     out = tmp_path / "rep"
     assert main(["report", str(log), "-o", str(out), "--no-progress"]) == 0
     err = capsys.readouterr().err

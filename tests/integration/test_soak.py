@@ -11,11 +11,11 @@ import pytest
 import yaml
 from scipy.stats import chi2
 
-from canfdi.bus.assembler import BusMap
+from canfdi.bus.dbc import BusMap
 from canfdi.cli import main
 from canfdi.cli.soak import _bus_resolution, _quantize, rate_lower_bound, rate_upper_bound
 from canfdi.config import load_config
-from canfdi.monitor import build_diagnoser
+from canfdi.methods import build_diagnoser
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"

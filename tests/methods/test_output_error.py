@@ -9,8 +9,7 @@ import pytest
 from scipy.signal import lfilter
 
 from canfdi.config import ConfigError, load_config, read_yaml
-from canfdi.core.records import Sample
-from canfdi.methods.output_error.config import build_output_error_diagnoser, parse_output_error
+from canfdi.core.records import Compensation, Sample
 from canfdi.methods.output_error.diagnoser import OeSettings, OutputErrorDiagnoser, settling_samples
 from canfdi.methods.output_error.model import OePair, fit_miso, fit_step
 
@@ -77,12 +76,12 @@ def test_step_fit_tells_a_filtered_step_from_a_step():
 
 
 def _diagnoser(settings: OeSettings | None = None) -> OutputErrorDiagnoser:
-    model, sigma, long_run, s = parse_output_error(load_config(CONFIG))
+    opts = load_config(CONFIG).method_options
     from canfdi.methods.output_error.diagnoser import oe_thresholds
 
-    s = settings or s
-    return OutputErrorDiagnoser(model, sigma, oe_thresholds(s.drift, s.false_alarm_interval,
-                                                            long_run),
+    s = settings or opts.settings
+    return OutputErrorDiagnoser(opts.model, opts.sigma,
+                                oe_thresholds(s.drift, s.false_alarm_interval, opts.long_run),
                                 s, ["u1", "u2", "u3"], ["T1", "Omega2", "T3"])
 
 
@@ -179,8 +178,8 @@ def test_reset_brings_the_residual_back_to_the_noise():
     after = result.normalized[acc.sample + 1: acc.sample + 200]
     assert np.abs(after.mean(axis=0)).max() < 0.5
     assert np.abs(after).max() < 5.0
-    assert d.compensation == [{"target": "actuator", "index": 0, "onset": acc.onset_sample,
-                               "lambda": acc.estimates["lambda"]}]
+    assert d.compensation == [Compensation("actuator", 0, acc.onset_sample,
+                                           lam=acc.estimates["lambda"])]
 
 
 def test_pair_step_response_and_gain():
@@ -218,7 +217,6 @@ def _with(tmp_path, **changes):
     ({"max_samples": 10}, "output_error.max_samples"),
 ])
 def test_a_bad_output_error_section_names_the_field(tmp_path, change, field):
-    config = _with(tmp_path, **change)
     with pytest.raises(ConfigError) as info:
-        build_output_error_diagnoser(config)
+        _with(tmp_path, **change)
     assert info.value.field == field

@@ -5,7 +5,7 @@ import pytest
 
 from canfdi.config import load_config
 from canfdi.core.records import Sample
-from canfdi.monitor import build_diagnoser
+from canfdi.methods import build_diagnoser
 from firmware_sim.scenario import parse_scenario
 from firmware_sim.simulate import simulate
 from tests.conftest import REPO
@@ -55,7 +55,7 @@ def test_compensation_brings_residuals_back_to_noise_and_restarts_detector():
     diagnoser = build_diagnoser(CONFIG)
     events = _feed(diagnoser, run)
     assert [e.kind for e in events] == ["detected", "accepted"]
-    assert diagnoser.mode == "monitor" and diagnoser.compensation[0]["bias"] == pytest.approx(
+    assert diagnoser.mode == "monitor" and diagnoser.compensation[0].bias == pytest.approx(
         2.0, rel=0.01)
     # After compensation the residuals are noise again (|r| within a few stds).
     assert np.max(np.abs(diagnoser.last_normalized)) < 6.0
@@ -189,7 +189,7 @@ def test_one_corrupt_sample_is_never_diagnosed_as_a_fault(channel, size):
 def test_long_run_variance_of_the_residuals_matches_their_autocovariance():
     """The threshold bound for correlated residuals uses each residual's long-run variance;
     for white measurement noise it is exact, e.g. 5 for s:omega_r (a 5-sample moving sum)."""
-    from canfdi.methods.parity.diagnoser import _long_run_variance
+    from canfdi.methods.parity.thresholds import _long_run_variance
 
     bank = build_diagnoser(CONFIG).bank
     rng = np.random.default_rng(0)

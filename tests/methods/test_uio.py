@@ -8,7 +8,8 @@ import pytest
 
 from canfdi.config import ConfigError, load_config
 from canfdi.core.records import Sample
-from canfdi.methods.uio.config import build_uio_diagnoser, parse_uio_options
+from canfdi.methods.uio.config import build as build_uio_diagnoser
+from canfdi.methods.uio.config import parse_uio_options
 from canfdi.methods.uio.design import decouple, design_uio, fault_angles, flag_function
 from tests.reproduction.test_seed004_vtol import CONFIG
 

@@ -49,7 +49,7 @@ def test_actuator_biases_each_isolated_in_its_own_residual():
         assert event.detected_sample - onset <= 10
         # The identification filter's own residual (the diagonal map) says the same.
         assert event.candidates == ()
-        own = next(i["ranking"][0] for i in monitor.diagnoser.isolations if i["event"] is event)
+        own = next(i.ranking[0] for i in monitor.diagnoser.isolations if i.event is event)
         assert own["index"] == event.index
         assert own["fidf_lambda"] == pytest.approx(event.estimates["lambda"], rel=0.05)
     # The second fault moved its own FIDF residual, not the first's: the diagonal map.
@@ -70,7 +70,7 @@ def test_sensor_bias_isolated_by_the_smallest_angle(index):
     assert abs(event.onset_sample - 200) <= 3
     # Smallest angle: over all fault columns and over the paper's GRGS angles alone.
     assert event.candidates == ()  # nothing explains the data as well
-    ranking = monitor.diagnoser.isolations[0]["ranking"]
+    ranking = monitor.diagnoser.isolations[0].ranking
     assert ranking[0]["index"] == index and ranking[0]["target"] == "sensor"
     grgs = {c["index"]: c["grgs_angle_deg"] for c in ranking if c["target"] == "sensor"}
     assert min(grgs, key=grgs.get) == index

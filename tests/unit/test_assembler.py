@@ -18,16 +18,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from canfdi import dbc as dbc_files
-from canfdi.bus.assembler import (
+from canfdi.bus.assembler import SampleAssembler, assemble_batch
+from canfdi.bus.e2e import protect
+from canfdi.bus.frames import (
     FLAG_ERROR,
     FLAG_EXTENDED,
     FLAG_FD,
     FLAG_REMOTE,
     STATUS_NAMES,
-    SampleAssembler,
-    assemble_batch,
+    FrameBlock,
 )
-from canfdi.bus.e2e import protect
 from tests.unit.test_busmap import DT_NS, as_log, dc_motor_map, drive_traffic
 
 DT = DT_NS / 1e9
@@ -122,7 +122,7 @@ def assert_batch_equals_streaming(frames) -> None:
     statuses, samples, stats = run(frames)
     t, ids, dlc, payloads = as_log(frames)
     flags = np.array([f[3] for f in frames], dtype=np.int64)
-    log = assemble_batch(dc_motor_map(), DT, t, ids, dlc, payloads, flags)
+    log = assemble_batch(dc_motor_map(), DT, FrameBlock(t, ids, dlc, flags, payloads))
     assert [STATUS_NAMES[c] for c in log.statuses] == statuses
     assert log.stats == stats
     assert log.k.tolist() == [s.k for s in samples]
@@ -504,12 +504,13 @@ def test_batch_equals_streaming_on_every_kind_of_defect():
 def test_batch_on_clean_traffic_and_in_chunks():
     frames = frames_of(300, k0=200)
     assert_batch_equals_streaming(frames)
-    t, ids, dlc, payloads = as_log(frames)
-    whole = assemble_batch(dc_motor_map(), DT, t, ids, dlc, payloads)
+    block = FrameBlock(*as_log(frames)[:3], np.zeros(len(frames), dtype=np.uint8),
+                       as_log(frames)[3])
+    whole = assemble_batch(dc_motor_map(), DT, block)
     assert whole.k.tolist() == list(range(200, 500))
     # Chunks cut anywhere (even inside a period) carry the state over.
     assembler = SampleAssembler(dc_motor_map(), DT)
-    parts = [assembler.push_batch(t[a:b], ids[a:b], dlc[a:b], payloads[a:b])
+    parts = [assembler.push_batch(block.slice(a, b))
              for a, b in ((0, 100), (100, 101), (101, 101), (101, 900))]
     assembler.flush()
     assert np.concatenate([p.k for p in parts]).tolist() == whole.k.tolist()
@@ -518,12 +519,15 @@ def test_batch_on_clean_traffic_and_in_chunks():
     assert assembler.stats == whole.stats
 
 
-def test_batch_rejects_mismatched_arrays():
+def test_a_block_of_mismatched_arrays_is_refused_naming_the_array():
     t, ids, dlc, payloads = as_log(frames_of(2))
-    with pytest.raises(ValueError, match="timestamps_ns"):
-        assemble_batch(dc_motor_map(), DT, t[:-1], ids, dlc, payloads)
-    with pytest.raises(ValueError, match="flags"):
-        assemble_batch(dc_motor_map(), DT, t, ids, dlc, payloads, flags=np.zeros(6))
+    flags = np.zeros(len(t), dtype=np.uint8)
+    with pytest.raises(ValueError, match=r"id: expected shape \(5,\), got \(6,\)"):
+        FrameBlock(t[:-1], ids, dlc, flags[:-1], payloads[:-1])
+    with pytest.raises(ValueError, match="flags: expected integers"):
+        FrameBlock(t, ids, dlc, np.zeros(len(t)), payloads)
+    with pytest.raises(ValueError, match=r"data: expected shape \(6, 8\), got \(6, 7\)"):
+        FrameBlock(t, ids, dlc, flags, payloads[:, :7])
 
 
 # -- random damage (hypothesis) -----------------------------------------------------------------

@@ -17,16 +17,16 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from canfdi.bus.assembler import (
+from canfdi.bus.assembler import SampleAssembler, assemble_batch
+from canfdi.bus.e2e import protect
+from canfdi.bus.frames import (
     FLAG_ERROR,
     FLAG_EXTENDED,
     FLAG_FD,
     FLAG_REMOTE,
     STATUS_NAMES,
-    SampleAssembler,
-    assemble_batch,
+    FrameBlock,
 )
-from canfdi.bus.e2e import protect
 from tests.unit.test_assembler import (
     DT,
     STATUS_FRAME,
@@ -45,10 +45,10 @@ _STATE = ("_buffer", "_seen", "_open", "_k", "_t_ref", "_last_complete", "_last_
           "_last_gap", "_partial", "_jump", "_counts", "_complete", "_broken", "_missing")
 
 
-def log_of(frames) -> tuple[np.ndarray, ...]:
-    """(timestamps_ns, ids, dlc, payloads, flags) arrays of (t, id, data, flags) frames."""
+def log_of(frames) -> FrameBlock:
+    """The FrameBlock of (t, id, data, flags) frames."""
     t, ids, dlc, payloads = as_log(frames)
-    return t, ids, dlc, payloads, np.array([f[3] for f in frames], dtype=np.int64)
+    return FrameBlock(t, ids, dlc, np.array([f[3] for f in frames], dtype=np.int64), payloads)
 
 
 def state_of(assembler: SampleAssembler) -> dict:
@@ -76,7 +76,7 @@ def push_batches(assembler: SampleAssembler, frames, cuts=()) -> dict[str, np.nd
     """push_batch over ``frames`` cut at the sorted positions ``cuts``, results concatenated."""
     arrays = log_of(frames)
     bounds = [0, *cuts, len(frames)]
-    logs = [assembler.push_batch(*(a[lo:hi] for a in arrays))
+    logs = [assembler.push_batch(arrays.slice(lo, hi))
             for lo, hi in itertools.pairwise(bounds)]
     return {name: np.concatenate([getattr(log, name) for log in logs])
             for name in ("k", "timestamp_ns", "u", "z", "gap", "statuses")}
@@ -144,12 +144,12 @@ def test_clean_traffic_is_assembled_by_the_fast_path_exactly_as_by_push():
     assembler = SampleAssembler(dc_motor_map(), DT)
     machine = count_machine_frames(assembler)
     arrays = log_of(frames)
-    log = assembler.push_batch(*arrays)
+    log = assembler.push_batch(arrays)
     # Only the first period goes through the state machine: nothing is pending before it.
     assert machine[0] == 3
     assert log.k.tolist() == list(range(N_CLEAN))
     assert_batch_equals_push(frames, then=later)
-    whole = assemble_batch(dc_motor_map(), DT, *arrays)
+    whole = assemble_batch(dc_motor_map(), DT, arrays)
     np.testing.assert_array_equal(whole.z, log.z)
     assert whole.stats["samples_complete"] == N_CLEAN
 
@@ -168,9 +168,9 @@ def test_chunk_boundaries_anywhere_carry_the_state_over():
 def test_first_frames_after_a_completed_log_continue_the_fast_path():
     frames = frames_of(600)
     assembler = SampleAssembler(dc_motor_map(), DT)
-    assembler.push_batch(*log_of(frames[:900]))
+    assembler.push_batch(log_of(frames[:900]))
     machine = count_machine_frames(assembler)
-    log = assembler.push_batch(*log_of(frames[900:]))
+    log = assembler.push_batch(log_of(frames[900:]))
     assert machine[0] == 0
     assert log.k.tolist() == list(range(300, 600))
     assert log.gap.tolist() == [0] * 300
@@ -185,7 +185,7 @@ def test_monitor_frames_between_drive_frames_do_not_interrupt_a_run():
             mixed.append((frame[0] + 1, 0x082, STATUS_FRAME, 0))
     assembler = SampleAssembler(dc_motor_map(), DT)
     machine = count_machine_frames(assembler)
-    assembler.push_batch(*log_of(mixed))
+    assembler.push_batch(log_of(mixed))
     assert machine[0] == 3
     assert_batch_equals_push(mixed)
 
@@ -194,15 +194,16 @@ def test_throughput_of_assemble_batch_on_clean_traffic():
     # 3 x 10^5 frames: copies of the log, chained (the counter continues across them).
     base = log_of(frames_of(N_CLEAN))
     copies = 5
-    t = np.concatenate([base[0] + c * N_CLEAN * DT_NS for c in range(copies)])
-    rest = [np.concatenate([a] * copies) for a in base[1:]]
+    block = FrameBlock.concat([
+        FrameBlock(base.t_ns + c * N_CLEAN * DT_NS, base.id, base.dlc, base.flags, base.data)
+        for c in range(copies)])
     bus_map = dc_motor_map()
 
     def best_of(repeats: int) -> tuple[float, object]:
         best, log = np.inf, None
         for _ in range(repeats):
             start = time.perf_counter()
-            log = assemble_batch(bus_map, DT, t, *rest)
+            log = assemble_batch(bus_map, DT, block)
             best = min(best, time.perf_counter() - start)
         return best, log
 
@@ -214,7 +215,7 @@ def test_throughput_of_assemble_batch_on_clean_traffic():
         patch.setattr(SampleAssembler, "_regular_runs", lambda self, *a: (empty, empty))
         slow, machine_log = best_of(1)
     np.testing.assert_array_equal(machine_log.z, log.z)
-    n = t.size
+    n = block.size
     print(f"\nassemble_batch on {n} clean frames: fast path {n / fast:,.0f} frames/s "
           f"({n / 3 / fast:,.0f} samples/s); state machine only {n / slow:,.0f} frames/s "
           f"(x{slow / fast:.1f})")
@@ -297,7 +298,7 @@ def test_defects_sprinkled_over_long_traffic(rate):
     # The fast path still carries the regular stretches between the defects.
     fresh = SampleAssembler(dc_motor_map(), DT)
     machine = count_machine_frames(fresh)
-    fresh.push_batch(*log_of(frames))
+    fresh.push_batch(log_of(frames))
     print(f"\nrate {rate}: {machine[0] / len(frames):.1%} of the frames through the machine")
     if rate <= 0.02:
         assert machine[0] < 0.25 * len(frames)
@@ -326,9 +327,10 @@ def test_timestamps_whose_difference_overflows_int64():
     frames = shifted(frames[:60], -huge) + shifted(frames[60:], huge)
     assert_batch_equals_push(frames)
     # Unsigned times (within int64) are taken as they are.
-    t, *rest = log_of(frames_of(200))
-    signed = assemble_batch(dc_motor_map(), DT, t, *rest)
-    unsigned = assemble_batch(dc_motor_map(), DT, t.astype(np.uint64), *rest)
+    b = log_of(frames_of(200))
+    signed = assemble_batch(dc_motor_map(), DT, b)
+    unsigned = assemble_batch(dc_motor_map(), DT, FrameBlock(b.t_ns.astype(np.uint64), b.id,
+                                                             b.dlc, b.flags, b.data))
     assert unsigned.k.tolist() == signed.k.tolist()
     assert unsigned.timestamp_ns.tolist() == signed.timestamp_ns.tolist()
     assert unsigned.timestamp_ns.dtype == np.int64
@@ -381,7 +383,7 @@ def test_random_damage_examples_reach_the_fast_path():
     frames = _mutate(frames_of(HYP_N, HYP_K0), [("drop", 40), ("swap", 100)])
     assembler = SampleAssembler(dc_motor_map(), DT)
     machine = count_machine_frames(assembler)
-    assembler.push_batch(*log_of(frames))
+    assembler.push_batch(log_of(frames))
     assert machine[0] < len(frames) // 2
     _, _, samples = assert_batch_equals_push(frames)
     assert_values_are_the_drives(samples, HYP_N, HYP_K0)
@@ -390,6 +392,6 @@ def test_random_damage_examples_reach_the_fast_path():
 def test_all_flags_and_strangers_only():
     frames = [(i * 1000, 0x104, bytes(8), flag)
               for i, flag in enumerate([FLAG_ERROR, FLAG_REMOTE, FLAG_FD, FLAG_EXTENDED, 0])]
-    log = assemble_batch(dc_motor_map(), DT, *log_of(frames))
+    log = assemble_batch(dc_motor_map(), DT, log_of(frames))
     assert log.k.size == 0 and log.u.shape == (0, 1) and log.z.shape == (0, 4)
     assert_batch_equals_push(frames)

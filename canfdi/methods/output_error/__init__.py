@@ -1,1 +1,30 @@
-"""."""
+"""The output_error method (seed 003): output-error residuals of identified input-output models,
+Page-Hinkley detection, isolation by identifying the residual's step response (the gamma and
+kappa tests), and the reset of Section 3.3.
+
+Its own config section is ``output_error:`` (canfdi.methods.output_error.config; `canfdi
+identify` writes it from a fault-free log). Faults are additive: actuator and sensor biases.
+"""
+
+from __future__ import annotations
+
+from canfdi.methods import Method
+from canfdi.methods.output_error.config import (
+    SECTION,
+    OeOptions,
+    build,
+    output_error_section,
+    parse_output_error,
+)
+from canfdi.methods.output_error.diagnoser import OeSettings, OutputErrorDiagnoser
+
+__all__ = ["METHOD", "OeOptions", "OeSettings", "OutputErrorDiagnoser", "output_error_section"]
+
+METHOD = Method(
+    name="output_error",
+    summary="output-error residuals of identified OE models, step-response isolation (seed 003)",
+    section=SECTION,
+    parse_options=parse_output_error,
+    build=build,
+    fault_kinds=("actuator_bias", "sensor_bias"),
+)

@@ -34,39 +34,51 @@ identification data: model error colours the residual), see canfdi.methods.outpu
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from canfdi.config import ConfigError, MonitorConfig
+from canfdi.core.settings import (
+    ConfigError,
+    MonitorConfig,
+    Option,
+    parse_options,
+    unknown_name,
+)
 from canfdi.methods.output_error.diagnoser import OeSettings, OutputErrorDiagnoser, oe_thresholds
 from canfdi.methods.output_error.model import OeModel, OePair
 
-__all__ = ["build_output_error_diagnoser", "output_error_section", "parse_output_error"]
+__all__ = ["OeOptions", "build", "output_error_section", "parse_output_error"]
 
 SECTION = "output_error"
-_KEYS = {"models", "operating_point", "residual_std", "long_run_variance", "gamma", "kappa",
-         "min_samples", "max_samples", "pre_samples", "onset_before", "max_onsets",
-         "max_fit_variance", "check_every", "max_hold", "settle", "fit"}
-# field -> (type, lower bound, upper bound), inclusive
 _SETTINGS = {
-    "gamma": (float, 1e-9, 1e6), "kappa": (float, 1e-9, 1e6),
-    "min_samples": (int, 1, 10**6), "max_samples": (int, 1, 10**7),
-    "pre_samples": (int, 0, 10**4), "onset_before": (int, 0, 10**4),
-    "max_onsets": (int, 1, 1000), "max_fit_variance": (float, 1.0, 1e12),
-    "check_every": (int, 1, 10**6), "max_hold": (int, 0, 10**6), "settle": (float, 1e-9, 0.5),
+    "gamma": Option(float, 1e-9, 1e6), "kappa": Option(float, 1e-9, 1e6),
+    "min_samples": Option(int, 1, 10**6), "max_samples": Option(int, 1, 10**7),
+    "pre_samples": Option(int, 0, 10**4), "onset_before": Option(int, 0, 10**4),
+    "max_onsets": Option(int, 1, 1000), "max_fit_variance": Option(float, 1.0, 1e12),
+    "check_every": Option(int, 1, 10**6), "max_hold": Option(int, 0, 10**6),
+    "settle": Option(float, 1e-9, 0.5),
 }
+# Validated here rather than by the option spec: lists and mappings.
+_STRUCTURED = ("models", "operating_point", "residual_std", "long_run_variance", "fit")
+_NUMBER = Option(float)
+
+
+@dataclass(frozen=True)
+class OeOptions:
+    """The parsed output_error section: the identified model, the residuals' fault-free
+    standard deviations (q,) and long-run variance ratios (q,), the diagnoser's settings."""
+
+    model: OeModel
+    sigma: np.ndarray
+    long_run: np.ndarray
+    settings: OeSettings
 
 
 def _number(value: Any, field: str) -> float:
-    if isinstance(value, str):
-        try:  # PyYAML reads 1.0e7 without an exponent sign as a string
-            value = float(value)
-        except ValueError:
-            raise ConfigError(field, f"expected a number, got {value!r}") from None
-    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
-        raise ConfigError(field, f"expected a finite number, got {value!r}")
-    return float(value)
+    return _NUMBER.check(value, field)
 
 
 def _numbers(value: Any, field: str, size: int | None = None) -> list[float]:
@@ -81,26 +93,19 @@ def _numbers(value: Any, field: str, size: int | None = None) -> list[float]:
 def _pair(entry: Any, where: str, inputs: list[str], outputs: list[str]) -> OePair | None:
     if not isinstance(entry, dict):
         raise ConfigError(where, "expected a mapping {output, input, b, f, delay}")
-    unknown = set(entry) - {"output", "input", "b", "f", "delay", "path"}
-    if unknown:
-        raise ConfigError(f"{where}.{sorted(unknown)[0]}",
-                          "unknown key (allowed: b, delay, f, input, output, path)")
+    opts = parse_options(entry, {"path": Option(bool), "delay": Option(int, 0, 1000)}, where,
+                         extra=("output", "input", "b", "f"))
+    path = opts.get("path", True)
     for key, names in (("output", outputs), ("input", inputs)):
         if entry.get(key) not in names:
-            raise ConfigError(f"{where}.{key}", f"expected one of {', '.join(names)}, got "
-                                                f"{entry.get(key)!r}")
-    path = entry.get("path", True)
-    if not isinstance(path, bool):
-        raise ConfigError(f"{where}.path", f"expected true or false, got {path!r}")
+            raise unknown_name(f"{where}.{key}", key, entry.get(key), names)
     if not path:
         return None
     b = _numbers(entry.get("b"), f"{where}.b")
     if not b:
         raise ConfigError(f"{where}.b", "needs at least one coefficient (or path: false)")
     f = _numbers(entry.get("f", []), f"{where}.f")
-    delay = entry.get("delay", 1)
-    if isinstance(delay, bool) or not isinstance(delay, int) or not 0 <= delay <= 1000:
-        raise ConfigError(f"{where}.delay", f"expected an integer in [0, 1000], got {delay!r}")
+    delay = opts.get("delay", 1)
     pair = OePair(output=outputs.index(entry["output"]), input=inputs.index(entry["input"]),
                   b=tuple(b), f=tuple(f), delay=delay)
     if f and pair.pole_radius >= 1.0:
@@ -109,17 +114,12 @@ def _pair(entry: Any, where: str, inputs: list[str], outputs: list[str]) -> OePa
     return pair
 
 
-def parse_output_error(config: MonitorConfig) -> tuple[OeModel, np.ndarray, np.ndarray,
-                                                       OeSettings]:
-    """(model, residual std (q,), long-run variance ratios (q,), settings) of the config's
-    output_error section; ConfigError naming the field on bad input."""
-    sec = config.method_options
-    if not isinstance(sec, dict) or not sec:
+def parse_output_error(section: Mapping[str, Any] | None, config: MonitorConfig) -> OeOptions:
+    """The config's output_error section, validated; ConfigError naming the field on bad input."""
+    sec = section
+    if not isinstance(sec, Mapping) or not sec:
         raise ConfigError(SECTION, "missing section (run `canfdi identify` to write it)")
-    for key in sec:
-        if key not in _KEYS:
-            raise ConfigError(f"{SECTION}.{key}",
-                              f"unknown key (allowed: {', '.join(sorted(_KEYS))})")
+    values = parse_options(sec, _SETTINGS, SECTION, extra=_STRUCTURED)
     inputs, outputs = config.inputs, config.outputs
     models = sec.get("models")
     if not isinstance(models, list) or not models:
@@ -158,33 +158,21 @@ def parse_output_error(config: MonitorConfig) -> tuple[OeModel, np.ndarray, np.n
                                  f"{SECTION}.long_run_variance", len(outputs)))
     if np.any(long_run <= 0):
         raise ConfigError(f"{SECTION}.long_run_variance", "ratios must be > 0")
-    values: dict[str, Any] = {}
-    for name, (kind, lo, hi) in _SETTINGS.items():
-        if name not in sec:
-            continue
-        field = f"{SECTION}.{name}"
-        v = sec[name]
-        if kind is int:
-            if isinstance(v, bool) or not isinstance(v, int):
-                raise ConfigError(field, f"expected an integer, got {v!r}")
-        else:
-            v = _number(v, field)
-        if not lo <= v <= hi:
-            raise ConfigError(field, f"must be in [{lo}, {hi}], got {v!r}")
-        values[name] = v
     settings = OeSettings(drift=config.detection.drift,
                           false_alarm_interval=config.detection.false_alarm_interval, **values)
     if settings.max_samples < settings.min_samples:
         raise ConfigError(f"{SECTION}.max_samples",
                           f"must be >= min_samples ({settings.min_samples})")
-    return model, np.asarray(sigma, dtype=float), long_run, settings
+    return OeOptions(model=model, sigma=np.asarray(sigma, dtype=float), long_run=long_run,
+                     settings=settings)
 
 
-def build_output_error_diagnoser(config: MonitorConfig) -> OutputErrorDiagnoser:
+def build(config: MonitorConfig) -> OutputErrorDiagnoser:
     """The seed 003 diagnoser the config's output_error section describes."""
-    model, sigma, long_run, settings = parse_output_error(config)
-    thresholds = oe_thresholds(settings.drift, settings.false_alarm_interval, long_run)
-    return OutputErrorDiagnoser(model, sigma, thresholds, settings, config.inputs,
+    opts: OeOptions = config.method_options
+    settings = opts.settings
+    thresholds = oe_thresholds(settings.drift, settings.false_alarm_interval, opts.long_run)
+    return OutputErrorDiagnoser(opts.model, opts.sigma, thresholds, settings, config.inputs,
                                 config.outputs)
 
 

@@ -74,7 +74,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.signal import lfilter
@@ -84,13 +84,13 @@ from canfdi.core.detect import (
     onset_candidates,
     threshold_for_long_run_variance,
 )
-from canfdi.core.records import FaultEvent, Sample
+from canfdi.core.identify import least_squares
+from canfdi.core.protocol import DIAGNOSE, MONITOR
+from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample, compensate
 from canfdi.methods.output_error.model import OeModel, fit_step, pair_initial_state, simulate
-from canfdi.methods.parity.diagnoser import BlockResult
 
-__all__ = ["OeSettings", "OutputErrorDiagnoser", "oe_thresholds", "settling_samples"]
-
-MONITOR, DIAGNOSE = "monitor", "diagnose"
+__all__ = ["HypothesisTest", "OeDiagnosis", "OeSettings", "OutputErrorDiagnoser",
+           "oe_thresholds", "settling_samples"]
 
 
 @dataclass(frozen=True)
@@ -124,6 +124,51 @@ class OeSettings:
     check_every: int = 10
     max_hold: int = 10
     settle: float = 0.01
+
+
+@dataclass(frozen=True)
+class OeDiagnosis:
+    """A diagnosis in progress: what the alarm at ``k_d`` started.
+
+    onsets : candidate fault onsets; start : the first sample of the fitting window (l0 before
+    the earliest onset); next_check : the sample of the next decision; k, r : the window's
+    samples and normalised residual rows (q,), growing until the decision.
+    """
+
+    k_d: int
+    onsets: list[int]
+    start: int
+    next_check: int
+    k: list[int] = field(default_factory=list)
+    r: list[np.ndarray] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class HypothesisTest:
+    """One hypothesis (a channel at its best onset) tested on the diagnosis window.
+
+    estimates, variances : {"lambda"} for an actuator, {"bias"} for a sensor (physical units);
+    cost : least-squares cost of the normalised residuals; distance : the kappa test's
+    normalised parameter distance; gamma_ok, fits : the gamma and fit-variance tests; passes :
+    all of them.
+    """
+
+    target: str
+    index: int
+    name: str
+    onset: int
+    estimates: dict[str, float]
+    variances: dict[str, float]
+    cost: float
+    distance: float
+    gamma_ok: bool
+    fits: bool
+    passes: bool
+
+    def candidate(self) -> dict:
+        """The FaultEvent candidate entry of an "unexplained" event."""
+        return {"target": self.target, "index": self.index, "name": self.name,
+                "estimates": dict(self.estimates), "onset": self.onset}
 
 
 def settling_samples(radius: float, settle: float) -> int:
@@ -185,14 +230,17 @@ class OutputErrorDiagnoser:
                            for pr in model.pairs) if model.pairs else 0)
         self._pair_of = {(pr.output, pr.input): pr for pr in model.pairs}
         self._recent: deque = deque(maxlen=s.max_onsets + s.onset_before + s.pre_samples + 8)
-        self.compensation: list[dict] = []
+        self.compensation: list[Compensation] = []
         self.events: list[FaultEvent] = []
+        self._diag: OeDiagnosis | None = None
         self.reset()
 
     # -- state ---------------------------------------------------------------------------
     def reset(self) -> None:
-        """Back to monitoring with no compensation; the models restart on the next sample."""
+        """Back to the state after construction: monitoring, no compensation, no events; the
+        models restart on the next sample."""
         self.mode = MONITOR
+        self.events = []
         self.compensation = []
         self._states: list[np.ndarray] | None = None
         self._u_last = np.array(self.model.u0, dtype=float)
@@ -205,7 +253,7 @@ class OutputErrorDiagnoser:
 
     def _restart_detector(self, k: int = -1) -> None:
         self.detector.restart(k)
-        self._diag: dict | None = None
+        self._diag = None
 
     @property
     def residual_names(self) -> list[str]:
@@ -227,26 +275,16 @@ class OutputErrorDiagnoser:
         return self.detector.statistics
 
     # -- the residual ----------------------------------------------------------------------
-    def _lambda(self, k: np.ndarray) -> np.ndarray:
-        """(N, p) actuator compensation added to the commands at samples k."""
-        out = np.zeros((len(k), self.p))
-        for c in self.compensation:
-            if c["target"] == "actuator":
-                out[k >= c["onset"], c["index"]] += c["lambda"]
-        return out
-
-    def _bias(self, k: np.ndarray) -> np.ndarray:
-        """(N, q) sensor compensation subtracted from the measurements at samples k."""
-        out = np.zeros((len(k), self.q))
-        for c in self.compensation:
-            if c["target"] == "sensor":
-                out[k >= c["onset"], c["index"]] += c["bias"]
-        return out
+    def _model_input(self, k: np.ndarray, U_held: np.ndarray) -> np.ndarray:
+        """(N, p) the models' input deviation at samples k: the held commands with the
+        accepted actuator faults added (seed 003 Section 3.3), less the operating point."""
+        _, U = compensate(self.compensation, k, None, U_held)
+        return U - self.model.u0
 
     def _start_models(self, k: int, u_held: np.ndarray) -> None:
         """Models at rest on the (compensated) input of sample k; residuals missing during the
         warm-up."""
-        dev = u_held + self._lambda(np.array([k]))[0] - self.model.u0
+        dev = self._model_input(np.array([k]), u_held[None, :])[0]
         self._states = [pair_initial_state(pr, dev[pr.input]) for pr in self.model.pairs]
         self._taint_until[:] = k + self.warmup - 1
 
@@ -265,9 +303,10 @@ class OutputErrorDiagnoser:
             held = np.take_along_axis(last, idx + 1, axis=0)
             held = np.where(idx < 0, self._u_last[None, :], held)
         self._u_last = held[-1].copy()
-        dev = held + self._lambda(k) - self.model.u0
+        dev = self._model_input(k, held)
         Y, self._states = simulate(self.model, dev, self._states)
-        R = Z - self._bias(k) - Y
+        Zc, _ = compensate(self.compensation, k, Z, None)
+        R = Zc - Y
         # Residuals stay missing after a lost command, for the taint of its paths.
         until = np.empty((n, self.q), dtype=np.int64)
         for j in range(self.q):
@@ -408,9 +447,8 @@ class OutputErrorDiagnoser:
         start = max(first, min(onsets) - s.pre_samples)
         rows = [(kk, r) for kk, r in self._recent if kk >= start]
         self.mode = DIAGNOSE
-        self._diag = {"k_d": k, "onsets": onsets, "start": start,
-                      "next_check": k + s.min_samples,
-                      "k": [kk for kk, _ in rows], "r": [r for _, r in rows]}
+        self._diag = OeDiagnosis(k_d=k, onsets=onsets, start=start, next_check=k + s.min_samples,
+                                 k=[kk for kk, _ in rows], r=[r for _, r in rows])
         event = FaultEvent(kind="detected", sample=k, timestamp_ns=t, detected_sample=k,
                            onset_sample=change_point,
                            residuals=tuple(self.residual_names[i] for i in alarming))
@@ -419,12 +457,13 @@ class OutputErrorDiagnoser:
 
     def _diagnose(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
         d, s = self._diag, self.settings
-        d["k"].append(k)
-        d["r"].append(rn)
-        since = k - d["k_d"]
-        if k < d["next_check"] and since < s.max_samples:
+        d.k.append(k)
+        d.r.append(rn)
+        since = k - d.k_d
+        if k < d.next_check and since < s.max_samples:
             return []
-        d["next_check"] = k + s.check_every
+        self._diag = d = OeDiagnosis(k_d=d.k_d, onsets=d.onsets, start=d.start,
+                                     next_check=k + s.check_every, k=d.k, r=d.r)
         found, tried = self.isolate()
         if found is not None:
             return self._accept(k, t, found)
@@ -433,48 +472,48 @@ class OutputErrorDiagnoser:
         return []
 
     # -- isolation -------------------------------------------------------------------------
-    def isolate(self) -> tuple[dict | None, list[dict]]:
+    def isolate(self) -> tuple[HypothesisTest | None, list[HypothesisTest]]:
         """Test the hypotheses on the diagnosis window: (the accepted one or None, the best
         few tried, for an "unexplained" event)."""
         d = self._diag
-        kk = np.asarray(d["k"], dtype=np.int64)
-        Rn = np.asarray(d["r"], dtype=float)  # (N, q) normalised, NaN missing
+        kk = np.asarray(d.k, dtype=np.int64)
+        Rn = np.asarray(d.r, dtype=float)  # (N, q) normalised, NaN missing
         valid = ~np.isnan(Rn)
         Rv = np.where(valid, Rn, 0.0)
         n_eq = max(int(valid.sum()), 1)
         zero_cost = (Rv**2).sum(axis=0)  # (q,) cost of each output if it stays at zero
-        tried: list[dict] = []
+        tried: list[HypothesisTest] = []
         passing = []
         for i in range(self.p):
             outs = np.flatnonzero(self._paths[:, i])
             if len(outs) == 0:
                 continue
             best_h = None
-            for kf in d["onsets"]:
+            for kf in d.onsets:
                 res = self._actuator_test(i, outs, kf, kk, Rn, Rv, valid, zero_cost, n_eq)
-                if best_h is None or (res["passes"], -res["distance"]) > (best_h["passes"],
-                                                                          -best_h["distance"]):
+                if best_h is None or (res.passes, -res.distance) > (best_h.passes,
+                                                                    -best_h.distance):
                     best_h = res
             tried.append(best_h)
-            if best_h["passes"]:
+            if best_h.passes:
                 passing.append(best_h)
         if passing:
-            return min(passing, key=lambda h: h["distance"]), tried
+            return min(passing, key=lambda h: h.distance), tried
         sensors = []
         for j in range(self.q):
             best_h = None
-            for kf in d["onsets"]:
+            for kf in d.onsets:
                 res = self._sensor_test(j, kf, kk, Rv, valid, zero_cost, n_eq)
-                if best_h is None or res["cost"] < best_h["cost"]:
+                if best_h is None or res.cost < best_h.cost:
                     best_h = res
             tried.append(best_h)
-            if best_h["passes"]:
+            if best_h.passes:
                 sensors.append(best_h)
         if sensors:
-            return min(sensors, key=lambda h: h["cost"]), tried
-        return None, sorted(tried, key=lambda h: h["cost"])
+            return min(sensors, key=lambda h: h.cost), tried
+        return None, sorted(tried, key=lambda h: h.cost)
 
-    def _actuator_test(self, i, outs, kf, kk, Rn, Rv, valid, zero_cost, n_eq) -> dict:
+    def _actuator_test(self, i, outs, kf, kk, Rn, Rv, valid, zero_cost, n_eq) -> HypothesisTest:
         s = self.settings
         # (a) amplitude through the models: r_j / sigma_j = lambda s_ji(k - kf) / sigma_j.
         X = np.zeros_like(Rv)
@@ -485,11 +524,13 @@ class OutputErrorDiagnoser:
             step[after] = pair.step_response(int(kk[-1] - kf + 1))[kk[after] - kf]
             X[:, j] = step / self.sigma[j]
         X = X * valid
-        info = float((X**2).sum())
-        lam = float((X * Rv).sum()) / info if info > 0 else 0.0
-        cost = float(((Rv - lam * X) ** 2).sum())
+        if X.any():
+            amp = least_squares(X.reshape(-1, 1), Rv.reshape(-1))
+            lam, cost = float(amp.theta[0]), amp.cost
+            var = cost / max(n_eq - 1, 1) * float(amp.covariance[0, 0])
+        else:
+            lam, cost, var = 0.0, float((Rv**2).sum()), np.inf
         scale = cost / max(n_eq - 1, 1)
-        var = scale / info if info > 0 else np.inf
         fits = scale <= s.max_fit_variance
         # (b) the free fit of the residual's step response on each output the path reaches.
         gamma_ok, distance = True, 0.0
@@ -510,57 +551,55 @@ class OutputErrorDiagnoser:
                 g = fit.static_gain
                 gamma_ok &= bool(np.sqrt(np.sum(fit.var_b)) <= s.gamma * abs(g))
         passes = bool(fits and gamma_ok and distance <= s.kappa)
-        return {"target": "actuator", "index": i, "name": self.input_names[i], "onset": int(kf),
-                "estimates": {"lambda": lam}, "variances": {"lambda": float(var)},
-                "cost": cost, "distance": distance, "gamma_ok": gamma_ok, "fits": fits,
-                "passes": passes}
+        return HypothesisTest("actuator", i, self.input_names[i], int(kf), {"lambda": lam},
+                              {"lambda": float(var)}, cost, distance, gamma_ok, fits, passes)
 
-    def _sensor_test(self, j, kf, kk, Rv, valid, zero_cost, n_eq) -> dict:
+    def _sensor_test(self, j, kf, kk, Rv, valid, zero_cost, n_eq) -> HypothesisTest:
         s = self.settings
         x = (kk >= kf) & valid[:, j]
         n_after = int(x.sum())
-        b = float(Rv[x, j].mean()) if n_after else 0.0  # normalised units
-        cost_j = float(((Rv[:, j] - b * x) ** 2).sum())
+        # The step's amplitude on output j alone (normalised units).
+        fit = least_squares(x[:, None].astype(float), Rv[:, j]) if n_after else None
+        b = float(fit.theta[0]) if fit is not None else 0.0
+        cost_j = fit.cost if fit is not None else float((Rv[:, j] ** 2).sum())
         cost = cost_j + float(zero_cost.sum() - zero_cost[j])
         scale = cost / max(n_eq - 1, 1)
         var = scale / n_after if n_after else np.inf
         fits = scale <= s.max_fit_variance
         gamma_ok = bool(np.sqrt(var) <= s.gamma * abs(b))
         sig = self.sigma[j]
-        return {"target": "sensor", "index": j, "name": self.output_names[j], "onset": int(kf),
-                "estimates": {"bias": float(b * sig)}, "variances": {"bias": float(var * sig**2)},
-                "cost": cost, "distance": 0.0, "gamma_ok": gamma_ok, "fits": fits,
-                "passes": bool(fits and gamma_ok)}
+        return HypothesisTest("sensor", j, self.output_names[j], int(kf),
+                              {"bias": float(b * sig)}, {"bias": float(var * sig**2)}, cost, 0.0,
+                              gamma_ok, fits, bool(fits and gamma_ok))
 
     # -- outcomes --------------------------------------------------------------------------
-    def _unexplained(self, k: int, t: int, tried: list[dict]) -> list[FaultEvent]:
-        keys = ("target", "index", "name", "estimates", "onset")
+    def _unexplained(self, k: int, t: int, tried: list[HypothesisTest]) -> list[FaultEvent]:
         event = FaultEvent(kind="unexplained", sample=k, timestamp_ns=t,
-                           detected_sample=self._diag["k_d"],
-                           candidates=tuple({key: h[key] for key in keys} for h in tried[:3]))
+                           detected_sample=self._diag.k_d,
+                           candidates=tuple(h.candidate() for h in tried[:3]))
         self.events.append(event)
         self.mode = MONITOR
         self._restart_detector(k)
         self._recent.clear()
         return [event]
 
-    def _accept(self, k: int, t: int, h: dict) -> list[FaultEvent]:
+    def _accept(self, k: int, t: int, h: HypothesisTest) -> list[FaultEvent]:
         d = self._diag
-        onset = h["onset"]
-        event = FaultEvent(kind="accepted", sample=k, timestamp_ns=t, target=h["target"],
-                           index=h["index"], name=h["name"], estimates=dict(h["estimates"]),
-                           variances=dict(h["variances"]), onset_sample=onset,
-                           detected_sample=d["k_d"], accepted_sample=k)
-        entry = {"target": h["target"], "index": h["index"], "onset": onset}
-        entry.update(h["estimates"])
-        self.compensation.append(entry)
-        if h["target"] == "actuator" and self._states is not None:
+        onset = h.onset
+        event = FaultEvent(kind="accepted", sample=k, timestamp_ns=t, target=h.target,
+                           index=h.index, name=h.name, estimates=dict(h.estimates),
+                           variances=dict(h.variances), onset_sample=onset,
+                           detected_sample=d.k_d, accepted_sample=k)
+        self.compensation.append(Compensation(h.target, h.index, onset,
+                                              lam=h.estimates.get("lambda", 0.0),
+                                              bias=h.estimates.get("bias", 0.0)))
+        if h.target == "actuator" and self._states is not None:
             # Section 3.3 by superposition: the models' state after sample k moves by lambda
             # times the state a unit step applied from the onset leaves in each path.
-            lam, steps = h["estimates"]["lambda"], k - onset + 1
+            lam, steps = h.estimates["lambda"], k - onset + 1
             new = []
             for pair, zi in zip(self.model.pairs, self._states, strict=True):
-                if pair.input == h["index"] and pair.state_size and steps > 0:
+                if pair.input == h.index and pair.state_size and steps > 0:
                     _, zf = lfilter(pair.num, pair.den, np.ones(steps),
                                     zi=np.zeros(pair.state_size))
                     zi = zi + lam * zf

@@ -40,6 +40,8 @@ import numpy as np
 from scipy import optimize
 from scipy.signal import lfilter, lfilter_zi
 
+from canfdi.core.identify import least_squares
+
 __all__ = ["MisoFit", "OeModel", "OePair", "StepFit", "fit_miso", "fit_step", "long_run_ratio",
            "pair_initial_state", "simulate"]
 
@@ -263,8 +265,7 @@ def _steiglitz_mcbride(u: np.ndarray, t: np.ndarray, s: _Structure, weight: np.n
         cols = [_shift(uf, s.delay + lag) for lag in range(s.nb)]
         cols += [-_shift(tf, lag) for lag in range(1, s.nf + 1)]
         cols.append(np.ones_like(u))
-        X = np.column_stack(cols) * weight[:, None]
-        sol = np.linalg.lstsq(X, tf * weight, rcond=None)[0]
+        sol = least_squares(np.column_stack(cols), tf, weights=weight).theta
         theta = sol[: s.nb + s.nf]
         f_new = _reflect(theta[s.nb:])
         theta[s.nb:] = f_new
@@ -274,7 +275,7 @@ def _steiglitz_mcbride(u: np.ndarray, t: np.ndarray, s: _Structure, weight: np.n
     return theta
 
 
-def _least_squares(U, y, structure, offset, weight, x0):
+def _prediction_error_fit(U, y, structure, offset, weight, x0):
     """Levenberg-Marquardt on the simulation error; returns (theta, residual, J)."""
     big = 1e3 * (np.std(y) + 1.0)
 
@@ -359,7 +360,7 @@ def fit_miso(U_dev: np.ndarray, y_dev: np.ndarray, structure: list[tuple[int, in
             thetas[idx] = _steiglitz_mcbride(U_dev[:, s.input], y_dev - others, s, weight,
                                              f0=thetas[idx][s.nb:] if _ else None)
     x0 = np.concatenate([*thetas, np.zeros(1)])
-    theta, res_w, J = _least_squares(U_dev, y_dev, st, True, weight, x0)
+    theta, res_w, J = _prediction_error_fit(U_dev, y_dev, st, True, weight, x0)
     used = int(weight.sum())
     dof = max(used - len(theta), 1)
     sigma2 = float(res_w @ res_w) / dof
@@ -439,9 +440,10 @@ def fit_step(r: np.ndarray, onset: int, nb: int, nf: int, delay: int,
     for f0 in starts:
         # B given F is linear: start from its least-squares value.
         uf = lfilter([1.0], np.concatenate([[1.0], f0]), u[:, 0])
-        X = np.column_stack([_shift(uf, delay + lag) for lag in range(nb)]) * weight[:, None]
-        b0 = np.linalg.lstsq(X, y * weight, rcond=None)[0] if nb else np.zeros(0)
-        theta, res_w, J = _least_squares(u, y, st, False, weight, np.concatenate([b0, f0]))
+        X = np.column_stack([_shift(uf, delay + lag) for lag in range(nb)])
+        b0 = least_squares(X, y, weights=weight).theta if nb else np.zeros(0)
+        theta, res_w, J = _prediction_error_fit(u, y, st, False, weight,
+                                                 np.concatenate([b0, f0]))
         cost = float(res_w @ res_w)
         if best is None or cost < best[0]:
             best = (cost, theta, J)

@@ -30,42 +30,28 @@ the ones already found, repaired or not.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from canfdi.core.design import Design
-from canfdi.core.detect import (
-    ChangePointDetector,
-    calibrate_threshold,
-    onset_candidates,
-    threshold_for_long_run_variance,
-)
-from canfdi.core.records import FaultEvent, Sample
+from canfdi.core.detect import ChangePointDetector, onset_candidates
+from canfdi.core.identify import RlsState, rls_init, rls_solve, rls_update
+from canfdi.core.protocol import DIAGNOSE, MONITOR
+from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample, compensate
 from canfdi.core.residuals import ResidualBank
+from canfdi.methods.parity.hypotheses import (
+    Hypothesis,
+    independent_sensors,
+    proportional,
+    regressors,
+)
 
-__all__ = ["BlockResult", "Diagnoser", "DiagnoserSettings", "Hypothesis", "calibrate_thresholds"]
-
-
-@dataclass(frozen=True)
-class BlockResult:
-    """What ``Diagnoser.update_block`` did for N samples.
-
-    events : the events, in order.
-    residuals, normalized : (N, m), NaN where a sample had no residual (window filling).
-    statistic : (N, m) the larger Page-Hinkley statistic after each sample.
-    """
-
-    events: list
-    residuals: np.ndarray
-    normalized: np.ndarray
-    statistic: np.ndarray
-
-MONITOR, DIAGNOSE = "monitor", "diagnose"
+__all__ = ["Diagnosis", "ParityDiagnoser", "ParitySettings"]
 
 
 @dataclass(frozen=True)
-class DiagnoserSettings:
+class ParitySettings:
     """Detection and acceptance settings (the config's detection: and identification:).
 
     drift : Page-Hinkley delta in residual noise standard deviations.
@@ -94,122 +80,33 @@ class DiagnoserSettings:
 
 
 @dataclass(frozen=True)
-class Hypothesis:
-    """One fault hypothesis.
+class Diagnosis:
+    """A diagnosis in progress: what the alarm at ``k_d`` started.
 
-    target : "actuator" (u = eta u_c + lambda, eq. 24), "actuator_bias" (the same with eta = 1:
-        a bias alone, one parameter), "sensor", or "sensors" (biases on several sensors at
-        once: seed 001 eq. 41, over a largest set of sensors whose signatures are linearly
-        independent).
-    index, name : the channel (for "sensors": the first member).
-    members : the sensor indices of a "sensors" hypothesis.
+    onsets : (K,) candidate fault onsets; info : the information of every hypothesis and onset,
+    batch shape (H, K) (canfdi.core.identify, P reset at the alarm); u_abs, n_u : (p,) sum of
+    |u_c| and count of known commands since the alarm (the scale an actuator's lambda is
+    judged against).
     """
 
-    target: str
-    index: int
-    name: str
-    members: tuple[int, ...] = ()
-
-    @property
-    def label(self) -> str:
-        return f"{self.target}:{self.name}"
-
-    @property
-    def n_params(self) -> int:
-        return {"actuator": 2, "actuator_bias": 1, "sensor": 1}.get(self.target,
-                                                                     len(self.members))
+    k_d: int
+    onsets: np.ndarray
+    info: RlsState
+    u_abs: np.ndarray
+    n_u: np.ndarray
 
 
-def calibrate_thresholds(bank: ResidualBank, measurement_std: np.ndarray,
-                         process_std: np.ndarray | None, model, drift: float,
-                         interval: float, n: int = 100_000, seed: int = 0) -> np.ndarray:
-    """Page-Hinkley thresholds (m,) in noise-std units for a false-alarm interval (samples).
-
-    Parity residuals over a window are correlated in time, so the white-noise formula is wrong;
-    the thresholds are calibrated on ``n`` fault-free residuals generated from the model's noise
-    (seeded, so the design is reproducible) at two false-alarm intervals the record can show
-    (n/20 and n/200), and extrapolated log-linearly to ``interval``, as the run length of the
-    test grows exponentially with its threshold. Never below the white-noise (Siegmund) value.
-    Results are cached for the process (the same design calibrates once).
-    """
-    key = (bank.M.tobytes(), bank.sigma.tobytes(), np.asarray(measurement_std).tobytes(),
-           None if process_std is None else np.asarray(process_std).tobytes(),
-           model.A.tobytes(), model.C.tobytes(), drift, interval, n, seed)
-    if key not in _THRESHOLD_CACHE:
-        _THRESHOLD_CACHE[key] = _calibrate(bank, measurement_std, process_std, model, drift,
-                                           interval, n, seed)
-    return _THRESHOLD_CACHE[key].copy()
-
-
-_THRESHOLD_CACHE: dict[tuple, np.ndarray] = {}
-
-
-def _calibrate(bank: ResidualBank, measurement_std: np.ndarray, process_std: np.ndarray | None,
-               model, drift: float, interval: float, n: int, seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    length = n + bank.S
-    x = np.zeros((length, bank.q + bank.p))
-    x[:, : bank.q] = rng.standard_normal((length, bank.q)) * measurement_std
-    if process_std is not None and np.any(process_std):
-        state = np.zeros(model.n)
-        noise = rng.standard_normal((length, model.n)) * process_std
-        for k in range(length):
-            x[k, : bank.q] += model.C @ state
-            state = model.A @ state + noise[k]
-    rn = bank.batch(x) / bank.sigma
-    arl_hi, arl_lo = n / 20.0, n / 200.0
-    # Thresholds are tens of noise stds: 0.02 is far below what matters.
-    h_hi = np.asarray(calibrate_threshold(rn, drift, arl_hi, tol=0.02), dtype=float)
-    h_lo = np.asarray(calibrate_threshold(rn, drift, arl_lo, tol=0.02), dtype=float)
-    slope = np.maximum(h_hi - h_lo, 0.0) / np.log(arl_hi / arl_lo)
-    h = h_hi + slope * np.log(max(interval, arl_hi) / arl_hi)
-    # Far beyond the record the extrapolation runs low for strongly correlated residuals (the
-    # 10^7-sample soak found s:omega_r, a 5-sample moving sum, alarming every ~1.3e6 samples
-    # at a 1e7 target): bound it by Siegmund's threshold on the long-run variance (which is
-    # never below the white-noise one).
-    long_run = _long_run_variance(bank, measurement_std, process_std, rn)
-    return np.maximum(h, threshold_for_long_run_variance(drift, interval, long_run))
-
-
-def _long_run_variance(bank: ResidualBank, measurement_std: np.ndarray,
-                       process_std: np.ndarray | None, rn: np.ndarray) -> np.ndarray:
-    """(m,) long-run variance (sum of all autocovariances) of each normalised residual.
-
-    For white measurement noise it is exact: r_i = sum_l sum_c M_i[l, c] x_c(k - S + l), so
-    sum_tau cov(tau) = sum_c var(x_c) (sum_l M_i[l, c])^2. Process noise adds slowly decaying
-    correlation the formula does not see: with process noise, batch means over the
-    calibration record (blocks of 50 windows) estimate it too, and the larger value is used.
-    """
-    coef = bank.M.reshape(bank.m, bank.S + 1, -1)[:, :, : bank.q]
-    var = np.asarray(measurement_std, dtype=float) ** 2 * np.ones(bank.q)
-    exact = (coef.sum(axis=1) ** 2 @ var) / bank.sigma**2
-    block = 50 * (bank.S + 1)
-    n_blocks = len(rn) // block
-    if process_std is None or not np.any(process_std) or n_blocks < 20:
-        return exact
-    means = rn[: n_blocks * block].reshape(n_blocks, block, -1).mean(axis=1)
-    return np.maximum(exact, means.var(axis=0, ddof=1) * block)
-
-
-def _proportional(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> bool:
-    """Whether two signatures are multiples of each other (and nonzero)."""
-    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
-    if na == 0.0 or nb == 0.0:
-        return False
-    return abs(float(a @ b)) >= (1.0 - tol) * na * nb
-
-
-class Diagnoser:
+class ParityDiagnoser:
     """Streaming diagnoser: ``update(sample) -> events``.
 
     Parameters
     ----------
     design : the residual bank's design (canfdi.core.design.design_bank).
-    settings : DiagnoserSettings.
+    settings : ParitySettings.
     thresholds : (m,) Page-Hinkley thresholds in noise-std units (calibrate_thresholds).
     """
 
-    def __init__(self, design: Design, settings: DiagnoserSettings, thresholds: np.ndarray
+    def __init__(self, design: Design, settings: ParitySettings, thresholds: np.ndarray
                  ) -> None:
         self.design = design
         self.settings = settings
@@ -234,7 +131,7 @@ class Diagnoser:
         keep += [Hypothesis("actuator_bias", h.index, h.name) for h in keep
                  if h.target == "actuator"]
         self.hypotheses = keep
-        joint = self._independent_sensors([h.index for h in keep if h.target == "sensor"])
+        joint = independent_sensors(self.bank, [h.index for h in keep if h.target == "sensor"])
         if len(joint) > 1:
             self.hypotheses.append(Hypothesis("sensors", joint[0], "+".join(
                 design.output_names[j] for j in joint), members=tuple(joint)))
@@ -248,32 +145,24 @@ class Diagnoser:
         signature = {h: (self.bank.Gz if h.target == "sensor" else self.bank.Gu)[h.index]
                      .ravel() for h in single}
         self._twins = {h: {g for g in single if g != h
-                           and _proportional(signature[h], signature[g])} for h in single}
+                           and proportional(signature[h], signature[g])} for h in single}
         for h in self.hypotheses:
             self._twins.setdefault(h, set())
         self.detector = ChangePointDetector(self.bank.m, settings.drift, thresholds)
         n_onsets = settings.max_onsets
         self._history: deque = deque(maxlen=self.bank.S + n_onsets + 8)
         self._recent: deque = deque(maxlen=n_onsets + 8)
-        self.compensation: list[dict] = []
+        self.compensation: list[Compensation] = []
         self.events: list[FaultEvent] = []
+        self._diag: Diagnosis | None = None
         self.reset()
-
-    def _independent_sensors(self, sensors: list[int]) -> list[int]:
-        """A largest subset, in index order, whose signatures are linearly independent."""
-        chosen: list[int] = []
-        basis = np.zeros((0, self.bank.Gz[0].size))
-        for j in sensors:
-            trial = np.vstack([basis, self.bank.Gz[j].ravel()])
-            if np.linalg.matrix_rank(trial, tol=1e-9 * np.abs(trial).max()) > len(chosen):
-                chosen.append(j)
-                basis = trial
-        return chosen
 
     # -- state ---------------------------------------------------------------------------
     def reset(self) -> None:
-        """Back to monitoring with no compensation and empty windows."""
+        """Back to the state after construction: monitoring, no compensation, no events, empty
+        windows."""
         self.mode = MONITOR
+        self.events = []
         self.bank.restart()
         self._history.clear()
         self._recent.clear()
@@ -309,32 +198,13 @@ class Diagnoser:
 
     # -- compensation ----------------------------------------------------------------------
     def _compensate(self, k: int, z: np.ndarray, u: np.ndarray) -> np.ndarray:
-        x = np.empty(self.q + self.p)
-        x[: self.q] = z
-        x[self.q :] = u
-        for c in self.compensation:
-            if k < c["onset"]:
-                continue
-            if c["target"] == "sensor":
-                x[c["index"]] -= c["bias"]
-            else:
-                j = self.q + c["index"]
-                x[j] = c["eta"] * x[j] + c["lambda"]
-        return x
+        """(q+p,) the sample [z, u] with the accepted faults undone."""
+        return self._compensate_block(np.array([k]), z[None, :], u[None, :])[0]
 
     def _compensate_block(self, k: np.ndarray, Z: np.ndarray, U: np.ndarray) -> np.ndarray:
-        """(N, q+p) compensated samples, the vectorised twin of _compensate."""
-        X = np.hstack([Z, U]).astype(float, copy=True)
-        for c in self.compensation:
-            mask = k >= c["onset"]
-            if not mask.any():
-                continue
-            if c["target"] == "sensor":
-                X[mask, c["index"]] -= c["bias"]
-            else:
-                j = self.q + c["index"]
-                X[mask, j] = c["eta"] * X[mask, j] + c["lambda"]
-        return X
+        """(N, q+p) compensated samples [Z, U]."""
+        Zc, Uc = compensate(self.compensation, k, Z, U)
+        return np.hstack([Zc, Uc])
 
     def update_block(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
                      gap: np.ndarray | None = None) -> BlockResult:
@@ -467,64 +337,31 @@ class Diagnoser:
     def _start_diagnosis(self, k: int, onsets: list[int]) -> None:
         H, K = len(self.hypotheses), len(onsets)
         self.mode = DIAGNOSE
-        self._diag = {
-            "k_d": k, "onsets": np.array(onsets), "n": 0,
-            "A": np.tile(np.eye(self.d) * self.settings.prior_precision, (H, K, 1, 1)),
-            "b": np.zeros((H, K, self.d)), "rr": 0.0, "n_res": 0,
-            "u_abs": np.zeros(self.p), "n_u": np.zeros(self.p),
-        }
-
-    def _regressors(self, k: int, window: np.ndarray) -> np.ndarray:
-        """(H, K, m, d) normalised regressors of every hypothesis and onset at sample k."""
-        d = self._diag
-        S = self.bank.S
-        positions = k - S + np.arange(S + 1)
-        mask = (positions[None, :] >= d["onsets"][:, None]).astype(float)  # (K, S+1)
-        # Every sensor's and actuator's signature under every onset at once (einsum rather
-        # than a Python loop over hypotheses: this runs for each sample of a diagnosis).
-        zs = np.einsum("jms,ks->jkm", self.bank.Gz, mask)  # (q, K, m)
-        # A lost command only enters residuals that are missing (and masked) anyway.
-        u = np.nan_to_num(window[:, self.q :])  # (S+1, p)
-        ua = np.einsum("jms,ks,sj->jkm", self.bank.Gu, mask, u)  # (p, K, m)
-        ub = np.einsum("jms,ks->jkm", self.bank.Gu, mask)
-        out = np.zeros((len(self.hypotheses), len(d["onsets"]), self.bank.m, self.d))
-        for h_i, h in enumerate(self.hypotheses):
-            if h.target == "sensor":
-                out[h_i, :, :, 0] = zs[h.index]
-            elif h.target == "sensors":
-                for c, j in enumerate(h.members):
-                    out[h_i, :, :, c] = zs[j]
-            elif h.target == "actuator_bias":
-                out[h_i, :, :, 0] = ub[h.index]
-            else:
-                out[h_i, :, :, 0] = ua[h.index]
-                out[h_i, :, :, 1] = ub[h.index]
-        return out / self.bank.sigma[None, None, :, None]
+        self._diag = Diagnosis(k_d=k, onsets=np.array(onsets),
+                               info=rls_init(self.d, self.settings.prior_precision, shape=(H, K)),
+                               u_abs=np.zeros(self.p), n_u=np.zeros(self.p))
 
     def _accumulate(self, k: int, window: np.ndarray, rn: np.ndarray) -> None:
+        """Absorb sample k's residuals into every hypothesis' fit (a missing residual: no
+        equation)."""
         d = self._diag
-        valid = ~np.isnan(rn)
-        phi = self._regressors(k, window) * valid[None, None, :, None]  # missing: no equation
-        rv = np.where(valid, rn, 0.0)
-        d["A"] += np.einsum("hkmi,hkmj->hkij", phi, phi)
-        d["b"] += np.einsum("hkmi,m->hki", phi, rv)
-        d["rr"] += float(rv @ rv)
-        d["n"] += 1
-        d["n_res"] += int(valid.sum())
+        phi = regressors(self.bank, self.hypotheses, self.d, k, d.onsets, window[:, self.q:])
         u_now = window[-1, self.q :]
         seen = ~np.isnan(u_now)
-        d["u_abs"][seen] += np.abs(u_now[seen])
-        d["n_u"] += seen
+        self._diag = replace(d, info=rls_update(d.info, phi, rn),
+                             u_abs=d.u_abs + np.where(seen, np.abs(np.nan_to_num(u_now)), 0.0),
+                             n_u=d.n_u + seen)
 
     def _diagnose(self, k: int, t: int, window: np.ndarray, rn: np.ndarray
                   ) -> list[FaultEvent]:
         self._accumulate(k, window, rn)
         d, s = self._diag, self.settings
-        since = k - d["k_d"]
+        since = k - d.k_d
         if since < s.min_samples:
             return []
-        theta = np.linalg.solve(d["A"], d["b"][..., None])[..., 0]  # (H, K, d)
-        cost = d["rr"] - np.einsum("hki,hki->hk", theta, d["b"])
+        fit = rls_solve(d.info)
+        theta = fit.theta  # (H, K, d)
+        cost = np.broadcast_to(fit.cost, theta.shape[:2])
         best_onset = np.argmin(cost, axis=1)  # (H,)
         # Each parameter beyond the first must earn twice the isolation margin, so a richer
         # model never wins on the noise it fits (a likelihood-ratio test in effect).
@@ -537,16 +374,15 @@ class Diagnoser:
         outside = [i for i in order[1:] if self.hypotheses[i] not in twins]
         margin_ok = all(cost_h[i] - cost_h[best] >= s.isolation_margin for i in outside)
         kb = int(best_onset[best])
-        A = d["A"][best, kb]
-        P = np.linalg.inv(A)
-        dof = max(d["n_res"] - h_best.n_params, 1)
+        P = fit.P[best, kb]
+        dof = max(d.info.n_eq - h_best.n_params, 1)
         scale = max(float(cost[best, kb]) / dof, 1e-300)
         var = np.diag(P) * scale
         th = theta[best, kb]
         if h_best.target == "actuator":
             # A pure scale fault has lambda = 0: judge lambda against a tenth of the offset the
             # scale puts on the mean command when that is larger than lambda itself.
-            u_mean = d["u_abs"][h_best.index] / max(d["n_u"][h_best.index], 1.0)
+            u_mean = d.u_abs[h_best.index] / max(d.n_u[h_best.index], 1.0)
             lam_scale = max(abs(th[1]), 0.1 * abs(th[0]) * u_mean)
             settled = (np.sqrt(var[0]) <= s.settle_rel_std * abs(1.0 + th[0])
                        and np.sqrt(var[1]) <= s.settle_rel_std * lam_scale)
@@ -563,7 +399,7 @@ class Diagnoser:
     def _unexplained(self, k: int, t: int, theta: np.ndarray, best_onset: np.ndarray,
                      order: np.ndarray) -> list[FaultEvent]:
         event = FaultEvent(kind="unexplained", sample=k, timestamp_ns=t,
-                           detected_sample=self._diag["k_d"],
+                           detected_sample=self._diag.k_d,
                            candidates=tuple(self._describe(i, theta[i, best_onset[i]])
                                             for i in order[:3]))
         self.events.append(event)
@@ -617,7 +453,7 @@ class Diagnoser:
                 best_onset: np.ndarray, cost_h: np.ndarray) -> list[FaultEvent]:
         d = self._diag
         h = self.hypotheses[best]
-        onset = int(d["onsets"][kb])
+        onset = int(d.onsets[kb])
         th = theta[best, kb]
         faults = []  # (target, index, estimates, variances, candidates)
         if h.target in ("actuator", "actuator_bias"):
@@ -641,11 +477,12 @@ class Diagnoser:
             event = FaultEvent(
                 kind="accepted", sample=k, timestamp_ns=t, target=target, index=index,
                 name=names[index], estimates=est, variances=variances, onset_sample=onset,
-                detected_sample=d["k_d"], accepted_sample=k, candidates=candidates,
+                detected_sample=d.k_d, accepted_sample=k, candidates=candidates,
             )
-            entry = {"target": target, "index": index, "onset": onset}
-            entry.update(est)
-            self.compensation.append(entry)
+            self.compensation.append(
+                Compensation(target, index, onset, eta=est.get("eta", 1.0),
+                             lam=est.get("lambda", 0.0), bias=est.get("bias", 0.0),
+                             scale=target == "actuator"))
             events.append(event)
         # Seed 003 Section 3.3: rebuild the window from compensated samples and restart.
         tail = []

@@ -19,56 +19,41 @@ with a zero-order hold (StateSpace.discretize), the unknown-input direction E be
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 import numpy as np
 
-from canfdi.config import ConfigError, MonitorConfig
+from canfdi.core.settings import ConfigError, MonitorConfig, Option, parse_options
 from canfdi.methods.uio.design import design_uio
 from canfdi.methods.uio.diagnoser import UioDiagnoser, UioSettings, uio_thresholds
 
-__all__ = ["build_uio_diagnoser", "parse_uio_options"]
+__all__ = ["build", "parse_uio_options"]
 
-# field -> (type, low, high): floats in the open interval, integers in the closed one.
 _SPEC = {
-    "actuator_pole": (float, -1e6, 0.0),
-    "sensor_pole": (float, -1e6, 0.0),
-    "angle_threshold": (float, 0.0, 90.0),
-    "min_samples": (int, 1, 10**6),
-    "max_samples": (int, 1, 10**6),
-    "settle_rel_std": (float, 0.0, 1.0),
-    "onset_lookback": (int, 1, 10**5),
+    "actuator_pole": Option(float, -1e6, 0.0, open_lo=True, open_hi=True),
+    "sensor_pole": Option(float, -1e6, 0.0, open_lo=True, open_hi=True),
+    "angle_threshold": Option(float, 0.0, 90.0, open_lo=True, open_hi=True),
+    "min_samples": Option(int, 1, 10**6),
+    "max_samples": Option(int, 1, 10**6),
+    "settle_rel_std": Option(float, 0.0, 1.0, open_lo=True, open_hi=True),
+    "onset_lookback": Option(int, 1, 10**5),
 }
 
 
-def parse_uio_options(options: object) -> dict:
+def parse_uio_options(options: Mapping[str, Any] | None, config: MonitorConfig | None = None
+                      ) -> dict:
     """Validate the ``uio:`` mapping; ConfigError("uio.<field>", ...) on bad input."""
-    if options is None:
-        return {}
-    if not isinstance(options, dict):
-        raise ConfigError("uio", f"expected a mapping, got {type(options).__name__}")
-    out: dict = {}
-    for key, value in options.items():
-        field = f"uio.{key}"
-        if key not in _SPEC:
-            raise ConfigError(field, f"unknown key (allowed: {', '.join(sorted(_SPEC))})")
-        kind, lo, hi = _SPEC[key]
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(field, f"expected a number, got {value!r}")
-        if kind is int and not isinstance(value, int):
-            raise ConfigError(field, f"expected an integer, got {value!r}")
-        inside = lo < value < hi if kind is float else lo <= value <= hi
-        if not np.isfinite(value) or not inside:
-            shape = "({}, {})" if kind is float else "[{}, {}]"
-            raise ConfigError(field, f"must be in {shape.format(lo, hi)}, got {value!r}")
-        out[key] = kind(value)
+    out = parse_options(options, _SPEC, "uio")
     lo_n = out.get("min_samples", UioSettings.min_samples)
     if out.get("max_samples", UioSettings.max_samples) < lo_n:
         raise ConfigError("uio.max_samples", f"must be >= min_samples ({lo_n})")
     return out
 
 
-def build_uio_diagnoser(config: MonitorConfig) -> UioDiagnoser:
+def build(config: MonitorConfig) -> UioDiagnoser:
     """Design, calibrate and build the seed 004 diagnoser of a config (method: uio)."""
-    opts = parse_uio_options(config.method_options)
+    opts = config.method_options or {}
     model = config.model.discretize()
     if model.r == 0:
         raise ConfigError("model.F", "the uio method needs the unknown-input direction F (E)")

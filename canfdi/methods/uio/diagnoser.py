@@ -29,18 +29,50 @@ samples counts as NaN rows; a longer one (or k going back) restarts the window.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.stats import norm
 
-from canfdi.core.records import FaultEvent, Sample
-from canfdi.methods.parity.diagnoser import BlockResult
+from canfdi.core.identify import least_squares
+from canfdi.core.protocol import DIAGNOSE, MONITOR
+from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample, compensate
 from canfdi.methods.uio.design import UioDesign, fault_angles, flag_function
 
-__all__ = ["UioDiagnoser", "UioSettings", "uio_thresholds"]
+__all__ = ["Isolation", "StepMeans", "UioDiagnoser", "UioDiagnosis", "UioSettings",
+           "uio_thresholds"]
 
-MONITOR, DIAGNOSE = "monitor", "diagnose"
+
+@dataclass(frozen=True)
+class UioDiagnosis:
+    """A diagnosis in progress: the alarm at ``k_d``, the change point it found, and the
+    front-end output rows (k, o (p+m,)) since the first candidate onset, growing."""
+
+    k_d: int
+    change_point: int
+    rows: list[tuple[int, np.ndarray]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class StepMeans:
+    """The hinge fit of the front-end outputs: the best onset (the first sample whose outputs
+    carry the fault), the means mu (p+m,) after it, their standard errors se (p+m,), and the
+    number n of samples after the onset's transient."""
+
+    onset: int
+    mu: np.ndarray
+    se: np.ndarray
+    n: int
+
+
+@dataclass(frozen=True)
+class Isolation:
+    """How an accepted fault was isolated: its event and every hypothesis ranked by angle
+    (each with its estimate, the FIDF's own lambda or the GRGS bias, and the paper's eq 23b
+    angle theta_i), as `UioDiagnoser.isolations` keeps them."""
+
+    event: FaultEvent
+    ranking: tuple[dict, ...]
 
 
 @dataclass(frozen=True)
@@ -107,17 +139,18 @@ class UioDiagnoser:
                                      + self.S + 8)
         self._recent: deque = deque(maxlen=settings.onset_lookback + self.S + 1)
         self.events: list[FaultEvent] = []
-        # One entry per accepted fault: {"event", "ranking"}, the ranking listing every
-        # hypothesis by angle with its estimate, the FIDF's own lambda or the GRGS bias and
-        # the paper's eq 23b angle theta_i (grgs_angle_deg).
-        self.isolations: list[dict] = []
-        self.compensation: list[dict] = []
+        self.isolations: list[Isolation] = []
+        self.compensation: list[Compensation] = []
+        self._diag: UioDiagnosis | None = None
         self.reset()
 
     # -- state ----------------------------------------------------------------------------
     def reset(self) -> None:
-        """Back to monitoring, no compensation, empty window, filters at rest."""
+        """Back to the state after construction: monitoring, no compensation, no events,
+        empty window, filters at rest."""
         self.mode = MONITOR
+        self.events = []
+        self.isolations = []
         self._ring = np.full((self.S + 1, self.p + self.q), np.nan)
         self._lp = np.zeros(self.p + self.q)
         self._history.clear()
@@ -132,7 +165,7 @@ class UioDiagnoser:
         n = self.p + self.q
         self._stat = np.zeros(n)
         self._last_quiet = np.full(n, k, dtype=np.int64)
-        self._diag: dict | None = None
+        self._diag = None
 
     @property
     def residual_names(self) -> list[str]:
@@ -153,14 +186,10 @@ class UioDiagnoser:
 
     # -- the residual pipeline ---------------------------------------------------------------
     def _compensate(self, k: int, z: np.ndarray, u: np.ndarray) -> np.ndarray:
-        v = np.concatenate([np.asarray(z, dtype=float), np.asarray(u, dtype=float)])
-        for c in self.compensation:
-            if k >= c["onset"]:
-                if c["target"] == "actuator":
-                    v[self.q + c["index"]] += c["lambda"]
-                else:
-                    v[c["index"]] -= c["bias"]
-        return v
+        """(m+p,) the sample [z, u] with the accepted faults undone."""
+        Z, U = compensate(self.compensation, np.array([k]), np.asarray(z, dtype=float)[None, :],
+                          np.asarray(u, dtype=float)[None, :])
+        return np.concatenate([Z[0], U[0]])
 
     def _push(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Advance window and weights by one compensated sample: (front end o, weighted r)."""
@@ -212,7 +241,7 @@ class UioDiagnoser:
         if self.mode == MONITOR:
             self._recent.append((k, o))
             return self._monitor(k, sample.timestamp_ns, rn)
-        self._diag["rows"].append((k, o))
+        self._diag.rows.append((k, o))
         return self._isolate(k, sample.timestamp_ns)
 
     def update_block(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
@@ -247,8 +276,8 @@ class UioDiagnoser:
         change_point = int(np.min(self._last_quiet[alarming])) + 1
         self.mode = DIAGNOSE
         first = max(change_point, k) - s.onset_lookback
-        self._diag = {"k_d": k, "change_point": change_point,
-                      "rows": [(kk, o) for kk, o in self._recent if kk >= first]}
+        self._diag = UioDiagnosis(k_d=k, change_point=change_point,
+                                  rows=[(kk, o) for kk, o in self._recent if kk >= first])
         event = FaultEvent(kind="detected", sample=k, timestamp_ns=t, detected_sample=k,
                            onset_sample=change_point,
                            residuals=tuple(self.design.names[i] for i in alarming))
@@ -256,13 +285,13 @@ class UioDiagnoser:
         return [event]
 
     # -- isolation --------------------------------------------------------------------------
-    def _fit(self) -> dict | None:
+    def _fit(self) -> StepMeans | None:
         """Hinge fit of the front-end outputs since the first candidate onset.
 
         Returns the best onset (the first sample whose outputs carry the fault), the means mu
         (p+m,) after it and their standard errors, or None when too few rows are known."""
         d = self._diag
-        rows = [(kk, o) for kk, o in d["rows"] if not np.isnan(o).any()]
+        rows = [(kk, o) for kk, o in d.rows if not np.isnan(o).any()]
         if len(rows) < 8:
             return None
         ks = np.array([kk for kk, _ in rows])
@@ -275,7 +304,7 @@ class UioDiagnoser:
         Cs = np.cumsum(O, axis=0) / scale
         # Onsets from a few samples before the change point (noise can lift a residual past
         # one std early) up to the alarm.
-        onsets = np.arange(max(ks[0] + 1, d["change_point"] - 10), d["k_d"] + 1)
+        onsets = np.arange(max(ks[0] + 1, d.change_point - 10), d.k_d + 1)
         best = None
         for kf in onsets:
             after = ks >= kf + self.S
@@ -285,26 +314,27 @@ class UioDiagnoser:
                 continue
             X = np.column_stack([np.ones(use.sum()), after[use],
                                  np.maximum(ks[use] - kf + 1, 0)]).astype(float)
-            coef, *_ = np.linalg.lstsq(X, Cs[use], rcond=None)
+            fit = least_squares(X, Cs[use])
+            coef = fit.theta
             # Compare onsets on the same rows: those left out for one onset are the S after it.
-            cost = float(((Cs[use] - X @ coef) ** 2).sum()) * len(ks) / use.sum()
+            cost = float(np.sum(fit.cost)) * len(ks) / use.sum()
             if best is None or cost < best[0]:
                 best = (cost, int(kf), coef[2] * scale, n_post)
         if best is None:
             return None
         _, kf, mu, n_post = best
         se = np.sqrt(lr**2 / n_post + 12.0 * fs**2 / n_post**3)
-        return {"onset": kf, "mu": mu, "se": np.maximum(se, 1e-300), "n": n_post}
+        return StepMeans(onset=kf, mu=mu, se=np.maximum(se, 1e-300), n=n_post)
 
     def _isolate(self, k: int, t: int) -> list[FaultEvent]:
         d, s = self._diag, self.settings
-        since = k - d["k_d"]
+        since = k - d.k_d
         if since < s.min_samples:
             return []
         fit = self._fit()
         if fit is not None:
-            D = self.design.fault_dc / fit["se"][:, None]
-            angles = np.degrees(fault_angles(fit["mu"] / fit["se"], D, signed=False))
+            D = self.design.fault_dc / fit.se[:, None]
+            angles = np.degrees(fault_angles(fit.mu / fit.se, D, signed=False))
             order = np.argsort(angles)
             best = int(order[0])
             est, se = self._estimate(best, fit)
@@ -316,29 +346,29 @@ class UioDiagnoser:
             return self._unexplained(k, t, fit)
         return []
 
-    def _estimate(self, c: int, fit: dict) -> tuple[float, float]:
+    def _estimate(self, c: int, fit: StepMeans) -> tuple[float, float]:
         """Bias of hypothesis c and its standard error: the weighted least-squares fit of its
         fault column to the means of every front-end output (weights 1 / se^2). For an
         actuator the FIDF's own residual carries the diagonal map (residual j estimates
         actuator j's fault: `_own_estimate`), but the GRGS outputs see the same step with
         far less noise, and a compensation that leaves them off by more than their noise
         raises the next alarm at once."""
-        col = self.design.fault_dc[:, c] / fit["se"]
+        col = self.design.fault_dc[:, c] / fit.se
         cc = float(col @ col)
-        return float((fit["mu"] / fit["se"]) @ col) / cc, 1.0 / np.sqrt(cc)
+        return float((fit.mu / fit.se) @ col) / cc, 1.0 / np.sqrt(cc)
 
-    def _own_estimate(self, c: int, fit: dict) -> float:
+    def _own_estimate(self, c: int, fit: StepMeans) -> float:
         """The paper's estimate: actuator j's own FIDF residual, or sensor i's GRGS means
         projected on column i of Hf(0) (eq 23's direction)."""
         p = self.p
         if c < p:
-            return float(fit["mu"][c])
+            return float(fit.mu[c])
         h = self.design.Hf0[:, c - p]
-        return float(fit["mu"][p:] @ h) / float(h @ h)
+        return float(fit.mu[p:] @ h) / float(h @ h)
 
-    def _candidates(self, fit: dict, angles: np.ndarray, order: np.ndarray) -> tuple[dict, ...]:
+    def _candidates(self, fit: StepMeans, angles: np.ndarray, order: np.ndarray) -> tuple[dict, ...]:
         p = self.p
-        theta = np.degrees(fault_angles(fit["mu"][p:], self.design.Hf0))  # eq 23b, GRGS only
+        theta = np.degrees(fault_angles(fit.mu[p:], self.design.Hf0))  # eq 23b, GRGS only
         out = []
         for c in order.tolist():
             target, index, name = self.hypotheses[c]
@@ -354,36 +384,38 @@ class UioDiagnoser:
             out.append(entry)
         return tuple(out)
 
-    def _unexplained(self, k: int, t: int, fit: dict | None) -> list[FaultEvent]:
+    def _unexplained(self, k: int, t: int, fit: StepMeans | None) -> list[FaultEvent]:
         candidates: tuple[dict, ...] = ()
         if fit is not None:
-            D = self.design.fault_dc / fit["se"][:, None]
-            angles = np.degrees(fault_angles(fit["mu"] / fit["se"], D, signed=False))
+            D = self.design.fault_dc / fit.se[:, None]
+            angles = np.degrees(fault_angles(fit.mu / fit.se, D, signed=False))
             candidates = self._candidates(fit, angles, np.argsort(angles))[:3]
         # As in canfdi.methods.parity.diagnoser, an unexplained event lists the best few hypotheses.
         event = FaultEvent(kind="unexplained", sample=k, timestamp_ns=t,
-                           detected_sample=self._diag["k_d"], candidates=candidates)
+                           detected_sample=self._diag.k_d, candidates=candidates)
         self.events.append(event)
         self.mode = MONITOR
         self._restart_detector(k)
         return [event]
 
-    def _accept(self, k: int, t: int, c: int, fit: dict, angles: np.ndarray,
+    def _accept(self, k: int, t: int, c: int, fit: StepMeans, angles: np.ndarray,
                 order: np.ndarray) -> list[FaultEvent]:
         target, index, name = self.hypotheses[c]
         est, se = self._estimate(c, fit)
         # The front end sees an actuator fault one sample after it acts (through x(k+1)),
         # a sensor fault at once.
-        onset = fit["onset"] - (1 if target == "actuator" else 0)
+        onset = fit.onset - (1 if target == "actuator" else 0)
         key = "lambda" if target == "actuator" else "bias"
         event = FaultEvent(kind="accepted", sample=k, timestamp_ns=t, target=target,
                            index=index, name=name, estimates={key: est},
                            variances={key: se**2}, onset_sample=onset,
-                           detected_sample=self._diag["k_d"], accepted_sample=k)
+                           detected_sample=self._diag.k_d, accepted_sample=k)
         # The angles are no candidates in the FaultEvent sense (channels explaining the data
         # equally well: the monitor prints them as such); they go with the event here.
-        self.isolations.append({"event": event, "ranking": self._candidates(fit, angles, order)})
-        self.compensation.append({"target": target, "index": index, "onset": onset, key: est})
+        self.isolations.append(Isolation(event, self._candidates(fit, angles, order)))
+        self.compensation.append(Compensation(target, index, onset,
+                                              lam=est if target == "actuator" else 0.0,
+                                              bias=est if target == "sensor" else 0.0))
         self._rerun(onset)
         self.mode = MONITOR
         self._restart_detector(k)

@@ -1,0 +1,90 @@
+"""The Diagnoser protocol: what the monitor, the tools and the conformance suite need of a
+diagnosis method.
+
+Every method of canfdi.methods builds an object of this shape from a config; the monitor drives
+it live one sample at a time (`update`) or a block at a time (`update_block`), replay and the
+tools a block at a time. tests/methods/ checks every registered method against it: the block
+path gives exactly the streaming path's results chunk by chunk (lost samples included), `reset`
+restores the first run exactly, events are well formed, a bad option is named.
+
+Residual arrays are (m,) in `residual_names` order, normalised by each residual's noise
+standard deviation; `statistics` are the method's detection statistics in the units of
+`thresholds` (a residual alarms when its statistic reaches its threshold). Events follow the
+FaultEvent contract (canfdi.core.records): kinds "detected", "accepted", "unexplained";
+estimates "eta"/"lambda" for actuators, "bias" for sensors.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample
+
+__all__ = ["DIAGNOSE", "MODES", "MONITOR", "Diagnoser"]
+
+MONITOR, DIAGNOSE = "monitor", "diagnose"
+MODES = (MONITOR, DIAGNOSE)
+"""`Diagnoser.mode`: watching for a change, or diagnosing one that was detected."""
+
+
+@runtime_checkable
+class Diagnoser(Protocol):
+    """A streaming diagnoser: ``update(sample) -> events``, with a block form that agrees.
+
+    Attributes
+    ----------
+    mode : str
+        `MONITOR` or `DIAGNOSE`.
+    compensation : sequence of Compensation
+        The accepted faults folded into the data, oldest first.
+    events : list of FaultEvent
+        Every event since construction or the last `reset`.
+    last_residuals, last_normalized : (m,) ndarray or None
+        The latest sample's raw and normalised residuals (None when it gave none).
+    """
+
+    mode: str
+    compensation: list[Compensation]
+    events: list[FaultEvent]
+    last_residuals: np.ndarray | None
+    last_normalized: np.ndarray | None
+
+    @property
+    def residual_names(self) -> list[str]:
+        """(m,) residual names, e.g. ``"a:V"``, ``"oe:T1"``."""
+        ...
+
+    @property
+    def thresholds(self) -> np.ndarray:
+        """(m,) alarm thresholds on `statistics` (settable, e.g. scaled by a sensitivity
+        check)."""
+        ...
+
+    @thresholds.setter
+    def thresholds(self, value: np.ndarray) -> None: ...
+
+    @property
+    def statistics(self) -> np.ndarray:
+        """(m,) the detection statistic of each residual after the latest sample."""
+        ...
+
+    def update(self, sample: Sample) -> list[FaultEvent]:
+        """Process one sample; returns the events it caused (usually none)."""
+        ...
+
+    def update_block(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
+                     gap: np.ndarray | None = None) -> BlockResult:
+        """Process N samples at once: the same events and state as N calls of `update`.
+
+        k, t_ns : (N,) increasing sample indices and timestamps; U : (N, p) commands; Z : (N, q)
+        measurements, NaN where a value was lost; gap : (N,) samples missing before each
+        (informational: the indices say it).
+        """
+        ...
+
+    def reset(self) -> None:
+        """Back to the state after construction: monitoring, no compensation, no events, empty
+        windows."""
+        ...

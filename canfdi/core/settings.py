@@ -1,0 +1,245 @@
+"""A validated monitor configuration as frozen records, and the one option validator.
+
+canfdi.config reads the YAML and builds a `MonitorConfig`; every layer below it (bus, methods)
+takes these records, never a mapping of strings. Every config error is a `ConfigError` naming
+the dotted field, saying what was expected and, for a name, the nearest names that exist; the
+CLI prints it in one line and exits with status 2.
+
+>>> parse_options({"drfit": 0.5}, {"drift": Option(float, 0.0, 100.0)}, "detection")
+Traceback (most recent call last):
+...
+canfdi.core.settings.ConfigError: detection.drfit: unknown key (did you mean drift? allowed: drift)
+>>> parse_options({"drift": 200}, {"drift": Option(float, 0.0, 100.0)}, "detection")
+Traceback (most recent call last):
+...
+canfdi.core.settings.ConfigError: detection.drift: expected a number in [0.0, 100.0], got 200
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from canfdi.core.design import DesignOptions
+from canfdi.core.model import StateSpace
+
+__all__ = [
+    "BusConfig",
+    "ConfigError",
+    "DetectionConfig",
+    "IdentificationConfig",
+    "MonitorConfig",
+    "Option",
+    "RecordingConfig",
+    "nearest",
+    "parse_options",
+    "section",
+    "unknown_name",
+]
+
+
+class ConfigError(ValueError):
+    """A configuration problem; ``field`` is the dotted path of the offending key."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"{field}: {message}")
+        self.field = field
+
+
+def nearest(name: str, names: Iterable[str], count: int = 3) -> list[str]:
+    """The names most like ``name`` (difflib's ratio >= 0.6), best first."""
+    return difflib.get_close_matches(str(name), list(names), n=count, cutoff=0.6)
+
+
+def unknown_name(field: str, what: str, name: object, names: Iterable[str]) -> ConfigError:
+    """The error for a name that is not one of ``names``: the nearest ones, then all."""
+    known = sorted(names)
+    close = nearest(str(name), known)
+    hint = f"did you mean {' or '.join(close)}? " if close else ""
+    return ConfigError(field, f"unknown {what} {name!r} ({hint}known: {', '.join(known)})")
+
+
+@dataclass(frozen=True)
+class Option:
+    """What one option of a config section may be.
+
+    kind : int, float, str or bool. A float accepts an integer, and a string that reads as a
+        number (PyYAML, a YAML 1.1 reader, reads 1.0e7 without an exponent sign as a string).
+    lo, hi : bounds (None: unbounded); ``open_lo``/``open_hi`` exclude them.
+    choices : the allowed values of a str option.
+    """
+
+    kind: type
+    lo: float | None = None
+    hi: float | None = None
+    open_lo: bool = False
+    open_hi: bool = False
+    choices: tuple[str, ...] | None = None
+
+    def expected(self) -> str:
+        """'a number in [0, 1]', 'an integer >= 1', 'one of a, b', ..."""
+        noun = {int: "an integer", float: "a number", str: "a non-empty string",
+                bool: "true or false"}[self.kind]
+        if self.choices:
+            return "one of " + ", ".join(self.choices)
+        if self.lo is not None and self.hi is not None:
+            return (f"{noun} in {'(' if self.open_lo else '['}{self.lo}, {self.hi}"
+                    f"{')' if self.open_hi else ']'}")
+        if self.lo is not None:
+            return f"{noun} {'>' if self.open_lo else '>='} {self.lo}"
+        if self.hi is not None:
+            return f"{noun} {'<' if self.open_hi else '<='} {self.hi}"
+        return noun
+
+    def check(self, value: Any, field: str) -> Any:
+        """The value as ``kind``, or a ConfigError naming ``field``."""
+        bad = ConfigError(field, f"expected {self.expected()}, got {value!r}")
+        if self.kind is bool:
+            if not isinstance(value, bool):
+                raise bad
+            return value
+        if self.kind is str:
+            if not isinstance(value, str) or not value:
+                raise bad
+            if self.choices is not None and value not in self.choices:
+                raise unknown_name(field, "value", value, self.choices)
+            return value
+        if self.kind is float and isinstance(value, str):
+            try:
+                value = float(value)
+            except ValueError:
+                raise bad from None
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise bad
+        if self.kind is int and not isinstance(value, int):
+            raise bad
+        if not math.isfinite(value):
+            raise bad
+        if self.lo is not None and (value <= self.lo if self.open_lo else value < self.lo):
+            raise bad
+        if self.hi is not None and (value >= self.hi if self.open_hi else value > self.hi):
+            raise bad
+        return self.kind(value)
+
+
+def section(data: Mapping[str, Any], key: str, where: str = "", required: bool = False
+            ) -> dict[str, Any]:
+    """The mapping under ``key`` ({} when absent and not required)."""
+    field_name = f"{where}.{key}" if where else key
+    value = data.get(key)
+    if value is None:
+        if required:
+            raise ConfigError(field_name, "missing section")
+        return {}
+    if not isinstance(value, Mapping):
+        raise ConfigError(field_name, f"expected a mapping, got {type(value).__name__}")
+    return dict(value)
+
+
+def parse_options(data: Any, spec: Mapping[str, Option], where: str, *,
+                  extra: Iterable[str] = ()) -> dict[str, Any]:
+    """Validate a flat config section against ``spec``.
+
+    Parameters
+    ----------
+    data : the section (a mapping, or None for an absent one).
+    spec : option name -> `Option`.
+    where : the section's dotted name, the prefix of every field named in an error.
+    extra : further keys allowed here, validated by the caller.
+
+    Returns
+    -------
+    dict of the options present (None values left out: they mean the default), converted.
+
+    Raises
+    ------
+    ConfigError
+        ``where.key`` for an unknown key (with the nearest allowed ones) or a bad value.
+    """
+    if data is None:
+        return {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(where, f"expected a mapping, got {type(data).__name__}")
+    allowed = set(spec) | set(extra)
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        field_name = f"{where}.{key}" if where else str(key)
+        if key not in allowed:
+            close = nearest(str(key), allowed)
+            hint = f"did you mean {' or '.join(close)}? " if close else ""
+            raise ConfigError(field_name,
+                              f"unknown key ({hint}allowed: {', '.join(sorted(allowed))})")
+        if key in spec and value is not None:
+            out[key] = spec[key].check(value, field_name)
+    return out
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """Where the drive's frames are: python-can arguments and the DBC file."""
+
+    interface: str = "virtual"
+    channel: str = "canfdi"
+    bitrate: int | None = None
+    dbc: str | None = None
+    status_period: float = 1.0
+
+
+@dataclass(frozen=True)
+class DetectionConfig:
+    """Page-Hinkley settings: drift delta (noise stds) and the false-alarm interval (samples)."""
+
+    drift: float = 0.5
+    false_alarm_interval: float = 1.0e7
+
+
+@dataclass(frozen=True)
+class IdentificationConfig:
+    """When the parity method accepts a hypothesis (canfdi.methods.parity); its max_samples is
+    also `canfdi evaluate`'s default spacing between faults, whatever the method."""
+
+    min_samples: int = 200
+    max_samples: int = 2000
+    settle_rel_std: float = 0.01
+    isolation_margin: float = 50.0
+    max_fit_variance: float = 4.0
+
+
+@dataclass(frozen=True)
+class RecordingConfig:
+    """MCAP logging of `canfdi run`."""
+
+    directory: str = "logs"
+    rotate_mib: float = 256.0
+    rotate_minutes: float = 60.0
+
+
+@dataclass(frozen=True)
+class MonitorConfig:
+    """A parsed monitor configuration (canfdi.config.load_config builds it).
+
+    method : the diagnosis method's registered name (canfdi.methods).
+    method_options : that method's options, as its registry entry parsed them from its own
+        config section (None for a method with no section of its own).
+    """
+
+    name: str
+    description: str
+    model: StateSpace
+    inputs: list[str]
+    outputs: list[str]
+    unknown_inputs: list[str]
+    unknown_outputs: list[str]
+    design: DesignOptions
+    bus: BusConfig = BusConfig()
+    detection: DetectionConfig = DetectionConfig()
+    identification: IdentificationConfig = IdentificationConfig()
+    recording: RecordingConfig = RecordingConfig()
+    path: Path | None = None
+    method: str = "parity"
+    method_options: Any = None
+    extra: dict[str, Any] = field(default_factory=dict)

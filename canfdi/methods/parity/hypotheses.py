@@ -1,0 +1,103 @@
+"""The parity method's fault hypotheses and their regressors (seed 001 eqs. 24-29, 34-41).
+
+Every hypothesis predicts the residuals linearly in its parameters from the fault onset k_f on,
+through the bank's signatures (canfdi.core.residuals): a sensor bias through ``Gz[j]``, an
+actuator's ``u = eta u_c + lambda`` through ``Gu[j]`` (``(eta - 1) u_c`` and ``lambda``). The
+diagnoser fits every hypothesis at several onsets at once with these regressors; `canfdi report`
+recomputes an accepted fault's estimate history with the same ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from canfdi.core.residuals import ResidualBank
+
+__all__ = ["Hypothesis", "independent_sensors", "proportional", "regressors"]
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One fault hypothesis.
+
+    target : "actuator" (u = eta u_c + lambda, eq. 24), "actuator_bias" (the same with eta = 1:
+        a bias alone, one parameter), "sensor", or "sensors" (biases on several sensors at
+        once: seed 001 eq. 41, over a largest set of sensors whose signatures are linearly
+        independent).
+    index, name : the channel (for "sensors": the first member).
+    members : the sensor indices of a "sensors" hypothesis.
+    """
+
+    target: str
+    index: int
+    name: str
+    members: tuple[int, ...] = ()
+
+    @property
+    def label(self) -> str:
+        return f"{self.target}:{self.name}"
+
+    @property
+    def n_params(self) -> int:
+        return {"actuator": 2, "actuator_bias": 1, "sensor": 1}.get(self.target,
+                                                                     len(self.members))
+
+
+def proportional(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> bool:
+    """Whether two signatures are multiples of each other (and nonzero)."""
+    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    if na == 0.0 or nb == 0.0:
+        return False
+    return abs(float(a @ b)) >= (1.0 - tol) * na * nb
+
+
+def independent_sensors(bank: ResidualBank, sensors: list[int]) -> list[int]:
+    """A largest subset of ``sensors``, in index order, whose signatures are linearly
+    independent."""
+    chosen: list[int] = []
+    basis = np.zeros((0, bank.Gz[0].size))
+    for j in sensors:
+        trial = np.vstack([basis, bank.Gz[j].ravel()])
+        if np.linalg.matrix_rank(trial, tol=1e-9 * np.abs(trial).max()) > len(chosen):
+            chosen.append(j)
+            basis = trial
+    return chosen
+
+
+def regressors(bank: ResidualBank, hypotheses: list[Hypothesis], d: int, k: int,
+               onsets: np.ndarray, u_window: np.ndarray) -> np.ndarray:
+    """(H, K, m, d) normalised regressors of every hypothesis and onset at sample k.
+
+    Parameters
+    ----------
+    bank : the residual bank (window S).
+    hypotheses : (H,) the hypotheses; d : parameters of the largest (columns beyond a
+        hypothesis' own are zero).
+    k : the sample; onsets : (K,) candidate fault onsets.
+    u_window : (S+1, p) the (compensated) commands of samples k-S..k; NaN (lost) is taken as
+        0, since a lost command only enters residuals that are missing anyway.
+    """
+    S = bank.S
+    positions = k - S + np.arange(S + 1)
+    mask = (positions[None, :] >= onsets[:, None]).astype(float)  # (K, S+1)
+    # Every sensor's and actuator's signature under every onset at once (einsum rather than a
+    # Python loop over hypotheses: this runs for each sample of a diagnosis).
+    zs = np.einsum("jms,ks->jkm", bank.Gz, mask)  # (q, K, m)
+    u = np.nan_to_num(u_window)  # (S+1, p)
+    ua = np.einsum("jms,ks,sj->jkm", bank.Gu, mask, u)  # (p, K, m)
+    ub = np.einsum("jms,ks->jkm", bank.Gu, mask)
+    out = np.zeros((len(hypotheses), len(onsets), bank.m, d))
+    for h_i, h in enumerate(hypotheses):
+        if h.target == "sensor":
+            out[h_i, :, :, 0] = zs[h.index]
+        elif h.target == "sensors":
+            for c, j in enumerate(h.members):
+                out[h_i, :, :, c] = zs[j]
+        elif h.target == "actuator_bias":
+            out[h_i, :, :, 0] = ub[h.index]
+        else:
+            out[h_i, :, :, 0] = ua[h.index]
+            out[h_i, :, :, 1] = ub[h.index]
+    return out / bank.sigma[None, None, :, None]
