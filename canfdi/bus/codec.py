@@ -43,6 +43,17 @@ class SignalLayout:
             return -(1 << (self.length - 1)), (1 << (self.length - 1)) - 1
         return 0, (1 << self.length) - 1
 
+    def quantize(self, values: np.ndarray) -> np.ndarray:
+        """Values as the receiver decodes them after a sender encodes them: clipped to the
+        signal's range and rounded to its resolution (float32 for a float signal); the
+        arithmetic of `MessageLayout.encode` then `decode`, without building payloads."""
+        v = np.asarray(values, dtype=float)
+        if self.is_float:
+            return v.astype(np.float32).astype(np.float64)
+        lo, hi = self.physical_limits()
+        v = np.clip(np.nan_to_num(v, nan=0.0), lo, hi)
+        return np.rint((v - self.offset) / self.scale) * self.scale + self.offset
+
     def physical_limits(self) -> tuple[float, float]:
         """The range a value can take without clipping: the DBC's min/max within the raw range."""
         lo_raw, hi_raw = self.raw_limits()

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from canfdi.bus.codec import MessageLayout, compile_layout
+from canfdi.bus.codec import MessageLayout, SignalLayout, compile_layout
 from canfdi.bus.e2e import CRC8_XOROUT, crc8, data_id, e2e_check_batch
 from canfdi.bus.frames import STATUS_CODES, STATUS_NAMES, FrameBlock
 from canfdi.core.settings import ConfigError, MonitorConfig
@@ -134,6 +134,26 @@ class BusMap:
     def __repr__(self) -> str:
         used = ", ".join(f"{lay.name}=0x{lay.frame_id:X}" for lay in self.layouts)
         return f"BusMap({self.dbc_label}: {used}; p={self.p}, q={self.q})"
+
+    def model_signals(self) -> tuple[list[SignalLayout], list[SignalLayout]]:
+        """The DBC signal layout of each model input (p,) and output (q,), in model order."""
+        u: list = [None] * self.p
+        z: list = [None] * self.q
+        for layout, fields in zip(self.layouts, self.fields, strict=True):
+            for name, vec, j in fields:
+                (u if vec == "u" else z)[j] = layout.signal(name)
+        return u, z
+
+    def quantize(self, U: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(..., p) commands and (..., q) measurements as the bus carries them: each value
+        through its signal's encode and decode (`SignalLayout.quantize`)."""
+        u_sig, z_sig = self.model_signals()
+        U_q, Z_q = np.empty_like(U, dtype=float), np.empty_like(Z, dtype=float)
+        for j, sig in enumerate(u_sig):
+            U_q[..., j] = sig.quantize(U[..., j])
+        for j, sig in enumerate(z_sig):
+            Z_q[..., j] = sig.quantize(Z[..., j])
+        return U_q, Z_q
 
     # -- construction -------------------------------------------------------------------------
 

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from canfdi import methods
 from canfdi.cli.common import DEFAULT_CONFIG_DIR, config_error, load_config_or_exit
 from canfdi.config import ConfigError
 
@@ -56,9 +57,6 @@ onset (the whole run without faults) and from each acceptance to the next onset.
 <plant>_<method>.json. Progress on stderr; --json prints one object. Exit status 0, or 2 on bad
 arguments or config."""
 
-METHOD_SUFFIX = {"parity": "", "output_error": "_oe", "uio": "_uio"}
-
-
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from firmware_sim.plants import PLANTS
 
@@ -66,9 +64,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--plant", required=True, metavar="PLANT",
                    help=f"emulated plant: {', '.join(PLANTS)}")
-    p.add_argument("--method", choices=list(METHOD_SUFFIX), default=None,
-                   help="diagnosis method; picks deploy/config/<plant>[_oe|_uio].yaml "
-                        "(default: parity, or the --config's)")
+    p.add_argument("--method", choices=methods.names(), default=None,
+                   help="diagnosis method; picks the first config for the plant and method in "
+                        "deploy/config (default: parity, or the --config's)")
     p.add_argument("--config", type=Path, default=None, metavar="FILE",
                    help="monitor config (default: by --plant and --method)")
     p.add_argument("--runs", type=int, default=100, metavar="N",
@@ -102,18 +100,20 @@ def _fail(message: str) -> int:
 
 
 def _config_path(args: argparse.Namespace) -> Path | int:
+    from canfdi.tools.evaluate import default_config
+
     if args.config is not None:
         return args.config
     method = args.method or "parity"
-    path = DEFAULT_CONFIG_DIR / f"{args.plant}{METHOD_SUFFIX[method]}.yaml"
-    if not path.exists():
-        return _fail(f"no {method} config for {args.plant} yet: {path} does not exist "
+    path = default_config(args.plant, method, DEFAULT_CONFIG_DIR)
+    if path is None:
+        return _fail(f"no {method} config for the {args.plant} plant in {DEFAULT_CONFIG_DIR} "
                      "(give one with --config)")
     return path
 
 
 def _check_args(args: argparse.Namespace) -> str | None:
-    from canfdi.tools.evaluate import FAULT_KINDS
+    from canfdi.methods import FAULT_KINDS
     from firmware_sim.plants import PLANTS
 
     if args.plant not in PLANTS:
@@ -141,13 +141,6 @@ def _check_args(args: argparse.Namespace) -> str | None:
     return None
 
 
-# The fault model of each method: seed 003's and seed 004's faults are additive (biases); the
-# parity method also identifies an actuator's scale (eta).
-METHOD_KINDS = {"parity": ("actuator_bias", "actuator_scale", "sensor_bias"),
-                "output_error": ("actuator_bias", "sensor_bias"),
-                "uio": ("actuator_bias", "sensor_bias")}
-
-
 def run(args: argparse.Namespace) -> int:
     problem = _check_args(args)
     if problem:
@@ -160,8 +153,6 @@ def run(args: argparse.Namespace) -> int:
         return config
     if args.method is not None and config.method != args.method:
         return _fail(f"--method {args.method}, but {path} is a {config.method} config")
-    if args.kinds is None:
-        args.kinds = list(METHOD_KINDS[config.method])
     from firmware_sim.plants import make_plant
 
     plant = make_plant(args.plant)
@@ -177,8 +168,14 @@ def run(args: argparse.Namespace) -> int:
             print(f"canfdi evaluate [{time.monotonic() - start:6.1f} s] {msg}", file=sys.stderr,
                   flush=True)
 
+    from canfdi.tools.evaluate import evaluate
+
     try:
-        result = evaluate(config, args, progress)
+        result = evaluate(config, args.plant, runs=args.runs, seed=args.seed,
+                          max_faults=args.max_faults, fnr=tuple(args.fnr),
+                          noise_spread=args.noise_spread, kinds=args.kinds,
+                          spacing=args.spacing, quantize=not args.no_quantize,
+                          progress=progress)
     except (ConfigError, ValueError) as exc:
         return config_error(exc, "evaluate")
     result["config"] = str(path)
@@ -195,49 +192,6 @@ def run(args: argparse.Namespace) -> int:
     else:
         print_report(result)
     return 0
-
-
-def evaluate(config, args: argparse.Namespace, progress) -> dict[str, Any]:
-    from canfdi.methods import build_diagnoser
-    from canfdi.tools.evaluate import aggregate, plan_runs, run_evaluation, setup_from_config
-
-    progress(f"designing and calibrating the {config.method} monitor")
-    setup = setup_from_config(config, args.plant, spacing=args.spacing)
-    specs = plan_runs(setup, args.runs, args.seed, max_faults=args.max_faults,
-                      fnr_range=tuple(args.fnr), noise_spread=args.noise_spread,
-                      kinds=args.kinds)
-    base = build_diagnoser(config)
-    preprocess = None
-    if not args.no_quantize:
-        try:
-            from canfdi.cli.soak import _bus_resolution, _quantize
-
-            u_sig, z_sig = _bus_resolution(config)
-            preprocess = lambda U, Z: (_quantize(U, u_sig), _quantize(Z, z_sig))  # noqa: E731
-        except (ValueError, OSError) as exc:
-            progress(f"no bus resolution ({exc}): exact values")
-    total = sum(s.samples for s in specs)
-    progress(f"{len(specs)} runs, {sum(len(s.faults) for s in specs)} faults, "
-             f"{total:,} samples")
-    outcomes = run_evaluation(config, setup, specs, preprocess=preprocess, progress=progress,
-                              diagnoser=base)
-    metrics = aggregate(outcomes, setup.dt)
-    result: dict[str, Any] = {
-        "plant": args.plant, "method": config.method, "seed": args.seed,
-        "settings": {"max_faults": args.max_faults, "fnr_range": list(args.fnr),
-                     "noise_spread": args.noise_spread, "kinds": list(args.kinds),
-                     "spacing_samples": setup.spacing, "lead_samples": list(setup.lead),
-                     "quantized": preprocess is not None, "dt": setup.dt},
-        "channels": [{"channel": c.label, "target": c.target, "index": c.index,
-                      "unit_fault_to_noise": c.gap, "detectable": c.detectable,
-                      "reason": c.reason} for c in setup.channels],
-        "undetectable": [c.label for c in setup.channels if not c.detectable],
-    }
-    result.update(metrics)
-    result["fault_list"] = [dict(f.as_dict(), run=o.run, noise_scale=o.noise_scale)
-                            for o in outcomes for f in o.faults]
-    result["false_alarm_list"] = [dict(a, run=o.run) for o in outcomes for a in o.false_alarms]
-    return result
 
 
 # -- output --------------------------------------------------------------------------------------

@@ -77,129 +77,13 @@ def _parse_orders(specs: list[str], inputs: list[str], outputs: list[str]) -> di
     return fixed
 
 
-def _samples(path: Path, config):
-    """(k, U, Z) of a log, assembled from its frames with the config's DBC."""
-    import numpy as np
-
-    from canfdi.bus.assembler import SampleAssembler
-    from canfdi.bus.dbc import BusMap
-    from canfdi.io.logs import frame_blocks
-
-    asm = SampleAssembler(BusMap.from_config(config), config.model.dt or 1.0)
-    ks, us, zs = [], [], []
-    for block in frame_blocks(path):
-        log = asm.push_batch(block)
-        ks.append(log.k)
-        us.append(log.u)
-        zs.append(log.z)
-    for s in asm.flush():
-        ks.append(np.array([s.k]))
-        us.append(np.asarray(s.u)[None, :])
-        zs.append(np.asarray(s.z)[None, :])
-    if not ks:
-        return np.zeros(0, dtype=np.int64), None, None
-    return np.concatenate(ks), np.vstack(us), np.vstack(zs)
-
-
-def _regular(k, U, Z):
-    """Samples on a regular grid k0..k1: missing samples as NaN rows, lost commands held
-    (returns U held, Z with NaN, valid (N,) per output mask)."""
-    import numpy as np
-
-    n = int(k[-1] - k[0] + 1)
-    Ug = np.full((n, U.shape[1]), np.nan)
-    Zg = np.full((n, Z.shape[1]), np.nan)
-    Ug[k - k[0]] = U
-    Zg[k - k[0]] = Z
-    for i in range(Ug.shape[1]):
-        col = Ug[:, i]
-        idx = np.where(~np.isnan(col), np.arange(n), 0)
-        np.maximum.accumulate(idx, out=idx)
-        Ug[:, i] = col[idx]
-        first = np.flatnonzero(~np.isnan(col))
-        Ug[: first[0] if len(first) else n, i] = np.nanmean(col) if len(first) else 0.0
-    return Ug, Zg
-
-
-def identify(k, U, Z, inputs, outputs, fixed: dict, delay: int, min_snr: float, skip: int,
-             progress=None) -> dict:
-    """Fit every output; returns {"model", "sigma", "long_run", "fits": per output report}."""
-    import numpy as np
-
-    from canfdi.methods.output_error.model import OeModel, fit_miso, long_run_ratio
-
-    Ug, Zg = _regular(k, U, Z)
-    u0 = Ug.mean(axis=0)
-    pairs, sigma, long_run, report = [], [], [], []
-    for j, name in enumerate(outputs):
-        if progress:
-            progress(f"fitting {name} ({j + 1} of {len(outputs)})")
-        valid = ~np.isnan(Zg[:, j])
-        y0 = float(np.mean(Zg[valid, j]))
-        y = np.where(valid, Zg[:, j] - y0, 0.0)
-
-        def fit(struct, y=y, valid=valid, j=j):
-            return fit_miso(Ug - u0, y, struct, output=j, skip=skip, valid=valid)
-
-        free = [i for i in range(len(inputs)) if (j, i) not in fixed]
-        orders = {i: (1, 1, delay) for i in free}
-        orders.update({i: fixed[(j, i)] for i in range(len(inputs))
-                       if fixed.get((j, i)) is not None})
-
-        def struct_of(orders):
-            return [(i, *orders[i]) for i in sorted(orders)]
-
-        result = fit(struct_of(orders)) if orders else None
-        if result is not None and free:
-            # Drop the pairs the data cannot tell from no path.
-            weak = [p.input for p, g in zip(result.pairs, result.gain_std, strict=True)
-                    if p.input in free and abs(p.static_gain) < min_snr * g]
-            for i in weak:
-                del orders[i]
-            if weak:
-                result = fit(struct_of(orders)) if orders else None
-            # Raise an order where the information criterion says the data want it.
-            n_used = int(valid[skip:].sum())
-
-            def bic(res, orders, n_used=n_used):
-                n_par = sum(nb + nf for nb, nf, _ in orders.values()) + 1
-                return n_used * np.log(res.sigma**2) + n_par * np.log(n_used)
-
-            for i in [i for i in free if i in orders]:
-                trial = dict(orders)
-                trial[i] = (2, 2, orders[i][2])
-                res2 = fit(struct_of(trial))
-                if bic(res2, trial) < bic(result, orders) - 10.0:
-                    orders, result = trial, res2
-        if result is None:
-            r = y
-            fitted, gain_std, offset = (), [], 0.0
-        else:
-            r, fitted, gain_std, offset = (result.residual, result.pairs, result.gain_std,
-                                           result.offset)
-        rv = r[skip:][valid[skip:]]
-        sigma.append(float(np.std(rv)))
-        long_run.append(long_run_ratio(rv))
-        pairs.extend(fitted)
-        report.append({
-            "output": name, "residual_std": sigma[-1], "long_run_variance": long_run[-1],
-            "pairs": [{"input": inputs[p.input], "b": list(p.b), "f": list(p.f),
-                       "delay": p.delay, "static_gain": p.static_gain, "gain_std": float(g)}
-                      for p, g in zip(fitted, gain_std, strict=True)],
-            "y0": y0 + offset,
-        })
-    y0 = np.array([rep["y0"] for rep in report])
-    model = OeModel(pairs=tuple(pairs), u0=u0, y0=y0)
-    return {"model": model, "sigma": np.array(sigma), "long_run": np.array(long_run),
-            "fits": report, "samples": len(Ug)}
-
-
 def run(args: argparse.Namespace) -> int:
     import numpy as np
     import yaml
 
     from canfdi.config import read_yaml
     from canfdi.methods.output_error.config import output_error_section
+    from canfdi.tools.identify import identify, log_samples
 
     config = load_config_or_exit(args.config, "identify")
     if isinstance(config, int):
@@ -231,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
 
     progress(f"reading {args.log}")
     try:
-        k, U, Z = _samples(args.log, config)
+        k, U, Z = log_samples(args.log, config)
     except (OSError, ValueError) as exc:
         print(f"canfdi identify: cannot read {args.log}: {exc}", file=sys.stderr)
         return 2
@@ -267,7 +151,6 @@ def run(args: argparse.Namespace) -> int:
                                    config.inputs, config.outputs, fit=fit_note, **settings)
     doc = read_yaml(args.config, ValueError, "config")
     doc["method"] = "output_error"
-    doc.pop("uio", None)
     doc["output_error"] = section
     header = (f"# Written by `canfdi identify {args.log.name} --config {args.config.name}`: the\n"
               "# output_error method (seed 003) with OE models fitted from that fault-free log.\n"

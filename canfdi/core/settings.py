@@ -20,7 +20,7 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -242,4 +242,3 @@ class MonitorConfig:
     path: Path | None = None
     method: str = "parity"
     method_options: Any = None
-    extra: dict[str, Any] = field(default_factory=dict)

@@ -35,21 +35,39 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import yaml
 
 from canfdi.core.records import FaultEvent
+from canfdi.methods import FAULT_KINDS
 
 if TYPE_CHECKING:
-    from canfdi.config import MonitorConfig
     from canfdi.core.design import Design
+    from canfdi.core.settings import MonitorConfig
 
-__all__ = ["FAULT_KINDS", "FNR_BINS", "Channel", "EvaluationSetup", "FaultOutcome",
-           "InjectedFault", "RunOutcome", "RunSpec", "aggregate", "label", "match_run",
-           "plan_runs", "relative_errors", "run_evaluation", "setup_from_config"]
+__all__ = [
+    "FAULT_KINDS",
+    "FNR_BINS",
+    "Channel",
+    "EvaluationSetup",
+    "FaultOutcome",
+    "InjectedFault",
+    "RunOutcome",
+    "RunSpec",
+    "aggregate",
+    "default_config",
+    "evaluate",
+    "label",
+    "match_run",
+    "plan_runs",
+    "relative_errors",
+    "run_evaluation",
+    "setup_from_config",
+]
 
-FAULT_KINDS = ("actuator_bias", "actuator_scale", "sensor_bias")
 #: Edges of the fault-to-noise bins the report and the plot use.
 FNR_BINS = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
 
@@ -615,3 +633,71 @@ def run_evaluation(config: MonitorConfig, setup: EvaluationSetup, specs: Sequenc
             progress(f"run {n + 1}/{len(specs)}: {faults} faults, {det} detected, "
                      f"{ok} isolated, {fa} false alarms")
     return outcomes
+
+
+def default_config(plant: str, method: str, directory: Path) -> Path | None:
+    """The first config (by name) in ``directory`` for the emulated ``plant`` (its signal names)
+    and ``method``: what `canfdi evaluate --plant P --method M` runs without --config."""
+    from firmware_sim.plants import make_plant
+
+    emulated = make_plant(plant)
+    for path in sorted(directory.glob("*.yaml"), key=lambda p: (len(p.stem), p.stem)):
+        try:
+            data = yaml.safe_load(path.read_text())
+        except (OSError, yaml.YAMLError):
+            continue
+        if not isinstance(data, dict) or data.get("method", "parity") != method:
+            continue
+        signals = data.get("signals") or {}
+        if (tuple(signals.get("inputs") or ()), tuple(signals.get("outputs") or ())) == (
+                emulated.input_names, emulated.output_names):
+            return path
+    return None
+
+
+def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_faults: int = 3,
+             fnr: tuple[float, float] = (0.5, 50.0), noise_spread: float = 1.25,
+             kinds: Sequence[str] | None = None, spacing: int | None = None,
+             quantize: bool = True, progress: Callable[[str], None] = lambda msg: None
+             ) -> dict[str, Any]:
+    """`canfdi evaluate`: plan ``runs`` scenarios for the emulated ``plant``, simulate each,
+    diagnose it with a copy of the config's diagnoser and aggregate the metrics (the JSON
+    object the CLI prints). kinds default to the config's method's fault model; values are
+    rounded to the DBC's resolution unless ``quantize`` is False."""
+    from canfdi.bus.dbc import BusMap
+    from canfdi.methods import build_diagnoser, get
+
+    progress(f"designing and calibrating the {config.method} monitor")
+    kinds = list(kinds) if kinds is not None else list(get(config.method).fault_kinds)
+    setup = setup_from_config(config, plant, spacing=spacing)
+    specs = plan_runs(setup, runs, seed, max_faults=max_faults, fnr_range=tuple(fnr),
+                      noise_spread=noise_spread, kinds=kinds)
+    base = build_diagnoser(config)
+    preprocess = None
+    if quantize:
+        try:
+            preprocess = BusMap.from_config(config).quantize
+        except (ValueError, OSError) as exc:
+            progress(f"no bus resolution ({exc}): exact values")
+    total = sum(s.samples for s in specs)
+    progress(f"{len(specs)} runs, {sum(len(s.faults) for s in specs)} faults, "
+             f"{total:,} samples")
+    outcomes = run_evaluation(config, setup, specs, preprocess=preprocess, progress=progress,
+                              diagnoser=base)
+    metrics = aggregate(outcomes, setup.dt)
+    result: dict[str, Any] = {
+        "plant": plant, "method": config.method, "seed": seed,
+        "settings": {"max_faults": max_faults, "fnr_range": list(fnr),
+                     "noise_spread": noise_spread, "kinds": kinds,
+                     "spacing_samples": setup.spacing, "lead_samples": list(setup.lead),
+                     "quantized": preprocess is not None, "dt": setup.dt},
+        "channels": [{"channel": c.label, "target": c.target, "index": c.index,
+                      "unit_fault_to_noise": c.gap, "detectable": c.detectable,
+                      "reason": c.reason} for c in setup.channels],
+        "undetectable": [c.label for c in setup.channels if not c.detectable],
+    }
+    result.update(metrics)
+    result["fault_list"] = [dict(f.as_dict(), run=o.run, noise_scale=o.noise_scale)
+                            for o in outcomes for f in o.faults]
+    result["false_alarm_list"] = [dict(a, run=o.run) for o in outcomes for a in o.false_alarms]
+    return result

@@ -13,9 +13,9 @@ from scipy.stats import chi2
 
 from canfdi.bus.dbc import BusMap
 from canfdi.cli import main
-from canfdi.cli.soak import _bus_resolution, _quantize, rate_lower_bound, rate_upper_bound
 from canfdi.config import load_config
 from canfdi.methods import build_diagnoser
+from canfdi.tools.soak import rate_lower_bound, rate_upper_bound
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
@@ -88,7 +88,6 @@ def test_rate_upper_bound():
 def test_quantize_is_the_dbc_encode_then_decode():
     config = load_config(CONFIG)
     bus_map = BusMap.from_config(config)
-    res_u, res_z = _bus_resolution(config)
     rng = np.random.default_rng(1)
     U = rng.uniform(-400, 400, (200, 1))  # beyond the 16-bit range on purpose: clipped
     Z = np.column_stack([rng.uniform(0, 3, 200), rng.uniform(0, 20, 200),
@@ -100,8 +99,9 @@ def test_quantize_is_the_dbc_encode_then_decode():
         decoded = layout.decode(payloads)
         for name, vec, j in fields:
             (expected_u if vec == "u" else expected_z)[:, j] = decoded[name]
-    np.testing.assert_array_equal(_quantize(U, res_u), expected_u)
-    np.testing.assert_array_equal(_quantize(Z, res_z), expected_z)
+    got_u, got_z = bus_map.quantize(U, Z)
+    np.testing.assert_array_equal(got_u, expected_u)
+    np.testing.assert_array_equal(got_z, expected_z)
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:

@@ -9,7 +9,7 @@ import pytest
 from scipy.signal import lfilter
 
 from canfdi.config import ConfigError, load_config, read_yaml
-from canfdi.core.records import Compensation, Sample
+from canfdi.core.records import Compensation
 from canfdi.methods.output_error.diagnoser import OeSettings, OutputErrorDiagnoser, settling_samples
 from canfdi.methods.output_error.model import OePair, fit_miso, fit_step
 
@@ -90,54 +90,6 @@ def _run(name: str):
     from firmware_sim.simulate import simulate
 
     return simulate(load_scenario(name))
-
-
-@pytest.mark.parametrize("lossy", [False, True])
-def test_update_block_equals_update(lossy):
-    """update_block over uneven chunks gives update()'s events and residuals, with gaps (short:
-    bridged; long: restart) and, when lossy, lost commands and measurements (NaN)."""
-    run = _run("winding_machine_consecutive")
-    n = len(run.k)
-    keep = np.ones(n, dtype=bool)
-    keep[300:303] = False  # bridged on held inputs
-    keep[1500:1540] = False  # longer than max_hold: the models restart
-    U, Z = run.u_c.copy(), run.z.copy()
-    if lossy:
-        rng = np.random.default_rng(1)
-        keep[rng.choice(n, 20, replace=False)] = False
-        U[rng.random(n) < 0.003] = np.nan
-        Z[rng.random(n) < 0.05, 0] = np.nan
-        Z[rng.random(n) < 0.05, 1:] = np.nan
-    k, t = run.k[keep], (run.t[keep] * 1e9).astype(np.int64)
-    U, Z = U[keep], Z[keep]
-    streaming = _diagnoser()
-    s_events, s_res = [], []
-    for i in range(len(k)):
-        s_events += streaming.update(Sample(k=int(k[i]), timestamp_ns=int(t[i]), u=U[i],
-                                            z=Z[i]))
-        s_res.append(streaming.last_residuals if streaming.last_residuals is not None
-                     else np.full(3, np.nan))
-    block = _diagnoser()
-    b_events, b_res = [], []
-    rng = np.random.default_rng(2)
-    i = 0
-    while i < len(k):
-        j = min(len(k), i + int(rng.integers(1, 700)))
-        out = block.update_block(k[i:j], t[i:j], U[i:j], Z[i:j])
-        b_events += out.events
-        b_res.append(out.residuals)
-        i = j
-
-    def key(e):
-        return (e.kind, e.sample, e.target, e.index, e.onset_sample)
-
-    assert [key(e) for e in b_events] == [key(e) for e in s_events]
-    for a, b in zip(b_events, s_events, strict=True):
-        assert a.estimates == b.estimates
-    np.testing.assert_array_equal(np.vstack(b_res), np.array(s_res))
-    accepted = [(e.target, e.index) for e in s_events if e.kind == "accepted"]
-    assert accepted == [("sensor", 0), ("actuator", 0), ("sensor", 2)], s_events
-    assert not any(e.kind == "unexplained" for e in s_events)
 
 
 def test_lost_values_make_only_their_residuals_missing():

@@ -117,62 +117,6 @@ def test_thresholds_exceed_the_white_noise_design():
     assert diagnoser.thresholds.max() > white  # correlated residuals need more
 
 
-@pytest.mark.parametrize(("name", "lossy"), [("dc_motor_consecutive", False),
-                                             ("dc_motor_sensors_a", False),
-                                             ("dc_motor_consecutive", True)])
-def test_block_path_equals_streaming_path(name, lossy):
-    """update_block over uneven chunks (with gaps, and with lost messages: NaN values) gives
-    update()'s events and residuals."""
-    from firmware_sim.scenario import load_scenario
-
-    run = simulate(load_scenario(name))
-    n = len(run.k)
-    keep = np.ones(n, dtype=bool)
-    keep[1500:1503] = False  # a lost stretch: a gap in both paths
-    U, Z = run.u_c.copy(), run.z.copy()
-    if lossy:
-        rng = np.random.default_rng(1)
-        keep[rng.choice(n, 20, replace=False)] = False  # single missing samples
-        keep[2500:2520] = False  # longer than the window
-        # Each message lost with probability 5%: DRIVE_CMD (V), DRIVE_CURRENTS, DRIVE_SPEED.
-        U[rng.random(n) < 0.05] = np.nan
-        Z[rng.random(n) < 0.05, :3] = np.nan
-        Z[rng.random(n) < 0.05, 3] = np.nan
-    k, t = run.k[keep], (run.t[keep] * 1e9).astype(np.int64)
-    U, Z = U[keep], Z[keep]
-    gap = np.zeros(len(k), dtype=np.int64)
-    gap[1:] = np.diff(k) - 1
-
-    streaming = build_diagnoser(CONFIG)
-    s_events, s_res = [], []
-    for i in range(len(k)):
-        s_events += streaming.update(Sample(k=int(k[i]), timestamp_ns=int(t[i]), u=U[i],
-                                            z=Z[i], gap=int(gap[i])))
-        s_res.append(streaming.last_residuals if streaming.last_residuals is not None
-                     else np.full(streaming.bank.m, np.nan))
-
-    block = build_diagnoser(CONFIG)
-    b_events, b_res = [], []
-    rng = np.random.default_rng(0)
-    i = 0
-    while i < len(k):
-        j = min(len(k), i + int(rng.integers(1, 700)))
-        out = block.update_block(k[i:j], t[i:j], U[i:j], Z[i:j], gap[i:j])
-        b_events += out.events
-        b_res.append(out.residuals)
-        i = j
-    assert [(e.kind, e.sample, e.target, e.index, e.onset_sample) for e in b_events] == \
-        [(e.kind, e.sample, e.target, e.index, e.onset_sample) for e in s_events]
-    for a, b in zip(b_events, s_events, strict=True):
-        for key, value in b.estimates.items():
-            assert a.estimates[key] == pytest.approx(value, rel=1e-9, abs=1e-12)
-    np.testing.assert_allclose(np.vstack(b_res), np.array(s_res), rtol=1e-9, atol=1e-12)
-    assert len(s_events) >= 3 and any(e.kind == "accepted" for e in s_events)
-    if lossy:
-        accepted = [(e.target, e.index) for e in s_events if e.kind == "accepted"]
-        assert accepted == [("actuator", 0), ("sensor", 0), ("sensor", 1)]
-
-
 @pytest.mark.parametrize(("channel", "size"), [(0, 5.0), (1, -20.0), (2, 5.0)])
 def test_one_corrupt_sample_is_never_diagnosed_as_a_fault(channel, size):
     """A single wrong value (garbage that passed the CRC) moves the residuals for one window:

@@ -115,26 +115,6 @@ def _records(config, seed=3):
     return k[keep], (k[keep] * 10_000_000), U[keep], Z[keep]
 
 
-@pytest.mark.parametrize("chunk", [1, 7, 1000])
-def test_update_block_equals_update(config, chunk):
-    k, t, U, Z = _records(config)
-    a = build_uio_diagnoser(config)
-    b = build_uio_diagnoser(config)
-    events_a, rows = [], []
-    for i in range(len(k)):
-        events_a += a.update(Sample(k=int(k[i]), timestamp_ns=int(t[i]), u=U[i], z=Z[i]))
-        rows.append(np.full(6, np.nan) if a.last_residuals is None else a.last_residuals)
-    events_b, res = [], []
-    for i in range(0, len(k), chunk):
-        out = b.update_block(k[i:i + chunk], t[i:i + chunk], U[i:i + chunk], Z[i:i + chunk])
-        events_b += out.events
-        res.append(out.residuals)
-    assert events_a == events_b
-    np.testing.assert_array_equal(np.vstack(res), np.array(rows))
-    assert [e.kind for e in events_a][:2] == ["detected", "accepted"]
-    assert events_a[1].target == "actuator" and events_a[1].index == 0
-
-
 def test_nan_makes_only_the_residuals_reading_it_missing(config):
     dg = build_uio_diagnoser(config)
     z, u = np.zeros(4), np.zeros(2)

@@ -1,0 +1,211 @@
+"""The conformance suite: every method of the registry (canfdi.methods), the test-only one
+included, against the Diagnoser protocol (canfdi.core.protocol).
+
+- the block path gives exactly the streaming path's events and residuals, chunk by chunk,
+  with lost samples and lost values;
+- reset() restores the first run exactly (and equals a freshly built diagnoser);
+- events are well formed (kinds, channels, estimates, sample order, JSON) and the example's
+  fault is detected and diagnosed;
+- a bad option of the method's section is named, with the nearest valid names.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+import yaml
+
+from canfdi import methods
+from canfdi.config import parse_config
+from canfdi.core.protocol import MODES, Diagnoser
+from canfdi.core.records import Compensation, FaultEvent, Sample
+from canfdi.core.settings import ConfigError
+from tests.conftest import REPO
+from tests.methods.conftest import Example
+
+BUILT_IN = {"parity", "output_error", "uio"}
+
+
+def _stream(dg: Diagnoser, ex: Example) -> tuple[list[FaultEvent], np.ndarray, np.ndarray]:
+    """update() sample by sample: (events, residuals (N, m), statistics (N, m))."""
+    events, rows, stats = [], [], []
+    m = len(dg.residual_names)
+    for i in range(len(ex.k)):
+        events += dg.update(Sample(k=int(ex.k[i]), timestamp_ns=int(ex.t_ns[i]), u=ex.U[i],
+                                   z=ex.Z[i]))
+        rows.append(np.full(m, np.nan) if dg.last_residuals is None else dg.last_residuals)
+        stats.append(np.array(dg.statistics, dtype=float))
+    return events, np.array(rows), np.array(stats)
+
+
+def _blocks(dg: Diagnoser, ex: Example, cuts: list[int]):
+    """update_block() over the run cut at ``cuts``."""
+    events, rows, stats = [], [], []
+    bounds = [0, *cuts, len(ex.k)]
+    for a, b in itertools.pairwise(bounds):
+        res = dg.update_block(ex.k[a:b], ex.t_ns[a:b], ex.U[a:b], ex.Z[a:b])
+        events += res.events
+        rows.append(res.residuals)
+        stats.append(res.statistic)
+    return events, np.vstack(rows), np.vstack(stats)
+
+
+def _same(a: np.ndarray, b: np.ndarray, what: str) -> None:
+    """Equal up to rounding (the block forms sum in another order: cumulative sums, matrix
+    products over a sliding window), with the same missing (NaN) entries."""
+    np.testing.assert_array_equal(np.isnan(a), np.isnan(b), err_msg=what)
+    np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9, err_msg=what)
+
+
+def _build(ex: Example) -> Diagnoser:
+    return methods.get(ex.method).build(ex.config)
+
+
+def test_the_registry_holds_the_built_in_methods_and_the_test_one():
+    assert BUILT_IN | {"tiny"} <= set(methods.names())
+    for name in methods.names():
+        assert methods.get(name).name == name
+
+
+def test_an_unknown_method_is_named_with_the_nearest_ones():
+    with pytest.raises(ConfigError) as info:
+        methods.get("partiy")
+    assert info.value.field == "method"
+    assert "did you mean parity" in str(info.value) and "uio" in str(info.value)
+
+
+def test_it_satisfies_the_protocol(example: Example):
+    dg = _build(example)
+    assert isinstance(dg, Diagnoser)
+    m = len(dg.residual_names)
+    assert m > 0 and len(set(dg.residual_names)) == m
+    assert np.shape(dg.thresholds) == (m,) and np.all(np.asarray(dg.thresholds) > 0)
+    assert np.shape(dg.statistics) == (m,)
+    assert dg.mode in MODES and list(dg.compensation) == [] and dg.events == []
+    dg.thresholds = np.asarray(dg.thresholds) * 2.0  # settable (soak's sensitivity check)
+    assert np.allclose(dg.thresholds, 2.0 * np.asarray(_build(example).thresholds))
+
+
+def test_the_block_path_equals_the_streaming_path_chunk_by_chunk(example: Example):
+    events, rows, stats = _stream(_build(example), example)
+    n = len(example.k)
+    for cuts in ([], [1, 8, 9, 100, 101, n // 2], list(range(37, n, 37))):
+        b_events, b_rows, b_stats = _blocks(_build(example), example, cuts)
+        assert b_events == events, f"chunks cut at {cuts[:6]}..."
+        _same(b_rows, rows, f"residuals, chunks cut at {cuts[:6]}...")
+        _same(b_stats, stats, f"statistics, chunks cut at {cuts[:6]}...")
+
+
+def test_reset_restores_the_first_run_exactly(example: Example):
+    dg = _build(example)
+    first = _blocks(dg, example, [len(example.k) // 3])
+    assert dg.events == first[0] and first[0]  # the run raised events to forget
+    dg.reset()
+    assert dg.events == [] and list(dg.compensation) == [] and dg.mode == "monitor"
+    again = _blocks(dg, example, [len(example.k) // 3])
+    fresh = _blocks(_build(example), example, [len(example.k) // 3])
+    for run in (again, fresh):
+        assert run[0] == first[0]
+        np.testing.assert_array_equal(run[1], first[1])
+        np.testing.assert_array_equal(run[2], first[2])
+
+
+def test_events_are_well_formed_and_the_fault_is_diagnosed(example: Example):
+    dg = _build(example)
+    events, _, _ = _blocks(dg, example, [])
+    cfg = example.config
+    names = {"actuator": cfg.inputs, "sensor": cfg.outputs}
+    keys = {"actuator": ({"eta", "lambda"}, {"lambda"}), "sensor": ({"bias"},)}
+    times = dict(zip(example.k.tolist(), example.t_ns.tolist(), strict=True))
+    previous = -math.inf
+    for e in events:
+        assert e.kind in ("detected", "accepted", "unexplained")
+        assert e.sample >= previous and e.timestamp_ns == times[e.sample]
+        previous = e.sample
+        json.dumps(e.as_dict())  # the JSON contract of replay --json and the log
+        if e.kind == "detected":
+            assert e.residuals and set(e.residuals) <= set(dg.residual_names)
+            assert e.detected_sample == e.sample
+        elif e.kind == "accepted":
+            assert e.target in names and names[e.target][e.index] == e.name
+            assert set(e.estimates) in keys[e.target]
+            assert set(e.variances) == set(e.estimates)
+            assert all(math.isfinite(v) for v in e.estimates.values())
+            assert e.onset_sample <= e.detected_sample <= e.accepted_sample == e.sample
+        else:
+            assert e.detected_sample is not None and e.detected_sample <= e.sample
+    # Every accepted fault is compensated, in order.
+    accepted = [e for e in events if e.kind == "accepted"]
+    assert [(c.target, c.index) for c in dg.compensation] == [(e.target, e.index)
+                                                              for e in accepted]
+    assert all(isinstance(c, Compensation) for c in dg.compensation)
+    # The injected bias on sensor 0 (40 noise stds) is detected and diagnosed (within a few
+    # samples, or once the residuals a lost command blinded are back: output_error's taint).
+    detected = [e for e in events if e.kind == "detected"
+                and example.fault_sample <= e.sample <= example.fault_sample + 100]
+    assert detected, "the fault was not detected within 100 samples"
+    diagnosed = [e for e in accepted if e.detected_sample == detected[0].sample]
+    assert diagnosed, "the fault's detection ended without an accepted fault"
+    assert (diagnosed[0].target, diagnosed[0].index) == ("sensor", 0)
+    assert diagnosed[0].estimates["bias"] == pytest.approx(example.fault_size, rel=0.1)
+
+
+def _with_option(example: Example, key: str, value) -> dict:
+    doc = yaml.safe_load(yaml.safe_dump(example.document))
+    section = methods.get(example.method).section
+    doc.setdefault(section, {})
+    doc[section] = dict(doc[section] or {}, **{key: value})
+    return doc
+
+
+def test_a_bad_option_is_named_with_the_nearest_valid_ones(example: Example):
+    method = methods.get(example.method)
+    assert method.section, "every method names the config section of its options"
+    doc = example.document.get(method.section) or {}
+    known = next(iter(doc), None)
+    typo = (known[:-1] + known[-1].upper()) if known else "bogus_option"
+    with pytest.raises(ConfigError) as info:
+        parse_config(_with_option(example, typo, 1), example.path)
+    assert info.value.field == f"{method.section}.{typo}"
+    assert "unknown key" in str(info.value)
+    if known:
+        assert f"did you mean {known}" in str(info.value)
+    if known is not None and not isinstance(doc[known], list | dict):
+        with pytest.raises(ConfigError) as info:
+            parse_config(_with_option(example, known, "not a number"), example.path)
+        assert info.value.field == f"{method.section}.{known}"
+
+
+def test_a_method_from_an_entry_point_is_found(tmp_path):
+    """A package adds a method the way python-can finds interfaces: an entry point in the
+    group canfdi.methods. A fresh interpreter with such a distribution on its path sees it."""
+    pkg = tmp_path / "canfdi_extra"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text(textwrap.dedent("""
+        from tests.methods.tiny_method import METHOD as _tiny
+        from dataclasses import replace
+        METHOD = replace(_tiny, name="extra")
+    """))
+    info = tmp_path / "canfdi_extra-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: canfdi-extra\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text("[canfdi.methods]\nextra = canfdi_extra:METHOD\n")
+    code = textwrap.dedent("""
+        import sys
+        from canfdi import methods
+        from canfdi.config import load_config
+        assert "extra" in methods.names(), methods.names()
+        print(methods.get("extra").summary)
+    """)
+    env = {"PYTHONPATH": f"{tmp_path}:{REPO}", "PATH": "/usr/bin:/bin"}
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert "test-only" in res.stdout
