@@ -35,6 +35,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from canfdi.core._check import check_shape
+
 __all__ = [
     "CRC8_INIT",
     "CRC8_POLY",
@@ -284,16 +286,12 @@ def crc8_batch(
     -------
     (N,) uint8; row i equals ``crc8(bytes(data[i, :lengths[i]]), init)``.
     """
-    data = _byte_array("data", data)
-    if data.ndim != 2:
-        raise ValueError(f"data must be a 2-D (N, L) array, got shape {data.shape}")
+    data = check_shape("data", _byte_array("data", data), ("N", "L"))
     if not 0 <= init <= 0xFF:
         raise ValueError(f"init must be in 0..255, got {init}")
     n_rows, n_cols = data.shape
     if lengths is not None:
-        lengths = np.asarray(lengths)
-        if lengths.shape != (n_rows,):
-            raise ValueError(f"lengths must have shape ({n_rows},), got {lengths.shape}")
+        lengths = check_shape("lengths", lengths, (n_rows,))
         if lengths.size and (lengths.min() < 0 or lengths.max() > n_cols):
             raise ValueError(f"lengths must be in 0..{n_cols}")
     crc = np.full(n_rows, init, dtype=np.uint8)
@@ -317,16 +315,10 @@ def e2e_check_batch(ids: ArrayLike, payloads: ArrayLike, dlc: ArrayLike) -> NDAr
     -------
     (N,) bool: CRC ok. Frames with dlc < 2 (no room for CRC and counter) are False.
     """
-    ids = np.asarray(ids)
-    payloads = _byte_array("payloads", payloads)
-    dlc = np.asarray(dlc)
-    if payloads.ndim != 2 or payloads.shape[1] != _MAX_DLC:
-        raise ValueError(f"payloads must have shape (N, 8), got {payloads.shape}")
+    payloads = check_shape("payloads", _byte_array("payloads", payloads), ("N", _MAX_DLC))
     n_frames = payloads.shape[0]
-    if ids.shape != (n_frames,):
-        raise ValueError(f"ids must have shape ({n_frames},), got {ids.shape}")
-    if dlc.shape != (n_frames,):
-        raise ValueError(f"dlc must have shape ({n_frames},), got {dlc.shape}")
+    ids = check_shape("ids", ids, (n_frames,))
+    dlc = check_shape("dlc", dlc, (n_frames,))
     if ids.size and (ids.min() < 0 or ids.max() > MAX_ARBITRATION_ID):
         raise ValueError("ids must be 11-bit arbitration IDs in 0..0x7FF")
     if dlc.size and (dlc.min() < 0 or dlc.max() > _MAX_DLC):

@@ -21,6 +21,8 @@ from typing import Any
 import numpy as np
 from scipy.signal import cont2discrete
 
+from canfdi.core._check import check_shape
+
 __all__ = ["ModelError", "StateSpace"]
 
 
@@ -58,11 +60,10 @@ def _shaped(value: Any, name: str, rows: int, cols: int | None) -> np.ndarray:
     # A flat list given for a single-column matrix (B with one input, say) is the column.
     if arr.shape[0] == 1 and rows != 1 and arr.shape[1] == rows and cols in (None, 1):
         arr = arr.T
-    want_cols = arr.shape[1] if cols is None else cols
-    if arr.shape != (rows, want_cols):
-        expected = f"({rows}, {'any' if cols is None else cols})"
-        raise ModelError(name, f"expected shape {expected}, got {arr.shape}")
-    return arr
+    try:
+        return check_shape(name, arr, (rows, "any" if cols is None else cols))
+    except ValueError as exc:  # the config names the matrix: model.B, not B
+        raise ModelError(name, str(exc).split(": ", 1)[1]) from None
 
 
 @dataclass(frozen=True)

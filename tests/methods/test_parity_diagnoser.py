@@ -108,7 +108,7 @@ def test_a_lost_value_makes_missing_only_the_residuals_that_read_it():
 
 
 def test_thresholds_exceed_the_white_noise_design():
-    from canfdi.core.detect import threshold_for_false_alarm_interval
+    from canfdi.core.calibrate import threshold_for_false_alarm_interval
 
     diagnoser = build_diagnoser(CONFIG)
     white = threshold_for_false_alarm_interval(CONFIG.detection.drift,

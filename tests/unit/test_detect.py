@@ -9,24 +9,26 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from scipy import signal
 
-from canfdi.core.detect import (
+from canfdi.core.calibrate import (
     SIEGMUND_OVERSHOOT,
-    Alarm,
-    ChangePointDetector,
-    PageHinkley,
-    ThresholdDetector,
-    alarms_to_events,
     arl_one_sided,
     arl_two_sided,
     calibrate_threshold,
     false_alarm_interval,
     mean_detection_delay,
+    threshold_for_false_alarm_interval,
+    threshold_for_long_run_variance,
+)
+from canfdi.core.detect import (
+    Alarm,
+    ChangePointDetector,
+    PageHinkley,
+    ThresholdDetector,
+    alarms_to_events,
     onset_candidates,
     page_hinkley_batch,
     page_hinkley_step,
     threshold_alarms,
-    threshold_for_false_alarm_interval,
-    threshold_for_long_run_variance,
     threshold_from_false_alarm,
 )
 

@@ -79,11 +79,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
-from canfdi.core.detect import (
-    ChangePointDetector,
-    onset_candidates,
-    threshold_for_long_run_variance,
-)
+from canfdi.core.calibrate import threshold_for_long_run_variance
+from canfdi.core.detect import ChangePointDetector, onset_candidates
 from canfdi.core.identify import least_squares
 from canfdi.core.protocol import DIAGNOSE, MONITOR
 from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample, compensate

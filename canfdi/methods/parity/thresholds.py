@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from canfdi.core.detect import calibrate_threshold, threshold_for_long_run_variance
+from canfdi.core.calibrate import calibrate_threshold, threshold_for_long_run_variance
 from canfdi.core.residuals import ResidualBank
 
 __all__ = ["calibrate_thresholds"]
