@@ -138,7 +138,7 @@ def parse_config(data: Any, path: Path | None = None) -> MonitorConfig:
     parsed by its registry entry)."""
     if not isinstance(data, dict):
         raise ConfigError("(top level)", "expected a mapping")
-    method = methods.get(data.get("method", "parity"))
+    method = methods.get(data.get("method", methods.DEFAULT))
     own = {m.section for m in map(methods.get, methods.names()) if m.section}
     parse_options(data, {}, "", extra=(*_COMMON_KEYS, *own))
     try:

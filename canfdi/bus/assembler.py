@@ -9,12 +9,13 @@ whose messages were lost is *broken*: it is delivered when a later counter close
 keeps every residual that does not read them. Each sample carries ``gap`` = samples missing
 entirely (no valid frame at all) just before it.
 
-`BusMap` (canfdi.bus.dbc) decodes the frames; `SampleAssembler` is the streaming state machine: `SampleAssembler.push` takes one frame
-  (timestamps are passed in, nothing here reads a clock or does I/O) and returns its status and
-  the sample it completed. `SampleAssembler.push_batch` and `assemble_batch` (a recorded log)
-  take frames by the block with a vectorised decode; runs of regular periods, whose outcome the
-  state machine's rules fix in advance, are assembled with numpy too, and every other frame goes
-  through the same state machine, so replay and live runs see identical samples and statistics.
+`BusMap` (canfdi.bus.dbc) decodes the frames; `SampleAssembler` is the streaming state machine:
+`SampleAssembler.push` takes one frame (timestamps are passed in, nothing here reads a clock or
+does I/O) and returns its status and the sample it completed. `SampleAssembler.push_batch` and
+`assemble_batch` (a recorded log) take a `FrameBlock` with a vectorised decode; runs of regular
+periods, whose outcome the state machine's rules fix in advance, are assembled with numpy too,
+and every other frame goes through the same state machine, so replay and live runs see
+identical samples and statistics.
 
 Frame statuses (canfdi.bus.frames ``STATUS_NAMES``, int8 codes in the batch forms):
 

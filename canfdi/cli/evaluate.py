@@ -104,7 +104,7 @@ def _config_path(args: argparse.Namespace) -> Path | int:
 
     if args.config is not None:
         return args.config
-    method = args.method or "parity"
+    method = args.method or methods.DEFAULT
     path = default_config(args.plant, method, DEFAULT_CONFIG_DIR)
     if path is None:
         return _fail(f"no {method} config for the {args.plant} plant in {DEFAULT_CONFIG_DIR} "

@@ -14,9 +14,9 @@ HELP = """\
 Identify the parallel output-error models of seed 003 from a fault-free log: for every output,
 y = y0 + sum_i B_i(q)/F_i(q) q^-d (u_c,i - u0), fitted by the OE prediction-error method
 (Steiglitz-McBride start, then Levenberg-Marquardt on the simulation error;
-canfdi.methods.output_error.model). The log is an MCAP written by `canfdi demo -o`, `run` or `capture`, or
-a python-can log (.log .asc .blf .trc .csv); its frames are decoded and assembled with the
-config's DBC and signals.
+canfdi.methods.output_error.model). The log is an MCAP written by `canfdi demo -o`, `run` or
+`capture`, or a python-can log (.log .asc .blf .trc .csv); its frames are decoded and assembled
+with the config's DBC and signals.
 
 Orders: by default every (output, input) pair starts as B, F of first order with delay
 --delay; pairs whose static gain is not significant (|K| < --min-gain-snr std(K)) are dropped
@@ -82,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
     import yaml
 
     from canfdi.config import read_yaml
-    from canfdi.methods.output_error.config import output_error_section
+    from canfdi.methods.output_error import METHOD as OUTPUT_ERROR
+    from canfdi.methods.output_error import output_error_section
     from canfdi.tools.identify import identify, log_samples
 
     config = load_config_or_exit(args.config, "identify")
@@ -150,8 +151,8 @@ def run(args: argparse.Namespace) -> int:
     section = output_error_section(result["model"], result["sigma"], result["long_run"],
                                    config.inputs, config.outputs, fit=fit_note, **settings)
     doc = read_yaml(args.config, ValueError, "config")
-    doc["method"] = "output_error"
-    doc["output_error"] = section
+    doc["method"] = OUTPUT_ERROR.name
+    doc[OUTPUT_ERROR.section] = section
     header = (f"# Written by `canfdi identify {args.log.name} --config {args.config.name}`: the\n"
               "# output_error method (seed 003) with OE models fitted from that fault-free log.\n"
               "# The model: section is the input config's (the output_error method does not "

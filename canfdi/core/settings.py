@@ -235,10 +235,10 @@ class MonitorConfig:
     unknown_inputs: list[str]
     unknown_outputs: list[str]
     design: DesignOptions
+    method: str
     bus: BusConfig = BusConfig()
     detection: DetectionConfig = DetectionConfig()
     identification: IdentificationConfig = IdentificationConfig()
     recording: RecordingConfig = RecordingConfig()
     path: Path | None = None
-    method: str = "parity"
     method_options: Any = None

@@ -35,10 +35,12 @@ from canfdi.core.protocol import Diagnoser
 from canfdi.core.records import FaultEvent
 from canfdi.core.settings import MonitorConfig, unknown_name
 
-__all__ = ["ENTRY_POINT_GROUP", "FAULT_KINDS", "EstimateHistory", "Method", "build_diagnoser",
-           "get", "names", "register", "unregister"]
+__all__ = ["DEFAULT", "ENTRY_POINT_GROUP", "FAULT_KINDS", "EstimateHistory", "Method",
+           "build_diagnoser", "get", "names", "register", "unregister"]
 
 ENTRY_POINT_GROUP = "canfdi.methods"
+DEFAULT = "parity"
+"""The method of a config that names none."""
 FAULT_KINDS = ("actuator_bias", "actuator_scale", "sensor_bias")
 """The fault kinds `canfdi evaluate` can inject (a method declares those of its model)."""
 

@@ -42,7 +42,7 @@ import numpy as np
 import yaml
 
 from canfdi.core.records import FaultEvent
-from canfdi.methods import FAULT_KINDS
+from canfdi.methods import DEFAULT, FAULT_KINDS
 
 if TYPE_CHECKING:
     from canfdi.core.design import Design
@@ -646,7 +646,7 @@ def default_config(plant: str, method: str, directory: Path) -> Path | None:
             data = yaml.safe_load(path.read_text())
         except (OSError, yaml.YAMLError):
             continue
-        if not isinstance(data, dict) or data.get("method", "parity") != method:
+        if not isinstance(data, dict) or data.get("method", DEFAULT) != method:
             continue
         signals = data.get("signals") or {}
         if (tuple(signals.get("inputs") or ()), tuple(signals.get("outputs") or ())) == (

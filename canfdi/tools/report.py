@@ -580,7 +580,7 @@ def _statistic_name(contents: LogContents) -> tuple[str, str]:
     from canfdi import methods
 
     name = contents.metadata.get("method") or (contents.config.method if contents.config
-                                               else "parity")
+                                               else methods.DEFAULT)
     try:
         return methods.get(name).statistic
     except ValueError:  # a method this installation does not know: name it generically

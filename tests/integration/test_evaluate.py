@@ -63,7 +63,7 @@ def test_the_text_report(capsys):
     (["--plant", "dc_motor", "--runs", "0"], "--runs"),
     (["--plant", "dc_motor", "--fnr", "5", "1"], "--fnr"),
     (["--plant", "dc_motor", "--kinds", "stuck"], "--kinds"),
-    (["--plant", "dc_motor", "--method", "uio"], "dc_motor_uio.yaml does not exist"),
+    (["--plant", "dc_motor", "--method", "uio"], "no uio config for the dc_motor plant"),
     (["--plant", "dc_motor", "--method", "uio", "--config",
       str(REPO / "deploy" / "config" / "dc_motor.yaml")], "a parity config"),
     (["--plant", "vtol", "--config", str(REPO / "deploy" / "config" / "dc_motor.yaml")],

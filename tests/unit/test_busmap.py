@@ -26,6 +26,13 @@ DT_NS = 10_000_000  # motor_drive: dt = 0.01 s
 FRAME_SPACING_NS = 100_000
 
 
+def _block(ids, dlc, payloads) -> FrameBlock:
+    """Frames of those IDs, lengths and payloads (times and flags 0)."""
+    n = len(ids)
+    return FrameBlock(np.zeros(n, dtype=np.int64), ids, dlc, np.zeros(n, dtype=np.uint8),
+                      payloads)
+
+
 @functools.cache
 def dc_motor_config():
     return load_config(DC_MOTOR_CONFIG)
@@ -205,7 +212,7 @@ def test_decode_frame_equals_vectorised_decode_and_cantools_on_real_traffic():
     database = dbc_files.load("motor_drive")
     _, frames = drive_traffic(600)
     _, ids, dlc, payloads = as_log(frames)
-    status, slot, values, counters = bus_map.decode_frames(FrameBlock(np.zeros(len(ids), dtype=np.int64), ids, dlc, np.zeros(len(ids), dtype=np.uint8), payloads))
+    status, slot, values, counters = bus_map.decode_frames(_block(ids, dlc, payloads))
     assert status.tolist() == [STATUS_CODES["ok"]] * len(frames)
     for i, (_, frame_id, data, k) in enumerate(frames):
         got_status, got_slot, got_values = bus_map.decode_frame(frame_id, data)
@@ -251,7 +258,7 @@ def test_scalar_and_vectorised_decode_agree_on_defects():
     bus_map = dc_motor_map()
     frames = _mixed_frames()
     _, ids, dlc, payloads = as_log(frames)
-    status, slot, values, counters = bus_map.decode_frames(FrameBlock(np.zeros(len(ids), dtype=np.int64), ids, dlc, np.zeros(len(ids), dtype=np.uint8), payloads))
+    status, slot, values, counters = bus_map.decode_frames(_block(ids, dlc, payloads))
     seen = set()
     for i, (_, frame_id, data) in enumerate(frames):
         got_status, got_slot, got_values = bus_map.decode_frame(frame_id, data)
@@ -276,7 +283,7 @@ def test_decode_frames_handles_ids_and_lengths_outside_classic_can():
     ids[0] = 0x1FFF_FFFF  # a 29-bit ID passed without its flag
     dlc[1] = 15  # an FD length code
     dlc[2] = 0
-    status, slot, _, counters = bus_map.decode_frames(FrameBlock(np.zeros(len(ids), dtype=np.int64), ids, dlc, np.zeros(len(ids), dtype=np.uint8), payloads))
+    status, slot, _, counters = bus_map.decode_frames(_block(ids, dlc, payloads))
     assert [STATUS_NAMES[c] for c in status] == ["unknown_id", "dlc", "dlc"]
     assert slot.tolist() == [-1, 1, 2]
     assert counters[2] == -1

@@ -1,4 +1,5 @@
-"""canfdi.tools.evaluate: matching events to injected faults and the metrics, against hand counts."""
+"""canfdi.tools.evaluate: matching events to injected faults and the metrics, against hand
+counts."""
 
 import itertools
 

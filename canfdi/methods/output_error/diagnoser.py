@@ -1,9 +1,9 @@
 """The output-error method of seed 003: OE residual, Page-Hinkley detection, isolation by
 identifying the residual's response to a step, decision tests, and the reset of Section 3.3.
 
-RESIDUAL. The parallel OE models (canfdi.methods.output_error.model) are simulated from the commands u_c
-alone; r_j(k) = z_j(k) - y_hat_j(k) for every output j (seed 003 eq. 9), normalised by its
-fault-free standard deviation sigma_j. Under a single additive fault (eqs. 10-11)
+RESIDUAL. The parallel OE models (canfdi.methods.output_error.model) are simulated from the
+commands u_c alone; r_j(k) = z_j(k) - y_hat_j(k) for every output j (seed 003 eq. 9),
+normalised by its fault-free standard deviation sigma_j. Under a single additive fault (eqs. 10-11)
 
     actuator i:  r_j(k) = G_ji(q) lambda U(k - k_f) + e_j(k)   for every output j it reaches,
     sensor j:    r_j(k) = b U(k - k_f) + e_j(k)                on output j only.
@@ -12,8 +12,8 @@ DETECTION (Section 3.1). A two-sided Page-Hinkley test on each normalised residu
 in noise stds). The OE residual of a well identified model is the measurement noise itself,
 white, so Siegmund's threshold for the false-alarm interval applies; model error colours it,
 so the threshold is also bounded by Siegmund's on the residual's long-run variance (the ratio
-measured on the identification data by `canfdi identify`), as canfdi.methods.parity.diagnoser does for
-correlated parity residuals.
+measured on the identification data by `canfdi identify`), as the parity method does for its
+correlated residuals.
 
 ISOLATION AND IDENTIFICATION (Section 3.2). At the alarm k_d, onsets k_f are tried from a few
 samples before the Page-Hinkley change point up to k_d (the paper shifts its step back from
@@ -26,8 +26,8 @@ k_d). ``min_samples`` after the alarm (the paper's L - l0; the window also holds
   maximum-likelihood estimate under the hypothesis; the paper's B^(1)/F^(1)/K^ of the free
   fit is the same quantity estimated with more free parameters. (b) the free fit (the paper's
   G^Du): for each output j the path reaches, an OE model of the structure (nb, nf, d) of G_ji
-  fitted to r_j with a unit step at k_f (canfdi.methods.output_error.model.fit_step), giving F^Du and the
-  variances of its coefficients. Decision tests, as we read seed 003's eqs. 16-17 (the
+  fitted to r_j with a unit step at k_f (canfdi.methods.output_error.model.fit_step), giving
+  F^Du and the variances of its coefficients. Decision tests, as we read seed 003's eqs. 16-17 (the
   extraction lost them; gamma = 0.2 and kappa = 0.1 are its values):
 
     gamma (parameter variance bound, eq. 16): every coefficient of F^Du has

@@ -366,7 +366,8 @@ class UioDiagnoser:
         h = self.design.Hf0[:, c - p]
         return float(fit.mu[p:] @ h) / float(h @ h)
 
-    def _candidates(self, fit: StepMeans, angles: np.ndarray, order: np.ndarray) -> tuple[dict, ...]:
+    def _candidates(self, fit: StepMeans, angles: np.ndarray, order: np.ndarray
+                    ) -> tuple[dict, ...]:
         p = self.p
         theta = np.degrees(fault_angles(fit.mu[p:], self.design.Hf0))  # eq 23b, GRGS only
         out = []
