@@ -39,7 +39,7 @@ def export_frames(log: Path, out: Path, fmt: str, progress=None) -> int:
     import can
 
     from canfdi.bus.frames import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
-    from canfdi.io.recorder import iter_frame_blocks
+    from canfdi.io.reader import iter_frame_blocks
 
     writer_class = {"blf": can.BLFWriter, "asc": can.ASCWriter,
                     "log": can.CanutilsLogWriter, "csv": can.CSVWriter}[fmt]
@@ -64,7 +64,7 @@ def export_frames(log: Path, out: Path, fmt: str, progress=None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from canfdi.io.recorder import log_segments
+    from canfdi.io.segments import log_segments
 
     try:
         segments = log_segments(args.log)

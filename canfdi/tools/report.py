@@ -75,7 +75,7 @@ class ReportError(ValueError):
 class LogContents:
     """What a log holds, as arrays; None or empty where the log lacks it (see ``notes``).
 
-    samples : canfdi.io.recorder.SampleArrays or None; residuals : ResidualArrays or None.
+    samples : canfdi.io.reader.SampleArrays or None; residuals : ResidualArrays or None.
     thresholds : (m,) Page-Hinkley thresholds in residuals.names order, or None.
     events : every FaultEvent of ``/canfdi/events`` in order.
     truth : the injected faults (demo logs) or None.
@@ -180,14 +180,9 @@ def read_log_contents(path: str | Path, config_path: Path | None = None,
     ReportError
         No such file, not an MCAP file, an unreadable --config, or a log the readers reject.
     """
-    from canfdi.io.recorder import (
-        TOPIC_EVENTS,
-        log_segments,
-        read_log,
-        read_metadata,
-        read_residuals,
-        read_samples,
-    )
+    from canfdi.io.reader import read_log, read_metadata, read_residuals, read_samples
+    from canfdi.io.schemas import TOPIC_EVENTS
+    from canfdi.io.segments import log_segments
 
     say = progress or (lambda _msg: None)
     path = Path(path)

@@ -10,7 +10,7 @@ import can
 import pytest
 
 from canfdi.config import load_config
-from canfdi.io.recorder import read_frames
+from canfdi.io.reader import read_frames
 from canfdi.monitor import Monitor
 from canfdi.service import MonitorService
 from tests.conftest import REPO
@@ -43,7 +43,7 @@ class FlakyBus(can.BusABC):
 def test_lost_bus_is_reopened_and_diagnosis_goes_on(tmp_path):
     # Frames of a demo log: the first half comes on a bus that then dies, the rest on the next.
     from canfdi.cli.demo import run_demo
-    from canfdi.io.recorder import McapRecorder
+    from canfdi.io.writer import McapRecorder
     from firmware_sim.scenario import load_scenario
 
     log = tmp_path / "src.mcap"

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from canfdi.bus.frames import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, FrameBlock
-from canfdi.io.recorder import McapRecorder, read_frames
+from canfdi.io.reader import read_frames
+from canfdi.io.writer import McapRecorder
 from tests.conftest import REPO
 
 T0 = 1_795_000_000_000_000_000

@@ -20,12 +20,18 @@ from mcap.records import Footer
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
-from canfdi.bus.frames import FrameBlock
+from canfdi.bus.frames import FLAG_EXTENDED, FLAG_FD, FrameBlock
 from canfdi.core.records import FaultEvent, Sample
-from canfdi.io.logs import mcap_frame_arrays, mcap_frames
-from canfdi.io.recorder import (
-    FLAG_EXTENDED,
-    FLAG_FD,
+from canfdi.io.reader import (
+    iter_frame_blocks,
+    mcap_frame_blocks,
+    read_frames,
+    read_log,
+    read_metadata,
+    read_residuals,
+    read_samples,
+)
+from canfdi.io.schemas import (
     FRAME_DTYPE,
     FRAMES_ENCODING,
     MESSAGE_ENCODING,
@@ -41,15 +47,9 @@ from canfdi.io.recorder import (
     TOPIC_SAMPLES,
     TOPIC_STATUS,
     TOPICS,
-    McapRecorder,
-    iter_frame_blocks,
-    log_segments,
-    read_frames,
-    read_log,
-    read_metadata,
-    read_residuals,
-    read_samples,
 )
+from canfdi.io.segments import log_segments
+from canfdi.io.writer import McapRecorder
 
 REPO = Path(__file__).resolve().parents[2]
 T0 = 1_700_000_000_123_456_789
@@ -547,6 +547,18 @@ def write_old_layout(path: Path, n_frames: int) -> None:
         writer.finish()
 
 
+def received_tuples(path: Path) -> list[tuple[int, int, bytes, bool, bool]]:
+    """(t_ns, id, payload, extended, error frame) of the frames replay reads from a log."""
+    return [
+        (t, i, d, x, s == "error_frame")
+        for block in mcap_frame_blocks(path)
+        for t, i, d, x, s in zip(
+            block.t_ns.tolist(), block.id.tolist(), block.payloads(), block.extended.tolist(),
+            block.status.tolist(), strict=True,
+        )
+    ]
+
+
 def test_reads_the_one_frame_per_message_layout(tmp_path: Path) -> None:
     path = tmp_path / "old.mcap"
     n = 5000  # more than one block of old rows
@@ -580,7 +592,7 @@ def test_reads_the_one_frame_per_message_layout(tmp_path: Path) -> None:
             rec.write_frame(T0 + i * 1000, i & 0x7FF, i.to_bytes(4, "big"),
                             "sent" if i % 5 == 0 else "ok", i % 7 == 0)  # fmt: skip
         rec.write_frame(T0 + n * 1000, 1, bytes(range(64)), "fd")
-    old_tuples, new_tuples = list(mcap_frames(path)), list(mcap_frames(new))
+    old_tuples, new_tuples = received_tuples(path), received_tuples(new)
     assert old_tuples == new_tuples
     expected = [
         (T0 + i * 1000, i & 0x7FF, i.to_bytes(4, "big"), i % 7 == 0, False)
@@ -588,7 +600,7 @@ def test_reads_the_one_frame_per_message_layout(tmp_path: Path) -> None:
         if i % 5
     ] + [(T0 + n * 1000, 1, bytes(range(64)), False, False)]
     assert old_tuples == expected
-    arrays = mcap_frame_arrays(new)
+    arrays = FrameBlock.concat(mcap_frame_blocks(new))
     assert arrays.t_ns.tolist() == [t for t, *_ in expected]
     assert arrays.payloads() == [d for _, _, d, _, _ in expected]
     assert "sent" not in set(arrays.status.tolist())
@@ -602,7 +614,7 @@ def test_empty_log_reads_as_empty_arrays(tmp_path: Path) -> None:
     samples = read_samples(path)
     assert samples.U.shape == (0, 0) and samples.k.shape == (0,) and samples.input_names == []
     assert read_residuals(path).R.shape == (0, 0)
-    assert list(mcap_frames(path)) == []
+    assert received_tuples(path) == []
 
 
 # --------------------------------------------------------------------------------------
@@ -720,7 +732,7 @@ def test_explicit_flush_writes_the_buffers_and_ends_the_chunk(tmp_path: Path) ->
 
 CHILD = """
 import sys, time
-from canfdi.io.recorder import McapRecorder
+from canfdi.io.writer import McapRecorder
 
 rec = McapRecorder(sys.argv[1], flush_interval=0.2)
 i = 0
@@ -915,7 +927,7 @@ def test_disk_full_drops_then_resumes(
         clock=clock,
         opener=disk.open,
     )
-    caplog.set_level(logging.WARNING, logger="canfdi.io.recorder")
+    caplog.set_level(logging.WARNING, logger="canfdi.io.writer")
 
     def frames(start: int, stop: int) -> None:
         for i in range(start, stop):
