@@ -1,52 +1,81 @@
-"""The frames of a log, whatever its format: canfdi's MCAP or any log python-can reads.
+"""The frames, metadata and truth of any log, and writing frames into one: by its file name.
 
-`frame_blocks` is what replay, identify and bench read logs with: FrameBlocks (canfdi.bus.frames)
-of the frames the monitor received, in order.
+What replay, identify, bench, report and export call. Each function asks canfdi.io.formats for
+the log's format (by suffix: canfdi's MCAP, or any format python-can reads and writes,
+gzip-compressed text logs included) and does what the format says; nothing here knows a
+format.
+
+>>> from canfdi.io.formats import format_of
+>>> format_of("drive.asc.gz").description
+'gzip-compressed Vector ASCII (CANalyzer, CANoe, SavvyCAN)'
 """
 
 from __future__ import annotations
 
-import json
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from canfdi.bus.frames import FrameBlock
+from canfdi.io.formats import LogFormatError, Written, format_named, format_of
 
-__all__ = ["PYTHON_CAN_SUFFIXES", "frame_blocks", "truth_of"]
-
-PYTHON_CAN_SUFFIXES = {".log", ".asc", ".blf", ".trc", ".csv"}
-
-
-def frame_blocks(path: Path, frames_per_block: int = 65536) -> Iterator[FrameBlock]:
-    """The received frames of a log in blocks of about ``frames_per_block``: python-can's
-    readers for its suffixes, canfdi's MCAP readers otherwise."""
-    if Path(path).suffix.lower() in PYTHON_CAN_SUFFIXES:
-        return python_can_blocks(Path(path), frames_per_block)
-    from canfdi.io.reader import mcap_frame_blocks
-
-    return mcap_frame_blocks(Path(path), frames_per_block)
+__all__ = ["frame_blocks", "metadata_of", "truth_of", "write_frames"]
 
 
-def python_can_blocks(path: Path, frames_per_block: int = 65536):
-    """FrameBlocks of a log python-can reads."""
-    import can
+def frame_blocks(path: str | Path, frames_per_block: int = 65536, *,
+                 received: bool = True) -> Iterator[FrameBlock]:
+    """The frames of a log in blocks of about ``frames_per_block``, in log order.
 
-    with can.LogReader(str(path)) as reader:
-        pending = []
-        for msg in reader:
-            pending.append(msg)
-            if len(pending) >= frames_per_block:
-                yield FrameBlock.from_messages(pending, now=0.0)
-                pending = []
-        if pending:
-            yield FrameBlock.from_messages(pending, now=0.0)
+    Parameters
+    ----------
+    path : str or Path
+        The log; its suffix says its format (canfdi.io.formats).
+    frames_per_block : int
+        Frames per block, about.
+    received : bool
+        Only the frames the monitor received (default): an MCAP's own transmissions (status
+        ``"sent"``) are left out. False: every frame.
+
+    Returns
+    -------
+    iterator of FrameBlock
+        With a status column (the monitor's for MCAP; ``"rx"`` / ``"tx"`` for python-can's
+        formats).
+
+    Raises
+    ------
+    LogFormatError
+        At once, for a suffix no format claims (the message lists the known ones) or a
+        format that needs a package that is not installed.
+    FileNotFoundError
+        No such log.
+    LogReadError
+        While iterating: the file is not a readable log of its format.
+    """
+    return format_of(path).frame_blocks(path, frames_per_block, received=received)
 
 
-def truth_of(path: Path) -> list[dict] | None:
-    from canfdi.io.reader import read_metadata
+def write_frames(path: str | Path, blocks: Iterable[FrameBlock],
+                 fmt: str | None = None) -> Written:
+    """Write frames into a new log: of format ``fmt`` (a name of canfdi.io.formats), or the
+    one its suffix says. Returns ``(frames, skipped)`` (frames of a kind the format cannot
+    hold). Raises LogFormatError for a format that cannot be written, OSError when the file
+    cannot."""
+    target = format_named(fmt) if fmt is not None else format_of(path)
+    return target.write_frames(path, blocks)
 
+
+def metadata_of(path: str | Path) -> dict[str, str]:
+    """The run-level metadata of a log (``config_yaml``, ``design_json``, ``truth_json``...):
+    empty for a format that has none. Raises LogFormatError for an unknown suffix and
+    LogReadError for a damaged log."""
+    return format_of(path).metadata(path)
+
+
+def truth_of(path: str | Path) -> list[dict] | None:
+    """The faults injected into the run a log recorded (a demo's ``truth_json``), or None
+    when the log does not say (a format without metadata, an unknown or damaged file)."""
     try:
-        meta = read_metadata(path)
-    except Exception:  # a foreign or damaged file simply has no truth
+        fmt = format_of(path)
+    except LogFormatError:
         return None
-    return json.loads(meta["truth_json"]) if "truth_json" in meta else None
+    return fmt.truth(path)
