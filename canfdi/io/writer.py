@@ -514,7 +514,7 @@ class McapRecorder:
         ----------
         block : FrameBlock
             The frames (canfdi.bus.frames); the payload padding beyond each DLC is recorded as
-            given.
+            given, and payloads longer than 8 bytes (``block.long``, CAN FD) whole.
         statuses : str, sequence of str, (N,) array of str, or (N,) integer array, optional
             Every frame's status (one string: all of them); integer codes index
             ``status_names`` (e.g. the assembler's codes into canfdi.bus.frames'
@@ -542,6 +542,12 @@ class McapRecorder:
         records["status"] = self._status_array(statuses, n, status_names)
         if not n:
             return
+        if block.long:  # (after _status_array, which may have written the buffer out)
+            base = len(self._frames) // FRAME_SIZE
+            dlc = block.dlc
+            for row, data in block.long.items():
+                if len(data) != min(int(dlc[row]), MAX_DATA):
+                    self._long[base + row] = bytes(data)
         self._frames += records.tobytes()
         if len(self._frames) >= self._frames_limit:
             self._emit_frames(now, full_only=True)
