@@ -90,8 +90,8 @@ class LogFormat:
     resolution_ns : int
         Timestamp resolution of the format, as python-can writes it.
     holds : frozenset of str
-        Frame kinds it can write besides data frames: ``"remote"``, ``"error"``, ``"fd"``
-        (CAN FD flag; payloads over 8 bytes).
+        Frame kinds it can write besides classic data frames: ``"remote"``, ``"error"``,
+        ``"fd"`` (CAN FD frames, payloads up to 64 bytes); the writer leaves out the others.
     segments : bool
         The log may go on in rotated segments (``<stem>-0001<suffix>``..., canfdi.io.segments)
         that its reader reads too.
@@ -352,23 +352,22 @@ _BLF = "Vector binary logging format (CANalyzer, CANoe, SavvyCAN)"
 _LOG = "candump -L text (can-utils canplayer, SavvyCAN)"
 _TRC = "PEAK trace (PCAN-View)"
 _CSV = "python-can CSV (timestamp, arbitration_id, extended, remote, error, dlc, data)"
-_NO_FD = ("remote", "error")
 for _format in (
     # ASC: python-can writes the time of writing in the header and reads times from the start.
     _python_can("asc", _ASC, absolute_time=False),
     _python_can("blf", _BLF),
     _python_can("log", _LOG),
     _python_can("trc", _TRC, holds=()),  # python-can's TRC writer: data frames only
-    _python_can("csv", _CSV, directions=False, holds=_NO_FD),
-    _python_can("db", "python-can SQLite", directions=False, holds=_NO_FD),
+    # CSV and SQLite keep a CAN FD payload whole but not the FD flag.
+    _python_can("csv", _CSV, directions=False),
+    _python_can("db", "python-can SQLite", directions=False),
     _python_can("mf4", "ASAM MDF 4 (asammdf, CANape, Vector)", requires="asammdf",
                 extra="mf4"),
     _python_can("asc.gz", "gzip-compressed " + _ASC, compressed=True, absolute_time=False),
     _python_can("blf.gz", "gzip-compressed " + _BLF, compressed=True, write=False),
     _python_can("log.gz", "gzip-compressed " + _LOG, compressed=True),
     _python_can("trc.gz", "gzip-compressed " + _TRC, compressed=True, holds=()),
-    _python_can("csv.gz", "gzip-compressed " + _CSV, compressed=True, directions=False,
-                holds=_NO_FD),
+    _python_can("csv.gz", "gzip-compressed " + _CSV, compressed=True, directions=False),
 ):
     register(_format)
 del _format

@@ -16,6 +16,7 @@ canfdi.bus.frames' ``SENT`` (the monitor's own), Rx otherwise.
 from __future__ import annotations
 
 import gzip
+import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -175,4 +176,17 @@ def write_blocks(path: Path, suffix: str, blocks: Iterable[FrameBlock], compress
                     is_error_frame=bool(flag & FLAG_ERROR), is_fd=bool(flag & FLAG_FD),
                     is_rx=is_rx, dlc=dlc, data=data, channel=0, check=False))
                 written += 1
+        _drain(writer)
     return Written(written, skipped)
+
+
+def _drain(writer: Any) -> None:
+    """Wait until a threaded writer (python-can's SQLite writer) has taken every queued
+    message: its thread ends at the first batch it writes after stop(), and messages still
+    queued then are lost (more than its 500-message batch, typically)."""
+    queued = getattr(writer, "buffer", None)
+    thread = getattr(writer, "_writer_thread", None)
+    if queued is None or thread is None:
+        return
+    while not queued.empty() and thread.is_alive():
+        time.sleep(0.005)
