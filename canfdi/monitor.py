@@ -35,7 +35,7 @@ _STATUS = {"starting": 0, "monitoring": 1, "diagnosing": 2, "degraded": 3, "bus_
 
 
 class RecordSink(Protocol):
-    """Where the monitor's records go (canfdi.io.recorder.McapRecorder fits)."""
+    """Where the monitor's records go (canfdi.io.writer.McapRecorder fits)."""
 
     def write_frame(self, timestamp_ns: int, frame_id: int, data: bytes, status: str,
                     extended: bool = False) -> None: ...

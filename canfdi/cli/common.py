@@ -62,7 +62,7 @@ def config_error(exc: Exception, verb: str) -> int:
 
 def open_recorder(path: Path, metadata: dict[str, str] | None = None, **kwargs):
     """An MCAP recorder for ``path`` (parent directories created)."""
-    from canfdi.io.recorder import McapRecorder
+    from canfdi.io.writer import McapRecorder
 
     path.parent.mkdir(parents=True, exist_ok=True)
     # base64 float columns: exact, and ten times cheaper to write than JSON number lists.

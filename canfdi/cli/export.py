@@ -1,80 +1,92 @@
-"""`canfdi export LOG --format blf|asc|log|csv`: a canfdi MCAP's raw frames for other tools."""
+"""`canfdi export LOG --format FMT`: a log's raw frames in another format, for other tools."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
-FORMATS = {"blf": ".blf", "asc": ".asc", "log": ".log", "csv": ".csv"}
+from canfdi.io.formats import LogFormat, formats
 
-HELP = """\
-Write every raw frame of a canfdi MCAP log (all segments, valid or not, the drive's and the
-monitor's own "sent" frames) to a file the usual CAN tools open, through python-can's writers:
+HELP_HEAD = """\
+Write every raw frame of a log (a canfdi MCAP: all segments, valid or not, the drive's and the
+monitor's own "sent" frames; or any log canfdi reads) to a file the usual CAN tools open, through
+python-can's writers (or canfdi's own, for mcap):
+"""
 
-  blf  Vector binary logging format (CANalyzer, CANoe, SavvyCAN)
-  asc  Vector ASCII (CANalyzer, SavvyCAN)
-  log  candump -L text (can-utils canplayer, SavvyCAN)
-  csv  python-can's CSV (timestamp, arbitration_id, extended, remote, error, dlc, data)
-
+HELP_TAIL = """
 Timestamps are the log's (seconds since the epoch). A frame's E2E status (crc, dlc, ...) has no
-place in these formats: `canfdi replay OUT --config FILE` re-derives it. A truncated MCAP (a
-killed process) is exported up to its last complete block. Exit status: 0 written, 2 bad log
-or arguments, 1 the output could not be written."""
+place in these formats: `canfdi replay OUT --config FILE` re-derives it. The monitor's own
+frames are written as transmissions (Tx) where the format keeps directions; frames of a kind a
+format cannot hold (remote, error or CAN FD frames in .trc) are left out and counted. A
+truncated MCAP (a killed process) is exported up to its last complete block. The format is
+--format, or the suffix of -o. Exit status: 0 written, 2 bad log or arguments, 1 the output
+could not be written."""
+
+
+def _writable() -> list[LogFormat]:
+    return [f for f in formats() if f.writable]
+
+
+def _help() -> str:
+    lines = [f"  {f.name:<7} {f.description}" + (f" (needs canfdi[{f.extra}])" if f.extra else "")
+             for f in _writable()]
+    return HELP_HEAD + "\n" + "\n".join(lines) + "\n" + HELP_TAIL
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("export", help="write a log's raw frames as BLF, ASC, candump or CSV",
-                       description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("log", type=Path, help="canfdi MCAP log (its first segment)")
-    p.add_argument("--format", required=True, choices=sorted(FORMATS), help="output format")
+    p = sub.add_parser("export", help="write a log's raw frames as BLF, ASC, candump, CSV...",
+                       description=_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("log", type=Path, help="the log (for a canfdi MCAP, its first segment)")
+    p.add_argument("--format", choices=[f.name for f in _writable()], metavar="FMT",
+                   help="output format: " + ", ".join(f.name for f in _writable())
+                   + " (default: the suffix of -o)")
     p.add_argument("-o", "--output", type=Path, metavar="OUT",
                    help="output file (default: the log's name with the format's suffix)")
     p.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
 
 
-def export_frames(log: Path, out: Path, fmt: str, progress=None) -> int:
-    """Write every frame of ``log`` to ``out`` in format ``fmt``; returns the frame count."""
-    import can
-
-    from canfdi.bus.frames import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
-    from canfdi.io.recorder import iter_frame_blocks
-
-    writer_class = {"blf": can.BLFWriter, "asc": can.ASCWriter,
-                    "log": can.CanutilsLogWriter, "csv": can.CSVWriter}[fmt]
+def _counted(blocks: Iterator, progress: Callable[[int], None] | None) -> Iterator:
     count = 0
-    with writer_class(str(out)) as writer:
-        for block in iter_frame_blocks(log):
-            # The monitor's own frames are transmissions (Tx), every other one was received.
-            received = (block.status != "sent").tolist()
-            for t, frame_id, dlc, data, flag, rx in zip(
-                    block.t_ns.tolist(), block.id.tolist(), block.dlc.tolist(), block.payloads(),
-                    block.flags.tolist(), received, strict=True):
-                writer.on_message_received(can.Message(
-                    timestamp=t / 1e9, arbitration_id=frame_id,
-                    is_extended_id=bool(flag & FLAG_EXTENDED),
-                    is_remote_frame=bool(flag & FLAG_REMOTE),
-                    is_error_frame=bool(flag & FLAG_ERROR), is_fd=bool(flag & FLAG_FD),
-                    is_rx=rx, dlc=dlc, data=data, channel=0, check=False))
-            count += block.size
-            if progress is not None:
-                progress(count)
-    return count
+    for block in blocks:
+        yield block
+        count += block.size
+        if progress is not None:
+            progress(count)
+
+
+def export_frames(log: Path, out: Path, fmt: str, progress=None) -> int:
+    """Write every frame of ``log`` to ``out`` in format ``fmt`` (a name of
+    canfdi.io.formats); returns the number of frames written."""
+    from canfdi.io.logs import frame_blocks, write_frames
+
+    blocks = frame_blocks(log, received=False)
+    return write_frames(out, _counted(blocks, progress), fmt).frames
 
 
 def run(args: argparse.Namespace) -> int:
-    from canfdi.io.recorder import log_segments
+    from canfdi.io.formats import LogFormatError, LogReadError, format_named, format_of
+    from canfdi.io.logs import frame_blocks, write_frames
 
     try:
-        segments = log_segments(args.log)
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"canfdi export: {args.log}: {exc}", file=sys.stderr)
+        source = format_of(args.log)
+        if args.format is None and args.output is None:
+            raise LogFormatError("give --format or -o OUT")
+        target = format_named(args.format) if args.format else format_of(args.output)
+        target.check(write=True)
+        source.check()
+    except LogFormatError as exc:
+        print(f"canfdi export: {exc}", file=sys.stderr)
         return 2
-    if not segments:
+    try:
+        blocks = frame_blocks(args.log, received=False)
+    except FileNotFoundError:
         print(f"canfdi export: {args.log}: no such log", file=sys.stderr)
         return 2
-    out = args.output or args.log.with_suffix(FORMATS[args.format])
+    stem = args.log.name[: len(args.log.name) - len(source.suffix)]
+    out = args.output or args.log.with_name(stem + target.suffix)
     if out.resolve() == args.log.resolve():
         print(f"canfdi export: the output {out} would overwrite the log", file=sys.stderr)
         return 2
@@ -88,15 +100,20 @@ def run(args: argparse.Namespace) -> int:
             print(f"\rcanfdi export: {n:,} frames", end="", file=sys.stderr)
 
     try:
-        count = export_frames(args.log, out, args.format, progress)
+        written = write_frames(out, _counted(blocks, progress), target.name)
+    except LogReadError as exc:
+        print(f"canfdi export: {exc}", file=sys.stderr)
+        return 2
     except OSError as exc:
         print(f"canfdi export: cannot write {out}: {exc.strerror or exc}", file=sys.stderr)
         return 1
-    except ValueError as exc:  # not an MCAP, or a block of an unknown layout
+    except ValueError as exc:  # a block of an unknown layout
         print(f"canfdi export: {args.log}: {exc}", file=sys.stderr)
         return 2
     if not args.no_progress and sys.stderr.isatty():
         print("\r", end="", file=sys.stderr)
-    print(f"canfdi export: {count:,} frames -> {out} ({time.monotonic() - start:.1f} s)",
-          file=sys.stderr)
+    skipped = (f", {written.skipped:,} left out ({target.suffix} cannot hold them)"
+               if written.skipped else "")
+    print(f"canfdi export: {written.frames:,} frames -> {out}{skipped} "
+          f"({time.monotonic() - start:.1f} s)", file=sys.stderr)
     return 0

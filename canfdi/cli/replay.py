@@ -13,8 +13,12 @@ from canfdi.cli.common import config_error, format_event, load_config_or_exit, p
 HELP = """\
 Run the monitor offline over a log: an MCAP written by canfdi (run, demo, capture), whose raw
 frames are replayed with their timestamps, or any log python-can reads (candump .log, .asc,
-.blf, .trc, .csv). Replaying a live run's MCAP gives the live run's diagnoses. A truncated MCAP
-(a killed process) is read up to its last complete record.
+.blf, .trc, .csv, .db, .mf4, and gzip-compressed ones such as .asc.gz); the suffix says which.
+Replaying a live run's MCAP gives the live run's diagnoses. A truncated MCAP (a killed process)
+is read up to its last complete record.
+
+Exit status: 0 replayed; 1 the log could not be read (damaged); 2 bad config, no such log or
+a suffix canfdi does not know.
 
 Prints each diagnosis and a summary table, or with --json one object: {"faults": [...],
 "frames": {...}, "samples": N, "truth": [...] when the log holds it}."""
@@ -22,14 +26,16 @@ Prints each diagnosis and a summary table, or with --json one object: {"faults":
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="diagnose a recorded log offline", description=HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("log", type=Path, help="MCAP log, or a python-can log (.log .asc .blf .trc)")
+    p.add_argument("log", type=Path,
+                   help="MCAP log, or a python-can log (.asc .blf .log .trc .csv .db .mf4 .gz)")
     p.add_argument("--config", required=True, type=Path, metavar="FILE", help="monitor config")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
 
 
 def run(args: argparse.Namespace) -> int:
-    from canfdi.io.logs import PYTHON_CAN_SUFFIXES, frame_blocks, truth_of
+    from canfdi.io.formats import LogFormatError, LogReadError
+    from canfdi.io.logs import frame_blocks, truth_of
     from canfdi.monitor import Monitor
 
     config = load_config_or_exit(args.config, "replay")
@@ -42,8 +48,12 @@ def run(args: argparse.Namespace) -> int:
         monitor = Monitor(config, record_residuals=False)
     except ValueError as exc:
         return config_error(exc, "replay")
-    blocks = frame_blocks(args.log)
-    truth = None if args.log.suffix.lower() in PYTHON_CAN_SUFFIXES else truth_of(args.log)
+    try:
+        blocks = frame_blocks(args.log)
+    except LogFormatError as exc:
+        print(f"canfdi replay: {exc}", file=sys.stderr)
+        return 2
+    truth = truth_of(args.log)
     progress = not args.no_progress and sys.stderr.isatty()
     start = time.monotonic()
     count = n_events = 0
@@ -61,7 +71,9 @@ def run(args: argparse.Namespace) -> int:
                 print(f"\rcanfdi replay: {count:,} frames, {monitor.samples:,} samples, "
                       f"{rate:,.0f} samples/s", end="", file=sys.stderr)
     except (OSError, ValueError) as exc:
-        print(f"\ncanfdi replay: cannot read {args.log}: {exc}", file=sys.stderr)
+        lead = "\n" if progress and count else ""  # end the progress line first
+        what = exc if isinstance(exc, LogReadError) else f"cannot read {args.log}: {exc}"
+        print(f"{lead}canfdi replay: {what}", file=sys.stderr)
         return 1
     monitor.finish()
     if progress:

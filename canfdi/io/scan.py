@@ -9,17 +9,22 @@ channel ids to topics, decompresses chunks and decodes only Message records of t
 topic. It stops quietly at a truncated record, as a killed writer leaves one.
 
 Anything it does not know (a compression other than zstd or none) raises UnsupportedLog, and
-callers fall back to the full reader.
+callers fall back to the full reader (canfdi.io.reader). A file that is not MCAP raises
+NotMcap. A chunk that does not inflate (a damaged file) is skipped with a warning, its
+messages lost, and the scan goes on with the next record.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import struct
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["UnsupportedLog", "scan_topic"]
+__all__ = ["NotMcap", "UnsupportedLog", "scan_topic"]
+
+logger = logging.getLogger(__name__)
 
 MAGIC = b"\x89MCAP0\r\n"
 OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x04, 0x05, 0x06
@@ -31,7 +36,11 @@ _MESSAGE = struct.Struct("<HIQQ")
 
 
 class UnsupportedLog(ValueError):
-    """The scanner cannot read this file; use canfdi.io.recorder's readers instead."""
+    """The scanner cannot read this file; use canfdi.io.reader's readers instead."""
+
+
+class NotMcap(ValueError):
+    """The file is not an MCAP file (its first bytes are not MCAP's magic)."""
 
 
 def _string(buf: memoryview, pos: int) -> tuple[str, int]:
@@ -56,7 +65,9 @@ def scan_topic(path: str | Path, topic: str) -> Iterator[tuple[int, dict]]:
     """(log_time ns, decoded JSON) of every message on ``topic``, in file order."""
     data = Path(path).read_bytes()
     if not data.startswith(MAGIC):
-        raise UnsupportedLog(f"{path}: not an MCAP file")
+        if MAGIC.startswith(data):  # cut short before its first record: nothing in it
+            return
+        raise NotMcap(f"{path}: not an MCAP file")
     buf = memoryview(data)
     channels: set[int] = set()
     decompressor = None
@@ -86,11 +97,17 @@ def _scan(buf: memoryview, pos: int, end: int, topic: str, channels: set[int],
                 return
             payload = buf[p : p + length]
             if compression == "zstd":
-                if decompressor is None:
-                    import zstandard
+                import zstandard
 
+                if decompressor is None:
                     decompressor = zstandard.ZstdDecompressor()
-                inner = memoryview(decompressor.decompress(bytes(payload), max_output_size=size))
+                try:
+                    inner = memoryview(
+                        decompressor.decompress(bytes(payload), max_output_size=size)
+                    )
+                except zstandard.ZstdError as exc:
+                    logger.warning("skipped a damaged chunk of %d bytes: %s", length, exc)
+                    continue
             elif compression == "":
                 inner = payload
             else:

@@ -97,7 +97,7 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
               progress: Callable[[str], None] | None = None, workdir: Path | None = None) -> dict:
     """Measure everything; returns the JSON-ready result."""
     from canfdi.bus.dbc import BusMap
-    from canfdi.io.recorder import McapRecorder
+    from canfdi.io.writer import McapRecorder
     from canfdi.monitor import Monitor
 
     say = progress or (lambda msg: None)

@@ -56,7 +56,6 @@ __all__ = ["MAX_POINTS", "LogContents", "Report", "ReportError", "Trajectory", "
 MAX_POINTS = 5000
 """At most this many points per plotted line (min/max decimation beyond)."""
 
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 _PARAMS = ("eta", "lambda", "bias", "rate", "scale", "value", "std")
 _LABEL = {"eta": "η", "lambda": "λ", "bias": "bias"}
 Progress = Callable[[str], None]
@@ -75,7 +74,7 @@ class ReportError(ValueError):
 class LogContents:
     """What a log holds, as arrays; None or empty where the log lacks it (see ``notes``).
 
-    samples : canfdi.io.recorder.SampleArrays or None; residuals : ResidualArrays or None.
+    samples : canfdi.io.reader.SampleArrays or None; residuals : ResidualArrays or None.
     thresholds : (m,) Page-Hinkley thresholds in residuals.names order, or None.
     events : every FaultEvent of ``/canfdi/events`` in order.
     truth : the injected faults (demo logs) or None.
@@ -100,19 +99,29 @@ class LogContents:
         return [e for e in self.events if e.kind == "accepted"]
 
 
-def _check_mcap(path: Path) -> None:
+def _check_mcap(path: Path) -> dict[str, str]:
+    """The metadata of a log canfdi report can read (canfdi.io.formats: one that holds a run's
+    records, a canfdi MCAP); ReportError saying why for any other file."""
+    from canfdi.io.formats import LogFormatError, LogReadError, format_of
+
     if not path.exists():
         raise ReportError(f"no such log: {path}")
     if path.is_dir():
         raise ReportError(f"{path} is a directory, not a log")
     try:
-        with open(path, "rb") as f:
-            head = f.read(len(MCAP_MAGIC))
+        fmt = format_of(path)
+    except LogFormatError as exc:
+        raise ReportError(str(exc)) from None
+    if not fmt.records:
+        raise ReportError(f"{path} is a {fmt.suffix} log of raw frames: canfdi report reads the "
+                          f"MCAP logs of canfdi run and demo (canfdi replay diagnoses it)")
+    try:
+        return fmt.metadata(path)
     except OSError as exc:
         raise ReportError(f"cannot read {path}: {exc.strerror or exc}") from None
-    if head != MCAP_MAGIC:
-        raise ReportError(f"{path} is not an MCAP file (canfdi report reads the MCAP logs of "
-                          f"canfdi run and demo)")
+    except LogReadError as exc:
+        raise ReportError(f"{exc} (canfdi report reads the MCAP logs of canfdi run and "
+                          f"demo)") from None
 
 
 def _event(message: dict) -> FaultEvent:
@@ -180,21 +189,15 @@ def read_log_contents(path: str | Path, config_path: Path | None = None,
     ReportError
         No such file, not an MCAP file, an unreadable --config, or a log the readers reject.
     """
-    from canfdi.io.recorder import (
-        TOPIC_EVENTS,
-        log_segments,
-        read_log,
-        read_metadata,
-        read_residuals,
-        read_samples,
-    )
+    from canfdi.io.reader import read_log, read_residuals, read_samples
+    from canfdi.io.schemas import TOPIC_EVENTS
+    from canfdi.io.segments import log_segments
 
     say = progress or (lambda _msg: None)
     path = Path(path)
-    _check_mcap(path)
+    metadata = _check_mcap(path)
     notes: list[str] = []
     try:
-        metadata = read_metadata(path)
         if not metadata:
             notes.append("the log has no canfdi metadata (config, thresholds, truth)")
         config = _config(metadata, config_path, notes)

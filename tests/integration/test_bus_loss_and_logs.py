@@ -1,16 +1,22 @@
-"""A lost bus is reopened with backoff; python-can logs replay like the MCAP they came from."""
+"""A lost bus is reopened with backoff; python-can logs of every format, gzip-compressed or not,
+replay like the MCAP they came from; unknown and damaged logs are one error line."""
 
 import asyncio
+import gzip
 import json
 import os
+import shutil
 import subprocess
 import sys
+import time
 
 import can
 import pytest
 
+from canfdi.cli import main
 from canfdi.config import load_config
-from canfdi.io.recorder import read_frames
+from canfdi.io.formats import format_of
+from canfdi.io.reader import read_frames
 from canfdi.monitor import Monitor
 from canfdi.service import MonitorService
 from tests.conftest import REPO
@@ -43,7 +49,7 @@ class FlakyBus(can.BusABC):
 def test_lost_bus_is_reopened_and_diagnosis_goes_on(tmp_path):
     # Frames of a demo log: the first half comes on a bus that then dies, the rest on the next.
     from canfdi.cli.demo import run_demo
-    from canfdi.io.recorder import McapRecorder
+    from canfdi.io.writer import McapRecorder
     from firmware_sim.scenario import load_scenario
 
     log = tmp_path / "src.mcap"
@@ -91,35 +97,129 @@ def test_lost_bus_is_reopened_and_diagnosis_goes_on(tmp_path):
     assert fault["estimate"]["lambda"] == pytest.approx(10.0, rel=0.02)
 
 
-@pytest.mark.parametrize("suffix", [".blf", ".asc", ".log"])
-def test_python_can_logs_replay_to_the_same_diagnoses(tmp_path, suffix):
-    src = tmp_path / "demo.mcap"
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    """A demo run's MCAP and its live diagnoses (dc_motor_sensors_b: two sensor faults)."""
+    src = tmp_path_factory.mktemp("demo") / "demo.mcap"
     res = subprocess.run([sys.executable, "-m", "canfdi", "demo", "--scenario",
                           "dc_motor_sensors_b", "--json", "-o", str(src)],
                          capture_output=True, text=True, timeout=300, cwd=REPO)
     assert res.returncode == 0, res.stderr
-    live = json.loads(res.stdout)["faults"]
-    out = tmp_path / f"frames{suffix}"
-    with can.Logger(str(out)) as writer:
-        logged = read_frames(src)
-        received = logged.select(logged.status != "sent")
+    return src, json.loads(res.stdout)["faults"]
+
+
+def python_can_log(src, out):
+    """The frames the monitor received in ``src``, written by python-can itself (can.Logger;
+    a .blf.gz is a .blf gzipped, which python-can reads but does not write)."""
+    logged = read_frames(src)
+    received = logged.select(logged.status != "sent")
+    target = out.with_suffix("") if out.name.endswith(".blf.gz") else out
+    with can.Logger(str(target)) as writer:
         for t, i, data, extended in zip(received.t_ns.tolist(), received.id.tolist(),
                                         received.payloads(), received.extended.tolist(),
                                         strict=True):
             writer.on_message_received(can.Message(
                 timestamp=t / 1e9, arbitration_id=i, data=data, is_extended_id=extended,
                 channel=0))
-    res = subprocess.run([sys.executable, "-m", "canfdi", "replay", str(out), "--config",
-                          str(CONFIG), "--json"], capture_output=True, text=True, timeout=300,
-                         cwd=REPO)
-    assert res.returncode == 0, res.stderr
-    replayed = json.loads(res.stdout)["faults"]
+        # python-can's SQLite writer drops what is still queued when it is stopped.
+        while isinstance(writer, can.SqliteWriter) and not writer.buffer.empty():
+            time.sleep(0.01)
+    if target != out:
+        with open(target, "rb") as f, gzip.open(out, "wb") as g:
+            shutil.copyfileobj(f, g)
+    return out
+
+
+def replay(log, capsys):
+    """`canfdi replay LOG --config dc_motor.yaml --json`, in this process: its faults."""
+    assert main(["replay", str(log), "--config", str(CONFIG), "--json", "--no-progress"]) == 0
+    return json.loads(capsys.readouterr().out)["faults"]
+
+
+def same_diagnoses(replayed, live):
     assert [(f["kind"], f["index"], f["accepted_sample"]) for f in replayed] == \
         [(f["kind"], f["index"], f["accepted_sample"]) for f in live]
     for a, b in zip(replayed, live, strict=True):
         for key, value in b["estimate"].items():
-            # Text formats keep microsecond timestamps and full payloads: same numbers.
+            # Every format keeps microsecond timestamps and full payloads: same numbers.
             assert a["estimate"][key] == pytest.approx(value, rel=1e-9)
+
+
+SUFFIXES = [".blf", ".asc", ".log", ".trc", ".csv", ".db", ".mf4", ".asc.gz", ".log.gz",
+            ".trc.gz", ".csv.gz", ".blf.gz"]
+
+
+@pytest.mark.parametrize("suffix", SUFFIXES)
+def test_python_can_logs_replay_to_the_same_diagnoses(demo, tmp_path, capsys, suffix):
+    src, live = demo
+    missing = format_of(f"x{suffix}").missing()
+    if missing:
+        pytest.skip(missing)
+    out = python_can_log(src, tmp_path / f"frames{suffix}")
+    same_diagnoses(replay(out, capsys), live)
+
+
+def test_a_gzipped_log_replays_as_the_uncompressed_one(demo, tmp_path, capsys):
+    # The command line as a user types it: `canfdi replay x.asc.gz --config dc_motor.yaml`.
+    src, live = demo
+    plain = python_can_log(src, tmp_path / "frames.asc")
+    packed = tmp_path / "frames.asc.gz"
+    with open(plain, "rb") as f, gzip.open(packed, "wb") as g:
+        shutil.copyfileobj(f, g)
+    results = []
+    for log in (plain, packed):
+        res = subprocess.run([sys.executable, "-m", "canfdi", "replay", str(log), "--config",
+                              str(CONFIG), "--json"], capture_output=True, text=True,
+                             timeout=300, cwd=REPO)
+        assert res.returncode == 0, res.stderr
+        results.append(json.loads(res.stdout))
+    assert results[0] == results[1]
+    same_diagnoses(results[1]["faults"], live)
+
+
+def test_an_exported_log_replays_to_the_same_diagnoses(demo, tmp_path, capsys):
+    # canfdi export writes the monitor's own frames too (as Tx); replay keeps them, as a
+    # monitor elsewhere on the bus hears them, and they change nothing.
+    src, live = demo
+    for fmt in ("trc.gz", "csv", "mcap"):
+        out = tmp_path / f"exported.{fmt}"
+        assert main(["export", str(src), "--format", fmt, "-o", str(out), "--no-progress"]) == 0
+        same_diagnoses(replay(out, capsys), live)
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "canfdi", *map(str, args)],
+                          capture_output=True, text=True, timeout=120, cwd=REPO)
+
+
+@pytest.mark.parametrize("verb", ["replay", "export"])
+def test_an_unknown_suffix_is_one_line_and_exit_2(tmp_path, verb):
+    log = tmp_path / "frames.pcapng"
+    log.write_bytes(b"\x0a\x0d\x0d\x0a" * 100)
+    extra = ["--config", CONFIG] if verb == "replay" else ["--format", "asc"]
+    res = run_cli(verb, log, *extra)
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
+    assert "frames.pcapng" in lines[0] and ".asc.gz" in lines[0] and ".mcap" in lines[0]
+
+
+@pytest.mark.parametrize("suffix", [".mcap", ".asc", ".blf", ".log", ".trc", ".db",
+                                    ".asc.gz", ".mf4"])
+def test_a_damaged_log_is_one_line_and_no_traceback(tmp_path, suffix):
+    missing = format_of(f"x{suffix}").missing()
+    if missing:
+        pytest.skip(missing)
+    log = tmp_path / f"damaged{suffix}"
+    log.write_bytes(os.urandom(4000))
+    res = run_cli("replay", log, "--config", CONFIG, "--json", "--no-progress")
+    assert res.returncode == 1 and res.stdout == ""
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
+    assert f"damaged{suffix}" in lines[0] and "not a readable" in lines[0]
+    res = run_cli("export", log, "--format", "asc", "-o", tmp_path / "out.asc")
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
 
 
 def test_a_socket_bus_gets_a_large_receive_buffer():

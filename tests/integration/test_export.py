@@ -1,4 +1,5 @@
-"""`canfdi export`: every raw frame of an MCAP, read back by python-can, for each format."""
+"""`canfdi export`: every raw frame of a log, read back by python-can and by the registry, for
+each format the registry writes."""
 
 import subprocess
 import sys
@@ -8,7 +9,11 @@ import numpy as np
 import pytest
 
 from canfdi.bus.frames import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, FrameBlock
-from canfdi.io.recorder import McapRecorder, read_frames
+from canfdi.cli import main
+from canfdi.io.formats import formats
+from canfdi.io.logs import frame_blocks
+from canfdi.io.reader import read_frames
+from canfdi.io.writer import McapRecorder
 from tests.conftest import REPO
 
 T0 = 1_795_000_000_000_000_000
@@ -75,3 +80,51 @@ def test_export_of_a_missing_log_exits_2(tmp_path):
                           "--format", "blf"], capture_output=True, text=True, timeout=60,
                          cwd=REPO)
     assert res.returncode == 2 and "no.mcap" in res.stderr
+
+
+WRITABLE = [f for f in formats() if f.writable]
+
+
+@pytest.mark.parametrize("fmt", WRITABLE, ids=lambda f: f.name)
+def test_export_writes_every_format_of_the_registry(log, tmp_path, capsys, fmt):
+    if fmt.missing():
+        pytest.skip(fmt.missing())
+    out = tmp_path / f"frames{fmt.suffix}"
+    assert main(["export", str(log), "--format", fmt.name, "-o", str(out), "--no-progress"]) == 0
+    src = read_frames(log)
+    held = np.ones(src.size, dtype=bool)
+    for kind, flag in (("remote", FLAG_REMOTE), ("error", FLAG_ERROR)):
+        if kind not in fmt.holds:
+            held &= (src.flags & flag) == 0
+    line = capsys.readouterr().err.strip()
+    assert f"{held.sum():,} frames -> {out}" in line
+    assert ("left out" in line) == (not held.all())
+    back = FrameBlock.concat(list(frame_blocks(out, received=False)))
+    src = src.select(held)
+    assert back.size == src.size
+    data = ((src.flags & (FLAG_REMOTE | FLAG_ERROR)) == 0).tolist()  # others carry no data
+    assert [p for p, d in zip(back.payloads(), data, strict=True) if d] == \
+        [p for p, d in zip(src.payloads(), data, strict=True) if d]
+    if fmt.name != "mcap":  # python-can reads what it wrote
+        with can.LogReader(str(out)) as reader:
+            assert sum(1 for _ in reader) == held.sum()
+
+
+def test_export_takes_the_format_from_the_output_name_and_any_log(log, tmp_path, capsys):
+    asc = tmp_path / "a.asc.gz"
+    assert main(["export", str(log), "-o", str(asc), "--no-progress"]) == 0
+    blf = tmp_path / "a.blf"
+    assert main(["export", str(asc), "-o", str(blf), "--no-progress"]) == 0  # not an MCAP
+    assert main(["export", str(blf), "--format", "log", "--no-progress"]) == 0
+    candump = tmp_path / "a.log"  # the default name: the input's, with the format's suffix
+    src = read_frames(log)
+    back = FrameBlock.concat(list(frame_blocks(candump)))
+    assert back.size == src.size
+    # through .asc, whose times count from its start, with microsecond resolution
+    np.testing.assert_allclose(back.t_ns - back.t_ns[0], src.t_ns - src.t_ns[0], rtol=0,
+                               atol=1500)
+    capsys.readouterr()
+    assert main(["export", str(log), "--no-progress"]) == 2
+    assert "--format or -o" in capsys.readouterr().err
+    assert main(["export", str(log), "-o", str(tmp_path / "x.blf.gz")]) == 2
+    assert "cannot write .blf.gz" in capsys.readouterr().err

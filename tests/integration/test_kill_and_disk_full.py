@@ -25,14 +25,9 @@ import pytest
 
 from canfdi.cli.common import recording_counts
 from canfdi.config import load_config
-from canfdi.io.recorder import (
-    McapRecorder,
-    log_segments,
-    read_frames,
-    read_log,
-    read_metadata,
-    read_samples,
-)
+from canfdi.io.reader import read_frames, read_log, read_metadata, read_samples
+from canfdi.io.segments import log_segments
+from canfdi.io.writer import McapRecorder
 from canfdi.monitor import Monitor
 from canfdi.service import MonitorService
 from firmware_sim.emitter import emit
@@ -134,7 +129,7 @@ def test_full_disk_under_the_service_degrades_then_resumes(tmp_path, caplog):
     of dc_motor_consecutive are accepted then): every fault still gets its FDI_FAULT frame,
     FDI_STATUS says "degraded" during the episode only, the recorder warns once when it fails
     and once when it resumes (in run-0001.mcap), and its counters say what was lost."""
-    caplog.set_level(logging.INFO, logger="canfdi.io.recorder")
+    caplog.set_level(logging.INFO, logger="canfdi.io.writer")
     config = load_config(CONFIG)
     scenario = load_scenario("dc_motor_consecutive")
     monitor = Monitor(config)
@@ -195,7 +190,7 @@ def test_full_disk_under_the_service_degrades_then_resumes(tmp_path, caplog):
     assert runs == [False, True, False], states
 
     # The recorder: one warning per episode, counters, a second segment.
-    messages = [r.getMessage() for r in caplog.records if r.name == "canfdi.io.recorder"]
+    messages = [r.getMessage() for r in caplog.records if r.name == "canfdi.io.writer"]
     assert len([m for m in messages if "failed" in m]) == 1, messages
     assert len([m for m in messages if "resumed" in m]) == 1, messages
     assert recorder.last_error is not None and recorder.last_error.errno == errno.ENOSPC

@@ -16,7 +16,8 @@ from canfdi import dbc as dbc_files
 from canfdi.bus import e2e
 from canfdi.cli.demo import run_demo
 from canfdi.config import load_config
-from canfdi.io.recorder import McapRecorder, read_frames
+from canfdi.io.reader import read_frames
+from canfdi.io.writer import McapRecorder
 from firmware_sim.scenario import load_scenario, parse_scenario
 from tests.conftest import REPO
 

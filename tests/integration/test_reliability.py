@@ -9,7 +9,8 @@ import yaml
 
 from canfdi.bus.frames import FrameBlock
 from canfdi.config import load_config
-from canfdi.io.recorder import McapRecorder, read_frames
+from canfdi.io.reader import read_frames
+from canfdi.io.writer import McapRecorder
 from canfdi.monitor import Monitor
 from canfdi.tools.bench import make_traffic
 from tests.conftest import REPO, feed_frame_log

@@ -9,7 +9,7 @@ import pytest
 
 from canfdi.cli import main
 from canfdi.config import load_config
-from canfdi.io.recorder import McapRecorder
+from canfdi.io.writer import McapRecorder
 from canfdi.monitor import Monitor
 from canfdi.tools.report import decimate
 from firmware_sim.emitter import frame_log

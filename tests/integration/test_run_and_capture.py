@@ -10,7 +10,8 @@ import time
 import can
 
 from canfdi.config import load_config
-from canfdi.io.recorder import McapRecorder, read_frames, read_log, read_metadata, read_samples
+from canfdi.io.reader import read_frames, read_log, read_metadata, read_samples
+from canfdi.io.writer import McapRecorder
 from canfdi.monitor import Monitor
 from canfdi.service import MonitorService
 from firmware_sim.emitter import emit

@@ -1,6 +1,6 @@
 """docs/mcap.md names every topic, schema and field the recorder writes (docs match code)."""
 
-from canfdi.io.recorder import SCHEMAS
+from canfdi.io.schemas import SCHEMAS
 from tests.conftest import REPO
 
 

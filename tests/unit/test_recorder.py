@@ -1,5 +1,6 @@
-"""Tests of canfdi.io.recorder: MCAP round trip of the block topics, truncation, kill -9,
-rotation, disk full, and reading the older one-row-per-message layout."""
+"""Tests of canfdi's MCAP log (canfdi.io.writer's McapRecorder, canfdi.io.reader, .blocks,
+.segments): round trip of the block topics, truncation, kill -9, rotation, disk full, and
+reading the older one-row-per-message layout."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+import can
 import numpy as np
 import pytest
 from mcap.reader import make_reader
@@ -20,12 +22,18 @@ from mcap.records import Footer
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
-from canfdi.bus.frames import FrameBlock
+from canfdi.bus.frames import FLAG_EXTENDED, FLAG_FD, FrameBlock
 from canfdi.core.records import FaultEvent, Sample
-from canfdi.io.logs import mcap_frame_arrays, mcap_frames
-from canfdi.io.recorder import (
-    FLAG_EXTENDED,
-    FLAG_FD,
+from canfdi.io.reader import (
+    iter_frame_blocks,
+    mcap_frame_blocks,
+    read_frames,
+    read_log,
+    read_metadata,
+    read_residuals,
+    read_samples,
+)
+from canfdi.io.schemas import (
     FRAME_DTYPE,
     FRAMES_ENCODING,
     MESSAGE_ENCODING,
@@ -41,15 +49,9 @@ from canfdi.io.recorder import (
     TOPIC_SAMPLES,
     TOPIC_STATUS,
     TOPICS,
-    McapRecorder,
-    iter_frame_blocks,
-    log_segments,
-    read_frames,
-    read_log,
-    read_metadata,
-    read_residuals,
-    read_samples,
 )
+from canfdi.io.segments import log_segments
+from canfdi.io.writer import McapRecorder
 
 REPO = Path(__file__).resolve().parents[2]
 T0 = 1_700_000_000_123_456_789
@@ -149,9 +151,17 @@ def test_round_trip_every_topic(tmp_path: Path) -> None:
         rec.write_frame(T0 + 3, 0x10, bytearray(b"\x00"), 'we"ird\n')
         rec.write_frame(T0 + 4, 0x11, b"\xaa", "sent")
         rec.write_frame(T0 + 5, 0x12, fd_payload, "fd", flags=FLAG_FD)
-        rec.write_frames(_block(block_t, [0x100, 0x101, 0x18000000], [8, 2, 8], block_payloads, extended=np.array([False, False, True])), np.array(["ok", "dlc", "extended"]))
+        rec.write_frames(
+            _block(block_t, [0x100, 0x101, 0x18000000], [8, 2, 8], block_payloads,
+                   extended=np.array([False, False, True])),
+            np.array(["ok", "dlc", "extended"]),
+        )
         rec.write_frames(_block(block_t + 10, [1, 2, 3], [1, 1, 1], np.ones((3, 8))), "ok")
-        rec.write_frames(_block(block_t + 20, [4, 5, 6], [8, 8, 8], np.zeros((3, 8))), np.array([2, 0, 1], dtype=np.int8), status_names=["ok", "monitor", "stale"])
+        rec.write_frames(
+            _block(block_t + 20, [4, 5, 6], [8, 8, 8], np.zeros((3, 8))),
+            np.array([2, 0, 1], dtype=np.int8),
+            status_names=["ok", "monitor", "stale"],
+        )
         rec.write_sample(sample, INPUTS, OUTPUTS)
         rec.write_samples(
             [301, 302],
@@ -349,7 +359,11 @@ def test_blocks_fill_to_block_size_and_carry_their_first_time(tmp_path: Path) ->
         write_frames(rec, 0, 5)
         assert rec.buffered == 1 and rec.messages_written == 4
         n = 9
-        rec.write_frames(_block(T0 + (5 + np.arange(n)) * 1000, 5 + np.arange(n), np.full(n, 4), np.zeros((n, 8), np.uint8)), ["ok"] * n)
+        rec.write_frames(
+            _block(T0 + (5 + np.arange(n)) * 1000, 5 + np.arange(n), np.full(n, 4),
+                   np.zeros((n, 8), np.uint8)),
+            ["ok"] * n,
+        )
         # 1 + 9 buffered: two full blocks written, 2 frames wait for close.
         assert rec.buffered == 2 and rec.messages_written == 12
         for i in range(7):
@@ -464,9 +478,17 @@ def test_many_statuses_and_name_changes(tmp_path: Path) -> None:
     with McapRecorder(path) as rec:
         for i, status in enumerate(statuses):
             rec.write_frame(T0 + i, i, b"", status)
-        rec.write_frames(_block(T0 + 600 + np.arange(200), np.arange(200), np.zeros(200, int), np.zeros((200, 8), np.uint8)), statuses[:200])
+        rec.write_frames(
+            _block(T0 + 600 + np.arange(200), np.arange(200), np.zeros(200, int),
+                   np.zeros((200, 8), np.uint8)),
+            statuses[:200],
+        )
         with pytest.raises(ValueError, match="256"):
-            rec.write_frames(_block(np.zeros(300, np.int64), np.zeros(300), np.zeros(300), np.zeros((300, 8))), [f"other-{i}" for i in range(300)])
+            rec.write_frames(
+                _block(np.zeros(300, np.int64), np.zeros(300), np.zeros(300),
+                       np.zeros((300, 8))),
+                [f"other-{i}" for i in range(300)],
+            )
         rec.write_sample(
             Sample(k=0, timestamp_ns=T0, u=np.zeros(2), z=np.zeros(2)), INPUTS, OUTPUTS
         )
@@ -547,6 +569,18 @@ def write_old_layout(path: Path, n_frames: int) -> None:
         writer.finish()
 
 
+def received_tuples(path: Path) -> list[tuple[int, int, bytes, bool, bool]]:
+    """(t_ns, id, payload, extended, error frame) of the frames replay reads from a log."""
+    return [
+        (t, i, d, x, s == "error_frame")
+        for block in mcap_frame_blocks(path)
+        for t, i, d, x, s in zip(
+            block.t_ns.tolist(), block.id.tolist(), block.payloads(), block.extended.tolist(),
+            block.status.tolist(), strict=True,
+        )
+    ]
+
+
 def test_reads_the_one_frame_per_message_layout(tmp_path: Path) -> None:
     path = tmp_path / "old.mcap"
     n = 5000  # more than one block of old rows
@@ -580,7 +614,7 @@ def test_reads_the_one_frame_per_message_layout(tmp_path: Path) -> None:
             rec.write_frame(T0 + i * 1000, i & 0x7FF, i.to_bytes(4, "big"),
                             "sent" if i % 5 == 0 else "ok", i % 7 == 0)  # fmt: skip
         rec.write_frame(T0 + n * 1000, 1, bytes(range(64)), "fd")
-    old_tuples, new_tuples = list(mcap_frames(path)), list(mcap_frames(new))
+    old_tuples, new_tuples = received_tuples(path), received_tuples(new)
     assert old_tuples == new_tuples
     expected = [
         (T0 + i * 1000, i & 0x7FF, i.to_bytes(4, "big"), i % 7 == 0, False)
@@ -588,10 +622,29 @@ def test_reads_the_one_frame_per_message_layout(tmp_path: Path) -> None:
         if i % 5
     ] + [(T0 + n * 1000, 1, bytes(range(64)), False, False)]
     assert old_tuples == expected
-    arrays = mcap_frame_arrays(new)
+    arrays = FrameBlock.concat(mcap_frame_blocks(new))
     assert arrays.t_ns.tolist() == [t for t, *_ in expected]
     assert arrays.payloads() == [d for _, _, d, _, _ in expected]
     assert "sent" not in set(arrays.status.tolist())
+
+
+def test_vectorised_frames_keep_their_can_fd_payloads(tmp_path: Path) -> None:
+    # FrameBlock.long (payloads over 8 bytes) used to be dropped by write_frames: only the
+    # first 8 bytes of a CAN FD frame reached the log.
+    path = tmp_path / "fd.mcap"
+    payloads = [bytes(range(n)) for n in (0, 8, 12, 64, 3)]
+    messages = [can.Message(timestamp=T0 / 1e9 + i, arbitration_id=0x100 + i, data=p,
+                            is_fd=len(p) > 8, is_extended_id=False)
+                for i, p in enumerate(payloads)]
+    block = FrameBlock.from_messages(messages)
+    assert set(block.long) == {2, 3}
+    with McapRecorder(path, block_frames=2) as rec:
+        rec.write_frame(T0, 0x7FF, bytes(20), "fd", dlc=20)  # a row before the block
+        rec.write_frames(block, "fd")
+    frames = read_frames(path)
+    assert frames.payloads() == [bytes(20), *payloads]
+    assert frames.dlc.tolist() == [20, 0, 8, 12, 64, 3]
+    assert [b.size for b in iter_frame_blocks(path)] == [2, 2, 2]
 
 
 def test_empty_log_reads_as_empty_arrays(tmp_path: Path) -> None:
@@ -602,7 +655,7 @@ def test_empty_log_reads_as_empty_arrays(tmp_path: Path) -> None:
     samples = read_samples(path)
     assert samples.U.shape == (0, 0) and samples.k.shape == (0,) and samples.input_names == []
     assert read_residuals(path).R.shape == (0, 0)
-    assert list(mcap_frames(path)) == []
+    assert received_tuples(path) == []
 
 
 # --------------------------------------------------------------------------------------
@@ -720,7 +773,7 @@ def test_explicit_flush_writes_the_buffers_and_ends_the_chunk(tmp_path: Path) ->
 
 CHILD = """
 import sys, time
-from canfdi.io.recorder import McapRecorder
+from canfdi.io.writer import McapRecorder
 
 rec = McapRecorder(sys.argv[1], flush_interval=0.2)
 i = 0
@@ -915,7 +968,7 @@ def test_disk_full_drops_then_resumes(
         clock=clock,
         opener=disk.open,
     )
-    caplog.set_level(logging.WARNING, logger="canfdi.io.recorder")
+    caplog.set_level(logging.WARNING, logger="canfdi.io.writer")
 
     def frames(start: int, stop: int) -> None:
         for i in range(start, stop):

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from canfdi.io.recorder import read_frames, read_log
+from canfdi.io.reader import read_frames, read_log
 from tests.conftest import REPO
 
 pytestmark = pytest.mark.vcan

@@ -29,7 +29,8 @@ from pathlib import Path
 
 import pytest
 
-from canfdi.io.recorder import log_segments, read_frames, read_log
+from canfdi.io.reader import read_frames, read_log
+from canfdi.io.segments import log_segments
 from tests.conftest import REPO
 
 pytestmark = pytest.mark.vcan
@@ -289,12 +290,12 @@ def test_full_disk_fault_frames_go_on_and_recording_resumes(tmp_path, small_disk
         sleep_until(start + FILL_AT)
         fill_start = time.time()
         fill(small_disk)
-        fail_seen = mon.wait_for("canfdi.io.recorder", "failed", timeout=60)
+        fail_seen = mon.wait_for("canfdi.io.writer", "failed", timeout=60)
         sleep_until(start + FREE_AT)
         assert time.time() < start + 29.0, "freeing the disk came too late for the test"
         free_time = time.time()
         filler.unlink()
-        resume_seen = mon.wait_for("canfdi.io.recorder", "resumed", timeout=60)
+        resume_seen = mon.wait_for("canfdi.io.writer", "resumed", timeout=60)
         emulator.proc.wait(timeout=180)
         assert emulator.proc.returncode == 0, emulator.text()
         time.sleep(2.0)  # the monitor drains its socket
@@ -329,7 +330,7 @@ def test_full_disk_fault_frames_go_on_and_recording_resumes(tmp_path, small_disk
     assert len(degraded) >= 5 and set(degraded) == {DEGRADED}, status
 
     # One warning per episode (error, then resumption), and the counts at exit.
-    recorder_lines = [ln for ln in mon.lines() if "canfdi.io.recorder" in ln]
+    recorder_lines = [ln for ln in mon.lines() if "canfdi.io.writer" in ln]
     failed = [ln for ln in recorder_lines if "failed" in ln]
     resumed = [ln for ln in recorder_lines if "resumed" in ln]
     assert len(failed) == 1 and "No space left on device" in failed[0], stderr

@@ -1,0 +1,455 @@
+"""Block messages of a canfdi log to and from arrays, and the JSON encoding of every message.
+
+The three busy topics of canfdi.io.schemas (``/can/frames``, ``/canfdi/samples``,
+``/canfdi/residuals``) hold many rows per MCAP message. This module packs rows into those
+messages (`encode_frame_block`, `encode_sample_block`, `encode_residual_block`), unpacks them
+(`decode_frames`, `decode_sample_block`, `decode_residual_block`, and `decode_frame_rows` for
+the older one-frame-per-message layout), buffers rows until a block is full (`Rows`) and
+encodes any message as Foxglove-compatible JSON (`encode_message`: NaN and inf as null). It
+does no I/O: canfdi.io.writer and canfdi.io.reader do.
+"""
+
+from __future__ import annotations
+
+import binascii
+import json
+import math
+import struct
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from canfdi.bus.frames import MAX_DATA, FrameBlock
+from canfdi.io.schemas import (
+    FRAME_DTYPE,
+    FRAMES_ENCODING,
+    RESIDUALS_ENCODING,
+    SAMPLES_ENCODING,
+    TOPIC_FRAMES,
+    TOPIC_RESIDUALS,
+    TOPIC_SAMPLES,
+)
+
+__all__ = [
+    "FRAMES_HEAD",
+    "FRAME_SIZE",
+    "NS_PER_S",
+    "Rows",
+    "check_block",
+    "check_column",
+    "check_matrix",
+    "decode_floats",
+    "decode_frame_rows",
+    "decode_frames",
+    "decode_residual_block",
+    "decode_sample_block",
+    "encode_frame_block",
+    "encode_json",
+    "encode_message",
+    "encode_residual_block",
+    "encode_sample_block",
+    "first_time",
+    "float_columns",
+    "float_row",
+    "gathered",
+    "named",
+    "no_frames",
+    "pack_frame",
+    "stamp",
+    "unique_names",
+]
+
+NS_PER_S = 1_000_000_000
+FRAME_SIZE = FRAME_DTYPE.itemsize
+"""Bytes of one packed frame record (24)."""
+pack_frame = struct.Struct("<qIBBBx8s").pack
+"""Pack (t_ns, id, dlc, flags, status code, 8 data bytes) as one `FRAME_DTYPE` record."""
+first_time = struct.Struct("<q").unpack_from
+"""The t_ns of the record at an offset of a packed buffer (a 1-tuple)."""
+assert struct.calcsize("<qIBBBx8s") == FRAME_SIZE == 24
+
+# ------------------------------------------------------------------------------------------
+# JSON
+# ------------------------------------------------------------------------------------------
+
+
+def _json_default(obj: Any) -> Any:
+    # numpy scalars and arrays (and anything else array-like).
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    if isinstance(obj, bytes | bytearray | memoryview):
+        return bytes(obj).hex()
+    if isinstance(obj, set | frozenset):
+        return sorted(obj)
+    raise TypeError(f"cannot record a {type(obj).__name__} as JSON")
+
+
+# One encoder for the process: json.dumps with keyword arguments builds a new encoder per call.
+encode_json = json.JSONEncoder(
+    separators=(",", ":"), default=_json_default, check_circular=False
+).encode
+
+
+def _finite(obj: Any) -> Any:
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite(v) for v in obj]
+    if hasattr(obj, "tolist"):
+        return _finite(obj.tolist())
+    return obj
+
+
+def encode_message(message: Mapping[str, Any]) -> bytes:
+    """A message as compact JSON bytes, non-finite floats as null."""
+    text = encode_json(message)
+    # JSON has no NaN or Infinity; Python writes them as bare tokens that Foxglove rejects.
+    # Searching the text is far cheaper than visiting every float of every message; a string
+    # that merely contains the word only costs a second, correct, pass.
+    if "NaN" in text or "Infinity" in text:
+        text = encode_json(_finite(message))
+    return text.encode()
+
+
+def stamp(timestamp_ns: int) -> dict[str, int]:
+    """Foxglove's time: ``{"sec", "nsec"}`` of integer nanoseconds since the epoch."""
+    sec, nsec = divmod(int(timestamp_ns), NS_PER_S)
+    return {"sec": sec, "nsec": nsec}
+
+
+def _listed(values: Any) -> list[Any]:
+    return values.tolist() if hasattr(values, "tolist") else list(values)
+
+
+def named(names: Sequence[str], values: Any) -> dict[str, Any]:
+    """``{name: value}`` of a row of values in ``names`` order."""
+    return dict(zip(names, _listed(values), strict=True))
+
+
+def float_columns(
+    names: Sequence[str], rows: NDArray[np.float64], binary: bool
+) -> dict[str, list[float | None]] | dict[str, str]:
+    """``{name: column}`` of an (N, len(names)) array: lists with non-finite values as None,
+    or (``binary``) base64 strings of little-endian float64."""
+    if binary:
+        packed = np.ascontiguousarray(rows.T, dtype="<f8")
+        return {
+            name: binascii.b2a_base64(column.tobytes(), newline=False).decode("ascii")
+            for name, column in zip(names, packed, strict=True)
+        }
+    finite = np.isfinite(rows)
+    if finite.all():
+        columns = rows.T.tolist()
+    else:
+        values = rows.T.astype(object)
+        values[~finite.T] = None
+        columns = values.tolist()
+    return dict(zip(names, columns, strict=True))
+
+
+def unique_names(names: Sequence[str], what: str) -> list[str]:
+    """``names`` as a list of str; ValueError naming ``what`` if one repeats."""
+    listed = [str(name) for name in names]
+    if len(set(listed)) != len(listed):
+        raise ValueError(f"duplicate {what} names: {listed}")
+    return listed
+
+
+# ------------------------------------------------------------------------------------------
+# blocks: encoding
+# ------------------------------------------------------------------------------------------
+
+FRAMES_HEAD = (
+    b'{"timestamp":{"sec":%d,"nsec":%d},"encoding":"'
+    + FRAMES_ENCODING.encode()
+    + b'","count":%d,"statuses":%s,"frames":"%s"'
+)
+
+
+class Rows:
+    """Buffered rows of one block topic, in order: single rows in per-column lists, vectorised
+    writes as array chunks (copies).
+
+    Parameters
+    ----------
+    kinds : tuple of numpy dtypes
+        Each column's dtype; the float columns hold (N, width) arrays.
+    """
+
+    __slots__ = ("chunks", "columns", "count", "kinds")
+
+    def __init__(self, kinds: tuple[type, ...]) -> None:
+        self.kinds = kinds
+        self.columns: tuple[list[Any], ...] = tuple([] for _ in kinds)
+        self.chunks: list[tuple[np.ndarray, ...]] = []
+        self.count = 0
+
+    def seal(self) -> None:
+        """Turn the pending single rows into a chunk."""
+        if self.columns[0]:
+            self.chunks.append(
+                tuple(
+                    np.array(c, dtype=kind)
+                    for c, kind in zip(self.columns, self.kinds, strict=True)
+                )
+            )
+            for column in self.columns:
+                column.clear()
+
+    def add(self, arrays: tuple[np.ndarray, ...]) -> None:
+        self.seal()
+        self.chunks.append(arrays)
+        self.count += len(arrays[0])
+
+    def take(self, n: int) -> tuple[np.ndarray, ...]:
+        """Remove and return the first ``n`` rows (``n <= count``)."""
+        self.seal()
+        chunks = self.chunks
+        if len(chunks) == 1:
+            arrays = chunks[0]
+        else:
+            arrays = tuple(np.concatenate(parts) for parts in zip(*chunks, strict=True))
+        if n < len(arrays[0]):
+            self.chunks = [tuple(a[n:] for a in arrays)]
+            arrays = tuple(a[:n] for a in arrays)
+        else:
+            self.chunks = []
+        self.count -= n
+        return arrays
+
+    def clear(self) -> int:
+        """Drop every row; returns how many there were."""
+        n = self.count
+        for column in self.columns:
+            column.clear()
+        self.chunks = []
+        self.count = 0
+        return n
+
+
+def float_row(values: Any) -> np.ndarray:
+    """A float64 copy of one row."""
+    # A copy: the diagnoser's arrays may be reused after the call.
+    if type(values) is np.ndarray:
+        return values.copy()
+    return np.array(values, dtype=np.float64)
+
+
+def check_column(values: ArrayLike, n: int, name: str) -> np.ndarray:
+    """``values`` as an (n,) array; ValueError naming ``name`` otherwise."""
+    array = np.asarray(values)
+    if array.shape != (n,):
+        raise ValueError(f"{name} must be ({n},), got shape {array.shape}")
+    return array
+
+
+def check_matrix(values: ArrayLike, n: int, width: int, name: str) -> NDArray[np.float64]:
+    """A float64 copy of ``values``, checked (n, width); ValueError naming ``name``."""
+    array = np.array(values, dtype=np.float64)  # a copy: the caller may reuse its array
+    if array.shape != (n, width):
+        raise ValueError(f"{name} must be ({n}, {width}), got shape {array.shape}")
+    return array
+
+
+def encode_frame_block(
+    records: bytes | bytearray | memoryview,
+    count: int,
+    t0: int,
+    statuses_json: bytes,
+    long: Mapping[int, bytes] | None = None,
+) -> bytes:
+    """One ``/can/frames`` message of ``count`` packed `FRAME_DTYPE` records.
+
+    Parameters
+    ----------
+    records : bytes
+        ``count * FRAME_SIZE`` bytes of packed records.
+    count : int
+        Frames in the block.
+    t0 : int
+        The first frame's t_ns: the block's timestamp.
+    statuses_json : bytes
+        The JSON list of status names the records' status codes index.
+    long : mapping of int to bytes, optional
+        Full payloads by row in this block (CAN FD, or lengths that disagree with the DLC).
+    """
+    sec, nsec = divmod(t0, NS_PER_S)
+    text = FRAMES_HEAD % (
+        sec,
+        nsec,
+        count,
+        statuses_json,
+        binascii.b2a_base64(records, newline=False),
+    )
+    if long:
+        text += b',"long":' + encode_json({str(row): d.hex() for row, d in long.items()}).encode()
+    return text + b"}"
+
+
+def encode_sample_block(
+    k: NDArray[np.int64],
+    t: NDArray[np.int64],
+    gap: NDArray[np.int64],
+    u: NDArray[np.float64],
+    z: NDArray[np.float64],
+    inputs: Sequence[str],
+    outputs: Sequence[str],
+    binary: bool,
+) -> bytes:
+    """One ``/canfdi/samples`` message of len(k) samples; ``u``, ``z`` (N, p), (N, q) floats
+    (anything that reshapes to that), columns named by ``inputs``, ``outputs``; ``binary``:
+    float columns as base64 float64 instead of JSON lists."""
+    n = len(k)
+    message = {
+        "timestamp": stamp(t[0]),
+        "encoding": SAMPLES_ENCODING,
+        "count": n,
+        "k": k.tolist(),
+        "t_ns": t.tolist(),
+        "gap": gap.tolist(),
+        "u": float_columns(inputs, u.reshape(n, len(inputs)), binary),
+        "z": float_columns(outputs, z.reshape(n, len(outputs)), binary),
+    }
+    return encode_json(message).encode()
+
+
+def encode_residual_block(
+    k: NDArray[np.int64],
+    t: NDArray[np.int64],
+    names: Sequence[str],
+    r: NDArray[np.float64],
+    normalized: NDArray[np.float64],
+    statistic: NDArray[np.float64],
+    binary: bool,
+) -> bytes:
+    """One ``/canfdi/residuals`` message of len(k) rows of the residuals ``names``: raw,
+    normalized and Page-Hinkley statistic, each (N, m) (or anything that reshapes to it)."""
+    shape = (len(k), len(names))
+    message = {
+        "timestamp": stamp(t[0]),
+        "encoding": RESIDUALS_ENCODING,
+        "count": len(k),
+        "k": k.tolist(),
+        "t_ns": t.tolist(),
+        "names": names,
+        "r": float_columns(names, r.reshape(shape), binary),
+        "normalized": float_columns(names, normalized.reshape(shape), binary),
+        "statistic": float_columns(names, statistic.reshape(shape), binary),
+    }
+    return encode_json(message).encode()
+
+
+# ------------------------------------------------------------------------------------------
+# blocks: decoding
+# ------------------------------------------------------------------------------------------
+
+
+def check_block(message: Mapping[str, Any], encoding: str, topic: str) -> int:
+    """The row count of a block message, checked to be of ``encoding``."""
+    found = message.get("encoding")
+    if found != encoding:
+        raise ValueError(f"unsupported {topic} block encoding {found!r} (expected {encoding!r})")
+    return int(message["count"])
+
+
+def decode_frames(message: Mapping[str, Any]) -> FrameBlock:
+    """The frames of one ``/can/frames`` block message, with their statuses."""
+    count = check_block(message, FRAMES_ENCODING, TOPIC_FRAMES)
+    records = np.frombuffer(binascii.a2b_base64(message["frames"]), dtype=FRAME_DTYPE)
+    if len(records) != count:
+        raise ValueError(f"a {TOPIC_FRAMES} block holds {len(records)} frames, says {count}")
+    names = np.array(message["statuses"], dtype=str)
+    codes = records["status"]
+    if count and int(codes.max()) >= len(names):
+        raise ValueError(f"a {TOPIC_FRAMES} block has a status code beyond its statuses")
+    return FrameBlock(
+        records["t_ns"].copy(),
+        records["id"].copy(),
+        records["dlc"].copy(),
+        records["flags"].copy(),
+        records["data"].copy(),
+        status=names[codes] if count else np.empty(0, dtype=str),
+        long={int(row): bytes.fromhex(data) for row, data in message.get("long", {}).items()},
+    )
+
+
+def decode_frame_rows(rows: list[tuple[int, Mapping[str, Any]]]) -> FrameBlock:
+    """Frames of the one-frame-per-message layout: ``{"id", "extended", "dlc", "data": hex,
+    "status"}`` at the message's log time."""
+    n = len(rows)
+    payloads = [bytes.fromhex(m["data"]) for _, m in rows]
+    dlc = [int(m.get("dlc", len(p))) for (_, m), p in zip(rows, payloads, strict=True)]
+    extended = np.array([bool(m.get("extended", False)) for _, m in rows], dtype=bool)
+    return FrameBlock(
+        np.array([t for t, _ in rows], dtype=np.int64),
+        np.array([m["id"] for _, m in rows], dtype=np.uint32),
+        np.array(dlc, dtype=np.uint8),
+        extended.astype(np.uint8),
+        np.frombuffer(
+            b"".join(p[:MAX_DATA].ljust(MAX_DATA, b"\0") for p in payloads), dtype=np.uint8
+        ).reshape(n, MAX_DATA),
+        status=np.array([str(m.get("status", "ok")) for _, m in rows], dtype=str),
+        long={i: p for i, (p, d) in enumerate(zip(payloads, dlc, strict=True))
+              if len(p) != min(d, 8)},
+    )
+
+
+def no_frames() -> FrameBlock:
+    """A block of no frames, with an (empty) status column."""
+    empty = FrameBlock.empty()
+    return FrameBlock(empty.t_ns, empty.id, empty.dlc, empty.flags, empty.data,
+                      status=np.empty(0, dtype=str))
+
+
+def decode_floats(columns: Mapping[str, Any], names: list[str], n: int) -> np.ndarray:
+    """(n, len(names)) float64 of a block's columns (JSON lists, null as NaN, or base64)."""
+    parts = []
+    for name in names:
+        column = columns[name]
+        if isinstance(column, str):
+            parts.append(np.frombuffer(binascii.a2b_base64(column), dtype="<f8"))
+        else:
+            parts.append(np.array(column, dtype=np.float64))
+        if parts[-1].shape != (n,):
+            raise ValueError(f"column {name!r} holds {len(parts[-1])} values in a block of {n}")
+    return np.array(parts, dtype=np.float64).reshape(len(names), n).T
+
+
+def gathered(rows: Rows, widths: Sequence[int]) -> list[np.ndarray]:
+    """Every row of ``rows`` as contiguous arrays; empty arrays (float columns of
+    ``widths``) when there is none."""
+    if not rows.count:
+        return [np.empty(0, dtype=np.int64) for _ in range(len(rows.kinds) - len(widths))] + [
+            np.empty((0, w)) for w in widths
+        ]
+    return [np.ascontiguousarray(a) for a in rows.take(rows.count)]
+
+
+def decode_sample_block(
+    message: Mapping[str, Any], inputs: list[str], outputs: list[str]
+) -> tuple[np.ndarray, ...]:
+    """(k, t_ns, gap, U, Z) of one ``/canfdi/samples`` block message."""
+    n = check_block(message, SAMPLES_ENCODING, TOPIC_SAMPLES)
+    return (
+        np.array(message["k"], dtype=np.int64),
+        np.array(message["t_ns"], dtype=np.int64),
+        np.array(message["gap"], dtype=np.int64),
+        decode_floats(message["u"], inputs, n),
+        decode_floats(message["z"], outputs, n),
+    )
+
+
+def decode_residual_block(message: Mapping[str, Any], names: list[str]) -> tuple[np.ndarray, ...]:
+    """(k, t_ns, R, Rn, stat) of one ``/canfdi/residuals`` block message."""
+    n = check_block(message, RESIDUALS_ENCODING, TOPIC_RESIDUALS)
+    return (
+        np.array(message["k"], dtype=np.int64),
+        np.array(message["t_ns"], dtype=np.int64),
+        decode_floats(message["r"], names, n),
+        decode_floats(message["normalized"], names, n),
+        decode_floats(message["statistic"], names, n),
+    )

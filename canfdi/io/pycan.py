@@ -1,0 +1,192 @@
+"""python-can's log readers and writers as FrameBlock readers and writers, gzip included.
+
+Every format python-can reads and writes (``.asc``, ``.blf``, ``.log``, ``.trc``, ``.csv``,
+``.db``, ``.mf4``) comes through its own reader and writer classes: `read_blocks` turns the
+messages of a log into FrameBlocks (canfdi.bus.frames), `write_blocks` writes FrameBlocks as
+messages. A name ending in ``.gz`` (``run.asc.gz``) is the log of the suffix before it,
+gzip-compressed: it is opened with `gzip.open` and handed to the same class, as python-can's
+`can.LogReader` and `can.Logger` do, for any name (python-can's own dispatch only takes names
+with exactly two suffixes). canfdi.io.formats registers these formats by suffix.
+
+Directions: python-can's ``Message.is_rx`` is kept in the blocks' status column, `RX` or `TX`
+(a frame the logging node sent). Written frames are Tx when their status is `TX` or
+canfdi.bus.frames' ``SENT`` (the monitor's own), Rx otherwise.
+"""
+
+from __future__ import annotations
+
+import gzip
+import time
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from canfdi.bus.frames import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE, SENT, FrameBlock
+
+__all__ = ["RX", "TX", "Written", "read_blocks", "write_blocks"]
+
+RX = "rx"
+"""Status of a frame a python-can log marks received (or does not mark: python-can's default)."""
+TX = "tx"
+"""Status of a frame a python-can log marks transmitted by the node that logged it."""
+
+_FLAGS = {"remote": FLAG_REMOTE, "error": FLAG_ERROR, "fd": FLAG_FD}
+
+
+class Written(NamedTuple):
+    """What a writer did: ``frames`` written, ``skipped`` frames of a kind the format cannot
+    hold (remote, error or CAN FD frames in a format without them)."""
+
+    frames: int
+    skipped: int
+
+
+def _reader_class(suffix: str) -> type:
+    from can.io.player import MESSAGE_READERS
+
+    return MESSAGE_READERS[suffix]
+
+
+def _writer_class(suffix: str) -> type:
+    from can.io.logger import MESSAGE_WRITERS
+
+    return MESSAGE_WRITERS[suffix]
+
+
+def _is_text(cls: type) -> bool:
+    from can.io.generic import TextIOMessageReader, TextIOMessageWriter
+
+    return issubclass(cls, TextIOMessageReader | TextIOMessageWriter)
+
+
+def _open_reader(path: Path, suffix: str, compressed: bool) -> Any:
+    if not compressed:
+        import can
+
+        return can.LogReader(str(path))
+    cls = _reader_class(suffix)
+    return cls(gzip.open(path, "rt" if _is_text(cls) else "rb"))
+
+
+def _open_writer(path: Path, suffix: str, compressed: bool) -> Any:
+    if not compressed:
+        import can
+
+        return can.Logger(str(path))
+    cls = _writer_class(suffix)
+    return cls(gzip.open(path, "wt" if _is_text(cls) else "wb"))
+
+
+def _block(messages: list[Any]) -> FrameBlock:
+    block = FrameBlock.from_messages(messages, now=0.0)
+    rx = np.fromiter((m.is_rx for m in messages), dtype=bool, count=len(messages))
+    return FrameBlock(block.t_ns, block.id, block.dlc, block.flags, block.data,
+                      status=np.where(rx, RX, TX), long=block.long)
+
+
+def read_blocks(path: Path, suffix: str, compressed: bool = False,
+                frames_per_block: int = 65536) -> Iterator[FrameBlock]:
+    """The frames of a python-can log in blocks of ``frames_per_block``, in log order.
+
+    Parameters
+    ----------
+    path : Path
+        The log.
+    suffix : str
+        The python-can suffix that says its format (``".asc"``...), ``.gz`` removed.
+    compressed : bool
+        The file is gzip-compressed.
+    frames_per_block : int
+        Frames per block (the last one may hold fewer).
+
+    Yields
+    ------
+    FrameBlock
+        Frames with status `RX` or `TX`; timestamps as the reader gives them (an ``.asc``
+        log's from its start: python-can reads them relative).
+
+    Raises
+    ------
+    Whatever python-can's reader raises for a file it cannot parse (canfdi.io.formats turns
+    it into one LogReadError).
+    """
+    with _open_reader(path, suffix, compressed) as reader:
+        pending: list[Any] = []
+        for message in reader:
+            pending.append(message)
+            if len(pending) >= frames_per_block:
+                yield _block(pending)
+                pending = []
+        if pending:
+            yield _block(pending)
+
+
+def write_blocks(path: Path, suffix: str, blocks: Iterable[FrameBlock], compressed: bool = False,
+                 holds: frozenset[str] = frozenset(_FLAGS)) -> Written:
+    """Write FrameBlocks to a python-can log (the file is replaced).
+
+    Parameters
+    ----------
+    path : Path
+        The log to write.
+    suffix : str
+        The python-can suffix of its format, ``.gz`` removed.
+    blocks : iterable of FrameBlock
+        The frames, in order; statuses `TX` and ``"sent"`` are written as Tx, others (or no
+        status) as Rx.
+    compressed : bool
+        Write it gzip-compressed.
+    holds : frozenset of {"remote", "error", "fd"}
+        The frame kinds the format can hold; frames of another kind are skipped and counted
+        (python-can's TRC writer would drop them with a warning each).
+
+    Returns
+    -------
+    Written
+        Frames written and skipped.
+    """
+    import can
+
+    not_held = 0
+    for kind, flag in _FLAGS.items():
+        if kind not in holds:
+            not_held |= flag
+    if suffix == ".db":  # python-can's SQLite writer appends to an existing table
+        path.unlink(missing_ok=True)
+    written = skipped = 0
+    with _open_writer(path, suffix, compressed) as writer:
+        for block in blocks:
+            flags = block.flags.tolist()
+            if block.status is None:
+                rx = [True] * block.size
+            else:
+                rx = ((block.status != SENT) & (block.status != TX)).tolist()
+            for t, frame_id, dlc, data, flag, is_rx in zip(
+                    block.t_ns.tolist(), block.id.tolist(), block.dlc.tolist(), block.payloads(),
+                    flags, rx, strict=True):
+                if flag & not_held:
+                    skipped += 1
+                    continue
+                writer.on_message_received(can.Message(
+                    timestamp=t / 1e9, arbitration_id=frame_id,
+                    is_extended_id=bool(flag & FLAG_EXTENDED),
+                    is_remote_frame=bool(flag & FLAG_REMOTE),
+                    is_error_frame=bool(flag & FLAG_ERROR), is_fd=bool(flag & FLAG_FD),
+                    is_rx=is_rx, dlc=dlc, data=data, channel=0, check=False))
+                written += 1
+        _drain(writer)
+    return Written(written, skipped)
+
+
+def _drain(writer: Any) -> None:
+    """Wait until a threaded writer (python-can's SQLite writer) has taken every queued
+    message: its thread ends at the first batch it writes after stop(), and messages still
+    queued then are lost (more than its 500-message batch, typically)."""
+    queued = getattr(writer, "buffer", None)
+    thread = getattr(writer, "_writer_thread", None)
+    if queued is None or thread is None:
+        return
+    while not queued.empty() and thread.is_alive():
+        time.sleep(0.005)

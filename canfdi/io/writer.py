@@ -1,0 +1,1131 @@
+"""`McapRecorder`: write a monitor run into MCAP, crash-safely, with rotation and disk-full
+tolerance.
+
+The topics, schemas and block layouts it writes are canfdi.io.schemas'; the block messages are
+packed by canfdi.io.blocks; segment names are canfdi.io.segments'. canfdi.io.reader reads the
+files back.
+
+Buffering and crash safety
+--------------------------
+Frames, samples and residual rows are appended to buffers inside the recorder (0.2 to 2 us a
+row, no JSON) and written as one block message when a buffer holds
+``block_frames``, ``block_samples`` or ``block_residuals`` rows, on every timed flush, on
+`McapRecorder.flush` and on `McapRecorder.close`. The mcap writer in turn keeps the open chunk in
+memory and writes it only when it exceeds ``chunk_size`` or on ``Writer.flush()``, which
+finishes the open chunk (if it holds a message), writes it and flushes the output stream.
+Whenever ``flush_interval`` seconds (on the injected clock) have passed since the last flush,
+the recorder writes every buffer out and calls ``Writer.flush()``: the check is a single
+comparison inside every write or append (no thread, no lock), and `McapRecorder.flush` forces
+it. The flushed bytes are in the operating system's page cache, so a killed process (SIGKILL,
+crash) loses only the rows still buffered and the messages of the chunk still open: about the
+last ``flush_interval`` seconds, as long as the caller writes at least that often (the
+monitor's frames and status messages do; an idle caller should call `McapRecorder.flush`).
+There is no fsync: a power loss may lose what the kernel had not yet written back. Such a file
+has no summary; `read_log` reads it in file order and stops at the last complete record, so a
+block is read back whole or not at all.
+
+Rotation
+--------
+With ``rotate_bytes`` or ``rotate_seconds``, the first message written after the segment's
+file reached ``rotate_bytes`` (bytes reach the file a chunk at a time, so a segment overshoots
+by at most a chunk and its summary) or the first write after the segment has been open
+``rotate_seconds`` (the buffers are written into it first) finishes the segment cleanly
+(summary and footer) and continues in ``<stem>-0001<suffix>``, ``<stem>-0002<suffix>``... next
+to the first file, which keeps the given name. `log_segments` lists the family in order. Stale
+numbered segments of the same name left by an earlier run are deleted when a recorder starts,
+so that the family is this run's only.
+
+Write errors
+------------
+An `OSError` while writing (typically ENOSPC: disk full) never reaches the caller of the write
+methods. The recorder records it (`McapRecorder.last_error`, `McapRecorder.write_errors`), logs
+one warning per episode, abandons the segment (its flushed part stays readable as a truncated
+file), counts the rows of its unflushed chunk and every block or message written while failing
+as dropped (`McapRecorder.messages_dropped`), and retries at most once per ``RETRY_INTERVAL``
+seconds, on a later write, by opening the next segment: recording resumes in a new segment when
+space returns. Rows still in the recorder's buffers when recording resumes are not lost. The
+constructor raises for errors that cannot heal by themselves (a missing directory, no
+permission) so that a bad path is reported at start.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import logging
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import IO, TYPE_CHECKING, Any, Self
+
+import numpy as np
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
+from numpy.typing import ArrayLike, NDArray
+
+from canfdi import __version__
+from canfdi.bus.frames import MAX_DATA, FrameBlock
+from canfdi.io.blocks import (
+    FRAME_SIZE,
+    NS_PER_S,
+    Rows,
+    check_column,
+    check_matrix,
+    encode_frame_block,
+    encode_message,
+    encode_residual_block,
+    encode_sample_block,
+    first_time,
+    float_row,
+    named,
+    pack_frame,
+    stamp,
+    unique_names,
+)
+from canfdi.io.schemas import (
+    FRAME_DTYPE,
+    FRAME_STATUSES,
+    GENERIC_SCHEMA,
+    MESSAGE_ENCODING,
+    METADATA_NAME,
+    SCHEMA_ENCODING,
+    SCHEMAS,
+    TOPIC_ESTIMATES,
+    TOPIC_EVENTS,
+    TOPIC_FRAMES,
+    TOPIC_RESIDUALS,
+    TOPIC_RESIDUALS_PLOT,
+    TOPIC_SAMPLES,
+    TOPIC_STATUS,
+)
+from canfdi.io.segments import numbered_segments, segment_path
+
+if TYPE_CHECKING:
+    from canfdi.core.records import FaultEvent, Sample
+
+__all__ = ["RETRY_INTERVAL", "McapRecorder"]
+
+logger = logging.getLogger(__name__)
+
+if not hasattr(Writer, "flush"):  # pragma: no cover - depends on the installed mcap
+    # Without Writer.flush a chunk only ends when full, which breaks the crash-loss bound.
+    raise ImportError("canfdi.io.writer needs an mcap package whose Writer has flush() (1.6+)")
+
+RETRY_INTERVAL = 1.0
+"""Seconds (on the recorder's clock) between attempts to resume after a write error."""
+
+_DEFAULT_CHUNK_SIZE = 1024 * 1024
+# errno values of a failing first open that may heal (space freed), so that a monitor started
+# on a full disk still monitors; anything else at start is a configuration error.
+_TRANSIENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EIO})
+_MAX_STATUSES = 256  # status is a uint8 code
+
+# Serialised once: every segment registers the same bytes.
+_SCHEMA_BYTES = {
+    topic: (name, json.dumps(schema).encode()) for topic, (name, schema) in SCHEMAS.items()
+}
+_GENERIC_SCHEMA_BYTES = (GENERIC_SCHEMA[0], json.dumps(GENERIC_SCHEMA[1]).encode())
+
+# ------------------------------------------------------------------------------------------
+# files
+# ------------------------------------------------------------------------------------------
+
+
+def _open_file(path: Path) -> IO[bytes]:
+    return open(path, "wb")
+
+
+class _CountingFile:
+    """The output stream handed to the mcap writer: counts bytes so rotation needs no syscall.
+
+    The writer opens every file fresh, so the count is also the position it asks for in tell().
+    """
+
+    __slots__ = ("_file", "count")
+
+    def __init__(self, file: IO[bytes]) -> None:
+        self._file = file
+        self.count = 0
+
+    def write(self, data: bytes) -> int:
+        self._file.write(data)
+        self.count += len(data)
+        return len(data)
+
+    def tell(self) -> int:
+        return self.count
+
+    def flush(self) -> None:
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class _Segment:
+    """One open MCAP file: its writer and the channel id of every topic registered in it."""
+
+    __slots__ = ("channels", "file", "generic_schema", "path", "writer")
+
+    def __init__(self, path: Path, file: _CountingFile, writer: Writer) -> None:
+        self.path = path
+        self.file = file
+        self.writer = writer
+        self.channels: dict[str, int] = {}
+        self.generic_schema = 0
+
+    def register_known(self) -> None:
+        for topic, (name, data) in _SCHEMA_BYTES.items():
+            schema_id = self.writer.register_schema(name, SCHEMA_ENCODING, data)
+            self.channels[topic] = self.writer.register_channel(topic, MESSAGE_ENCODING, schema_id)
+
+    def register(self, topic: str) -> int:
+        if not self.generic_schema:
+            name, data = _GENERIC_SCHEMA_BYTES
+            self.generic_schema = self.writer.register_schema(name, SCHEMA_ENCODING, data)
+        channel_id = self.writer.register_channel(topic, MESSAGE_ENCODING, self.generic_schema)
+        self.channels[topic] = channel_id
+        return channel_id
+
+    def abandon(self) -> None:
+        # A full disk makes the buffered writer's flush-on-close fail too; the descriptor is
+        # closed regardless, which is all that is wanted here.
+        with contextlib.suppress(OSError):
+            self.file.close()
+
+
+# ------------------------------------------------------------------------------------------
+# the recorder
+# ------------------------------------------------------------------------------------------
+
+
+class McapRecorder:
+    """Record a monitor run into MCAP, crash-safely, with rotation and disk-full tolerance.
+
+    Parameters
+    ----------
+    path : str or Path
+        The log file (the first segment); its directory must exist.
+    metadata : dict of str to str, optional
+        Run-level information stored in a metadata record named ``"canfdi"`` at the head of
+        every segment (e.g. ``config_yaml``, ``design_json``, ``truth_json``, ``version``).
+    flush_interval : float
+        Seconds between timed flushes (buffers written, chunk ended): the most a killed process
+        loses (see the module docstring).
+    rotate_bytes : int, optional
+        Start a new segment once the current file holds this many bytes.
+    rotate_seconds : float, optional
+        Start a new segment once the current one has been open this long.
+    clock : callable
+        Monotonic seconds; injected by tests to place chunk ends and rotations exactly.
+    opener : callable
+        Opens a segment file for binary writing; injected by tests to simulate a full disk.
+    chunk_size : int
+        Uncompressed bytes after which the writer ends a chunk on its own.
+    block_frames, block_samples, block_residuals : int
+        Rows of a full ``/can/frames``, ``/canfdi/samples`` or ``/canfdi/residuals`` block:
+        a buffer holding that many rows is written as one message at once.
+    plot_rate : float
+        Most ``/canfdi/residuals_plot`` messages per second of log time; 0 disables the topic.
+    float_encoding : {"json", "base64"}
+        How the float columns of sample and residual blocks are written: JSON lists of numbers
+        (readable; formatting costs about 0.5 us per value), or base64 strings of
+        little-endian float64 (exact, NaN kept, about 30 times cheaper). The readers take
+        both.
+
+    Raises
+    ------
+    OSError
+        When the first segment cannot be opened for a reason a full disk does not explain
+        (missing directory, permissions). Later errors are reported, never raised.
+
+    Notes
+    -----
+    Use as a context manager, or call `close`. Not thread-safe: one writer thread.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        metadata: dict[str, str] | None = None,
+        flush_interval: float = 1.0,
+        rotate_bytes: int | None = None,
+        rotate_seconds: float | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        opener: Callable[[Path], IO[bytes]] = _open_file,
+        chunk_size: int = _DEFAULT_CHUNK_SIZE,
+        block_frames: int = 4096,
+        block_samples: int = 1024,
+        block_residuals: int = 1024,
+        plot_rate: float = 20.0,
+        float_encoding: str = "json",
+    ) -> None:
+        if flush_interval <= 0:
+            raise ValueError(f"flush_interval must be > 0, got {flush_interval}")
+        if rotate_bytes is not None and rotate_bytes <= 0:
+            raise ValueError(f"rotate_bytes must be > 0, got {rotate_bytes}")
+        if rotate_seconds is not None and rotate_seconds <= 0:
+            raise ValueError(f"rotate_seconds must be > 0, got {rotate_seconds}")
+        for name, value in (
+            ("block_frames", block_frames),
+            ("block_samples", block_samples),
+            ("block_residuals", block_residuals),
+        ):
+            if value < 1:
+                raise ValueError(f"{name} must be >= 1, got {value}")
+        if not plot_rate >= 0:
+            raise ValueError(f"plot_rate must be >= 0, got {plot_rate}")
+        if float_encoding not in ("json", "base64"):
+            raise ValueError(f"float_encoding must be 'json' or 'base64', got {float_encoding!r}")
+        if metadata is not None:
+            bad = [
+                k for k, v in metadata.items() if not isinstance(k, str) or not isinstance(v, str)
+            ]
+            if bad:
+                raise TypeError(f"metadata keys and values must be strings: {bad}")
+        self._path = Path(path)
+        self._metadata = dict(metadata) if metadata is not None else None
+        self._flush_interval = float(flush_interval)
+        # Infinite limits keep the hot-path test a plain comparison, with no None checks.
+        self._byte_limit = rotate_bytes if rotate_bytes is not None else math.inf
+        self._rotate_seconds = float(rotate_seconds) if rotate_seconds is not None else math.inf
+        self._clock = clock
+        self._opener = opener
+        self._chunk_size = int(chunk_size)
+
+        # Frames: packed FRAME_DTYPE records; rows whose payload the record cannot hold.
+        self._frames = bytearray()
+        self._frames_limit = int(block_frames) * FRAME_SIZE
+        self._long: dict[int, bytes] = {}
+        self._status_codes: dict[str, int] = {}
+        self._status_names: list[str] = []
+        self._statuses_json = b"[]"
+        self._reset_statuses()
+        # Samples: k, t_ns, gap, U rows, Z rows.
+        self._samples = Rows((np.int64, np.int64, np.int64, np.float64, np.float64))
+        self._block_samples = int(block_samples)
+        self._inputs: list[str] = []
+        self._outputs: list[str] = []
+        self._inputs_given: Any = None  # the caller's objects, for a cheap identity check
+        self._outputs_given: Any = None
+        # Residuals: k, t_ns, R rows, normalized rows, statistic rows.
+        self._residuals = Rows((np.int64, np.int64, np.float64, np.float64, np.float64))
+        self._block_residuals = int(block_residuals)
+        self._residual_names: list[str] = []
+        self._residual_names_given: Any = None
+        self._binary_floats = float_encoding == "base64"
+        self._plot_ns = round(NS_PER_S / plot_rate) if plot_rate > 0 else 0
+        self._plot_slot: int | None = None
+
+        self._seg: _Segment | None = None
+        self._next_index = 0
+        self._paths: list[Path] = []
+        self._closed = False
+        self._messages_written = 0
+        self._messages_dropped = 0
+        self._pending = 0  # rows accepted into the open chunk since the last successful flush
+        self._bytes_done = 0  # bytes of segments no longer open
+        self._write_errors = 0
+        self._last_error: OSError | None = None
+        self._failing = False
+        self._next_retry = -math.inf
+        self._next_flush = math.inf
+        self._rotate_at = math.inf
+        # The next instant a write must look up from the hot path: the earlier of the timed
+        # flush and the rotation while a segment is open, the next retry while failing.
+        self._deadline = math.inf
+
+        for _, stale in numbered_segments(self._path):
+            logger.info("removing %s, a segment of an earlier recording under this name", stale)
+            stale.unlink()
+
+        now = clock()
+        try:
+            self._open_segment(now, raise_errors=True)
+        except OSError as exc:
+            if exc.errno not in _TRANSIENT_ERRNOS:
+                raise
+            self._fail(exc, now)
+
+    # -- context manager -------------------------------------------------------------------
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # -- properties ------------------------------------------------------------------------
+
+    @property
+    def paths(self) -> list[Path]:
+        """Segment files started so far, in order (an abandoned segment stays listed)."""
+        return list(self._paths)
+
+    @property
+    def messages_written(self) -> int:
+        """Rows (frames, samples, residual rows) and single messages (estimates, events, status,
+        `write`) handed to a segment and not known to be lost. Rows still buffered in the
+        recorder are not counted yet (`buffered`); ``/canfdi/residuals_plot`` copies never."""
+        return self._messages_written
+
+    @property
+    def messages_dropped(self) -> int:
+        """Rows and messages lost to write errors: refused while failing, in an unflushed
+        chunk, or still buffered at `close` while failing."""
+        return self._messages_dropped
+
+    @property
+    def buffered(self) -> int:
+        """Frames, samples and residual rows waiting in the recorder's buffers."""
+        return len(self._frames) // FRAME_SIZE + self._samples.count + self._residuals.count
+
+    @property
+    def bytes_written(self) -> int:
+        """Bytes handed to the segment files (compressed chunks, indexes, summaries)."""
+        seg = self._seg
+        return self._bytes_done + (seg.file.count if seg is not None else 0)
+
+    @property
+    def write_errors(self) -> int:
+        """Number of OSErrors met (each failed write, flush, rotation or retry counts once)."""
+        return self._write_errors
+
+    @property
+    def last_error(self) -> OSError | None:
+        """The most recent OSError, or None if there never was one."""
+        return self._last_error
+
+    @property
+    def failing(self) -> bool:
+        """True while messages are being dropped (no segment open after a write error)."""
+        return self._failing
+
+    @property
+    def closed(self) -> bool:
+        """True once `close` has been called."""
+        return self._closed
+
+    # -- writing ---------------------------------------------------------------------------
+
+    def write(self, topic: str, timestamp_ns: int, message: Mapping[str, Any]) -> None:
+        """Record one message, unbuffered.
+
+        Parameters
+        ----------
+        topic : str
+            Any topic: one of `TOPICS` (the message must then have that topic's shape) or
+            another one (registered with a generic object schema).
+        timestamp_ns : int
+            Log time, integer nanoseconds since the epoch.
+        message : mapping
+            JSON-serialisable; numpy values are converted. A ``"timestamp"`` field is added
+            from ``timestamp_ns`` when the message has none (the caller's mapping is not
+            modified).
+
+        Raises
+        ------
+        ValueError
+            After `close`.
+        TypeError
+            If the message cannot be expressed in JSON (a programming error, not an I/O one).
+        """
+        if "timestamp" not in message:
+            message = {"timestamp": stamp(timestamp_ns), **message}
+        self._write_now(topic, timestamp_ns, encode_message(message))
+
+    def _begin_write(self) -> float:
+        """Refuse writes after close; run the timed flush when it is due; the clock's now."""
+        if self._closed:
+            raise ValueError("write to a closed McapRecorder")
+        now = self._clock()
+        if now >= self._deadline:
+            self._tick(now)
+        return now
+
+    def write_frame(
+        self,
+        timestamp_ns: int,
+        frame_id: int,
+        data: bytes,
+        status: str,
+        extended: bool = False,
+        dlc: int | None = None,
+        flags: int = 0,
+    ) -> None:
+        """Buffer a raw CAN frame for `TOPIC_FRAMES` (a cheap append).
+
+        Parameters
+        ----------
+        timestamp_ns : int
+            Arrival (or send) time, ns since the epoch.
+        frame_id : int
+            Arbitration id.
+        data : bytes
+            Payload (any length; more than 8 bytes are kept in the block's ``"long"`` map).
+        status : str
+            One of `FRAME_STATUSES` (or another short label).
+        extended : bool
+            29-bit identifier (sets `FLAG_EXTENDED`).
+        dlc : int, optional
+            Data length code when it differs from ``len(data)``.
+        flags : int
+            More `FLAG_REMOTE`, `FLAG_ERROR`, `FLAG_FD` bits.
+
+        Raises
+        ------
+        ValueError
+            After `close`.
+        """
+        now = self._begin_write()
+        code = self._status_codes.get(status)
+        if code is None:
+            code = self._new_status(status)
+        if type(data) is not bytes:
+            data = bytes(data)
+        n = len(data)
+        if dlc is None and n <= MAX_DATA:
+            self._frames += pack_frame(timestamp_ns, frame_id, n, flags | extended, code, data)
+        else:
+            dlc = n if dlc is None else dlc
+            if n != min(dlc, MAX_DATA):
+                self._long[len(self._frames) // FRAME_SIZE] = data
+            self._frames += pack_frame(timestamp_ns, frame_id, dlc, flags | extended, code, data)
+        if len(self._frames) >= self._frames_limit:
+            self._emit_frames(now, full_only=True)
+
+    def write_frames(
+        self,
+        block: FrameBlock,
+        statuses: str | Sequence[str] | ArrayLike | None = None,
+        status_names: Sequence[str] | None = None,
+    ) -> None:
+        """Buffer a block of raw CAN frames for `TOPIC_FRAMES`, vectorised.
+
+        Parameters
+        ----------
+        block : FrameBlock
+            The frames (canfdi.bus.frames); the payload padding beyond each DLC is recorded as
+            given, and payloads longer than 8 bytes (``block.long``, CAN FD) whole.
+        statuses : str, sequence of str, (N,) array of str, or (N,) integer array, optional
+            Every frame's status (one string: all of them); integer codes index
+            ``status_names`` (e.g. the assembler's codes into canfdi.bus.frames'
+            ``STATUS_NAMES``: the fastest form). Default: the block's own ``status``.
+        status_names : sequence of str, optional
+            The names of integer ``statuses``.
+
+        Raises
+        ------
+        ValueError
+            After `close`, or for a block with no statuses given or held.
+        """
+        now = self._begin_write()
+        n = block.size
+        if statuses is None:
+            if block.status is None:
+                raise ValueError("write_frames: the block holds no statuses and none are given")
+            statuses = block.status
+        records = np.zeros(n, dtype=FRAME_DTYPE)
+        records["t_ns"] = block.t_ns
+        records["id"] = block.id
+        records["dlc"] = block.dlc
+        records["data"] = block.data
+        records["flags"] = block.flags
+        records["status"] = self._status_array(statuses, n, status_names)
+        if not n:
+            return
+        if block.long:  # (after _status_array, which may have written the buffer out)
+            base = len(self._frames) // FRAME_SIZE
+            dlc = block.dlc
+            for row, data in block.long.items():
+                if len(data) != min(int(dlc[row]), MAX_DATA):
+                    self._long[base + row] = bytes(data)
+        self._frames += records.tobytes()
+        if len(self._frames) >= self._frames_limit:
+            self._emit_frames(now, full_only=True)
+
+    def write_sample(
+        self, sample: Sample, input_names: Sequence[str], output_names: Sequence[str]
+    ) -> None:
+        """Buffer a decoded sample for `TOPIC_SAMPLES` (a cheap append).
+
+        Parameters
+        ----------
+        sample : Sample
+            The sample; ``u`` and ``z`` are named by ``input_names`` and ``output_names``. Its
+            arrays are kept until the block is written, so they must not be modified (a
+            Sample is a frozen record).
+        input_names, output_names : sequence of str
+            The model's input and output names, in the sample's order. A change of names
+            writes the buffered samples first.
+
+        Raises
+        ------
+        ValueError
+            After `close`, or if ``u`` or ``z`` does not match the names.
+        """
+        now = self._begin_write()
+        if input_names is not self._inputs_given or output_names is not self._outputs_given:
+            self._sample_names(input_names, output_names)
+        u, z = sample.u, sample.z
+        if len(u) != len(self._inputs) or len(z) != len(self._outputs):
+            raise ValueError(
+                f"sample has {len(u)} inputs and {len(z)} outputs for names "
+                f"{self._inputs} and {self._outputs}"
+            )
+        rows = self._samples
+        k_col, t_col, gap_col, u_col, z_col = rows.columns
+        k_col.append(sample.k)
+        t_col.append(sample.timestamp_ns)
+        gap_col.append(sample.gap)
+        u_col.append(u)
+        z_col.append(z)
+        rows.count += 1
+        if rows.count >= self._block_samples:
+            self._emit_samples(now, full_only=True)
+
+    def write_samples(
+        self,
+        k: ArrayLike,
+        t_ns: ArrayLike,
+        U: ArrayLike,
+        Z: ArrayLike,
+        gap: ArrayLike,
+        input_names: Sequence[str],
+        output_names: Sequence[str],
+    ) -> None:
+        """Buffer a block of decoded samples for `TOPIC_SAMPLES`, vectorised (copied).
+
+        Parameters
+        ----------
+        k : (N,) int
+            Sample indices.
+        t_ns : (N,) int
+            Sample times, ns since the epoch.
+        U : (N, p) float
+            Inputs, named by ``input_names``.
+        Z : (N, q) float
+            Outputs, named by ``output_names``.
+        gap : (N,) int
+            Samples lost just before each one.
+        input_names, output_names : sequence of str
+            The model's input and output names.
+
+        Raises
+        ------
+        ValueError
+            After `close`, or for arrays of the wrong shape.
+        """
+        now = self._begin_write()
+        if input_names is not self._inputs_given or output_names is not self._outputs_given:
+            self._sample_names(input_names, output_names)
+        n = len(np.asarray(k))
+        arrays = (
+            check_column(k, n, "k").astype(np.int64),
+            check_column(t_ns, n, "t_ns").astype(np.int64),
+            check_column(gap, n, "gap").astype(np.int64),
+            check_matrix(U, n, len(self._inputs), "U"),
+            check_matrix(Z, n, len(self._outputs), "Z"),
+        )
+        if not n:
+            return
+        self._samples.add(arrays)
+        if self._samples.count >= self._block_samples:
+            self._emit_samples(now, full_only=True)
+
+    def write_residuals(
+        self,
+        timestamp_ns: int,
+        k: int,
+        names: Sequence[str],
+        r: ArrayLike,
+        normalized: ArrayLike,
+        statistic: ArrayLike,
+    ) -> None:
+        """Buffer one sample's residuals for `TOPIC_RESIDUALS` (a cheap append, copied).
+
+        Also writes the row to `TOPIC_RESIDUALS_PLOT` when it is the first of its plot slot.
+
+        Parameters
+        ----------
+        timestamp_ns : int
+            Time of the sample.
+        k : int
+            Sample index.
+        names : sequence of str
+            Residual names; ``r``, ``normalized`` and ``statistic`` are in this order. A
+            change of names writes the buffered rows first.
+        r : array_like
+            Raw residual values.
+        normalized : array_like
+            Residuals divided by their standard deviation.
+        statistic : array_like
+            Page-Hinkley statistic max(g+, g-) of every residual.
+
+        Raises
+        ------
+        ValueError
+            After `close`, or if a row does not match the names.
+        """
+        now = self._begin_write()
+        if names is not self._residual_names_given:
+            self._set_residual_names(names)
+        r, normalized, statistic = float_row(r), float_row(normalized), float_row(statistic)
+        m = len(self._residual_names)
+        if len(r) != m or len(normalized) != m or len(statistic) != m:
+            raise ValueError(f"residual rows do not match the {m} names {self._residual_names}")
+        rows = self._residuals
+        k_col, t_col, r_col, n_col, s_col = rows.columns
+        k_col.append(k)
+        t_col.append(timestamp_ns)
+        r_col.append(r)
+        n_col.append(normalized)
+        s_col.append(statistic)
+        rows.count += 1
+        if self._plot_ns:
+            slot = timestamp_ns // self._plot_ns
+            if slot != self._plot_slot:
+                self._plot_slot = slot
+                self._write_plot(timestamp_ns, k, r, normalized, statistic, now)
+        if rows.count >= self._block_residuals:
+            self._emit_residuals(now, full_only=True)
+
+    def write_residual_rows(
+        self,
+        k: ArrayLike,
+        t_ns: ArrayLike,
+        names: Sequence[str],
+        R: ArrayLike,
+        Rn: ArrayLike,
+        stat: ArrayLike,
+    ) -> None:
+        """Buffer many samples' residuals for `TOPIC_RESIDUALS`, vectorised (copied).
+
+        Also writes the first row of every plot slot to `TOPIC_RESIDUALS_PLOT`.
+
+        Parameters
+        ----------
+        k : (N,) int
+            Sample indices.
+        t_ns : (N,) int
+            Sample times, ns since the epoch.
+        names : sequence of str
+            The m residual names.
+        R, Rn, stat : (N, m) float
+            Raw residuals, normalized residuals, Page-Hinkley statistics.
+
+        Raises
+        ------
+        ValueError
+            After `close`, or for arrays of the wrong shape.
+        """
+        now = self._begin_write()
+        if names is not self._residual_names_given:
+            self._set_residual_names(names)
+        n = len(np.asarray(k))
+        m = len(self._residual_names)
+        arrays = (
+            check_column(k, n, "k").astype(np.int64),
+            check_column(t_ns, n, "t_ns").astype(np.int64),
+            check_matrix(R, n, m, "R"),
+            check_matrix(Rn, n, m, "Rn"),
+            check_matrix(stat, n, m, "stat"),
+        )
+        if not n:
+            return
+        self._residuals.add(arrays)
+        if self._plot_ns:
+            slots = arrays[1] // self._plot_ns
+            previous = np.empty(n, dtype=np.int64)
+            previous[1:] = slots[:-1]
+            keep = slots != previous
+            keep[0] = self._plot_slot is None or int(slots[0]) != self._plot_slot
+            self._plot_slot = int(slots[-1])
+            ks, ts = arrays[0].tolist(), arrays[1].tolist()
+            for i in np.flatnonzero(keep).tolist():
+                self._write_plot(ts[i], ks[i], arrays[2][i], arrays[3][i], arrays[4][i], now)
+        if self._residuals.count >= self._block_residuals:
+            self._emit_residuals(now, full_only=True)
+
+    def write_estimates(
+        self,
+        timestamp_ns: int,
+        k: int,
+        hypothesis: str,
+        estimates: Mapping[str, float],
+        variances: Mapping[str, float],
+    ) -> None:
+        """Record a hypothesis' running estimates on `TOPIC_ESTIMATES`.
+
+        Parameters
+        ----------
+        timestamp_ns : int
+            Time of the sample.
+        k : int
+            Sample index.
+        hypothesis : str
+            Which fault hypothesis the estimates belong to (e.g. ``"actuator:torque"``).
+        estimates, variances : mapping of str to float
+            The estimates and their variances, same keys.
+        """
+        message = {
+            "timestamp": stamp(timestamp_ns),
+            "k": k,
+            "hypothesis": hypothesis,
+            "estimates": dict(estimates),
+            "variances": dict(variances),
+        }
+        self._write_now(TOPIC_ESTIMATES, timestamp_ns, encode_message(message))
+
+    def write_event(self, event: FaultEvent) -> None:
+        """Record a diagnoser conclusion on `TOPIC_EVENTS` (at ``event.timestamp_ns``)."""
+        message = {"timestamp": stamp(event.timestamp_ns), **event.as_dict()}
+        self._write_now(TOPIC_EVENTS, event.timestamp_ns, encode_message(message))
+
+    def write_status(
+        self,
+        timestamp_ns: int,
+        state: str,
+        samples: int,
+        frames: Mapping[str, int],
+        active_faults: int,
+    ) -> None:
+        """Record the monitor's periodic status on `TOPIC_STATUS`.
+
+        Parameters
+        ----------
+        timestamp_ns : int
+            Time of the report.
+        state : str
+            The monitor's state (e.g. ``"running"``).
+        samples : int
+            Samples decoded so far.
+        frames : mapping of str to int
+            Frame counters by kind (e.g. ``{"ok": .., "crc": ..}``).
+        active_faults : int
+            Faults currently accepted and compensated.
+        """
+        message = {
+            "timestamp": stamp(timestamp_ns),
+            "state": state,
+            "samples": samples,
+            "frames": dict(frames),
+            "active_faults": active_faults,
+        }
+        self._write_now(TOPIC_STATUS, timestamp_ns, encode_message(message))
+
+    def flush(self) -> None:
+        """Write the buffered rows, end the open chunk and push everything written so far to
+        the operating system.
+
+        Also restarts the ``flush_interval`` timer. Errors are handled as in `write`; while
+        failing the rows stay buffered.
+        """
+        if self._seg is not None:
+            now = self._clock()
+            self._emit_all(now)
+            if self._seg is not None:
+                self._flush_segment(now)
+
+    def close(self) -> None:
+        """Write the buffered rows, finish the current segment (summary, footer) and close it.
+
+        Idempotent, never raises an OSError (it is recorded as in `write`); rows buffered while
+        failing count as dropped.
+        """
+        if self._closed:
+            return
+        now = self._clock()
+        try:
+            self._emit_all(now)
+        finally:
+            self._closed = True
+            self._deadline = math.inf
+        seg = self._seg
+        if seg is None:
+            return
+        try:
+            self._finish_segment(seg)
+        except OSError as exc:
+            self._fail(exc, now)
+
+    # -- internals: buffers ----------------------------------------------------------------
+
+    def _reset_statuses(self) -> None:
+        self._status_names = list(FRAME_STATUSES)
+        self._status_codes = {name: code for code, name in enumerate(self._status_names)}
+        self._statuses_json = json.dumps(self._status_names, separators=(",", ":")).encode()
+
+    def _new_status(self, status: str) -> int:
+        if not isinstance(status, str):
+            raise TypeError(f"a frame status must be a str, got {type(status).__name__}")
+        if len(self._status_names) >= _MAX_STATUSES:
+            # Codes are bytes: the buffered frames keep the full table, the rest starts anew.
+            self._emit_frames(self._clock(), full_only=False)
+            self._reset_statuses()
+        code = len(self._status_names)
+        self._status_names.append(status)
+        self._status_codes[status] = code
+        self._statuses_json = json.dumps(self._status_names, separators=(",", ":")).encode()
+        return code
+
+    def _status_array(
+        self, statuses: Any, n: int, status_names: Sequence[str] | None
+    ) -> NDArray[np.uint8]:
+        """uint8 codes into the status table of ``n`` frames' statuses."""
+        if isinstance(statuses, str):
+            names, index = [statuses], np.zeros(n, dtype=np.intp)
+        else:
+            values = np.asarray(statuses)
+            if values.shape != (n,):
+                raise ValueError(f"statuses must be ({n},), got shape {values.shape}")
+            if values.dtype.kind in "iu":
+                if status_names is None:
+                    raise ValueError("integer statuses need status_names")
+                names, index = list(status_names), values
+            elif n:
+                unique, index = np.unique(values, return_inverse=True)
+                names = unique.tolist()
+            else:
+                names, index = [], values.astype(np.intp)
+        missing = {name for name in names if name not in self._status_codes}
+        if len(self._status_names) + len(missing) > _MAX_STATUSES:
+            # Codes are bytes: the buffered frames keep the full table, the rest starts anew.
+            self._emit_frames(self._clock(), full_only=False)
+            self._reset_statuses()
+            missing = {name for name in names if name not in self._status_codes}
+            if len(self._status_names) + len(missing) > _MAX_STATUSES:
+                raise ValueError(f"more than {_MAX_STATUSES} frame statuses in one call")
+        codes = self._status_codes
+        table = np.array(
+            [codes[name] if name in codes else self._new_status(name) for name in names],
+            dtype=np.uint8,
+        )
+        return table[index] if len(table) else np.zeros(n, dtype=np.uint8)
+
+    def _sample_names(self, input_names: Sequence[str], output_names: Sequence[str]) -> None:
+        inputs, outputs = unique_names(input_names, "input"), unique_names(output_names, "output")
+        if inputs != self._inputs or outputs != self._outputs:
+            self._emit_samples(self._clock(), full_only=False)
+            self._inputs, self._outputs = inputs, outputs
+        self._inputs_given, self._outputs_given = input_names, output_names
+
+    def _set_residual_names(self, names: Sequence[str]) -> None:
+        listed = unique_names(names, "residual")
+        if listed != self._residual_names:
+            self._emit_residuals(self._clock(), full_only=False)
+            self._residual_names = listed
+        self._residual_names_given = names
+
+    def _emit_all(self, now: float) -> None:
+        self._emit_frames(now, full_only=False)
+        self._emit_samples(now, full_only=False)
+        self._emit_residuals(now, full_only=False)
+
+    def _emit_frames(self, now: float, full_only: bool) -> None:
+        frames = self._frames
+        size = len(frames)
+        limit = self._frames_limit
+        start = 0
+        while size - start >= limit or (not full_only and start < size):
+            end = min(start + limit, size)
+            first = start // FRAME_SIZE
+            count = (end - start) // FRAME_SIZE
+            t0 = first_time(frames, start)[0]
+            long = None
+            if self._long:
+                long = {
+                    row - first: data
+                    for row, data in self._long.items()
+                    if first <= row < first + count
+                }
+            text = encode_frame_block(frames[start:end], count, t0, self._statuses_json, long)
+            self._write(TOPIC_FRAMES, t0, text, count, now)
+            start = end
+        if start:
+            del frames[:start]
+            if self._long:
+                shift = start // FRAME_SIZE
+                self._long = {row - shift: d for row, d in self._long.items() if row >= shift}
+
+    def _emit_samples(self, now: float, full_only: bool) -> None:
+        rows, limit = self._samples, self._block_samples
+        while rows.count >= limit or (not full_only and rows.count):
+            k, t, gap, u, z = rows.take(min(limit, rows.count))
+            data = encode_sample_block(
+                k, t, gap, u, z, self._inputs, self._outputs, self._binary_floats
+            )
+            self._write(TOPIC_SAMPLES, int(t[0]), data, len(k), now)
+
+    def _emit_residuals(self, now: float, full_only: bool) -> None:
+        rows, limit = self._residuals, self._block_residuals
+        while rows.count >= limit or (not full_only and rows.count):
+            k, t, r, normalized, statistic = rows.take(min(limit, rows.count))
+            data = encode_residual_block(
+                k, t, self._residual_names, r, normalized, statistic, self._binary_floats
+            )
+            self._write(TOPIC_RESIDUALS, int(t[0]), data, len(k), now)
+
+    def _write_plot(
+        self,
+        timestamp_ns: int,
+        k: int,
+        r: np.ndarray,
+        normalized: np.ndarray,
+        statistic: np.ndarray,
+        now: float,
+    ) -> None:
+        names = self._residual_names
+        message = {
+            "timestamp": stamp(timestamp_ns),
+            "k": k,
+            "r": named(names, r),
+            "normalized": named(names, normalized),
+            "statistic": named(names, statistic),
+        }
+        self._write(TOPIC_RESIDUALS_PLOT, timestamp_ns, encode_message(message), 0, now)
+
+    # -- internals: segments ---------------------------------------------------------------
+
+    def _write_now(self, topic: str, timestamp_ns: int, data: bytes) -> None:
+        now = self._begin_write()
+        self._write(topic, timestamp_ns, data, 1, now)
+
+    def _tick(self, now: float) -> None:
+        """The deadline passed: retry while failing, else write the buffers and end the chunk
+        (timed flush) or the segment (rotation)."""
+        if self._seg is None:
+            if not self._closed and now >= self._next_retry:
+                self._open_segment(now)
+            return
+        self._emit_all(now)
+        seg = self._seg
+        if seg is None:
+            return
+        if now >= self._rotate_at:
+            self._rotate(seg, now)
+        else:
+            self._flush_segment(now)
+
+    def _write(self, topic: str, timestamp_ns: int, data: bytes, rows: int, now: float) -> None:
+        """Add one message of ``rows`` rows to the open segment (or count them dropped)."""
+        seg = self._seg
+        if seg is not None and seg.file.count >= self._byte_limit:
+            self._rotate(seg, now)
+            seg = self._seg
+        if seg is None:
+            self._messages_dropped += rows
+            return
+        try:
+            channel_id = seg.channels.get(topic)
+            if channel_id is None:
+                channel_id = seg.register(topic)
+            seg.writer.add_message(channel_id, timestamp_ns, data, timestamp_ns)
+        except OSError as exc:
+            self._messages_dropped += rows
+            self._fail(exc, now)
+            return
+        self._messages_written += rows
+        self._pending += rows
+
+    def _rotate(self, seg: _Segment, now: float) -> None:
+        try:
+            self._finish_segment(seg)
+        except OSError as exc:
+            self._fail(exc, now)
+            return
+        self._open_segment(now)
+
+    def _flush_segment(self, now: float) -> None:
+        seg = self._seg
+        assert seg is not None
+        try:
+            seg.writer.flush()
+        except OSError as exc:
+            self._fail(exc, now)
+            return
+        self._pending = 0
+        self._next_flush = now + self._flush_interval
+        self._deadline = min(self._next_flush, self._rotate_at)
+
+    def _finish_segment(self, seg: _Segment) -> None:
+        seg.writer.finish()
+        seg.file.flush()
+        seg.file.close()
+        self._pending = 0
+        self._bytes_done += seg.file.count
+        self._seg = None
+
+    def _open_segment(self, now: float, raise_errors: bool = False) -> bool:
+        index = self._next_index
+        path = segment_path(self._path, index)
+        file: _CountingFile | None = None
+        try:
+            file = _CountingFile(self._opener(path))
+            writer = Writer(file, chunk_size=self._chunk_size, compression=CompressionType.ZSTD)
+            writer.start(profile="", library=f"canfdi/{__version__}; {LIBRARY_IDENTIFIER}")
+            if self._metadata is not None:
+                writer.add_metadata(METADATA_NAME, self._metadata)
+            seg = _Segment(path, file, writer)
+            # Up front, so that the hot path only looks a channel id up. The records wait in
+            # the open chunk and reach the file with its first message.
+            seg.register_known()
+            writer.flush()
+        except OSError as exc:
+            if file is not None:
+                with contextlib.suppress(OSError):
+                    file.close()
+                # Nothing useful made it into the file; the next attempt reuses the name.
+                with contextlib.suppress(OSError):
+                    path.unlink()
+            if raise_errors:
+                raise
+            self._fail(exc, now)
+            return False
+        self._seg = seg
+        self._paths.append(path)
+        self._next_index = index + 1
+        self._next_flush = now + self._flush_interval
+        self._rotate_at = now + self._rotate_seconds
+        self._deadline = min(self._next_flush, self._rotate_at)
+        if self._failing:
+            self._failing = False
+            logger.warning(
+                "MCAP recording resumed in %s (%d messages dropped so far)",
+                path,
+                self._messages_dropped,
+            )
+        return True
+
+    def _fail(self, exc: OSError, now: float) -> None:
+        self._write_errors += 1
+        self._last_error = exc
+        if not self._failing:
+            self._failing = True
+            logger.warning(
+                "MCAP recording to %s failed (%s); dropping messages, retrying every %.0f s",
+                self._seg.path
+                if self._seg is not None
+                else segment_path(self._path, self._next_index),
+                exc,
+                RETRY_INTERVAL,
+            )
+        # The open chunk never reached the file: its rows are lost with the segment.
+        self._messages_dropped += self._pending
+        self._messages_written -= self._pending
+        self._pending = 0
+        seg = self._seg
+        if seg is not None:
+            seg.abandon()
+            self._bytes_done += seg.file.count
+            self._seg = None
+        self._next_retry = now + RETRY_INTERVAL
+        self._deadline = self._next_retry if not self._closed else math.inf
