@@ -207,5 +207,12 @@ class FrameBlock:
         return self if keep.all() else self.select(keep)
 
     def slice(self, start: int, stop: int) -> FrameBlock:
-        """Rows start..stop-1."""
-        return self.select(np.arange(start, min(stop, self.size)))
+        """Rows start..stop-1 (views of this block's arrays, not copies)."""
+        rows = slice(start, min(stop, self.size))
+        long: dict[int, bytes] = {}
+        if self.long:
+            long = {row - start: data for row, data in self.long.items()
+                    if start <= row < rows.stop}
+        return FrameBlock(self.t_ns[rows], self.id[rows], self.dlc[rows], self.flags[rows],
+                          self.data[rows],
+                          status=None if self.status is None else self.status[rows], long=long)
