@@ -33,6 +33,7 @@ from canfdi.core._check import check_shape
 __all__ = [
     "Alarm",
     "ChangePointDetector",
+    "DetectorBacked",
     "PageHinkley",
     "PageHinkleyResult",
     "ThresholdDetector",
@@ -571,6 +572,28 @@ class ChangePointDetector:
         alarming = np.flatnonzero(alarm)
         col = np.where(alarm[alarming] > 0, 0, 1)
         return int(np.min(self.last_zero[alarming, col])) + 1
+
+
+class DetectorBacked:
+    """The `thresholds` and `statistics` of a diagnoser (canfdi.core.protocol) that detects
+    with a `ChangePointDetector` held as ``self.detector``."""
+
+    detector: ChangePointDetector
+
+    @property
+    def thresholds(self) -> NDArray[np.float64]:
+        """(m,) Page-Hinkley thresholds in noise stds: the detector's (settable, e.g. scaled by
+        a sensitivity check)."""
+        return self.detector.h
+
+    @thresholds.setter
+    def thresholds(self, value: ArrayLike) -> None:
+        self.detector.h = np.asarray(value, dtype=float).reshape(self.detector.m)
+
+    @property
+    def statistics(self) -> NDArray[np.float64]:
+        """(m,) the larger Page-Hinkley statistic of each residual."""
+        return self.detector.statistics
 
 
 def onset_candidates(change_point: int, k: int, first: int, before: int,

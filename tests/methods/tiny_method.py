@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from canfdi.core.blockrun import run_block
 from canfdi.core.design import design_bank
 from canfdi.core.identify import least_squares
 from canfdi.core.protocol import DIAGNOSE, MONITOR
@@ -142,16 +143,7 @@ class TinyDiagnoser:
 
     def update_block(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
                      gap: np.ndarray | None = None) -> BlockResult:
-        n, m = len(k), self.bank.m
-        R, Rn, stat = np.full((n, m), np.nan), np.full((n, m), np.nan), np.zeros((n, m))
-        events: list[FaultEvent] = []
-        for i in range(n):
-            events += self.update(Sample(k=int(k[i]), timestamp_ns=int(t_ns[i]), u=U[i],
-                                         z=Z[i]))
-            if self.last_residuals is not None:
-                R[i], Rn[i] = self.last_residuals, self.last_normalized
-            stat[i] = self._stat
-        return BlockResult(events=events, residuals=R, normalized=Rn, statistic=stat)
+        return run_block(self, k, t_ns, U, Z, gap)
 
 
 _SPEC = {"threshold": Option(float, 1.0, 100.0), "samples": Option(int, 2, 10_000)}

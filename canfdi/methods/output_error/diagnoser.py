@@ -79,8 +79,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
+from canfdi.core.blockrun import BlockRows, continuity_breaks, run_block
 from canfdi.core.calibrate import threshold_for_long_run_variance
-from canfdi.core.detect import ChangePointDetector, onset_candidates
+from canfdi.core.detect import ChangePointDetector, DetectorBacked, onset_candidates
 from canfdi.core.identify import least_squares
 from canfdi.core.protocol import DIAGNOSE, MONITOR
 from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample, compensate
@@ -186,7 +187,7 @@ def oe_thresholds(drift: float, interval: float, long_run: np.ndarray) -> np.nda
     return threshold_for_long_run_variance(drift, interval, long_run)
 
 
-class OutputErrorDiagnoser:
+class OutputErrorDiagnoser(DetectorBacked):
     """Streaming OE diagnoser: ``update(sample) -> events`` (canfdi.monitor.DiagnoserLike).
 
     Parameters
@@ -255,21 +256,6 @@ class OutputErrorDiagnoser:
     @property
     def residual_names(self) -> list[str]:
         return [f"oe:{name}" for name in self.output_names]
-
-    @property
-    def thresholds(self) -> np.ndarray:
-        """(m,) Page-Hinkley thresholds in noise stds: the detector's (settable, e.g. scaled by
-        a sensitivity check)."""
-        return self.detector.h
-
-    @thresholds.setter
-    def thresholds(self, value: np.ndarray) -> None:
-        self.detector.h = np.asarray(value, dtype=float).reshape(self.detector.m)
-
-    @property
-    def statistics(self) -> np.ndarray:
-        """(q,) the larger Page-Hinkley statistic of each residual."""
-        return self.detector.statistics
 
     # -- the residual ----------------------------------------------------------------------
     def _model_input(self, k: np.ndarray, U_held: np.ndarray) -> np.ndarray:
@@ -370,36 +356,21 @@ class OutputErrorDiagnoser:
         n = len(k)
         U = np.asarray(U, dtype=float).reshape(n, self.p)
         Z = np.asarray(Z, dtype=float).reshape(n, self.q)
-        R = np.full((n, self.q), np.nan)
-        Rn = np.full((n, self.q), np.nan)
-        stat = np.zeros((n, self.q))
-        events: list[FaultEvent] = []
-        prev = np.concatenate([[self._last_k if self._last_k is not None else -2], k[:-1]])
-        breaks = k != prev + 1
-        if self._last_k is None or self._states is None:
+        # The models restart (update's business) on the first sample they see.
+        breaks = continuity_breaks(k, self._last_k, first_breaks=True)
+        if self._states is None:
             breaks[0] = True
-        i = 0
-        while i < n:
-            if self.mode == DIAGNOSE or breaks[i]:
-                events += self.update(Sample(k=int(k[i]), timestamp_ns=int(t_ns[i]), u=U[i],
-                                             z=Z[i], gap=0))
-                if self.last_residuals is not None:
-                    R[i], Rn[i] = self.last_residuals, self.last_normalized
-                stat[i] = self.statistics
-                i += 1
-                continue
-            later = np.flatnonzero(breaks[i + 1:])
-            j = i + 1 + int(later[0]) if len(later) else n
-            i = self._monitor_stretch(k, t_ns, U, Z, i, j, R, Rn, stat, events)
-        return BlockResult(events=events, residuals=R, normalized=Rn, statistic=stat)
+        return run_block(self, k, t_ns, U, Z, gap, breaks,
+                         lambda i, j, rows: self._monitor_stretch(k, U, Z, i, j, rows))
 
     def _snapshot(self) -> tuple:
         return ([s.copy() for s in self._states], self._u_last.copy(),
                 self._taint_until.copy())
 
-    def _monitor_stretch(self, k, t_ns, U, Z, i: int, j: int, R, Rn, stat, events) -> int:
-        """Vectorised monitoring of continuous samples i..j-1; returns where it stopped (after
-        the sample that raised an alarm, which ``update`` handled)."""
+    def _monitor_stretch(self, k: np.ndarray, U: np.ndarray, Z: np.ndarray, i: int, j: int,
+                         rows: BlockRows) -> int:
+        """Vectorised monitoring of continuous samples i..j-1 (canfdi.core.blockrun): returns
+        j, or the row of the alarm, which ``update`` then takes."""
         before = self._snapshot()
         res, rn = self._residuals(k[i:j], U[i:j], Z[i:j])
         ph, done = self.detector.run(k[i:j], rn)
@@ -410,9 +381,9 @@ class OutputErrorDiagnoser:
             if done:
                 self._residuals(k[i:i + done], U[i:i + done], Z[i:i + done])
         if done > 0:
-            stat[i: i + done] = np.maximum(ph.g_up[:done], ph.g_down[:done])
-            R[i: i + done] = res[:done]
-            Rn[i: i + done] = rn[:done]
+            rows.stat[i: i + done] = np.maximum(ph.g_up[:done], ph.g_down[:done])
+            rows.R[i: i + done] = res[:done]
+            rows.Rn[i: i + done] = rn[:done]
             have = ~np.isnan(rn[:done]).all(axis=1)
             for r in np.flatnonzero(have)[-self._recent.maxlen:].tolist():
                 self._recent.append((int(k[i + r]), rn[r].copy()))
@@ -421,15 +392,7 @@ class OutputErrorDiagnoser:
                 self.last_residuals, self.last_normalized = res[done - 1], rn[done - 1]
             else:
                 self.last_residuals = self.last_normalized = None
-        if not alarmed:
-            return j
-        stop = i + done
-        events += self.update(Sample(k=int(k[stop]), timestamp_ns=int(t_ns[stop]), u=U[stop],
-                                     z=Z[stop], gap=0))
-        if self.last_residuals is not None:
-            R[stop], Rn[stop] = self.last_residuals, self.last_normalized
-        stat[stop] = self.statistics
-        return stop + 1
+        return i + done
 
     # -- the state machine -----------------------------------------------------------------
     def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:

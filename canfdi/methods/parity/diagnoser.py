@@ -34,8 +34,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from canfdi.core.blockrun import BlockRows, continuity_breaks, run_block
 from canfdi.core.design import Design
-from canfdi.core.detect import ChangePointDetector, onset_candidates
+from canfdi.core.detect import ChangePointDetector, DetectorBacked, onset_candidates
 from canfdi.core.identify import RlsState, rls_init, rls_solve, rls_update
 from canfdi.core.protocol import DIAGNOSE, MONITOR
 from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample, compensate
@@ -96,7 +97,7 @@ class Diagnosis:
     n_u: np.ndarray
 
 
-class ParityDiagnoser:
+class ParityDiagnoser(DetectorBacked):
     """Streaming diagnoser: ``update(sample) -> events``.
 
     Parameters
@@ -181,21 +182,6 @@ class ParityDiagnoser:
     def residual_names(self) -> list[str]:
         return self.bank.names
 
-    @property
-    def thresholds(self) -> np.ndarray:
-        """(m,) Page-Hinkley thresholds in noise stds: the detector's (settable, e.g. scaled by
-        a sensitivity check)."""
-        return self.detector.h
-
-    @thresholds.setter
-    def thresholds(self, value: np.ndarray) -> None:
-        self.detector.h = np.asarray(value, dtype=float).reshape(self.detector.m)
-
-    @property
-    def statistics(self) -> np.ndarray:
-        """(m,) the larger Page-Hinkley statistic of each residual."""
-        return self.detector.statistics
-
     # -- compensation ----------------------------------------------------------------------
     def _compensate(self, k: int, z: np.ndarray, u: np.ndarray) -> np.ndarray:
         """(q+p,) the sample [z, u] with the accepted faults undone."""
@@ -222,37 +208,16 @@ class ParityDiagnoser:
         indices say it).
         """
         k = np.asarray(k, dtype=np.int64)
-        n, m = len(k), self.bank.m
-        gap = np.zeros(n, dtype=np.int64) if gap is None else np.asarray(gap)
         U = np.asarray(U, dtype=float)
         Z = np.asarray(Z, dtype=float)
-        R = np.full((n, m), np.nan)
-        Rn = np.full((n, m), np.nan)
-        stat = np.zeros((n, m))
-        events: list[FaultEvent] = []
-        # A sample breaks continuity when it does not follow its predecessor.
-        prev = np.concatenate([[self._last_k if self._last_k is not None else -2], k[:-1]])
-        breaks = k != prev + 1
-        if self._last_k is None:
-            breaks[0] = False
-        i = 0
-        while i < n:
-            if self.mode == DIAGNOSE or breaks[i]:
-                events += self.update(Sample(k=int(k[i]), timestamp_ns=int(t_ns[i]), u=U[i],
-                                             z=Z[i], gap=int(gap[i])))
-                if self.last_residuals is not None:
-                    R[i], Rn[i] = self.last_residuals, self.last_normalized
-                stat[i] = self.statistics
-                i += 1
-                continue
-            later = np.flatnonzero(breaks[i + 1:])
-            j = i + 1 + int(later[0]) if len(later) else n
-            i = self._monitor_stretch(k, t_ns, U, Z, i, j, R, Rn, stat, events)
-        return BlockResult(events=events, residuals=R, normalized=Rn, statistic=stat)
+        breaks = continuity_breaks(k, self._last_k, first_breaks=False)
+        return run_block(self, k, t_ns, U, Z, gap, breaks,
+                         lambda i, j, rows: self._monitor_stretch(k, U, Z, i, j, rows))
 
-    def _monitor_stretch(self, k, t_ns, U, Z, i: int, j: int, R, Rn, stat, events) -> int:
-        """Vectorised monitoring of the continuous samples i..j-1; returns where it stopped
-        (after the sample that raised an alarm, which ``update`` handled)."""
+    def _monitor_stretch(self, k: np.ndarray, U: np.ndarray, Z: np.ndarray, i: int, j: int,
+                         rows: BlockRows) -> int:
+        """Vectorised monitoring of the continuous samples i..j-1 (canfdi.core.blockrun):
+        returns j, or the row of the alarm, which ``update`` then takes."""
         S = self.bank.S
         X = self._compensate_block(k[i:j], Z[i:j], U[i:j])
         E = np.vstack([self.bank.tail, X])
@@ -261,9 +226,9 @@ class ParityDiagnoser:
         have = ~np.isnan(rn).all(axis=1)  # rows where update returns residuals
         ph, done = self.detector.run(k[i:j], rn)
         if done > 0:
-            stat[i: i + done] = np.maximum(ph.g_up[:done], ph.g_down[:done])
-            R[i: i + done] = res[:done]
-            Rn[i: i + done] = rn[:done]
+            rows.stat[i: i + done] = np.maximum(ph.g_up[:done], ph.g_down[:done])
+            rows.R[i: i + done] = res[:done]
+            rows.Rn[i: i + done] = rn[:done]
             # Bring the streaming state up to date with rows i..i+done-1.
             self.bank.load(E[: S + done])
             for r in range(max(0, done - self._history.maxlen), done):
@@ -276,15 +241,7 @@ class ParityDiagnoser:
                 self.last_residuals, self.last_normalized = res[done - 1], rn[done - 1]
             else:
                 self.last_residuals = self.last_normalized = None
-        if done == len(X):
-            return j
-        stop = i + done
-        events += self.update(Sample(k=int(k[stop]), timestamp_ns=int(t_ns[stop]), u=U[stop],
-                                     z=Z[stop], gap=0))
-        if self.last_residuals is not None:
-            R[stop], Rn[stop] = self.last_residuals, self.last_normalized
-        stat[stop] = self.statistics
-        return stop + 1
+        return i + done
 
     # -- the state machine -----------------------------------------------------------------
     def update(self, sample: Sample) -> list[FaultEvent]:

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import norm
 
+from canfdi.core.blockrun import run_block
 from canfdi.core.identify import least_squares
 from canfdi.core.protocol import DIAGNOSE, MONITOR
 from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample, compensate
@@ -248,20 +249,7 @@ class UioDiagnoser:
                      gap: np.ndarray | None = None) -> BlockResult:
         """``update`` over N samples (k, t_ns (N,); U (N, p); Z (N, q), NaN = lost); the same
         results as N calls, gathered (residual rows NaN where update gave none)."""
-        k = np.asarray(k, dtype=np.int64)
-        n, width = len(k), self.p + self.q
-        gap = np.zeros(n, dtype=np.int64) if gap is None else np.asarray(gap)
-        R = np.full((n, width), np.nan)
-        Rn = np.full((n, width), np.nan)
-        stat = np.zeros((n, width))
-        events: list[FaultEvent] = []
-        for i in range(n):
-            events += self.update(Sample(k=int(k[i]), timestamp_ns=int(t_ns[i]), u=U[i],
-                                         z=Z[i], gap=int(gap[i])))
-            if self.last_residuals is not None:
-                R[i], Rn[i] = self.last_residuals, self.last_normalized
-            stat[i] = self.statistics
-        return BlockResult(events=events, residuals=R, normalized=Rn, statistic=stat)
+        return run_block(self, np.asarray(k, dtype=np.int64), t_ns, U, Z, gap)
 
     def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
         s = self.settings
