@@ -58,18 +58,27 @@ import numpy as np
 import yaml
 
 from canfdi import methods
+from canfdi.bus.clock import CLOCKS
+from canfdi.bus.e2e import PROFILES as E2E_PROFILES
+from canfdi.bus.nodeid import MAX_EXTENDED_ID, check_template
 from canfdi.core.design import DesignOptions
 from canfdi.core.model import ModelError, StateSpace
 from canfdi.core.settings import (
     BusConfig,
+    ClockConfig,
     ConfigError,
     DetectionConfig,
+    DriveConfig,
+    E2EConfig,
     IdentificationConfig,
     MonitorConfig,
+    MonitorFramesConfig,
     Option,
     RecordingConfig,
+    SignalRef,
     parse_options,
     section,
+    unknown_name,
 )
 
 __all__ = [
@@ -86,9 +95,15 @@ __all__ = [
 
 # The sections every config may have; each method adds its own (canfdi.methods).
 _COMMON_KEYS = ("name", "description", "method", "model", "signals", "noise", "design", "bus",
-                "detection", "identification", "recording")
+                "detection", "identification", "recording", "drives")
 _BUS = {"interface": Option(str), "channel": Option(str), "bitrate": Option(int, 1),
-        "dbc": Option(str), "status_period": Option(float, 0.01, 3600.0)}
+        "dbc": Option(str), "status_period": Option(float, 0.01, 3600.0),
+        "transmit": Option(bool), "canopen": Option(bool)}
+_BUS_SECTIONS = ("map", "e2e", "clock", "node", "monitor")
+_CLOCK = {"kind": Option(str, choices=CLOCKS), "period": Option(float, 1e-6, 3600.0),
+          "phase": Option(float, 0.0, 3600.0), "max_age": Option(float, 1e-6, 3600.0)}
+_MONITOR = {"dbc": Option(str), "base": Option(int, 0, MAX_EXTENDED_ID)}
+MAX_DRIVES = 8  # the Drive signal of the monitor's frames has 3 bits
 _DETECTION = {"drift": Option(float, 0.0, 100.0),
               "false_alarm_interval": Option(float, 10.0, 1e15)}
 _IDENTIFICATION = {"min_samples": Option(int, 1, 10**7), "max_samples": Option(int, 1, 10**7),
@@ -171,7 +186,7 @@ def parse_config(data: Any, path: Path | None = None) -> MonitorConfig:
         sensor_window=_window(design.get("sensor_window"), "design.sensor_window"),
         max_window=max_window, measurement_std=meas, process_std=proc,
     )
-    bus = BusConfig(**parse_options(data.get("bus"), _BUS, "bus"))
+    bus = _bus(section(data, "bus"), inputs + outputs)
     detection = DetectionConfig(**parse_options(data.get("detection"), _DETECTION, "detection"))
     identification = IdentificationConfig(**parse_options(data.get("identification"),
                                                           _IDENTIFICATION, "identification"))
@@ -185,13 +200,134 @@ def parse_config(data: Any, path: Path | None = None) -> MonitorConfig:
     description = data.get("description", "")
     if not isinstance(description, str):
         raise ConfigError("description", "expected a string")
+    drives = _drives(data.get("drives"), bus)
     config = MonitorConfig(name=name, description=description, model=model, inputs=inputs,
                            outputs=outputs, unknown_inputs=unknown_inputs,
                            unknown_outputs=unknown_outputs, design=options, bus=bus,
                            detection=detection, identification=identification,
-                           recording=recording, path=path, method=method.name)
+                           recording=recording, path=path, method=method.name, drives=drives)
     raw = data.get(method.section) if method.section else None
     return dataclasses.replace(config, method_options=method.parse_options(raw, config))
+
+
+def _message_ref(value: Any, field: str) -> str | int:
+    """A DBC message named by its name or by its (DBC) ID."""
+    if isinstance(value, bool) or not isinstance(value, str | int) or value == "":
+        raise ConfigError(field, f"expected a message name or ID, got {value!r}")
+    if isinstance(value, int) and not 0 <= value <= MAX_EXTENDED_ID:
+        raise ConfigError(field, f"expected an ID in [0, 0x{MAX_EXTENDED_ID:X}], got {value!r}")
+    return value
+
+
+def _signal_ref(value: Any, field: str) -> SignalRef:
+    if isinstance(value, str):
+        message, dot, signal = value.rpartition(".")
+        if not dot or not message or not signal:
+            raise ConfigError(field, f"expected MESSAGE.SIGNAL or {{message, signal}}, got "
+                                     f"{value!r}")
+        return SignalRef(_message_ref(int(message, 0) if _is_int(message) else message, field),
+                         signal)
+    if not isinstance(value, dict):
+        raise ConfigError(field, f"expected MESSAGE.SIGNAL or {{message, signal}}, got {value!r}")
+    parse_options(value, {"signal": Option(str)}, field, extra=("message",))
+    if "message" not in value or "signal" not in value:
+        raise ConfigError(field, "needs both message and signal")
+    return SignalRef(_message_ref(value["message"], f"{field}.message"), value["signal"])
+
+
+def _is_int(text: str) -> bool:
+    try:
+        int(text, 0)
+    except ValueError:
+        return False
+    return True
+
+
+def _e2e_spec(value: Any, field: str) -> Any:
+    """A profile name or a mapping with ``profile`` (its options are checked against the DBC
+    when the bus is compiled: canfdi.bus.e2e)."""
+    if isinstance(value, str) and value:
+        if value not in E2E_PROFILES:
+            raise unknown_name(field, "E2E profile", value, E2E_PROFILES)
+        return value
+    if isinstance(value, dict):
+        name = value.get("profile")
+        if name not in E2E_PROFILES:
+            raise unknown_name(f"{field}.profile", "E2E profile", name, E2E_PROFILES)
+        return dict(value)
+    raise ConfigError(field, f"expected a profile name or {{profile, ...options}}, got {value!r}")
+
+
+def _bus(data: dict, names: list[str]) -> BusConfig:
+    values = parse_options(data, _BUS, "bus", extra=_BUS_SECTIONS)
+    mapping = section(data, "map", "bus")
+    for key in mapping:
+        if key not in names:
+            raise unknown_name(f"bus.map.{key}", "model signal", key, names)
+    signal_map = {key: _signal_ref(value, f"bus.map.{key}") for key, value in mapping.items()}
+    e2e_data = section(data, "e2e", "bus")
+    parse_options(e2e_data, {}, "bus.e2e", extra=("default", "messages"))
+    messages = section(e2e_data, "messages", "bus.e2e")
+    e2e = E2EConfig(
+        default=_e2e_spec(e2e_data.get("default", "canfdi"), "bus.e2e.default"),
+        messages={_message_ref(key, f"bus.e2e.messages.{key}"):
+                  _e2e_spec(spec, f"bus.e2e.messages.{key}") for key, spec in messages.items()})
+    clock_data = section(data, "clock", "bus")
+    clock = ClockConfig(**parse_options(clock_data, _CLOCK, "bus.clock", extra=("message",)))
+    if "message" in clock_data:
+        clock = dataclasses.replace(clock, message=_message_ref(clock_data["message"],
+                                                                "bus.clock.message"))
+    if clock.kind == "trigger" and clock.message is None:
+        raise ConfigError("bus.clock.message", "a trigger clock needs the message that marks "
+                                               "each control period (e.g. SYNC)")
+    if clock.kind != "trigger" and clock.message is not None:
+        raise ConfigError("bus.clock.message", f"only a trigger clock takes a message (this "
+                                               f"one is {clock.kind})")
+    node = section(data, "node", "bus")
+    parse_options(node, {"id": Option(str)}, "bus.node")
+    node_id = node.get("id")
+    if node_id is not None:
+        check_template(node_id, "bus.node.id")
+    monitor_data = section(data, "monitor", "bus")
+    mon = parse_options(monitor_data, _MONITOR, "bus.monitor", extra=("ids", "e2e"))
+    ids = section(monitor_data, "ids", "bus.monitor")
+    for key, value in ids.items():
+        Option(int, 0, MAX_EXTENDED_ID).check(value, f"bus.monitor.ids.{key}")
+    if ids and "base" in mon:
+        raise ConfigError("bus.monitor.ids", "give base or ids, not both")
+    monitor = MonitorFramesConfig(
+        **mon, ids=dict(ids),
+        e2e=_e2e_spec(monitor_data.get("e2e", "canfdi"), "bus.monitor.e2e"))
+    return BusConfig(**values, map=signal_map, e2e=e2e, clock=clock, node_id=node_id,
+                     monitor=monitor)
+
+
+def _drives(value: Any, bus: BusConfig) -> tuple[DriveConfig, ...]:
+    if value is None:
+        return ()
+    if not isinstance(value, list) or not value:
+        raise ConfigError("drives", "expected a non-empty list of {name, node}")
+    if len(value) > MAX_DRIVES:
+        raise ConfigError("drives", f"at most {MAX_DRIVES} drives on one bus (the monitor's "
+                                    f"frames name a drive in 3 bits), got {len(value)}")
+    drives, seen = [], set()
+    for i, entry in enumerate(value):
+        where = f"drives[{i}]"
+        if not isinstance(entry, dict):
+            raise ConfigError(where, "expected a mapping {name, node}")
+        opts = parse_options(entry, {"name": Option(str), "node": Option(int, 0, 2**29)}, where)
+        if "name" not in opts:
+            raise ConfigError(f"{where}.name", "missing: every drive needs a name")
+        if opts["name"] in seen:
+            raise ConfigError(f"{where}.name", f"{opts['name']!r} is named twice")
+        seen.add(opts["name"])
+        if len(value) > 1 and "node" not in opts:
+            raise ConfigError(f"{where}.node", "missing: several drives need a node each")
+        drives.append(DriveConfig(opts["name"], opts.get("node")))
+    if len(drives) > 1 and bus.node_id is None:
+        raise ConfigError("bus.node.id", "several drives need a node-id template (e.g. "
+                                         "\"(id & ~0x7F) | node\" for CANopen)")
+    return tuple(drives)
 
 
 def read_yaml(path: Path, error: type[ValueError], field: str) -> Any:

@@ -4,28 +4,35 @@
 asyncio service, replay from a log. Nothing here reads a clock, a bus or a file: timestamps come
 with the frames, frames to send are returned, records go to an optional sink (the MCAP recorder).
 
-    frame -> SampleAssembler (E2E checks, counters, gaps) -> Sample
-          -> Diagnoser.update -> FaultEvents -> FDI_FAULT / FDI_ESTIMATE frames
+    frame -> which drive (its IDs) -> that drive's sample clock (E2E checks, counters, gaps)
+          -> Sample -> that drive's Diagnoser.update -> FaultEvents (with the drive's name)
+          -> FDI_FAULT / FDI_ESTIMATE frames (with the drive's index), unless listen-only
+
+Several drives of one description share a bus (the config's ``drives:``, docs/bus.md): each
+has its own sample clock and diagnoser; a frame goes to the drive whose message it is, and a
+frame of no drive (the monitor's own, other nodes, unknown IDs) to the first, which only
+counts it.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import numpy as np
 
 from canfdi import __version__, methods
 from canfdi.bus.assembler import SampleAssembler
-from canfdi.bus.dbc import BusMap
-from canfdi.bus.e2e import protect
-from canfdi.bus.frames import STATUS_NAMES, FrameBlock
+from canfdi.bus.clock import LatestValueClock, make_clock
+from canfdi.bus.dbc import BusMap, MessageKey, keys_of, load_dbc, message_key
+from canfdi.bus.frames import FLAG_EXTENDED, STATUS_NAMES, FrameBlock
+from canfdi.bus.monitorframes import MonitorFrames
 from canfdi.core.protocol import DIAGNOSE, Diagnoser
 from canfdi.core.records import FaultEvent, Sample
 from canfdi.core.settings import MonitorConfig
 
-__all__ = ["Monitor", "OutFrame", "RecordSink", "summary_json"]
+__all__ = ["Drive", "Monitor", "OutFrame", "RecordSink", "summary_json"]
 
 
 _KIND = {"actuator": 1, "sensor": 2}
@@ -40,17 +47,19 @@ class RecordSink(Protocol):
     def write_frame(self, timestamp_ns: int, frame_id: int, data: bytes, status: str,
                     extended: bool = False) -> None: ...
     def write_sample(self, sample: Sample, input_names: list[str],
-                     output_names: list[str]) -> None: ...
+                     output_names: list[str], drive: str | None = None) -> None: ...
     def write_residuals(self, timestamp_ns: int, k: int, names: list[str], r: np.ndarray,
-                        normalized: np.ndarray, statistic: np.ndarray) -> None: ...
+                        normalized: np.ndarray, statistic: np.ndarray,
+                        drive: str | None = None) -> None: ...
     def write_event(self, event: FaultEvent) -> None: ...
     def write_frames(self, block: FrameBlock, statuses: np.ndarray,
                      status_names: tuple[str, ...]) -> None: ...
     def write_samples(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
-                      gap: np.ndarray, input_names: list[str],
-                      output_names: list[str]) -> None: ...
+                      gap: np.ndarray, input_names: list[str], output_names: list[str],
+                      drive: str | None = None) -> None: ...
     def write_residual_rows(self, k: np.ndarray, t_ns: np.ndarray, names: list[str],
-                            R: np.ndarray, Rn: np.ndarray, stat: np.ndarray) -> None: ...
+                            R: np.ndarray, Rn: np.ndarray, stat: np.ndarray,
+                            drive: str | None = None) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -59,10 +68,25 @@ class OutFrame:
 
     frame_id: int
     data: bytes
+    extended: bool = False
+
+
+@dataclass
+class Drive:
+    """One drive on the bus: its name, its index in ``drives:`` (the Drive signal of the
+    monitor's frames), its bus map, its sample clock, its diagnoser (None when capturing) and
+    how many samples it has delivered."""
+
+    name: str
+    index: int
+    bus_map: BusMap
+    clock: SampleAssembler | LatestValueClock
+    diagnoser: Diagnoser | None
+    samples: int = 0
 
 
 class Monitor:
-    """Frames to diagnoses for one config.
+    """Frames to diagnoses for one config (one or several drives).
 
     Parameters
     ----------
@@ -70,23 +94,69 @@ class Monitor:
     sink : optional record sink (MCAP recorder).
     record_residuals : write every sample's residuals to the sink (the bulk of a log).
     diagnose : False for capture: decode and record, no diagnosis (and no calibration).
+
+    Raises
+    ------
+    ConfigError
+        Whatever of the bus section the DBC contradicts (canfdi.bus.dbc, monitorframes).
     """
 
     def __init__(self, config: MonitorConfig, sink: RecordSink | None = None,
                  record_residuals: bool = True, diagnose: bool = True) -> None:
         self.config = config
-        self.bus_map = BusMap.from_config(config)
         self.method = methods.get(config.method)
-        self.diagnoser: Diagnoser | None = self.method.build(config) if diagnose else None
         self.dt = config.model.dt or 1.0
-        self.assembler = SampleAssembler(self.bus_map, self.dt)
+        if config.bus.dbc is None:
+            from canfdi.core.settings import ConfigError
+
+            raise ConfigError("bus.dbc", "a DBC file is needed to read the bus")
+        database, label = load_dbc(config.bus.dbc, config.path)
+        bus_keys = keys_of(database, config)
+        self.frames = MonitorFrames.from_config(config, bus_keys)
+        monitor = self.frames.known()
+        self.drives: list[Drive] = []
+        for index, drive in enumerate(config.drive_list):
+            bus_map = BusMap.from_dbc(database, config, drive, label, monitor)
+            self.drives.append(Drive(
+                drive.name, index, bus_map, make_clock(bus_map, self.dt, config.bus.clock),
+                self.method.build(config) if diagnose else None))
+        # Which drive a frame belongs to: (ID, extended) -> drive index; others go to drive 0.
+        self._owner: dict[MessageKey, int] = {
+            key: d.index for d in self.drives for key in d.bus_map.keys}
+        self._owner_ids = np.array(sorted(k[0] + (k[1] << 32) for k in self._owner),
+                                   dtype=np.int64)
+        self._owner_of = np.array([self._owner[(int(v) & 0xFFFFFFFF, bool(v >> 32))]
+                                   for v in self._owner_ids], dtype=np.int64)
         self.sink = sink
         self.record_residuals = record_residuals
         self.events: list[FaultEvent] = []
-        self.samples = 0
         self.first_timestamp_ns: int | None = None
-        self._counters: dict[int, int] = {}
-        self._fdi = {lay.name: lay for lay in self.bus_map.monitor_layouts}
+
+    # -- the first (or only) drive, for the many callers that watch one --------------------
+    @property
+    def diagnoser(self) -> Diagnoser | None:
+        """The first drive's diagnoser."""
+        return self.drives[0].diagnoser
+
+    @property
+    def assembler(self) -> SampleAssembler | LatestValueClock:
+        """The first drive's sample clock."""
+        return self.drives[0].clock
+
+    @property
+    def bus_map(self) -> BusMap:
+        """The first drive's bus map."""
+        return self.drives[0].bus_map
+
+    @property
+    def samples(self) -> int:
+        """Samples delivered, every drive."""
+        return sum(d.samples for d in self.drives)
+
+    @property
+    def frame_stats(self) -> dict:
+        """Frame and sample counters of every drive's clock, summed."""
+        return _sum_stats([d.clock.stats for d in self.drives])
 
     # -- metadata ---------------------------------------------------------------------------
     def metadata(self, truth: list[dict] | None = None) -> dict[str, str]:
@@ -97,6 +167,7 @@ class Monitor:
             "config_name": cfg.name,
             "config_yaml": cfg.path.read_text() if cfg.path and cfg.path.exists() else "",
             "method": cfg.method,
+            "drives_json": json.dumps([d.name for d in self.drives]),
         }
         design = self.method.describe(cfg) if self.method.describe is not None else None
         if design is not None:
@@ -115,14 +186,15 @@ class Monitor:
         """Process one received frame; returns the frames to send in reply (fault frames)."""
         if self.first_timestamp_ns is None:
             self.first_timestamp_ns = timestamp_ns
-        status, samples = self.assembler.push(timestamp_ns, frame_id, data,
-                                              is_extended=is_extended, is_remote=is_remote,
-                                              is_error=is_error, is_fd=is_fd)
+        drive = self.drives[self._owner.get(message_key(frame_id, is_extended), 0)]
+        status, samples = drive.clock.push(timestamp_ns, frame_id, data,
+                                           is_extended=is_extended, is_remote=is_remote,
+                                           is_error=is_error, is_fd=is_fd)
         if self.sink is not None:
             self.sink.write_frame(timestamp_ns, frame_id, bytes(data), status, is_extended)
         out: list[OutFrame] = []
         for sample in samples:
-            out.extend(self.on_sample(sample))
+            out.extend(self.on_sample(sample, drive))
         return out
 
     def on_frames(self, block: FrameBlock) -> list[OutFrame]:
@@ -132,20 +204,48 @@ class Monitor:
             return []
         if self.first_timestamp_ns is None:
             self.first_timestamp_ns = int(block.t_ns[0])
-        log = self.assembler.push_batch(block)
+        if len(self.drives) == 1:
+            log = self.drives[0].clock.push_batch(block)
+            if self.sink is not None:
+                self.sink.write_frames(block, log.statuses, STATUS_NAMES)
+            return self.on_samples(log.k, log.timestamp_ns, log.u, log.z, log.gap)
+        owner = self._owners(block)
+        statuses = np.zeros(block.size, dtype=np.int8)
+        logs = []
+        for drive in self.drives:
+            rows = np.flatnonzero(owner == drive.index)
+            if rows.size:
+                log = drive.clock.push_batch(block.select(rows))
+                statuses[rows] = log.statuses
+                logs.append((drive, log))
         if self.sink is not None:
-            self.sink.write_frames(block, log.statuses, STATUS_NAMES)
-        return self.on_samples(log.k, log.timestamp_ns, log.u, log.z, log.gap)
+            self.sink.write_frames(block, statuses, STATUS_NAMES)
+        out: list[OutFrame] = []
+        for drive, log in logs:
+            out += self.on_samples(log.k, log.timestamp_ns, log.u, log.z, log.gap, drive)
+        return out
+
+    def _owners(self, block: FrameBlock) -> np.ndarray:
+        """(N,) the index of the drive each frame goes to (0 for a frame of no drive)."""
+        key = block.id.astype(np.int64) + (((block.flags & FLAG_EXTENDED) != 0)
+                                           .astype(np.int64) << 32)
+        if not len(self._owner_ids):
+            return np.zeros(block.size, dtype=np.int64)
+        pos = np.clip(np.searchsorted(self._owner_ids, key), 0, len(self._owner_ids) - 1)
+        return np.where(self._owner_ids[pos] == key, self._owner_of[pos], 0)
 
     def on_samples(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
-                   gap: np.ndarray) -> list[OutFrame]:
-        """Diagnose a block of assembled samples ((N,) k, t_ns, gap; (N, p) U; (N, q) Z)."""
+                   gap: np.ndarray, drive: Drive | None = None) -> list[OutFrame]:
+        """Diagnose a block of one drive's assembled samples ((N,) k, t_ns, gap; (N, p) U;
+        (N, q) Z; default the first drive)."""
+        drive = drive or self.drives[0]
         if len(k) == 0:
             return []
-        self.samples += len(k)
-        dg = self.diagnoser
+        drive.samples += len(k)
+        dg = drive.diagnoser
+        cfg = self.config
         if self.sink is not None:
-            self.sink.write_samples(k, t_ns, U, Z, gap, self.config.inputs, self.config.outputs)
+            self.sink.write_samples(k, t_ns, U, Z, gap, cfg.inputs, cfg.outputs, drive.name)
         if dg is None:
             return []
         result = dg.update_block(k, t_ns, U, Z, gap)
@@ -154,90 +254,111 @@ class Monitor:
             if have.any():
                 self.sink.write_residual_rows(k[have], t_ns[have], dg.residual_names,
                                               result.residuals[have], result.normalized[have],
-                                              result.statistic[have])
-        out: list[OutFrame] = []
-        for event in result.events:
-            self.events.append(event)
-            if self.sink is not None:
-                self.sink.write_event(event)
-            out.extend(self.fault_frames(event))
-        return out
+                                              result.statistic[have], drive.name)
+        return self._announce(result.events, drive)
 
-    def on_sample(self, sample: Sample) -> list[OutFrame]:
-        """Diagnose one assembled sample (replay of decoded samples enters here)."""
-        self.samples += 1
-        dg = self.diagnoser
+    def on_sample(self, sample: Sample, drive: Drive | None = None) -> list[OutFrame]:
+        """Diagnose one assembled sample of a drive (default the first)."""
+        drive = drive or self.drives[0]
+        drive.samples += 1
+        dg = drive.diagnoser
         events = dg.update(sample) if dg is not None else []
         if self.sink is not None:
-            self.sink.write_sample(sample, self.config.inputs, self.config.outputs)
+            self.sink.write_sample(sample, self.config.inputs, self.config.outputs, drive.name)
             if dg is not None and self.record_residuals and dg.last_residuals is not None:
                 self.sink.write_residuals(sample.timestamp_ns, sample.k, dg.residual_names,
-                                          dg.last_residuals, dg.last_normalized, dg.statistics)
+                                          dg.last_residuals, dg.last_normalized,
+                                          dg.statistics, drive.name)
+        return self._announce(events, drive)
+
+    def _announce(self, events: list[FaultEvent], drive: Drive) -> list[OutFrame]:
         out: list[OutFrame] = []
         for event in events:
+            event = replace(event, drive=drive.name)
             self.events.append(event)
             if self.sink is not None:
                 self.sink.write_event(event)
-            out.extend(self.fault_frames(event))
+            out.extend(self.fault_frames(event, drive))
         return out
 
     # -- frames of ours ---------------------------------------------------------------------
     def _encode(self, name: str, values: dict[str, float]) -> OutFrame | None:
-        layout = self._fdi.get(name)
-        if layout is None:
+        found = self.frames.encode(name, values)
+        if found is None:
             return None
-        payload, _ = layout.encode({k: np.array([v]) for k, v in values.items()}, 1)
-        counter = self._counters.get(layout.frame_id, 0)
-        self._counters[layout.frame_id] = (counter + 1) & 0xFF
-        return OutFrame(layout.frame_id, protect(layout.frame_id, payload[0].tobytes(), counter))
+        (frame_id, extended), data = found
+        return OutFrame(frame_id, data, extended)
 
-    def fault_frames(self, event: FaultEvent) -> list[OutFrame]:
-        """FDI_FAULT (and FDI_ESTIMATE per estimate) frames announcing an event."""
+    def fault_frames(self, event: FaultEvent, drive: Drive | None = None) -> list[OutFrame]:
+        """FDI_FAULT (and FDI_ESTIMATE per estimate) frames announcing an event (none when
+        listen-only)."""
         if event.kind not in _STATE:
             return []
+        index = (drive or self.drives[0]).index
         frames = [self._encode("FDI_FAULT", {
             "Kind": _KIND.get(event.target or "", 0), "State": _STATE[event.kind],
-            "Index": event.index or 0, "Sample": event.sample & 0xFFFFFFFF,
+            "Drive": index, "Index": event.index or 0, "Sample": event.sample & 0xFFFFFFFF,
         })]
         for key, value in event.estimates.items():
             param = _PARAM.get(key)
             if param is None:
                 continue
             frames.append(self._encode("FDI_ESTIMATE", {
-                "Kind": _KIND[event.target], "Param": param, "Index": event.index,
-                "Value": value}))
+                "Kind": _KIND[event.target], "Param": param, "Drive": index,
+                "Index": event.index, "Value": value}))
             var = event.variances.get(key)
             if var is not None:
                 frames.append(self._encode("FDI_ESTIMATE", {
-                    "Kind": _KIND[event.target], "Param": param + 3, "Index": event.index,
-                    "Value": float(np.sqrt(max(var, 0.0)))}))
+                    "Kind": _KIND[event.target], "Param": param + 3, "Drive": index,
+                    "Index": event.index, "Value": float(np.sqrt(max(var, 0.0)))}))
         return [f for f in frames if f is not None]
 
-    def status_frame(self, state: str | None = None) -> OutFrame | None:
-        """The periodic FDI_STATUS heartbeat."""
-        dg = self.diagnoser
-        if state is None:
-            state = "diagnosing" if dg is not None and dg.mode == DIAGNOSE else "monitoring"
-        stats = self.assembler.stats
-        return self._encode("FDI_STATUS", {
-            "State": _STATUS[state],
-            "ActiveFaults": min(len(dg.compensation), 15) if dg is not None else 0,
-            "Samples": self.samples & 0xFFFFFF,
-            "InvalidFrames": stats["frames_invalid"] & 0xFFFF,
-        })
+    def status_frames(self, state: str | None = None) -> list[OutFrame]:
+        """The periodic FDI_STATUS heartbeat, one per drive (none when listen-only)."""
+        out = []
+        for drive in self.drives:
+            dg = drive.diagnoser
+            now = state
+            if now is None:
+                now = "diagnosing" if dg is not None and dg.mode == DIAGNOSE else "monitoring"
+            stats = drive.clock.stats
+            frame = self._encode("FDI_STATUS", {
+                "State": _STATUS[now], "Drive": drive.index,
+                "ActiveFaults": min(len(dg.compensation), 15) if dg is not None else 0,
+                "Samples": drive.samples & 0x3FFFFF,
+                "InvalidFrames": stats["frames_invalid"] & 0xFFFF,
+            })
+            if frame is not None:
+                out.append(frame)
+        return out
 
     # -- results ----------------------------------------------------------------------------
     def finish(self) -> list[OutFrame]:
         """End of stream: a pending incomplete sample is diagnosed as broken; returns the
         frames that caused (usually none)."""
         out: list[OutFrame] = []
-        for sample in self.assembler.flush():
-            out.extend(self.on_sample(sample))
+        for drive in self.drives:
+            for sample in drive.clock.flush():
+                out.extend(self.on_sample(sample, drive))
         return out
 
     def summary(self, truth: list[dict] | None = None) -> dict[str, Any]:
         """The JSON contract of `replay --json` and `demo --json`."""
-        return summary_json(self.events, self.assembler.stats, self.dt, truth, self.samples)
+        out = summary_json(self.events, self.frame_stats, self.dt, truth, self.samples)
+        if len(self.drives) > 1:
+            out["drives"] = {d.name: {"samples": d.samples, "frames": d.clock.stats}
+                             for d in self.drives}
+        return out
+
+
+def _sum_stats(stats: list[dict]) -> dict:
+    if len(stats) == 1:
+        return stats[0]
+    out = {key: sum(s[key] for s in stats) for key, value in stats[0].items()
+           if isinstance(value, int)}
+    out["invalid_by_reason"] = {name: sum(s["invalid_by_reason"][name] for s in stats)
+                                for name in stats[0]["invalid_by_reason"]}
+    return out
 
 
 def summary_json(events: list[FaultEvent], frame_stats: dict, dt: float,
@@ -250,7 +371,7 @@ def summary_json(events: list[FaultEvent], frame_stats: dict, dt: float,
             continue
         detected = detections.get(e.detected_sample)
         faults.append({
-            "kind": e.target, "index": e.index, "name": e.name,
+            "kind": e.target, "index": e.index, "name": e.name, "drive": e.drive,
             "onset_sample": e.onset_sample, "detected_sample": e.detected_sample,
             "accepted_sample": e.accepted_sample,
             "detected_time": (detected.timestamp_ns / 1e9 if detected is not None else None),

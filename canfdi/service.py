@@ -190,12 +190,13 @@ class MonitorService:
             if self.bus is None:
                 self.stats.send_errors += 1
                 continue
-            msg = can.Message(arbitration_id=f.frame_id, data=f.data, is_extended_id=False)
+            msg = can.Message(arbitration_id=f.frame_id, data=f.data,
+                              is_extended_id=f.extended)
             try:
                 self.bus.send(msg, timeout=0.05)
                 self.stats.sent += 1
                 if sink is not None:
-                    sink.write_frame(time.time_ns(), f.frame_id, f.data, "sent", False)
+                    sink.write_frame(time.time_ns(), f.frame_id, f.data, "sent", f.extended)
             except (can.CanError, OSError) as exc:
                 self.stats.send_errors += 1
                 log.warning("could not send frame 0x%X: %s", f.frame_id, exc)
@@ -336,12 +337,12 @@ class MonitorService:
             for event in self.monitor.events[n_events:]:
                 self.on_event(event)
 
-    def status_frame(self) -> OutFrame | None:
-        """The FDI_STATUS frame to send now: state "degraded" while the monitor's record sink
-        says it is failing (the MCAP log is not being written: a full disk), else the
-        monitor's own state."""
+    def status_frames(self) -> list[OutFrame]:
+        """The FDI_STATUS frames to send now (one per drive; none when listen-only): state
+        "degraded" while the monitor's record sink says it is failing (the MCAP log is not
+        being written: a full disk), else the monitor's own state."""
         failing = getattr(self.monitor.sink, "failing", False)
-        return self.monitor.status_frame("degraded" if failing else None)
+        return self.monitor.status_frames("degraded" if failing else None)
 
     async def _status_loop(self, stop: asyncio.Event) -> None:
         if self.status_period <= 0:
@@ -350,14 +351,14 @@ class MonitorService:
         # that a monitor is there, not a status period later.
         while self.bus is None and not stop.is_set():
             await asyncio.sleep(0.01)
-        frame = self.status_frame()
-        if frame is not None and self.bus is not None:
-            self.send([frame])
+        frames = self.status_frames()
+        if frames and self.bus is not None:
+            self.send(frames)
         while not stop.is_set():
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(stop.wait(), timeout=self.status_period)
             if stop.is_set():
                 return
-            frame = self.status_frame()
-            if frame is not None and self.bus is not None:
-                self.send([frame])
+            frames = self.status_frames()
+            if frames and self.bus is not None:
+                self.send(frames)

@@ -60,6 +60,7 @@ from canfdi.bus.frames import (
     FrameBlock,
 )
 from canfdi.core.records import Sample
+from canfdi.core.settings import ConfigError
 
 __all__ = ["AssembledLog", "SampleAssembler", "assemble_batch"]
 
@@ -68,10 +69,6 @@ _INVALID_NAMES = tuple(name for name in STATUS_NAMES if name not in VALID_STATUS
  _DUPLICATE, _STALE, _JUMP) = range(len(STATUS_NAMES))
 _N_VALID = 3  # codes below this are valid (ok, monitor, unused)
 
-_COUNTER_MODULUS = 256
-# The batch fast path takes frames at most this many periods apart: the unwrap rule then
-# rounds n to 0 (the plain counter rule) with a full period to spare for float rounding.
-_FAST_MAX_ELAPSED = 127
 # Fewest accepted drive frames push_batch sends through the state machine at a time (unless a
 # regular run can take over), and fewest periods of a run it assembles with numpy: below these
 # the numpy calls around them cost more than the machine's ~2 us a frame (measured).
@@ -131,7 +128,17 @@ class SampleAssembler:
         if not isinstance(dt, int | float) or not math.isfinite(dt) or dt <= 0:
             raise ValueError(f"dt: the control period must be a finite number of seconds > 0, "
                              f"got {dt!r}")
+        if bus_map.counter_modulus is None:
+            without = [lay.name for lay, e2e in zip(bus_map.layouts, bus_map.e2e, strict=True)
+                       if e2e.counter_modulus is None]
+            raise ConfigError("bus.clock.kind", "a counter clock needs an alive counter in every "
+                              f"mapped message, of one modulus; {', '.join(without) or 'they'} "
+                              "do not have one (their E2E profile): use a trigger or grid clock")
         self.bus_map = bus_map
+        self._mod = int(bus_map.counter_modulus)
+        # The fast path takes frames at most this many periods apart: the unwrap rule then
+        # rounds n to 0 (the plain counter rule) with a full period to spare for float rounding.
+        self._fast_max = self._mod // 2 - 1
         self.dt = float(dt)
         self._dt_ns = self.dt * 1e9
         self._p = bus_map.p
@@ -204,31 +211,22 @@ class SampleAssembler:
         samples : the samples this frame delivered, in order: a broken sample it closed (NaN
             for the missing signals) and/or the sample it completed.
         """
-        if is_error:
-            code = _ERROR_FRAME
-        elif is_remote:
-            code = _REMOTE
-        elif is_fd:
-            code = _FD
-        elif is_extended:
-            code = _EXTENDED
-        else:
-            status, slot, values = self.bus_map.decode_frame(frame_id, data)
-            if status != "ok":
-                self._counts[STATUS_CODES[status]] += 1
-                return status, []
-            code = self._place(slot, data[1], timestamp_ns)
-            self._counts[code] += 1
-            out = self._take_partial()
-            if code == _OK:
-                buffer = self._buffer
-                for dest, value in zip(self._dests[slot], values, strict=True):
-                    buffer[dest] = value
-                if self._accept(slot):
-                    out.append(self._sample(self._k, timestamp_ns, self._last_gap, buffer))
-            return STATUS_NAMES[code], out
+        flags = (is_extended * FLAG_EXTENDED | is_remote * FLAG_REMOTE | is_error * FLAG_ERROR
+                 | is_fd * FLAG_FD)
+        status, slot, values, counter = self.bus_map.decode_frame(frame_id, data, flags)
+        if status != "ok":
+            self._counts[STATUS_CODES[status]] += 1
+            return status, []
+        code = self._place(slot, counter, timestamp_ns)
         self._counts[code] += 1
-        return STATUS_NAMES[code], []
+        out = self._take_partial()
+        if code == _OK:
+            buffer = self._buffer
+            for dest, value in zip(self._dests[slot], values, strict=True):
+                buffer[dest] = value
+            if self._accept(slot):
+                out.append(self._sample(self._k, timestamp_ns, self._last_gap, buffer))
+        return STATUS_NAMES[code], out
 
     def flush(self) -> list[Sample]:
         """End of stream: a pending incomplete sample is closed as broken and delivered."""
@@ -285,14 +283,8 @@ class SampleAssembler:
         sends the frames up to the next such run through the state machine (about 2 us a
         frame).
         """
-        timestamps_ns, flags = block.t_ns, block.flags
+        timestamps_ns = block.t_ns
         status, slot, values, counters = self.bus_map.decode_frames(block)
-        if flags.any():
-            # Same precedence as push: error, remote, FD, extended.
-            status = np.select(
-                [(flags & FLAG_ERROR) != 0, (flags & FLAG_REMOTE) != 0, (flags & FLAG_FD) != 0,
-                 (flags & FLAG_EXTENDED) != 0],
-                [_ERROR_FRAME, _REMOTE, _FD, _EXTENDED], status).astype(np.int8)
         drive = np.flatnonzero(status == _OK)
         blocks = self._assemble(drive, slot[drive], counters[drive], timestamps_ns, values,
                                 status)
@@ -402,11 +394,11 @@ class SampleAssembler:
         s = slots.astype(np.int64)
         c = counters.astype(np.int64)
         same_period = (s[1:] == s[:-1] + 1) & (c[1:] == c[:-1])
-        next_period = (s[1:] == 0) & (s[:-1] == m - 1) & (c[1:] == (c[:-1] + 1) & 0xFF)
+        next_period = (s[1:] == 0) & (s[:-1] == m - 1) & (c[1:] == (c[:-1] + 1) % self._mod)
         diff = t[1:] - t[:-1]
         # int64 wraps silently; a wrapped difference would hide a huge (or negative) one.
         wrapped = ((t[1:] ^ t[:-1]) & (t[1:] ^ diff)) < 0
-        soon = ~wrapped & (diff < _FAST_MAX_ELAPSED * self._dt_ns)
+        soon = ~wrapped & (diff < self._fast_max * self._dt_ns)
         linked = (same_period | next_period) & soon
         # Run ends: the positions whose link to the previous frame is broken, and the end.
         breaks = np.append(np.flatnonzero(~linked) + 1, n)
@@ -432,8 +424,8 @@ class SampleAssembler:
         periods after the latest accepted frame, so that `_place` unwraps it to K + 1 (n = 0).
         """
         k = self._k
-        return (k >= 0 and self._last_complete == k and counter == (k + 1) & 0xFF
-                and t - self._t_ref < _FAST_MAX_ELAPSED * self._dt_ns)
+        return (k >= 0 and self._last_complete == k and counter == (k + 1) % self._mod
+                and t - self._t_ref < self._fast_max * self._dt_ns)
 
     def _fast_run(
         self,
@@ -555,14 +547,14 @@ class SampleAssembler:
             # The first frame ever: its counter is its sample index.
             k = counter
         else:
-            d = (counter - k_cur) & 0xFF
+            d = (counter - k_cur) % self._mod
             elapsed = (t - self._t_ref) / self._dt_ns
             if elapsed < 0.0:
                 elapsed = 0.0
             # floor(x + 0.5): rounds halves up, so d = 128 with no elapsed time counts as
             # forward; n >= -1 holds because elapsed >= 0 and d <= 255.
-            n = math.floor((elapsed - d) / _COUNTER_MODULUS + 0.5)
-            k = k_cur + d + _COUNTER_MODULUS * n
+            n = math.floor((elapsed - d) / self._mod + 0.5)
+            k = k_cur + d + self._mod * n
             if k == k_cur:
                 if self._seen >> slot & 1:
                     return _DUPLICATE

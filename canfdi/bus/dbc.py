@@ -1,125 +1,280 @@
-"""The DBC side of the bus: which messages carry the model's inputs and outputs, compiled once.
+"""The DBC side of the bus: where one drive's model signals are, compiled once.
 
-`BusMap` compiles the drive's DBC (canfdi.bus.codec layouts): which drive messages carry the
-model's inputs u and outputs z, where each signal sits in the payload, the CRC register after
-each message's Data ID, and which IDs are the monitor's own ``FDI_*`` frames. `BusMap.decode_frame`
-checks and decodes one frame with integer shifts and masks (no cantools on the hot path);
-`BusMap.decode_frames` does a whole `FrameBlock` with numpy. The frame statuses it gives are
-those of canfdi.bus.frames (``STATUS_NAMES``).
+`BusMap.from_config` reads the drive's DBC as its vendor publishes it and the config's bus
+section (docs/bus.md): each model input and output is mapped to a (message, signal) of the DBC
+(`bus.map`, or the same-named signal in the one message that carries it), the messages' IDs
+follow the node-id template for the drive (canfdi.bus.nodeid), each mapped message gets its
+end-to-end profile (canfdi.bus.e2e) and only its used signals are compiled (canfdi.bus.codec).
+The used messages are the drive's *slots*; a trigger clock's message is a slot too, with no
+signal of its own. Every other message of the DBC (and the other drives') is known and
+"unused"; the monitor's own frames are "monitor".
+
+`BusMap.decode_frame` checks and decodes one frame; `BusMap.decode_frames` a whole `FrameBlock`
+with numpy. Statuses are canfdi.bus.frames' ``STATUS_NAMES``: ``error_frame``, ``remote``,
+``unknown_id`` (11-bit) / ``extended`` (29-bit) for an ID no message has, ``fd`` for a frame
+whose FD flag is not its message's, ``dlc``, ``crc`` (the E2E check failed), ``monitor``,
+``unused``, ``ok``.
 """
 
 from __future__ import annotations
 
 import struct
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from canfdi.bus.codec import MessageLayout, SignalLayout, compile_layout
-from canfdi.bus.e2e import CRC8_XOROUT, crc8, data_id, e2e_check_batch
-from canfdi.bus.frames import STATUS_CODES, STATUS_NAMES, FrameBlock
-from canfdi.core.settings import ConfigError, MonitorConfig
+from canfdi.bus.e2e import E2EProfile, make_profile
+from canfdi.bus.frames import (
+    FLAG_ERROR,
+    FLAG_EXTENDED,
+    FLAG_FD,
+    FLAG_REMOTE,
+    MAX_DATA,
+    STATUS_CODES,
+    FrameBlock,
+)
+from canfdi.bus.nodeid import MAX_STANDARD_ID, frame_id
+from canfdi.core.settings import (
+    ConfigError,
+    DriveConfig,
+    MonitorConfig,
+    SignalRef,
+    nearest,
+)
 
 if TYPE_CHECKING:
-    from cantools.database.can import Database
+    from cantools.database.can import Database, Message
 
-__all__ = ["BusMap", "load_dbc"]
+__all__ = ["BusMap", "Known", "MessageKey", "find_message", "keys_of", "load_dbc", "message_key"]
 
-_OK, _MONITOR, _UNUSED = STATUS_CODES["ok"], STATUS_CODES["monitor"], STATUS_CODES["unused"]
-_UNKNOWN_ID, _DLC, _CRC = STATUS_CODES["unknown_id"], STATUS_CODES["dlc"], STATUS_CODES["crc"]
-# Message kinds in the ID table; their codes double as the valid frame statuses.
-_KIND_DRIVE, _KIND_MONITOR, _KIND_UNUSED = _OK, _MONITOR, _UNUSED
-
-_E2E_HEADER = {"CRC": (0, 8), "Counter": (8, 8)}
-_MAX_STD_ID = 0x7FF
+(_OK, _MONITOR, _UNUSED, _UNKNOWN_ID, _EXTENDED, _REMOTE, _ERROR, _FD, _DLC, _CRC) = (
+    STATUS_CODES[name] for name in ("ok", "monitor", "unused", "unknown_id", "extended",
+                                    "remote", "error_frame", "fd", "dlc", "crc"))
 _F32 = struct.Struct("<f")
 
-
-def _has_e2e_header(layout: MessageLayout) -> bool:
-    found = {sig.name: (sig.start, sig.length) for sig in layout.signals}
-    return all(found.get(name) == place for name, place in _E2E_HEADER.items())
+MessageKey = tuple[int, bool]
+"""A frame's identity on the bus: (arbitration ID, extended)."""
 
 
-def _crc_seed(frame_id: int) -> int:
-    # The CRC register after the Data ID is a constant of the ID: precompute it so a frame's
-    # check only runs over its own payload bytes (crc8 returns the register XOR-ed out).
-    return crc8(data_id(frame_id)) ^ CRC8_XOROUT
+def message_key(frame_id: int, extended: bool) -> MessageKey:
+    return int(frame_id), bool(extended)
+
+
+def load_dbc(value: str, config_path: Path | None, field: str = "bus.dbc"
+             ) -> tuple[Database, str]:
+    """The database named (a DBC shipped in canfdi.dbc) or pointed to (a file, relative to the
+    config's directory) by ``value``, and a label for messages; ConfigError(field) if not."""
+    import cantools
+
+    from canfdi import dbc as dbc_files
+
+    if Path(value).name == value and value.removesuffix(".dbc") in dbc_files.available():
+        return dbc_files.load(value), value.removesuffix(".dbc")
+    candidate = Path(value).expanduser()
+    if not candidate.is_absolute() and config_path is not None:
+        candidate = Path(config_path).parent / candidate
+    if not candidate.is_file():
+        shipped = ", ".join(dbc_files.available()) or "none"
+        raise ConfigError(field, f"no DBC file {candidate} and no shipped DBC named "
+                                 f"{value!r} (shipped: {shipped})")
+    try:
+        database = cantools.database.load_file(candidate, database_format="dbc", strict=False)
+    except (OSError, ValueError, cantools.database.Error) as exc:
+        raise ConfigError(field, f"cannot load {candidate}: {exc}") from None
+    return database, str(candidate)  # type: ignore[return-value]
+
+
+def find_message(database: Database, ref: str | int, field: str, label: str) -> Message:
+    """The DBC message of that name or (DBC) ID; ConfigError(field) naming the nearest."""
+    if isinstance(ref, int):
+        for message in database.messages:
+            if message.frame_id == ref:
+                return message
+        ids = ", ".join(f"0x{m.frame_id:X}" for m in database.messages)
+        raise ConfigError(field, f"no message with ID 0x{ref:X} in {label} (IDs: {ids})")
+    for message in database.messages:
+        if message.name == ref:
+            return message
+    names = [m.name for m in database.messages]
+    close = nearest(ref, names)
+    hint = f"did you mean {' or '.join(close)}? " if close else ""
+    raise ConfigError(field, f"no message {ref!r} in {label} ({hint}messages: "
+                             f"{', '.join(names)})")
+
+
+def _carriers(database: Database, signal: str) -> list[Message]:
+    return [m for m in database.messages if any(s.name == signal for s in m.signals)]
+
+
+def _resolve(database: Database, name: str, ref: SignalRef | None, label: str
+             ) -> tuple[Message, str]:
+    """The (message, signal) that carries model signal ``name``."""
+    field = f"bus.map.{name}"
+    if ref is None:
+        found = _carriers(database, name)
+        if len(found) == 1:
+            return found[0], name
+        if len(found) > 1:
+            where = ", ".join(m.name for m in found)
+            raise ConfigError(field, f"signal {name!r} is in {len(found)} messages of {label} "
+                                     f"({where}): map it to one of them")
+        every = sorted({s.name for m in database.messages for s in m.signals})
+        close = nearest(name, every)
+        hint = f"; nearest signals: {', '.join(close)}" if close else ""
+        raise ConfigError(field, f"no signal {name!r} in {label}: map the model signal to the "
+                                 f"DBC signal that carries it (bus.map.{name}: MESSAGE.SIGNAL)"
+                                 f"{hint}")
+    message = find_message(database, ref.message, f"{field}.message", label)
+    if any(s.name == ref.signal for s in message.signals):
+        return message, ref.signal
+    close = nearest(ref.signal, [s.name for s in message.signals])
+    hint = f"did you mean {' or '.join(close)}? " if close else ""
+    elsewhere = [m.name for m in _carriers(database, ref.signal)]
+    carriers = (f"; {ref.signal!r} is in {', '.join(elsewhere)}" if elsewhere else "")
+    raise ConfigError(f"{field}.signal", f"no signal {ref.signal!r} in {message.name} ({hint}"
+                                         f"signals: {', '.join(s.name for s in message.signals)})"
+                                         f"{carriers}")
+
+
+def _profile(e2e: Any, message: Message, key: MessageKey, explicit_only: bool) -> E2EProfile:
+    """The E2E profile of a message on this bus. A slot takes its configured profile (the
+    default when not listed); a message that is no slot only a profile configured for it by
+    name or ID, or canfdi's when that is the default and the message has canfdi's header:
+    other messages of a vendor's DBC are not checked."""
+    spec, where = _profile_spec(e2e, message)
+    places = _signal_places(message)
+    if explicit_only and where == "bus.e2e.default":
+        name = spec if isinstance(spec, str) else spec.get("profile")
+        if name != "canfdi" or not _has_canfdi_header(places):
+            spec = "none"
+    if (spec == "canfdi" or (isinstance(spec, dict) and spec.get("profile") == "canfdi")) \
+            and not _has_canfdi_header(places):
+        raise ConfigError(where, f"{message.name} has no canfdi E2E header (CRC at bits 0|8, "
+                                 "Counter at 8|8): give it its own profile (bus.e2e.messages."
+                                 f"{message.name}: none, counter, ...)")
+    return make_profile(spec, key[0], key[1], message.length, places, where)
+
+
+def _has_canfdi_header(places: dict[str, tuple[int, int, str]]) -> bool:
+    return (places.get("CRC", (None, None))[:2] == (0, 8)
+            and places.get("Counter", (None, None))[:2] == (8, 8))
+
+
+def _profile_spec(e2e: Any, message: Message) -> tuple[Any, str]:
+    """The E2E spec of a message (by name, else by DBC ID, else the default) and its field."""
+    for key in (message.name, message.frame_id):
+        if key in e2e.messages:
+            return e2e.messages[key], f"bus.e2e.messages.{key}"
+    return e2e.default, "bus.e2e.default"
+
+
+def _signal_places(message: Message) -> dict[str, tuple[int, int, str]]:
+    return {s.name: (s.start, s.length, s.byte_order) for s in message.signals}
+
+
+@dataclass(frozen=True)
+class _Slot:
+    """A used message of the drive: its compiled layout (only the used signals), its ID on
+    this drive, its E2E profile, the model fields it carries (signal, "u"/"z", index) in the
+    order values come out, and the positions of those values in the flat [u, z] buffer."""
+
+    layout: MessageLayout
+    key: MessageKey
+    e2e: E2EProfile
+    fields: tuple[tuple[str, str, int], ...]
+    dests: tuple[int, ...]
+    program: tuple | None  # the scalar fast path (Intel, <= 8 bytes), or None
+
+
+@dataclass(frozen=True)
+class Known:
+    """A known message that is no slot: "monitor" (the monitor's own) or "unused" (the DBC's
+    other messages, the other drives'), checked for its length, FD flag and E2E profile."""
+
+    kind: str
+    length: int
+    fd: bool
+    e2e: E2EProfile
+
+
+def _program(layout: MessageLayout, fields: Sequence[tuple[str, str, int]]) -> tuple | None:
+    """(start, mask, sign, scale, offset, is_float) per field for the scalar decode of an
+    Intel message of <= 8 bytes (integer shifts, no numpy); None when it is not one."""
+    if layout.dlc > MAX_DATA:
+        return None
+    out = []
+    for name, _, _ in fields:
+        sig = layout.signal(name)
+        if getattr(sig, "byte_order", "little_endian") != "little_endian" \
+                or getattr(sig, "multiplexer", None) or (sig.is_float and sig.length != 32):
+            return None
+        sign = 1 << (sig.length - 1) if sig.signed and not sig.is_float else 0
+        out.append((sig.start, sig.mask, sign, sig.scale, sig.offset, sig.is_float))
+    return tuple(out)
 
 
 class BusMap:
-    """Where the model's inputs and outputs are on the bus, compiled from a DBC.
+    """One drive's model signals on the bus (build it with `from_config`).
 
-    Build it with `from_config` or `from_dbc`. Attributes (read-only by convention):
-
-    dbc_label : str, the DBC's name or path, for messages.
-    input_names, output_names : (p,), (q,) model signal names, in the model's order.
-    layouts : (M,) compiled layouts of the used drive messages (those carrying at least one
-        model signal), in ascending ID order; a message's position is its *slot*.
-    slot_of : frame_id -> (slot, dlc) of the used drive messages.
-    fields : (M,) per slot, the (signal, vector 'u' or 'z', index) triples of its model
-        signals, in the order of the values `decode_frame` returns.
-    monitor_layouts : compiled layouts of the messages sent by FDI (the monitor's own frames).
-    monitor_ids : their IDs.
-    unused_ids : IDs of the other DBC messages (drive messages with no model signal, ...).
-    n_signals_max : width of the values array of `decode_frames` (most fields in one slot).
+    Attributes (read-only by convention)
+    ----------
+    dbc_label : the DBC's name or path, for messages. drive : the drive's name.
+    input_names, output_names : (p,), (q,) the model's signal names.
+    layouts : (M,) compiled layouts of the slots (used messages, ascending ID).
+    fields : (M,) per slot, its (signal, "u"/"z", index) triples in decode order.
+    keys : (M,) per slot, its (ID on this drive, extended).
+    e2e : (M,) per slot, its E2E profile.
+    slot_of : (ID, extended) -> slot.
+    trigger_slot : the slot of a trigger clock's message, or None.
+    counter_modulus : the alive counter modulus every slot shares, or None when one has none
+        (the counter clock needs it).
+    n_signals_max : width of the values of `decode_frames` (most fields in one slot).
     """
 
-    def __init__(
-        self,
-        dbc_label: str,
-        input_names: Sequence[str],
-        output_names: Sequence[str],
-        layouts: Sequence[MessageLayout],
-        fields: Sequence[Sequence[tuple[str, str, int]]],
-        monitor_layouts: Sequence[MessageLayout],
-        unused_layouts: Sequence[MessageLayout],
-    ) -> None:
+    def __init__(self, dbc_label: str, drive: str, input_names: Sequence[str],
+                 output_names: Sequence[str], slots: Sequence[_Slot],
+                 others: Mapping[MessageKey, Known] | None = None,
+                 trigger_slot: int | None = None) -> None:
         self.dbc_label = dbc_label
+        self.drive = drive
         self.input_names = tuple(input_names)
         self.output_names = tuple(output_names)
-        self.layouts = tuple(layouts)
-        self.fields = tuple(tuple(f) for f in fields)
-        if len(self.fields) != len(self.layouts):
-            raise ValueError(f"fields: one entry per layout expected ({len(self.layouts)}), "
-                             f"got {len(self.fields)}")
-        self.slot_of = {lay.frame_id: (slot, lay.dlc) for slot, lay in enumerate(self.layouts)}
-        self.monitor_layouts = tuple(monitor_layouts)
-        self.monitor_ids = frozenset(lay.frame_id for lay in monitor_layouts)
-        self.unused_ids = frozenset(lay.frame_id for lay in unused_layouts)
+        self._slots = tuple(slots)
+        self.layouts = tuple(s.layout for s in self._slots)
+        self.fields = tuple(s.fields for s in self._slots)
+        self.keys = tuple(s.key for s in self._slots)
+        self.e2e = tuple(s.e2e for s in self._slots)
+        self._dests = tuple(s.dests for s in self._slots)
+        self.slot_of = {s.key: i for i, s in enumerate(self._slots)}
+        self.trigger_slot = trigger_slot
+        moduli = {s.e2e.counter_modulus for s in self._slots}
+        self.counter_modulus = moduli.pop() if len(moduli) == 1 else None
         self.n_signals_max = max((len(f) for f in self.fields), default=0)
-        p = len(self.input_names)
-        # Each slot's values land at these positions of the flat [u, z] buffer.
-        self._dests = tuple(tuple(j if vec == "u" else p + j for _, vec, j in f)
-                            for f in self.fields)
-        # One look-up per frame: id -> (kind, slot, dlc, crc seed or -1, decode program).
-        entries: dict[int, tuple] = {}
-        kinds = ((_KIND_MONITOR, monitor_layouts), (_KIND_UNUSED, unused_layouts))
-        for kind, group in kinds:
-            for lay in group:
-                seed = _crc_seed(lay.frame_id) if _has_e2e_header(lay) else -1
-                entries[lay.frame_id] = (kind, -1, lay.dlc, seed, ())
-        for slot, (lay, f) in enumerate(zip(self.layouts, self.fields, strict=True)):
-            program = []
-            for name, _, _ in f:
-                sig = lay.signal(name)
-                sign = 1 << (sig.length - 1) if sig.signed and not sig.is_float else 0
-                program.append((sig.start, sig.mask, sign, sig.scale, sig.offset, sig.is_float))
-            entries[lay.frame_id] = (_KIND_DRIVE, slot, lay.dlc, _crc_seed(lay.frame_id),
-                                     tuple(program))
+        others = {k: v for k, v in (others or {}).items() if k not in self.slot_of}
+        self.monitor_keys = frozenset(k for k, v in others.items() if v.kind == "monitor")
+        self.unused_keys = frozenset(k for k, v in others.items() if v.kind == "unused")
+        # Every known message is an entry: the slots first (entry = slot), then the others.
+        entries = [Known("ok", s.layout.dlc, bool(getattr(s.layout, "is_fd", False)), s.e2e)
+                   for s in self._slots] + list(others.values())
+        keys = list(self.keys) + list(others)
         self._entries = entries
-        # Dense tables over the 11-bit ID space for the vectorised decode.
-        self._kind_table = np.full(_MAX_STD_ID + 1, _UNKNOWN_ID, dtype=np.int8)
-        self._slot_table = np.full(_MAX_STD_ID + 1, -1, dtype=np.int16)
-        self._dlc_table = np.full(_MAX_STD_ID + 1, -1, dtype=np.int16)
-        self._protected_table = np.zeros(_MAX_STD_ID + 1, dtype=bool)
-        for frame_id, (kind, slot, dlc, seed, _) in entries.items():
-            self._kind_table[frame_id] = kind
-            self._slot_table[frame_id] = slot
-            self._dlc_table[frame_id] = dlc
-            self._protected_table[frame_id] = seed >= 0
+        self._entry_of = {key: e for e, key in enumerate(keys)}
+        self._kind = np.array([STATUS_CODES[k.kind] for k in entries], dtype=np.int8)
+        self._length = np.array([k.length for k in entries], dtype=np.int64)
+        self._is_fd = np.array([k.fd for k in entries], dtype=bool)
+        # Dense table over the 11-bit ID space (the common case), a sorted array for 29-bit.
+        self._entry_table = np.full(MAX_STANDARD_ID + 1, -1, dtype=np.int32)
+        ext = sorted((key[0], e) for key, e in self._entry_of.items() if key[1])
+        for (fid, extended), e in self._entry_of.items():
+            if not extended:
+                self._entry_table[fid] = e
+        self._ext_ids = np.array([fid for fid, _ in ext], dtype=np.int64)
+        self._ext_entry = np.array([e for _, e in ext], dtype=np.int32)
 
     @property
     def p(self) -> int:
@@ -130,10 +285,6 @@ class BusMap:
     def q(self) -> int:
         """Number of model outputs."""
         return len(self.output_names)
-
-    def __repr__(self) -> str:
-        used = ", ".join(f"{lay.name}=0x{lay.frame_id:X}" for lay in self.layouts)
-        return f"BusMap({self.dbc_label}: {used}; p={self.p}, q={self.q})"
 
     def model_signals(self) -> tuple[list[SignalLayout], list[SignalLayout]]:
         """The DBC signal layout of each model input (p,) and output (q,), in model order."""
@@ -155,210 +306,216 @@ class BusMap:
             Z_q[..., j] = sig.quantize(Z[..., j])
         return U_q, Z_q
 
+    def __repr__(self) -> str:
+        used = ", ".join(f"{lay.name}=0x{key[0]:X}" for lay, key in zip(self.layouts, self.keys,
+                                                                        strict=True))
+        return f"BusMap({self.drive}: {self.dbc_label}: {used}; p={self.p}, q={self.q})"
+
     # -- construction -------------------------------------------------------------------------
 
     @classmethod
-    def from_config(cls, config: MonitorConfig) -> BusMap:
-        """Load ``config.bus.dbc`` and map ``config.inputs`` and ``config.outputs`` onto it.
+    def from_config(cls, config: MonitorConfig, drive: DriveConfig | None = None,
+                    monitor: Mapping[MessageKey, Known] | None = None) -> BusMap:
+        """Compile ``drive`` (default: the config's first) from the config's bus section.
 
-        ``bus.dbc`` is the name of a DBC shipped in ``canfdi.dbc`` (``motor_drive``) or a path
-        to a DBC file, relative to the config file's directory (or the working directory when
-        the config has no path).
+        ``monitor``: the monitor's own frames (canfdi.bus.monitorframes), known as "monitor".
 
         Raises
         ------
         ConfigError
-            ``bus.dbc`` when no DBC is configured, it cannot be found or loaded, or a drive
-            message lacks the E2E header; ``signals.inputs[i]`` / ``signals.outputs[j]`` when a
-            name is in no DRIVE message, or in more than one.
+            Naming the field: ``bus.dbc`` (none, not found, not loadable), ``bus.map.<name>``
+            (no such message or signal, with the nearest names), ``bus.e2e...`` (a profile its
+            message cannot take), ``bus.clock.message``, ``bus.node.id`` (an ID out of range).
         """
-        value = config.bus.dbc
-        if value is None:
+        bus = config.bus
+        if bus.dbc is None:
             raise ConfigError("bus.dbc", "a DBC file is needed to read the bus")
-        database, label = load_dbc(value, config.path)
-        return cls.from_dbc(database, config.inputs, config.outputs, label)
+        database, label = load_dbc(bus.dbc, config.path)
+        drive = drive or config.drive_list[0]
+        return cls.from_dbc(database, config, drive, label, monitor)
 
     @classmethod
-    def from_dbc(
-        cls,
-        database: Database,
-        input_names: Sequence[str],
-        output_names: Sequence[str],
-        dbc_label: str,
-    ) -> BusMap:
-        """Map model signal names onto a loaded cantools database.
-
-        Parameters
-        ----------
-        database : cantools CAN database (e.g. ``canfdi.dbc.load("motor_drive")``).
-        input_names : (p,) names of the model inputs u, each a signal of exactly one message
-            sent by DRIVE.
-        output_names : (q,) names of the model outputs z, likewise.
-        dbc_label : how to name the database in error messages (its name or path).
-
-        Returns
-        -------
-        BusMap
-
-        Raises
-        ------
-        ConfigError
-            As for `from_config`.
-        """
-        drive, monitor, unused = [], [], []
-        for message in sorted(database.messages, key=lambda m: m.frame_id):
-            senders = message.senders or []
+    def from_dbc(cls, database: Database, config: MonitorConfig, drive: DriveConfig,
+                 dbc_label: str, monitor: Mapping[MessageKey, Known] | None = None) -> BusMap:
+        """`from_config` with the DBC already loaded. Every message of the DBC, on every drive
+        of the config, that is not this drive's slot is known as "unused"."""
+        bus = config.bus
+        p = len(config.inputs)
+        by_message: dict[str, tuple[Message, list[tuple[str, str, int]]]] = {}
+        for vector, names in (("u", config.inputs), ("z", config.outputs)):
+            for j, name in enumerate(names):
+                message, signal = _resolve(database, name, bus.map.get(name), dbc_label)
+                entry = by_message.setdefault(message.name, (message, []))
+                entry[1].append((signal, vector, j))
+        trigger: Message | None = None
+        if bus.clock.kind == "trigger":
+            trigger = find_message(database, bus.clock.message, "bus.clock.message", dbc_label)
+            by_message.setdefault(trigger.name, (trigger, []))
+        slots = []
+        for message, fields in sorted(by_message.values(),
+                                      key=lambda e: (e[0].is_extended_frame, e[0].frame_id)):
+            key = _drive_key(bus.node_id, message, drive)
             try:
                 layout = compile_layout(message)
             except ValueError as exc:
                 raise ConfigError("bus.dbc", f"{dbc_label}: {exc}") from None
-            if "DRIVE" in senders:
-                drive.append(layout)
-            elif "FDI" in senders:
-                monitor.append(layout)
-            else:
-                unused.append(layout)
-        where: dict[str, list[MessageLayout]] = {}
-        for layout in drive:
-            for sig in layout.signals:
-                if sig.name not in _E2E_HEADER:
-                    where.setdefault(sig.name, []).append(layout)
-        fields: dict[int, list[tuple[str, str, int]]] = {}
-        for vector, names, key in (("u", input_names, "inputs"), ("z", output_names, "outputs")):
-            for j, name in enumerate(names):
-                field = f"signals.{key}[{j}]"
-                found = where.get(name, [])
-                if name in _E2E_HEADER:
-                    raise ConfigError(field, f"'{name}' is the E2E header of every message of "
-                                             f"{dbc_label}, not a model signal")
-                if not found:
-                    raise ConfigError(field, f"no signal '{name}' in any DRIVE message of "
-                                             f"{dbc_label}")
-                if len(found) > 1:
-                    names_found = ", ".join(lay.name for lay in found)
-                    raise ConfigError(field, f"signal '{name}' is in {len(found)} DRIVE messages "
-                                             f"of {dbc_label} ({names_found}); it must be in "
-                                             "exactly one")
-                fields.setdefault(found[0].frame_id, []).append((name, vector, j))
-        used = [lay for lay in drive if lay.frame_id in fields]
-        for layout in used:
-            if not _has_e2e_header(layout):
-                raise ConfigError("bus.dbc", f"{dbc_label}: {layout.name} has no E2E header "
-                                             "(CRC at bits 0|8, Counter at 8|8); samples cannot "
-                                             "be assembled without it")
-        # Sorted by payload position so that values come out in the order of the message.
-        ordered = [sorted(fields[lay.frame_id], key=lambda f, lay=lay: lay.signal(f[0]).start)
-                   for lay in used]
-        unused += [lay for lay in drive if lay.frame_id not in fields]
-        return cls(dbc_label, input_names, output_names, used, ordered, monitor, unused)
+            profile = _profile(bus.e2e, message, key, explicit_only=False)
+            # Values come out in the order of the payload.
+            ordered = tuple(sorted(fields, key=lambda f, lay=layout: lay.signal(f[0]).start))
+            dests = tuple(j if vec == "u" else p + j for _, vec, j in ordered)
+            slots.append(_Slot(layout, key, profile, ordered, dests, _program(layout, ordered)))
+        keys = [s.key for s in slots]
+        if len(set(keys)) != len(keys):
+            raise ConfigError("bus.node.id", f"two mapped messages of drive {drive.name} get "
+                                             "the same ID")
+        others: dict[MessageKey, Known] = {}
+        for other in [*config.drive_list, None]:
+            for message in database.messages:
+                key = (_drive_key(bus.node_id, message, other) if other is not None
+                       else message_key(message.frame_id, message.is_extended_frame))
+                if key not in others:
+                    others[key] = Known("unused", message.length, message.is_fd,
+                                        _profile(bus.e2e, message, key, explicit_only=True))
+        others.update(monitor or {})
+        trigger_slot = (keys.index(_drive_key(bus.node_id, trigger, drive))
+                        if trigger is not None else None)
+        return cls(dbc_label, drive.name, config.inputs, config.outputs, slots, others,
+                   trigger_slot)
 
     # -- decoding -----------------------------------------------------------------------------
 
-    def decode_frame(
-        self, frame_id: int, data: bytes | bytearray
-    ) -> tuple[str, int, tuple[float, ...]]:
-        """Check and decode one classic 11-bit data frame.
-
-        Parameters
-        ----------
-        frame_id : arbitration ID.
-        data : (dlc,) payload.
+    def decode_frame(self, frame_id: int, data: bytes | bytearray, flags: int = 0
+                     ) -> tuple[str, int, tuple[float, ...], int]:
+        """Check and decode one frame.
 
         Returns
         -------
-        status : "ok", "monitor", "unused", "unknown_id", "dlc" or "crc".
-        slot : the message's slot for frames of a used drive message (also when "dlc" or
-            "crc"), else -1.
+        status : a name of canfdi.bus.frames' ``STATUS_NAMES``.
+        slot : the message's slot (also when "dlc", "crc" or "fd"), else -1.
         values : for "ok", the physical values of ``fields[slot]`` in that order; else ().
+        counter : the E2E alive counter of an "ok" frame (-1 without one).
         """
-        entry = self._entries.get(frame_id)
-        if entry is None:
-            return "unknown_id", -1, ()
-        kind, slot, dlc, seed, program = entry
-        if len(data) != dlc:
-            return "dlc", slot, ()
-        if seed >= 0 and crc8(data[1:], seed) != data[0]:
-            return "crc", slot, ()
-        if kind != _KIND_DRIVE:
-            return STATUS_NAMES[kind], -1, ()
-        # A payload shorter than 8 bytes reads as if zero-padded: from_bytes needs no padding.
-        word = int.from_bytes(data, "little")
-        values = []
-        for start, mask, sign, scale, offset, is_float in program:
-            raw = (word >> start) & mask
-            if is_float:
-                values.append(_F32.unpack(raw.to_bytes(4, "little"))[0])
-                continue
-            if raw & sign:
-                raw -= sign << 1
-            values.append(raw * scale + offset)
-        return "ok", slot, tuple(values)
+        if flags & FLAG_ERROR:
+            return "error_frame", -1, (), -1
+        if flags & FLAG_REMOTE:
+            return "remote", -1, (), -1
+        extended = bool(flags & FLAG_EXTENDED)
+        e = self._entry_of.get((frame_id, extended))
+        if e is None:
+            return ("fd" if flags & FLAG_FD else "extended" if extended else "unknown_id",
+                    -1, (), -1)
+        known = self._entries[e]
+        slot = e if e < len(self._slots) else -1
+        if bool(flags & FLAG_FD) != known.fd:
+            return "fd", slot, (), -1
+        if len(data) != known.length:
+            return "dlc", slot, (), -1
+        if not known.e2e.check(bytes(data)):
+            return "crc", slot, (), -1
+        if slot < 0:
+            return known.kind, -1, (), -1
+        s = self._slots[slot]
+        counter = s.e2e.counter(bytes(data))
+        counter = -1 if counter is None else counter
+        if s.program is not None:
+            return "ok", slot, _run_program(s.program, data), counter
+        row = np.frombuffer(bytes(data), dtype=np.uint8)[None, :]
+        decoded = s.layout.decode(row)
+        return "ok", slot, tuple(float(decoded[name][0]) for name, _, _ in s.fields), counter
 
     def decode_frames(
         self, block: FrameBlock
-    ) -> tuple[NDArray[np.int8], NDArray[np.int16], NDArray[np.float64], NDArray[np.int16]]:
-        """`decode_frame` for a whole block at once (all frames taken as classic 11-bit data:
-        the flags are the assembler's business).
-
-        Parameters
-        ----------
-        block : the frames; IDs above 0x7FF are "unknown_id", payloads zero- or garbage-padded
-            beyond each frame's DLC.
+    ) -> tuple[NDArray[np.int8], NDArray[np.int16], NDArray[np.float64], NDArray[np.int64]]:
+        """`decode_frame` for a whole block at once.
 
         Returns
         -------
-        status : (N,) int8 codes into `STATUS_NAMES` (ok, monitor, unused, unknown_id, dlc,
-            crc).
-        slot : (N,) int16, as for `decode_frame` (-1 when not a used drive message).
+        status : (N,) int8 codes into ``STATUS_NAMES``.
+        slot : (N,) int16, as for `decode_frame` (-1 when not a slot's message).
         values : (N, n_signals_max) float64; row i holds ``fields[slot[i]]``'s values for "ok"
             frames, NaN elsewhere.
-        counters : (N,) int16, byte 1 of frames with a payload of 2 bytes or more, else -1.
+        counters : (N,) int64, the E2E alive counter of "ok" frames, -1 elsewhere.
         """
-        ids, dlc, payloads = block.id, block.dlc, block.data
+        ids, dlc, flags = block.id.astype(np.int64), block.dlc, block.flags
         n = block.size
-        known_id = ids <= _MAX_STD_ID
-        lookup = np.where(known_id, ids, 0).astype(np.intp)
-        kind = np.where(known_id, self._kind_table[lookup], _UNKNOWN_ID).astype(np.int8)
-        slot = np.where(known_id, self._slot_table[lookup], -1).astype(np.int16)
-        status = kind.copy()
-        known = kind != _UNKNOWN_ID
-        bad_dlc = known & (dlc != self._dlc_table[lookup])
-        status[bad_dlc] = _DLC
-        check = known & ~bad_dlc & self._protected_table[lookup]
-        rows = np.flatnonzero(check)
-        if rows.size:
-            crc_ok = e2e_check_batch(ids[rows], payloads[rows], dlc[rows])
-            status[rows[~crc_ok]] = _CRC
+        extended = (flags & FLAG_EXTENDED) != 0
+        standard = ~extended & (ids <= MAX_STANDARD_ID)
+        entry = np.where(standard, self._entry_table[np.where(standard, ids, 0)], -1)
+        if extended.any() and len(self._ext_ids):
+            rows = np.flatnonzero(extended)
+            pos = np.clip(np.searchsorted(self._ext_ids, ids[rows]), 0, len(self._ext_ids) - 1)
+            hit = self._ext_ids[pos] == ids[rows]
+            entry[rows[hit]] = self._ext_entry[pos[hit]]
+        known = entry >= 0
+        e = np.maximum(entry, 0)
+        is_fd = (flags & FLAG_FD) != 0
+        status = np.where(known, self._kind[e],
+                          np.where(extended, _EXTENDED, _UNKNOWN_ID)).astype(np.int8)
+        status[is_fd & (~known | (is_fd != self._is_fd[e]))] = _FD
+        status[known & ~is_fd & self._is_fd[e]] = _FD
+        status[known & (status != _FD) & (dlc != self._length[e])] = _DLC
+        slot = np.where(known & (entry < len(self._slots)), entry, -1).astype(np.int16)
+        blocked = (flags & (FLAG_REMOTE | FLAG_ERROR)) != 0
+        status[(flags & FLAG_REMOTE) != 0] = _REMOTE
+        status[(flags & FLAG_ERROR) != 0] = _ERROR
+        slot[blocked] = -1
         values = np.full((n, self.n_signals_max), np.nan)
-        for s, (layout, f) in enumerate(zip(self.layouts, self.fields, strict=True)):
-            rows = np.flatnonzero((status == _OK) & (slot == s))
-            if rows.size:
-                decoded = layout.decode(payloads[rows])
-                for col, (name, _, _) in enumerate(f):
-                    values[rows, col] = decoded[name]
-        counters = np.where(dlc >= 2, payloads[:, 1].astype(np.int16), np.int16(-1))
+        counters = np.full(n, -1, dtype=np.int64)
+        checked = known & ~blocked & (status != _FD) & (status != _DLC)
+        for ent in np.unique(entry[checked]).tolist():
+            rows = np.flatnonzero(checked & (entry == ent))
+            item = self._entries[ent]
+            payloads = block.payload_matrix(rows, item.length)
+            ok = item.e2e.check_batch(payloads, dlc[rows].astype(np.int64))
+            status[rows[~ok]] = _CRC
+            if ent >= len(self._slots):
+                continue
+            rows, payloads = rows[ok], payloads[ok]
+            if not rows.size:
+                continue
+            s = self._slots[ent]
+            decoded = s.layout.decode(payloads)
+            for col, (name, _, _) in enumerate(s.fields):
+                values[rows, col] = decoded[name]
+            found = s.e2e.counters(payloads)
+            if found is not None:
+                counters[rows] = found
         return status, slot, values, counters
 
 
-def load_dbc(value: str, config_path: Path | None) -> tuple[Database, str]:
-    """The database named or pointed to by ``bus.dbc``, and a label for messages."""
-    import cantools
+_NAMES = {code: name for name, code in STATUS_CODES.items()}
 
-    from canfdi import dbc as dbc_files
 
-    if Path(value).name == value and value.removesuffix(".dbc") in dbc_files.available():
-        return dbc_files.load(value), value.removesuffix(".dbc")
-    candidate = Path(value).expanduser()
-    if not candidate.is_absolute() and config_path is not None:
-        candidate = Path(config_path).parent / candidate
-    if not candidate.is_file():
-        shipped = ", ".join(dbc_files.available()) or "none"
-        raise ConfigError("bus.dbc", f"no DBC file {candidate} and no shipped DBC named "
-                                     f"{value!r} (shipped: {shipped})")
+def _run_program(program: tuple, data: bytes | bytearray) -> tuple[float, ...]:
+    # A payload shorter than 8 bytes reads as if zero-padded: from_bytes needs no padding.
+    word = int.from_bytes(data, "little")
+    values = []
+    for start, mask, sign, scale, offset, is_float in program:
+        raw = (word >> start) & mask
+        if is_float:
+            values.append(_F32.unpack(raw.to_bytes(4, "little"))[0] * scale + offset)
+            continue
+        if raw & sign:
+            raw -= sign << 1
+        values.append(raw * scale + offset)
+    return tuple(values)
+
+
+def _drive_key(template: str | None, message: Message, drive: DriveConfig) -> MessageKey:
+    """The message's (ID, extended) on this drive (the node-id template applied)."""
     try:
-        database = cantools.database.load_file(candidate, database_format="dbc", strict=True)
-    except (OSError, ValueError, cantools.database.Error) as exc:
-        raise ConfigError("bus.dbc", f"cannot load {candidate}: {exc}") from None
-    return database, str(candidate)  # type: ignore[return-value]
+        fid = frame_id(template, message.frame_id, drive.node)
+    except ValueError as exc:
+        raise ConfigError("bus.node.id", f"{message.name}: {exc}") from None
+    if not message.is_extended_frame and fid > MAX_STANDARD_ID:
+        raise ConfigError("bus.node.id", f"{message.name} on node {drive.node}: 0x{fid:X} is "
+                                         "not an 11-bit ID")
+    return message_key(fid, message.is_extended_frame)
 
 
+def keys_of(database: Database, config: MonitorConfig) -> set[MessageKey]:
+    """Every message of the DBC on every drive of the config (and as the DBC writes it)."""
+    out = {message_key(m.frame_id, m.is_extended_frame) for m in database.messages}
+    for drive in config.drive_list:
+        out |= {_drive_key(config.bus.node_id, m, drive) for m in database.messages}
+    return out

@@ -32,6 +32,8 @@ Data ID mode "both bytes").
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -376,3 +378,86 @@ def protect_batch(
     message[:, 2:] = frames[:, 1:]
     frames[:, 0] = crc8_batch(message)
     return frames
+
+
+# -- profiles (interim: none and canfdi; the e2e branch brings the registry in full) ---------
+
+class E2EProfile(Protocol):
+    """End-to-end protection of one message (see make_profile)."""
+
+    name: str
+    counter_modulus: int | None
+
+    def check(self, payload: bytes) -> bool: ...
+    def check_batch(self, payloads: np.ndarray, lengths: np.ndarray) -> np.ndarray: ...
+    def counters(self, payloads: np.ndarray) -> np.ndarray | None: ...
+    def counter(self, payload: bytes) -> int | None: ...
+    def protect_batch(self, payloads: np.ndarray, counters: np.ndarray) -> np.ndarray: ...
+
+
+class _NoProtection:
+    name = "none"
+    counter_modulus = None
+
+    def check(self, payload: bytes) -> bool:
+        return True
+
+    def check_batch(self, payloads: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+        return np.ones(len(payloads), dtype=bool)
+
+    def counters(self, payloads: np.ndarray) -> np.ndarray | None:
+        return None
+
+    def counter(self, payload: bytes) -> int | None:
+        return None
+
+    def protect_batch(self, payloads: np.ndarray, counters: np.ndarray) -> np.ndarray:
+        return np.array(payloads, dtype=np.uint8)
+
+
+class _Canfdi:
+    name = "canfdi"
+    counter_modulus = 256
+
+    def __init__(self, frame_id: int) -> None:
+        self.frame_id = frame_id
+
+    def check(self, payload: bytes) -> bool:
+        return check(self.frame_id, payload)
+
+    def check_batch(self, payloads: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+        n = len(payloads)
+        padded = np.zeros((n, _MAX_DLC), dtype=np.uint8)
+        padded[:, : payloads.shape[1]] = payloads[:, :_MAX_DLC]
+        return e2e_check_batch(np.full(n, self.frame_id), padded, lengths)
+
+    def counters(self, payloads: np.ndarray) -> np.ndarray | None:
+        return payloads[:, 1].astype(np.int64)
+
+    def counter(self, payload: bytes) -> int | None:
+        return payload[1]
+
+    def protect_batch(self, payloads: np.ndarray, counters: np.ndarray) -> np.ndarray:
+        return protect_batch(self.frame_id, payloads, counters)
+
+
+PROFILES = ("none", "canfdi")
+
+
+def make_profile(spec, frame_id: int, is_extended: bool, length: int, signals, where: str
+                 ) -> E2EProfile:
+    """The E2E profile a config spec names for one message."""
+    name = spec if isinstance(spec, str) else spec.get("profile")
+    if name == "none":
+        return _NoProtection()
+    if name == "canfdi":
+        if is_extended or frame_id > MAX_ARBITRATION_ID or length < _HEADER:
+            from canfdi.core.settings import ConfigError
+
+            raise ConfigError(where, "the canfdi profile needs an 11-bit ID and >= 2 bytes")
+        return _Canfdi(frame_id)
+    from canfdi.core.settings import ConfigError, unknown_name
+
+    if name is None:
+        raise ConfigError(where, "expected a profile name")
+    raise unknown_name(where, "E2E profile", name, PROFILES)

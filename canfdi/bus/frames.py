@@ -184,6 +184,21 @@ class FrameBlock:
                           self.data[index],
                           status=None if self.status is None else self.status[index], long=long)
 
+    def payload_matrix(self, rows: ArrayLike, length: int) -> NDArray[np.uint8]:
+        """(len(rows), length) uint8: the payloads of those rows, zero-padded (or cut) to
+        ``length`` bytes; rows longer than 8 bytes come from ``long``."""
+        rows = np.asarray(rows, dtype=np.intp)
+        if length <= MAX_DATA:
+            return self.data[rows, :length]
+        out = np.zeros((len(rows), length), dtype=np.uint8)
+        out[:, :MAX_DATA] = self.data[rows]
+        if self.long:
+            for i, row in enumerate(rows.tolist()):
+                data = self.long.get(row)
+                if data is not None:
+                    out[i, : min(len(data), length)] = np.frombuffer(data[:length], np.uint8)
+        return out
+
     def to_messages(self, count: int | None = None) -> list:
         """The first ``count`` frames (default all) as python-can Messages."""
         import can

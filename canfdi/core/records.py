@@ -42,6 +42,8 @@ class FaultEvent:
     candidates : for a fault whose residual signature other channels share, every
         (target, index, name, estimates) that explains the data equally well.
     residuals : names of the residuals in alarm (detected events).
+    drive : the drive it concerns (several drives on one bus: the monitor sets it; a
+        diagnoser, which sees one drive, leaves it None).
     """
 
     kind: str
@@ -57,6 +59,7 @@ class FaultEvent:
     accepted_sample: int | None = None
     candidates: tuple[dict, ...] = ()
     residuals: tuple[str, ...] = ()
+    drive: str | None = None
 
     def as_dict(self) -> dict:
         """JSON-ready form."""

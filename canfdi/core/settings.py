@@ -20,7 +20,7 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -29,12 +29,17 @@ from canfdi.core.model import StateSpace
 
 __all__ = [
     "BusConfig",
+    "ClockConfig",
     "ConfigError",
     "DetectionConfig",
+    "DriveConfig",
+    "E2EConfig",
     "IdentificationConfig",
     "MonitorConfig",
+    "MonitorFramesConfig",
     "Option",
     "RecordingConfig",
+    "SignalRef",
     "nearest",
     "parse_options",
     "section",
@@ -179,14 +184,88 @@ def parse_options(data: Any, spec: Mapping[str, Option], where: str, *,
 
 
 @dataclass(frozen=True)
+class SignalRef:
+    """Where the bus carries a model signal: a message of the DBC (its name, or its ID as the
+    DBC writes it) and one of its signals."""
+
+    message: str | int
+    signal: str
+
+    def __str__(self) -> str:
+        msg = self.message if isinstance(self.message, str) else f"0x{self.message:X}"
+        return f"{msg}.{self.signal}"
+
+
+@dataclass(frozen=True)
+class ClockConfig:
+    """How one sample per control period is formed (canfdi.bus.clock; docs/bus.md).
+
+    kind : "counter", "trigger" or "grid". message : the trigger message (name or DBC ID).
+    period, phase, max_age : seconds (None: the defaults of docs/bus.md, from model.dt).
+    """
+
+    kind: str = "counter"
+    message: str | int | None = None
+    period: float | None = None
+    phase: float | None = None
+    max_age: float | None = None
+
+
+@dataclass(frozen=True)
+class E2EConfig:
+    """End-to-end protection per message: a profile spec (a name, or a mapping with
+    ``profile`` and its options; canfdi.bus.e2e) for each listed message (name or DBC ID), and
+    the default for the others."""
+
+    default: Any = "canfdi"
+    messages: Mapping[str | int, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MonitorFramesConfig:
+    """The monitor's own frames: the DBC defining FDI_FAULT, FDI_ESTIMATE, FDI_STATUS (and
+    FDI_RESIDUAL), their IDs (``base`` for consecutive ones, or ``ids`` by message name; none:
+    the DBC's), their E2E profile."""
+
+    dbc: str = "canfdi_monitor"
+    base: int | None = None
+    ids: Mapping[str, int] = field(default_factory=dict)
+    e2e: Any = "canfdi"
+
+
+@dataclass(frozen=True)
 class BusConfig:
-    """Where the drive's frames are: python-can arguments and the DBC file."""
+    """Where the drive's frames are and how to read them (docs/bus.md).
+
+    interface, channel, bitrate : python-can arguments. dbc : the drive's DBC (a file or a
+    shipped name). status_period : seconds between FDI_STATUS frames. transmit : False for a
+    listen-only monitor. canopen : a CANopen bus (the monitor's IDs avoid its function codes).
+    map : model signal name -> SignalRef (names not listed: the same-named DBC signal).
+    e2e, clock, monitor : see their records. node_id : the node-id template, an expression of
+    ``id`` (a message's DBC ID) and ``node`` (None: the DBC's IDs as written).
+    """
 
     interface: str = "virtual"
     channel: str = "canfdi"
     bitrate: int | None = None
     dbc: str | None = None
     status_period: float = 1.0
+    transmit: bool = True
+    canopen: bool = False
+    map: Mapping[str, SignalRef] = field(default_factory=dict)
+    e2e: E2EConfig = E2EConfig()
+    clock: ClockConfig = ClockConfig()
+    node_id: str | None = None
+    monitor: MonitorFramesConfig = MonitorFramesConfig()
+
+
+@dataclass(frozen=True)
+class DriveConfig:
+    """One drive on the bus: its name (events and log records carry it) and its node number
+    (for ``bus.node_id``; None: the DBC's IDs)."""
+
+    name: str
+    node: int | None = None
 
 
 @dataclass(frozen=True)
@@ -242,3 +321,9 @@ class MonitorConfig:
     recording: RecordingConfig = RecordingConfig()
     path: Path | None = None
     method_options: Any = None
+    drives: tuple[DriveConfig, ...] = ()
+
+    @property
+    def drive_list(self) -> tuple[DriveConfig, ...]:
+        """The drives on the bus: ``drives``, or one drive named after the config."""
+        return self.drives or (DriveConfig(self.name),)

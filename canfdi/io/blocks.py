@@ -299,10 +299,11 @@ def encode_sample_block(
     inputs: Sequence[str],
     outputs: Sequence[str],
     binary: bool,
+    drive: str | None = None,
 ) -> bytes:
     """One ``/canfdi/samples`` message of len(k) samples; ``u``, ``z`` (N, p), (N, q) floats
     (anything that reshapes to that), columns named by ``inputs``, ``outputs``; ``binary``:
-    float columns as base64 float64 instead of JSON lists."""
+    float columns as base64 float64 instead of JSON lists; ``drive``: whose samples."""
     n = len(k)
     message = {
         "timestamp": stamp(t[0]),
@@ -314,6 +315,8 @@ def encode_sample_block(
         "u": float_columns(inputs, u.reshape(n, len(inputs)), binary),
         "z": float_columns(outputs, z.reshape(n, len(outputs)), binary),
     }
+    if drive is not None:
+        message["drive"] = drive
     return encode_json(message).encode()
 
 
@@ -325,9 +328,11 @@ def encode_residual_block(
     normalized: NDArray[np.float64],
     statistic: NDArray[np.float64],
     binary: bool,
+    drive: str | None = None,
 ) -> bytes:
     """One ``/canfdi/residuals`` message of len(k) rows of the residuals ``names``: raw,
-    normalized and Page-Hinkley statistic, each (N, m) (or anything that reshapes to it)."""
+    normalized and Page-Hinkley statistic, each (N, m) (or anything that reshapes to it);
+    ``drive``: whose residuals."""
     shape = (len(k), len(names))
     message = {
         "timestamp": stamp(t[0]),
@@ -340,6 +345,8 @@ def encode_residual_block(
         "normalized": float_columns(names, normalized.reshape(shape), binary),
         "statistic": float_columns(names, statistic.reshape(shape), binary),
     }
+    if drive is not None:
+        message["drive"] = drive
     return encode_json(message).encode()
 
 

@@ -45,6 +45,7 @@ __all__ = [
     "ResidualArrays",
     "SampleArrays",
     "iter_frame_blocks",
+    "log_drives",
     "mcap_frame_blocks",
     "read_frames",
     "read_log",
@@ -339,7 +340,30 @@ def _same_names(found: Any, names: Any, topic: str, path: str | Path) -> Any:
     return found
 
 
-def read_samples(path: str | Path, *, segments: bool = True) -> SampleArrays:
+def log_drives(path: str | Path, *, segments: bool = True) -> list[str]:
+    """The drives whose samples a log holds, in order of appearance ([] for a log of one
+    unnamed drive: logs written before drives had names)."""
+    found: list[str] = []
+    for segment in _segments(path, segments):
+        for _, _, msg in read_log(segment, topics=[TOPIC_SAMPLES]):
+            drive = msg.get("drive")
+            if drive is not None and drive not in found:
+                found.append(drive)
+    return found
+
+
+def _wanted(msg: Mapping[str, Any], drive: str | None, first: list) -> bool:
+    """Whether a block belongs to ``drive`` (None: the first drive the log shows)."""
+    found = msg.get("drive")
+    if drive is not None:
+        return found == drive
+    if not first:
+        first.append(found)
+    return found == first[0]
+
+
+def read_samples(path: str | Path, *, segments: bool = True, drive: str | None = None
+                 ) -> SampleArrays:
     """Every decoded sample of a log (``/canfdi/samples``), as arrays.
 
     Reads every segment in order, tolerating a truncated end as `read_log` does, and logs of
@@ -352,6 +376,8 @@ def read_samples(path: str | Path, *, segments: bool = True) -> SampleArrays:
     segments : bool
         Also read the rotated segments that follow ``path`` (`log_segments`); False reads
         ``path`` alone.
+    drive : str, optional
+        Whose samples (a log of several drives, `log_drives`); default the first drive's.
 
     Returns
     -------
@@ -369,8 +395,11 @@ def read_samples(path: str | Path, *, segments: bool = True) -> SampleArrays:
     rows = Rows((np.int64, np.int64, np.int64, np.float64, np.float64))
     k_col, t_col, gap_col, u_col, z_col = rows.columns
     names: tuple[list[str], list[str]] | None = None
+    first: list = []
     for segment in _segments(path, segments):
         for _, log_time, msg in read_log(segment, topics=[TOPIC_SAMPLES]):
+            if not _wanted(msg, drive, first):
+                continue
             found = (list(msg["u"]), list(msg["z"]))
             names = _same_names(found, names, TOPIC_SAMPLES, path)
             if "count" in msg:
@@ -390,7 +419,8 @@ def read_samples(path: str | Path, *, segments: bool = True) -> SampleArrays:
     )
 
 
-def read_residuals(path: str | Path, *, segments: bool = True) -> ResidualArrays:
+def read_residuals(path: str | Path, *, segments: bool = True, drive: str | None = None
+                   ) -> ResidualArrays:
     """Every residual row of a log (``/canfdi/residuals``), as arrays.
 
     Reads every segment in order, tolerating a truncated end as `read_log` does, and logs of
@@ -404,6 +434,8 @@ def read_residuals(path: str | Path, *, segments: bool = True) -> ResidualArrays
     segments : bool
         Also read the rotated segments that follow ``path`` (`log_segments`); False reads
         ``path`` alone.
+    drive : str, optional
+        Whose residuals (a log of several drives); default the first drive's.
 
     Returns
     -------
@@ -421,8 +453,11 @@ def read_residuals(path: str | Path, *, segments: bool = True) -> ResidualArrays
     rows = Rows((np.int64, np.int64, np.float64, np.float64, np.float64))
     k_col, t_col, r_col, n_col, s_col = rows.columns
     names: list[str] | None = None
+    first: list = []
     for segment in _segments(path, segments):
         for _, log_time, msg in read_log(segment, topics=[TOPIC_RESIDUALS]):
+            if not _wanted(msg, drive, first):
+                continue
             if "count" in msg:
                 found = list(msg["names"])
                 names = _same_names(found, names, TOPIC_RESIDUALS, path)

@@ -187,6 +187,8 @@ def _encoding(name: str) -> dict[str, Any]:
     return {"type": "string", "const": name, "description": "block layout and version"}
 
 
+_DRIVE = {"type": "string", "description": "the drive (the monitor config's drives:) whose "
+                                           "rows these are"}
 _RESIDUAL_ROW = _object(
     "canfdi.Residuals",
     {
@@ -194,7 +196,9 @@ _RESIDUAL_ROW = _object(
         "r": _NUMBER_MAP,
         "normalized": _NUMBER_MAP,
         "statistic": _NUMBER_MAP,
+        "drive": _DRIVE,
     },
+    optional=("drive",),
 )
 
 SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
@@ -246,7 +250,9 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
                 "gap": _INT_LIST,
                 "u": _COLUMNS,
                 "z": _COLUMNS,
+                "drive": _DRIVE,
             },
+            optional=("drive",),
         ),
     ),
     TOPIC_RESIDUALS: (
@@ -262,7 +268,9 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
                 "r": _COLUMNS,
                 "normalized": _COLUMNS,
                 "statistic": _COLUMNS,
+                "drive": _DRIVE,
             },
+            optional=("drive",),
         ),
     ),
     TOPIC_RESIDUALS_PLOT: ("canfdi.Residuals", _RESIDUAL_ROW),
@@ -296,6 +304,7 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
                 "accepted_sample": _OPT_INT,
                 "candidates": {"type": "array", "items": {"type": "object"}},
                 "residuals": {"type": "array", "items": {"type": "string"}},
+                "drive": _OPT_STR,
             },
         ),
     ),

@@ -315,6 +315,8 @@ class McapRecorder:
         self._residuals = Rows((np.int64, np.int64, np.float64, np.float64, np.float64))
         self._block_residuals = int(block_residuals)
         self._residual_names: list[str] = []
+        self._sample_drive: str | None = None
+        self._residual_drive: str | None = None
         self._residual_names_given: Any = None
         self._binary_floats = float_encoding == "base64"
         self._plot_ns = round(NS_PER_S / plot_rate) if plot_rate > 0 else 0
@@ -553,7 +555,8 @@ class McapRecorder:
             self._emit_frames(now, full_only=True)
 
     def write_sample(
-        self, sample: Sample, input_names: Sequence[str], output_names: Sequence[str]
+        self, sample: Sample, input_names: Sequence[str], output_names: Sequence[str],
+        drive: str | None = None,
     ) -> None:
         """Buffer a decoded sample for `TOPIC_SAMPLES` (a cheap append).
 
@@ -566,6 +569,9 @@ class McapRecorder:
         input_names, output_names : sequence of str
             The model's input and output names, in the sample's order. A change of names
             writes the buffered samples first.
+        drive : str, optional
+            The drive whose sample it is (several drives on one bus); a change of drive
+            writes the buffered samples first.
 
         Raises
         ------
@@ -573,6 +579,9 @@ class McapRecorder:
             After `close`, or if ``u`` or ``z`` does not match the names.
         """
         now = self._begin_write()
+        if drive != self._sample_drive:
+            self._emit_samples(now, full_only=False)
+            self._sample_drive = drive
         if input_names is not self._inputs_given or output_names is not self._outputs_given:
             self._sample_names(input_names, output_names)
         u, z = sample.u, sample.z
@@ -601,6 +610,7 @@ class McapRecorder:
         gap: ArrayLike,
         input_names: Sequence[str],
         output_names: Sequence[str],
+        drive: str | None = None,
     ) -> None:
         """Buffer a block of decoded samples for `TOPIC_SAMPLES`, vectorised (copied).
 
@@ -618,6 +628,8 @@ class McapRecorder:
             Samples lost just before each one.
         input_names, output_names : sequence of str
             The model's input and output names.
+        drive : str, optional
+            The drive whose samples they are (as `write_sample`).
 
         Raises
         ------
@@ -625,6 +637,9 @@ class McapRecorder:
             After `close`, or for arrays of the wrong shape.
         """
         now = self._begin_write()
+        if drive != self._sample_drive:
+            self._emit_samples(now, full_only=False)
+            self._sample_drive = drive
         if input_names is not self._inputs_given or output_names is not self._outputs_given:
             self._sample_names(input_names, output_names)
         n = len(np.asarray(k))
@@ -649,6 +664,7 @@ class McapRecorder:
         r: ArrayLike,
         normalized: ArrayLike,
         statistic: ArrayLike,
+        drive: str | None = None,
     ) -> None:
         """Buffer one sample's residuals for `TOPIC_RESIDUALS` (a cheap append, copied).
 
@@ -669,6 +685,8 @@ class McapRecorder:
             Residuals divided by their standard deviation.
         statistic : array_like
             Page-Hinkley statistic max(g+, g-) of every residual.
+        drive : str, optional
+            The drive whose residuals they are; a change writes the buffered rows first.
 
         Raises
         ------
@@ -676,6 +694,9 @@ class McapRecorder:
             After `close`, or if a row does not match the names.
         """
         now = self._begin_write()
+        if drive != self._residual_drive:
+            self._emit_residuals(now, full_only=False)
+            self._residual_drive = drive
         if names is not self._residual_names_given:
             self._set_residual_names(names)
         r, normalized, statistic = float_row(r), float_row(normalized), float_row(statistic)
@@ -706,6 +727,7 @@ class McapRecorder:
         R: ArrayLike,
         Rn: ArrayLike,
         stat: ArrayLike,
+        drive: str | None = None,
     ) -> None:
         """Buffer many samples' residuals for `TOPIC_RESIDUALS`, vectorised (copied).
 
@@ -721,6 +743,8 @@ class McapRecorder:
             The m residual names.
         R, Rn, stat : (N, m) float
             Raw residuals, normalized residuals, Page-Hinkley statistics.
+        drive : str, optional
+            The drive whose residuals they are (as `write_residuals`).
 
         Raises
         ------
@@ -728,6 +752,9 @@ class McapRecorder:
             After `close`, or for arrays of the wrong shape.
         """
         now = self._begin_write()
+        if drive != self._residual_drive:
+            self._emit_residuals(now, full_only=False)
+            self._residual_drive = drive
         if names is not self._residual_names_given:
             self._set_residual_names(names)
         n = len(np.asarray(k))
@@ -961,7 +988,8 @@ class McapRecorder:
         while rows.count >= limit or (not full_only and rows.count):
             k, t, gap, u, z = rows.take(min(limit, rows.count))
             data = encode_sample_block(
-                k, t, gap, u, z, self._inputs, self._outputs, self._binary_floats
+                k, t, gap, u, z, self._inputs, self._outputs, self._binary_floats,
+                self._sample_drive,
             )
             self._write(TOPIC_SAMPLES, int(t[0]), data, len(k), now)
 
@@ -970,7 +998,8 @@ class McapRecorder:
         while rows.count >= limit or (not full_only and rows.count):
             k, t, r, normalized, statistic = rows.take(min(limit, rows.count))
             data = encode_residual_block(
-                k, t, self._residual_names, r, normalized, statistic, self._binary_floats
+                k, t, self._residual_names, r, normalized, statistic, self._binary_floats,
+                self._residual_drive,
             )
             self._write(TOPIC_RESIDUALS, int(t[0]), data, len(k), now)
 
@@ -991,6 +1020,8 @@ class McapRecorder:
             "normalized": named(names, normalized),
             "statistic": named(names, statistic),
         }
+        if self._residual_drive is not None:
+            message["drive"] = self._residual_drive
         self._write(TOPIC_RESIDUALS_PLOT, timestamp_ns, encode_message(message), 0, now)
 
     # -- internals: segments ---------------------------------------------------------------

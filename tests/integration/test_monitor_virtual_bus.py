@@ -99,8 +99,9 @@ def test_consecutive_faults_each_diagnosed_within_3_percent_none_spurious(tmp_pa
     drive = received[received == "ok"]
     assert len(drive) == stats.frames_sent == len(received)
 
-    # The fault frames an independent python-can + cantools listener decodes match.
-    db = dbc_files.load("motor_drive")
+    # The fault frames an independent python-can + cantools listener decodes (with the
+    # monitor's DBC) match.
+    db = dbc_files.load("canfdi_monitor")
     fault_msgs = [db.decode_message(m.arbitration_id, m.data, decode_choices=False)
                   for m in heard if m.arbitration_id == 0x080]
     estimates = [db.decode_message(m.arbitration_id, m.data, decode_choices=False)

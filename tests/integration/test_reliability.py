@@ -107,7 +107,7 @@ def _bad(tmp_path, path: str, value) -> str:
     [
         ("model.B", [[0.1, 0.2], [0.1, 0.2], [0.0, 0.0]], "signals.inputs"),
         ("model.C", [[1, 0], [0, 1]], "model.C"),
-        ("signals.outputs", ["i_f", "i_a", "i_total", "omega_r"], "signals.outputs[2]"),
+        ("signals.outputs", ["i_f", "i_a", "i_total", "omega_r"], "bus.map.i_total"),
         ("design.sensor_window", -2, "design.sensor_window"),
         ("detection.drift", -1.0, "detection.drift"),
         ("detection.false_alarm_interval", 1.0, "detection.false_alarm_interval"),

@@ -30,7 +30,7 @@ class _Residuals:
         self.k: list[np.ndarray] = []
         self.rn: list[np.ndarray] = []
 
-    def write_residual_rows(self, k, t_ns, names, R, Rn, stat) -> None:
+    def write_residual_rows(self, k, t_ns, names, R, Rn, stat, drive=None) -> None:
         self.k.append(np.asarray(k))
         self.rn.append(np.asarray(Rn))
 

@@ -4,6 +4,7 @@ them, into canfdi.monitor.Monitor)."""
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 
@@ -49,7 +50,8 @@ def test_actuator_biases_each_isolated_in_its_own_residual():
         assert event.detected_sample - onset <= 10
         # The identification filter's own residual (the diagonal map) says the same.
         assert event.candidates == ()
-        own = next(i.ranking[0] for i in monitor.diagnoser.isolations if i.event is event)
+        own = next(i.ranking[0] for i in monitor.diagnoser.isolations
+                   if dataclasses.replace(i.event, drive=event.drive) == event)
         assert own["index"] == event.index
         assert own["fidf_lambda"] == pytest.approx(event.estimates["lambda"], rel=0.05)
     # The second fault moved its own FIDF residual, not the first's: the diagonal map.

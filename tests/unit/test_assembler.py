@@ -60,7 +60,7 @@ def expected_values(n: int, k0: int = 0) -> dict[int, tuple[np.ndarray, np.ndarr
     for _, frame_id, data, k in frames:
         u, z = out.setdefault(k, (np.full(bus_map.p, np.nan), np.full(bus_map.q, np.nan)))
         decoded = database.get_message_by_frame_id(frame_id).decode(data, decode_choices=False)
-        slot = bus_map.slot_of[frame_id][0]
+        slot = bus_map.slot_of[(frame_id, False)]
         for name, vector, j in bus_map.fields[slot]:
             (u if vector == "u" else z)[j] = decoded[name]
     return out
@@ -100,7 +100,7 @@ def lost_messages(sample) -> set[int]:
             lost.add(bus_map.layouts[slot].frame_id)
     assert len(lost) < len(bus_map.layouts), f"k={sample.k}: delivered with nothing in it"
     assert np.isnan(flat).sum() == sum(
-        len(bus_map.fields[bus_map.slot_of[i][0]]) for i in lost)
+        len(bus_map.fields[bus_map.slot_of[(i, False)]]) for i in lost)
     return lost
 
 

@@ -13,8 +13,16 @@ import pytest
 from canfdi import dbc as dbc_files
 from canfdi.bus.dbc import BusMap
 from canfdi.bus.e2e import check, protect
-from canfdi.bus.frames import STATUS_CODES, STATUS_NAMES, FrameBlock
+from canfdi.bus.frames import FLAG_EXTENDED, STATUS_CODES, STATUS_NAMES, FrameBlock
 from canfdi.config import BusConfig, ConfigError, load_config
+from canfdi.core.settings import (
+    ClockConfig,
+    DriveConfig,
+    E2EConfig,
+    MonitorFramesConfig,
+    SignalRef,
+)
+from canfdi.monitor import Monitor
 from firmware_sim.emitter import FrameEncoder
 from firmware_sim.scenario import load_scenario
 from firmware_sim.simulate import SimChunk, Simulator
@@ -40,7 +48,8 @@ def dc_motor_config():
 
 @functools.cache
 def dc_motor_map() -> BusMap:
-    return BusMap.from_config(dc_motor_config())
+    """The DC motor's map as the monitor builds it (its own frames known as "monitor")."""
+    return Monitor(dc_motor_config(), diagnose=False).bus_map
 
 
 @functools.cache
@@ -97,11 +106,11 @@ def test_dc_motor_config_maps_every_signal_to_its_message():
         "i_f_plus_i_a": ("DRIVE_CURRENTS", "z", 2),
         "omega_r": ("DRIVE_SPEED", "z", 3),
     }
-    assert bus_map.slot_of == {0x104: (0, 8), 0x105: (1, 8), 0x106: (2, 4)}
-    assert bus_map.monitor_ids == {0x080, 0x081, 0x082, 0x083}
-    assert bus_map.unused_ids == frozenset()
+    assert bus_map.slot_of == {(0x104, False): 0, (0x105, False): 1, (0x106, False): 2}
+    assert {k[0] for k in bus_map.monitor_keys} == {0x080, 0x081, 0x082, 0x083}
+    assert bus_map.unused_keys == frozenset()
     assert (bus_map.p, bus_map.q, bus_map.n_signals_max) == (1, 4, 3)
-    assert bus_map.dbc_label == "motor_drive"
+    assert bus_map.dbc_label == "motor_drive" and bus_map.counter_modulus == 256
 
 
 def test_dbc_given_as_a_path_relative_to_the_config(tmp_path):
@@ -114,36 +123,40 @@ def test_dbc_given_as_a_path_relative_to_the_config(tmp_path):
     assert bus_map.dbc_label == str(target)
 
 
-def test_unknown_output_name_is_a_config_error_naming_its_field():
-    config = dc_motor_config()
-    outputs = [*config.outputs[:2], "i_b", *config.outputs[3:]]
-    with pytest.raises(ConfigError, match="no signal 'i_b' in any DRIVE message of motor_drive"
-                       ) as info:
-        BusMap.from_config(dataclasses.replace(config, outputs=outputs))
-    assert info.value.field == "signals.outputs[2]"
+def _config(**bus) -> object:
+    """The DC motor config with some of its bus section replaced."""
+    base = dc_motor_config()
+    return dataclasses.replace(base, bus=dataclasses.replace(base.bus, **bus))
 
 
-def test_unknown_input_name_is_a_config_error_naming_its_field():
-    config = dataclasses.replace(dc_motor_config(), inputs=["U"])
-    with pytest.raises(ConfigError) as info:
+def test_an_unknown_model_signal_names_its_map_field_and_the_nearest_signals():
+    config = dataclasses.replace(dc_motor_config(),
+                                 outputs=["i_f", "i_a", "i_b", "omega_r"])
+    with pytest.raises(ConfigError, match=r"no signal 'i_b' in motor_drive.*nearest signals: "
+                                          r"i_f, i_a") as info:
         BusMap.from_config(config)
-    assert info.value.field == "signals.inputs[0]"
+    assert info.value.field == "bus.map.i_b"
 
 
-def test_reference_signal_is_found_but_monitor_signals_are_not_drive_signals():
-    config = dc_motor_config()
-    bus_map = BusMap.from_config(dataclasses.replace(config, inputs=["omega_ref"]))
-    assert bus_map.fields[0] == (("omega_ref", "u", 0),)
-    # FDI_STATUS.Samples is on the bus, but not sent by DRIVE.
-    with pytest.raises(ConfigError) as info:
-        BusMap.from_config(dataclasses.replace(config, inputs=["Samples"]))
-    assert info.value.field == "signals.inputs[0]"
+def test_the_map_takes_a_signal_by_message_name_or_id_whatever_its_name():
+    config = _config(map={"i_f": SignalRef("DRIVE_CURRENTS", "i_a"),
+                          "i_a": SignalRef(0x105, "i_f")})
+    bus_map = BusMap.from_config(config)
+    # (DBC signal, vector, model index), in payload order: signal i_f now carries model i_a.
+    assert bus_map.fields[1] == (("i_f", "z", 1), ("i_a", "z", 0), ("i_f_plus_i_a", "z", 2))
 
 
-def test_e2e_header_is_not_a_model_signal():
-    with pytest.raises(ConfigError, match="E2E header") as info:
-        BusMap.from_config(dataclasses.replace(dc_motor_config(), inputs=["Counter"]))
-    assert info.value.field == "signals.inputs[0]"
+@pytest.mark.parametrize(("ref", "field", "match"), [
+    (SignalRef("DRIVE_CURENTS", "i_f"), "bus.map.i_f.message",
+     r"no message 'DRIVE_CURENTS'.*did you mean DRIVE_CURRENTS"),
+    (SignalRef(0x107, "i_f"), "bus.map.i_f.message", r"no message with ID 0x107"),
+    (SignalRef("DRIVE_SPEED", "i_f"), "bus.map.i_f.signal",
+     r"no signal 'i_f' in DRIVE_SPEED.*'i_f' is in DRIVE_CURRENTS"),
+])
+def test_a_bad_map_entry_names_its_key_and_the_nearest_names(ref, field, match):
+    with pytest.raises(ConfigError, match=match) as info:
+        BusMap.from_config(_config(map={"i_f": ref}))
+    assert info.value.field == field
 
 
 def test_missing_dbc_is_a_config_error():
@@ -161,47 +174,103 @@ def test_dbc_that_does_not_exist_is_a_config_error(tmp_path):
     assert info.value.field == "bus.dbc"
 
 
-_TWO_MESSAGES_DBC = """VERSION ""
+_VENDOR_DBC = """VERSION ""
 NS_ :
 BS_:
-BU_: DRIVE FDI
+BU_: MASTER DRIVE
 BO_ 260 DRIVE_A: 4 DRIVE
- SG_ CRC : 0|8@1+ (1,0) [0|255] "" FDI
- SG_ Counter : 8|8@1+ (1,0) [0|255] "" FDI
- SG_ x : 16|16@1- (0.01,0) [-327.68|327.67] "" FDI
+ SG_ x : 0|16@1- (0.01,0) [-327.68|327.67] "" MASTER
+ SG_ w : 16|16@1- (0.01,0) [-327.68|327.67] "" MASTER
 BO_ 261 DRIVE_B: 4 DRIVE
- SG_ CRC : 0|8@1+ (1,0) [0|255] "" FDI
- SG_ Counter : 8|8@1+ (1,0) [0|255] "" FDI
- SG_ x : 16|16@1- (0.01,0) [-327.68|327.67] "" FDI
-BO_ 262 DRIVE_C: 4 DRIVE
- SG_ y : 0|16@1- (0.01,0) [-327.68|327.67] "" FDI
- SG_ w : 16|16@1- (0.01,0) [-327.68|327.67] "" FDI
+ SG_ x : 0|16@1- (0.01,0) [-327.68|327.67] "" MASTER
+BO_ 2348875520 EXT_FEEDBACK: 8 DRIVE
+ SG_ y : 7|16@0- (0.5,1) [-1000|1000] "" MASTER
+ SG_ Alive : 60|4@1+ (1,0) [0|15] "" MASTER
+BO_ 40 SETPOINT: 2 MASTER
+ SG_ u : 0|16@1+ (0.1,0) [0|6553.5] "" DRIVE
 """
 
 
-def test_signal_in_two_drive_messages_is_a_config_error():
-    database = cantools.database.load_string(_TWO_MESSAGES_DBC, database_format="dbc")
-    with pytest.raises(ConfigError, match=r"'x' is in 2 DRIVE messages of test\.dbc "
-                                          r"\(DRIVE_A, DRIVE_B\)") as info:
-        BusMap.from_dbc(database, ["w"], ["x"], "test.dbc")
-    assert info.value.field == "signals.outputs[0]"
+def _vendor(tmp_path, inputs=("u",), outputs=("y", "w"), **bus):
+    (tmp_path / "vendor.dbc").write_text(_VENDOR_DBC)
+    base = dc_motor_config()
+    bus = {"dbc": "vendor.dbc", "e2e": E2EConfig(default="none"), **bus}
+    return dataclasses.replace(base, path=tmp_path / "monitor.yaml", inputs=list(inputs),
+                               outputs=list(outputs), bus=BusConfig(**bus))
 
 
-def test_drive_message_without_e2e_header_is_rejected():
-    database = cantools.database.load_string(_TWO_MESSAGES_DBC, database_format="dbc")
-    with pytest.raises(ConfigError, match="DRIVE_C has no E2E header") as info:
-        BusMap.from_dbc(database, ["y"], [], "test.dbc")
-    assert info.value.field == "bus.dbc"
+def test_a_signal_in_two_messages_must_be_mapped(tmp_path):
+    with pytest.raises(ConfigError, match=r"'x' is in 2 messages of .*\(DRIVE_A, DRIVE_B\)"
+                       ) as info:
+        BusMap.from_config(_vendor(tmp_path, outputs=("y", "x")))
+    assert info.value.field == "bus.map.x"
+    config = _vendor(tmp_path, outputs=("y", "x"), map={"x": SignalRef("DRIVE_B", "x")})
+    assert [lay.name for lay in BusMap.from_config(config).layouts] == [
+        "SETPOINT", "DRIVE_B", "EXT_FEEDBACK"]
 
 
-def test_drive_messages_without_model_signals_are_unused():
-    database = dbc_files.load("motor_drive")
-    bus_map = BusMap.from_dbc(database, ["V"], ["omega_r"], "motor_drive")
-    assert [layout.name for layout in bus_map.layouts] == ["DRIVE_CMD", "DRIVE_SPEED"]
-    assert bus_map.unused_ids == {0x105}
-    _, frames = drive_traffic(4)
-    statuses = [bus_map.decode_frame(f[1], f[2])[0] for f in frames]
-    assert statuses == ["ok", "unused", "ok"] * 4
+def test_any_sender_motorola_and_29_bit_messages_decode_as_cantools_does(tmp_path):
+    bus_map = BusMap.from_config(_vendor(tmp_path))
+    database = cantools.database.load_string(_VENDOR_DBC, database_format="dbc")
+    message = database.get_message_by_name("EXT_FEEDBACK")
+    payload = message.encode({"y": -123.5, "Alive": 9})
+    key = (message.frame_id, True)
+    assert key in bus_map.slot_of
+    status, slot, values, _counter = bus_map.decode_frame(message.frame_id, payload,
+                                                         FLAG_EXTENDED)
+    assert (status, slot, values) == ("ok", bus_map.slot_of[key], (-123.5,))
+    # Without its extended flag, the same ID is no message of the DBC.
+    assert bus_map.decode_frame(message.frame_id, payload)[0] == "unknown_id"
+    block = FrameBlock(np.zeros(2, dtype=np.int64), [message.frame_id] * 2, [8, 8],
+                       [FLAG_EXTENDED, 0], np.frombuffer(payload * 2, np.uint8).reshape(2, 8))
+    st, _sl, vals, _ = bus_map.decode_frames(block)
+    assert [STATUS_NAMES[c] for c in st] == ["ok", "unknown_id"]
+    assert vals[0, 0] == -123.5
+
+
+def test_the_canfdi_profile_on_a_message_without_its_header_names_the_message(tmp_path):
+    config = _vendor(tmp_path, e2e=E2EConfig(default="canfdi"))
+    with pytest.raises(ConfigError, match="SETPOINT has no canfdi E2E header") as info:
+        BusMap.from_config(config)
+    assert info.value.field == "bus.e2e.default"
+
+
+def test_a_counter_clock_needs_counters_and_says_so(tmp_path):
+    with pytest.raises(ConfigError, match="counter clock needs an alive counter") as info:
+        Monitor(_vendor(tmp_path), diagnose=False)
+    assert info.value.field == "bus.clock.kind"
+
+
+def test_node_ids_put_each_drive_on_its_own_ids(tmp_path):
+    config = dataclasses.replace(
+        _vendor(tmp_path, node_id="(id & ~0x0F) | node", clock=ClockConfig("grid")),
+        drives=(DriveConfig("a", 1), DriveConfig("b", 2)))
+    monitor = Monitor(config, diagnose=False)
+    a, b = (d.bus_map for d in monitor.drives)
+    assert [k[0] for k in a.keys] == [0x21, 0x101, 0x8C000001]
+    assert [k[0] for k in b.keys] == [0x22, 0x102, 0x8C000002]
+    # Each drive's messages are the other's "unused": known, not strangers.
+    assert (0x22, False) in a.unused_keys and (0x21, False) in b.unused_keys
+    bad = dataclasses.replace(config, bus=dataclasses.replace(config.bus,
+                                                              node_id="id + node * 0x800"))
+    with pytest.raises(ConfigError, match="not an 11-bit ID") as info:
+        Monitor(bad, diagnose=False)
+    assert info.value.field == "bus.node.id"
+
+
+def test_monitor_ids_that_collide_are_refused_naming_them(tmp_path):
+    config = _vendor(tmp_path, clock=ClockConfig("grid"),
+                     monitor=MonitorFramesConfig(base=0x103))
+    with pytest.raises(ConfigError, match=r"FDI_ESTIMATE 0x104, FDI_STATUS 0x105") as info:
+        Monitor(config, diagnose=False)
+    assert info.value.field == "bus.monitor"
+    canopen = _vendor(tmp_path, clock=ClockConfig("grid"), canopen=True)
+    with pytest.raises(ConfigError, match=r"FDI_FAULT 0x80 \(SYNC\), FDI_ESTIMATE 0x81 \(EMCY\)"):
+        Monitor(canopen, diagnose=False)
+    fine = _vendor(tmp_path, clock=ClockConfig("grid"), canopen=True,
+                   monitor=MonitorFramesConfig(base=0x6E0))
+    assert {k[0] for k in Monitor(fine, diagnose=False).frames.keys.values()} == {
+        0x6E0, 0x6E1, 0x6E2, 0x6E3}
 
 
 # -- decoding -----------------------------------------------------------------------------------
@@ -215,8 +284,10 @@ def test_decode_frame_equals_vectorised_decode_and_cantools_on_real_traffic():
     status, slot, values, counters = bus_map.decode_frames(_block(ids, dlc, payloads))
     assert status.tolist() == [STATUS_CODES["ok"]] * len(frames)
     for i, (_, frame_id, data, k) in enumerate(frames):
-        got_status, got_slot, got_values = bus_map.decode_frame(frame_id, data)
-        assert (got_status, got_slot) == ("ok", slot[i]) == ("ok", bus_map.slot_of[frame_id][0])
+        got_status, got_slot, got_values, got_counter = bus_map.decode_frame(frame_id, data)
+        assert (got_status, got_slot) == ("ok", slot[i]) == ("ok",
+                                                             bus_map.slot_of[(frame_id, False)])
+        assert got_counter == counters[i]
         fields = bus_map.fields[got_slot]
         assert len(got_values) == len(fields)
         np.testing.assert_array_equal(values[i, : len(fields)], got_values)
@@ -261,7 +332,7 @@ def test_scalar_and_vectorised_decode_agree_on_defects():
     status, slot, values, counters = bus_map.decode_frames(_block(ids, dlc, payloads))
     seen = set()
     for i, (_, frame_id, data) in enumerate(frames):
-        got_status, got_slot, got_values = bus_map.decode_frame(frame_id, data)
+        got_status, got_slot, got_values, got_counter = bus_map.decode_frame(frame_id, data)
         seen.add(got_status)
         assert STATUS_NAMES[status[i]] == got_status, i
         assert slot[i] == got_slot, i
@@ -272,7 +343,7 @@ def test_scalar_and_vectorised_decode_agree_on_defects():
         # The E2E module is the reference for the CRC verdict of a right-length frame.
         if got_status in ("ok", "crc", "monitor"):
             assert check(frame_id, data) == (got_status != "crc"), i
-        assert counters[i] == (data[1] if len(data) >= 2 else -1)
+        assert counters[i] == got_counter == (data[1] if got_status == "ok" else -1)
     assert seen == {"ok", "crc", "dlc", "unknown_id", "monitor"}
 
 
@@ -286,4 +357,4 @@ def test_decode_frames_handles_ids_and_lengths_outside_classic_can():
     status, slot, _, counters = bus_map.decode_frames(_block(ids, dlc, payloads))
     assert [STATUS_NAMES[c] for c in status] == ["unknown_id", "dlc", "dlc"]
     assert slot.tolist() == [-1, 1, 2]
-    assert counters[2] == -1
+    assert (counters == -1).all()

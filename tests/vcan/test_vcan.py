@@ -115,7 +115,7 @@ def test_consecutive_faults_across_processes_seen_by_candump(tmp_path):
     lines = [ln for ln in dump.read_text().splitlines() if " 080#" in ln or " 081#" in ln]
     assert lines, "candump saw no fault frame"
     decoded = subprocess.run(
-        [sys.executable, "-m", "cantools", "decode", str(REPO / "dbc" / "motor_drive.dbc")],
+        [sys.executable, "-m", "cantools", "decode", str(REPO / "dbc" / "canfdi_monitor.dbc")],
         input="\n".join(lines) + "\n", capture_output=True, text=True, timeout=60)
     assert decoded.returncode == 0, decoded.stderr
     assert decoded.stdout.count("FDI_FAULT(") == len(

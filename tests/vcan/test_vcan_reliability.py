@@ -38,7 +38,7 @@ pytestmark = pytest.mark.vcan
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
 CANFDI = [sys.executable, "-m", "canfdi"]
 SCENARIO = "dc_motor_consecutive"  # faults at 10 s, 20 s, 30 s; accepted about 2 s later
-FDI_IDS = frozenset({0x080, 0x081, 0x082, 0x083})  # the monitor's own frames (motor_drive.dbc)
+FDI_IDS = frozenset({0x080, 0x081, 0x082, 0x083})  # the monitor's own frames (canfdi_monitor.dbc)
 FDI_FAULT, FDI_STATUS = 0x080, 0x082
 DEGRADED = 3  # FDI_STATUS State
 FLUSH_BOUND = 1.5  # s: the recorder's 1 s flush interval, with a margin
@@ -324,7 +324,7 @@ def test_full_disk_fault_frames_go_on_and_recording_resumes(tmp_path, small_disk
     assert accepted[(2, 1)] > resume_seen
 
     # FDI_STATUS: degraded from the failure to the resumption, and only then.
-    status = [(t, d[2] & 0x0F) for t, i, d in bus if i == FDI_STATUS]
+    status = [(t, d[2] & 0x07) for t, i, d in bus if i == FDI_STATUS]  # State: bits 16-18
     assert all(s != DEGRADED for t, s in status if t < fill_start or t > resume_seen), status
     degraded = [s for t, s in status if fail_seen < t < free_time]
     assert len(degraded) >= 5 and set(degraded) == {DEGRADED}, status

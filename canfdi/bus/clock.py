@@ -1,0 +1,247 @@
+"""Sample clocks: how one sample per control period is formed from a drive's frames.
+
+Chosen by name in the config (``bus.clock.kind``, docs/bus.md); `make_clock` is the only place
+that branches on the name. Every clock takes frames streaming (``push``: one frame) and by the
+block (``push_batch``: a `FrameBlock`), with the same results, and returns samples as
+canfdi.bus.assembler's `AssembledLog`:
+
+* ``counter``: canfdi.bus.assembler's `SampleAssembler`: sample k is complete when every mapped
+  message has arrived with alive counter k (unwrapped by time); the messages' E2E profiles give
+  the counters.
+* ``trigger``: every valid frame of one message (CANopen SYNC, or the drive's own feedback
+  frame) closes a sample holding the newest value of each mapped signal received up to and
+  including it, if not older than ``max_age``; lost triggers are counted from the time between
+  them.
+* ``grid``: samples at fixed instants ``t0 + phase + k period`` (t0: the first mapped frame's
+  arrival), each holding the newest value of each mapped signal received up to the instant, if
+  not older than ``max_age``. A sample is delivered once a frame later than its instant has
+  arrived.
+
+A value too old, or never received, is NaN: the diagnoser treats it as a lost frame's. A frame
+whose message has an alive counter and repeats its predecessor's count is a ``duplicate``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canfdi.bus.assembler import AssembledLog, SampleAssembler
+from canfdi.bus.dbc import BusMap
+from canfdi.bus.frames import (
+    FLAG_ERROR,
+    FLAG_EXTENDED,
+    FLAG_FD,
+    FLAG_REMOTE,
+    STATUS_CODES,
+    STATUS_NAMES,
+    VALID_STATUSES,
+    FrameBlock,
+)
+from canfdi.core.records import Sample
+from canfdi.core.settings import ClockConfig, ConfigError
+
+__all__ = ["CLOCKS", "LatestValueClock", "make_clock"]
+
+CLOCKS = ("counter", "trigger", "grid")
+"""The sample clocks a config can name (``bus.clock.kind``)."""
+
+_OK = STATUS_CODES["ok"]
+_DUPLICATE = STATUS_CODES["duplicate"]
+_VALID = [STATUS_CODES[name] for name in VALID_STATUSES]
+_INVALID_NAMES = tuple(name for name in STATUS_NAMES if name not in VALID_STATUSES)
+
+
+class LatestValueClock:
+    """The ``trigger`` and ``grid`` clocks: samples of the newest value of each signal.
+
+    Parameters
+    ----------
+    bus_map : the drive's compiled map (its ``trigger_slot`` for a trigger clock).
+    dt : the control period, seconds (> 0): counts lost triggers, the grid's default period.
+    kind : "trigger" or "grid".
+    period, phase, max_age : seconds (None: dt, period / 2, 1.5 dt).
+    """
+
+    def __init__(self, bus_map: BusMap, dt: float, kind: str, *, period: float | None = None,
+                 phase: float | None = None, max_age: float | None = None) -> None:
+        if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt: the control period must be a number of seconds > 0, got "
+                             f"{dt!r}")
+        if kind == "trigger" and bus_map.trigger_slot is None:
+            raise ValueError("a trigger clock needs the bus map's trigger message")
+        self.bus_map = bus_map
+        self.kind = kind
+        self.dt = float(dt)
+        self._dt_ns = float(dt) * 1e9
+        self._period_ns = (period or dt) * 1e9
+        self._phase_ns = (phase if phase is not None else (period or dt) / 2.0) * 1e9
+        self._max_age_ns = (max_age if max_age is not None else 1.5 * dt) * 1e9
+        width = bus_map.p + bus_map.q
+        self._value = np.full(width, np.nan)
+        self._time = np.full(width, np.iinfo(np.int64).min // 4, dtype=np.int64)
+        self._last_counter = np.full(len(bus_map.layouts), -1, dtype=np.int64)
+        self._k = -1  # latest sample delivered
+        self._t_last = 0  # its instant (trigger time or grid instant), ns
+        self._t0: int | None = None  # grid: the first mapped frame's time
+        self._counts = [0] * len(STATUS_NAMES)
+        self._complete = self._broken = self._missing = 0
+
+    @property
+    def stats(self) -> dict:
+        """Counters since construction, as `SampleAssembler.stats`."""
+        counts = self._counts
+        invalid = {name: counts[STATUS_CODES[name]] for name in _INVALID_NAMES}
+        valid = sum(counts[c] for c in _VALID)
+        return {
+            "frames_received": valid + sum(invalid.values()),
+            "frames_valid": valid,
+            "frames_invalid": sum(invalid.values()),
+            "invalid_by_reason": invalid,
+            "samples_complete": self._complete,
+            "samples_broken": self._broken,
+            "samples_missing": self._missing,
+            "duplicates": counts[_DUPLICATE],
+        }
+
+    # -- streaming ----------------------------------------------------------------------------
+    def push(self, timestamp_ns: int, frame_id: int, data: bytes | bytearray, *,
+             is_extended: bool = False, is_remote: bool = False, is_error: bool = False,
+             is_fd: bool = False) -> tuple[str, list[Sample]]:
+        """Take one frame: (its status, the samples it delivered). The block form on one frame,
+        so both forms agree by construction."""
+        payload = bytes(data)
+        flags = (is_extended * FLAG_EXTENDED | is_remote * FLAG_REMOTE | is_error * FLAG_ERROR
+                 | is_fd * FLAG_FD)
+        head = np.zeros((1, 8), dtype=np.uint8)
+        head[0, : min(len(payload), 8)] = np.frombuffer(payload[:8], dtype=np.uint8)
+        block = FrameBlock(np.array([timestamp_ns], dtype=np.int64), np.array([frame_id]),
+                           np.array([len(payload)]), np.array([flags]), head,
+                           long={0: payload} if len(payload) > 8 else {})
+        log = self.push_batch(block)
+        samples = [Sample(k=int(k), timestamp_ns=int(t), u=log.u[i].copy(), z=log.z[i].copy(),
+                          gap=int(g))
+                   for i, (k, t, g) in enumerate(zip(log.k, log.timestamp_ns, log.gap,
+                                                     strict=True))]
+        return STATUS_NAMES[int(log.statuses[0])], samples
+
+    def flush(self) -> list[Sample]:
+        """End of stream: nothing pending (a trigger delivers at once; a grid instant later
+        than the last frame has nothing newer to show)."""
+        return []
+
+    # -- blocks -------------------------------------------------------------------------------
+    def push_batch(self, block: FrameBlock) -> AssembledLog:
+        """`push` for a block of frames, in order (vectorised)."""
+        status, slot, values, counters = self.bus_map.decode_frames(block)
+        t = block.t_ns
+        self._mark_duplicates(status, slot, counters)
+        ok = np.flatnonzero(status == _OK)
+        if self.kind == "trigger":
+            at = ok[slot[ok] == self.bus_map.trigger_slot]
+            instants, upto = self._trigger_instants(t, at)
+        else:
+            mapped = ok
+            if self._t0 is None and mapped.size:
+                self._t0 = int(t[mapped[0]])
+            instants, upto = self._grid_instants(t)
+        ks, gaps = self._indices(instants)
+        flat = self._values_at(ok, slot, values, t, instants, upto)
+        for code, count in enumerate(np.bincount(status, minlength=len(STATUS_NAMES))):
+            self._counts[code] += int(count)
+        missing = np.isnan(flat).any(axis=1)
+        self._complete += int((~missing).sum())
+        self._broken += int(missing.sum())
+        p = self.bus_map.p
+        return AssembledLog(k=ks, timestamp_ns=instants, u=flat[:, :p], z=flat[:, p:], gap=gaps,
+                            statuses=status, stats=self.stats)
+
+    def _mark_duplicates(self, status: NDArray[np.int8], slot: NDArray[np.int16],
+                         counters: NDArray[np.int64]) -> None:
+        """A counter-bearing frame repeating its message's previous count is a duplicate."""
+        for s in range(len(self.bus_map.layouts)):
+            rows = np.flatnonzero((status == _OK) & (slot == s) & (counters >= 0))
+            if not rows.size:
+                continue
+            c = counters[rows]
+            previous = np.concatenate([[self._last_counter[s]], c[:-1]])
+            repeat = c == previous
+            # A repeat of a repeat compares with the kept frame's count, which is the same.
+            status[rows[repeat]] = _DUPLICATE
+            self._last_counter[s] = c[-1]
+
+    def _trigger_instants(self, t: NDArray[np.int64], at: NDArray[np.intp]
+                          ) -> tuple[NDArray[np.int64], NDArray[np.intp]]:
+        """Sample instants (the trigger frames' times) and, per sample, the last row counted."""
+        return t[at].astype(np.int64), at
+
+    def _grid_instants(self, t: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.intp]]:
+        """The grid instants this block makes final (earlier than its latest frame), and per
+        instant the last row received up to it."""
+        if self._t0 is None or not len(t):
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.intp)
+        latest = int(np.max(t))
+        first = self._k + 1
+        last = math.ceil((latest - self._t0 - self._phase_ns) / self._period_ns) - 1
+        if last < first:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.intp)
+        k = np.arange(first, last + 1)
+        instants = (self._t0 + self._phase_ns + k * self._period_ns).astype(np.int64)
+        # Frames come in arrival order; a running maximum makes the times searchable.
+        upto = np.searchsorted(np.maximum.accumulate(t), instants, side="right") - 1
+        return instants, upto.astype(np.intp)
+
+    def _indices(self, instants: NDArray[np.int64]) -> tuple[NDArray[np.int64],
+                                                             NDArray[np.int64]]:
+        """Sample indices and gaps of the new samples; the state moves to the last."""
+        n = len(instants)
+        if n == 0:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        if self.kind == "grid":
+            ks = np.arange(self._k + 1, self._k + 1 + n, dtype=np.int64)
+            gaps = np.zeros(n, dtype=np.int64)
+        else:
+            previous = np.concatenate([[self._t_last], instants[:-1]])
+            steps = np.maximum(np.rint((instants - previous) / self._dt_ns), 1).astype(np.int64)
+            if self._k < 0:
+                steps[0] = 1  # the first trigger is sample 0
+            ks = self._k + np.cumsum(steps)
+            gaps = steps - 1
+            self._missing += int(gaps.sum())
+        self._k = int(ks[-1])
+        self._t_last = int(instants[-1])
+        return ks, gaps
+
+    def _values_at(self, ok: NDArray[np.intp], slot: NDArray[np.int16],
+                   values: NDArray[np.float64], t: NDArray[np.int64],
+                   instants: NDArray[np.int64], upto: NDArray[np.intp]) -> NDArray[np.float64]:
+        """(S, p + q): per sample the newest value of each signal received by row ``upto``,
+        NaN when older than max_age at the instant; the state keeps the newest of the block."""
+        width = len(self._value)
+        out = np.full((len(instants), width), np.nan)
+        for s, dests in enumerate(self.bus_map._dests):
+            rows = ok[slot[ok] == s]
+            for col, dest in enumerate(dests):
+                # Updates of this signal: the kept one (before the block) and the block's.
+                times = np.concatenate([[self._time[dest]], t[rows]])
+                vals = np.concatenate([[self._value[dest]], values[rows, col]])
+                if len(instants):
+                    newest = np.searchsorted(rows, upto, side="right")  # 0: the kept one
+                    fresh = instants - times[newest] <= self._max_age_ns
+                    out[:, dest] = np.where(fresh, vals[newest], np.nan)
+                self._time[dest], self._value[dest] = times[-1], vals[-1]
+        return out
+
+
+def make_clock(bus_map: BusMap, dt: float, clock: ClockConfig
+               ) -> SampleAssembler | LatestValueClock:
+    """The sample clock the config names for one drive."""
+    if clock.kind == "counter":
+        return SampleAssembler(bus_map, dt)
+    if clock.kind in ("trigger", "grid"):
+        return LatestValueClock(bus_map, dt, clock.kind, period=clock.period, phase=clock.phase,
+                                max_age=clock.max_age)
+    raise ConfigError("bus.clock.kind", f"unknown clock {clock.kind!r} (known: "
+                                        f"{', '.join(CLOCKS)})")

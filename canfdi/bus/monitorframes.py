@@ -1,0 +1,124 @@
+"""The monitor's own frames: FDI_FAULT, FDI_ESTIMATE, FDI_STATUS (and FDI_RESIDUAL).
+
+Their layout comes from a DBC (``bus.monitor.dbc``, default the shipped canfdi_monitor.dbc),
+their IDs from the config (``bus.monitor.base`` or ``ids``; default the DBC's), their E2E
+profile from ``bus.monitor.e2e`` (default canfdi). An ID that collides with a message of the
+drives' DBC (after the node-id template), or on a CANopen bus (``bus.canopen: true``) with one
+of CANopen's predefined function codes, is refused, naming the IDs: a monitor that transmits
+there would disturb the whole bus.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+
+import numpy as np
+
+from canfdi.bus.codec import MessageLayout, compile_layout
+from canfdi.bus.dbc import Known, MessageKey, find_message, load_dbc, message_key
+from canfdi.bus.e2e import E2EProfile, make_profile
+from canfdi.core.settings import ConfigError, MonitorConfig
+
+__all__ = ["CANOPEN_FUNCTION_CODES", "MONITOR_MESSAGES", "MonitorFrames"]
+
+MONITOR_MESSAGES = ("FDI_FAULT", "FDI_ESTIMATE", "FDI_STATUS", "FDI_RESIDUAL")
+"""The monitor's messages, in the order ``bus.monitor.base`` numbers them."""
+
+# CiA 301's predefined connection set (11-bit IDs): what each range is for.
+CANOPEN_FUNCTION_CODES = (
+    (0x000, 0x000, "NMT"), (0x080, 0x080, "SYNC"), (0x081, 0x0FF, "EMCY"),
+    (0x100, 0x100, "TIME"), (0x181, 0x1FF, "TPDO1"), (0x201, 0x27F, "RPDO1"),
+    (0x281, 0x2FF, "TPDO2"), (0x301, 0x37F, "RPDO2"), (0x381, 0x3FF, "TPDO3"),
+    (0x401, 0x47F, "RPDO3"), (0x481, 0x4FF, "TPDO4"), (0x501, 0x57F, "RPDO4"),
+    (0x581, 0x5FF, "SDO (tx)"), (0x601, 0x67F, "SDO (rx)"), (0x701, 0x77F, "NMT heartbeat"),
+    (0x7E4, 0x7E5, "LSS"),
+)
+
+
+def _canopen_use(frame_id: int) -> str | None:
+    for lo, hi, what in CANOPEN_FUNCTION_CODES:
+        if lo <= frame_id <= hi:
+            return what
+    return None
+
+
+class MonitorFrames:
+    """The monitor's frames on this bus: encode them with their IDs and E2E.
+
+    Attributes
+    ----------
+    layouts : message name -> compiled layout (the monitor DBC's).
+    keys : message name -> (ID, extended) on this bus.
+    transmit : False for a listen-only monitor (`encode` gives nothing).
+    """
+
+    def __init__(self, layouts: Mapping[str, MessageLayout], keys: Mapping[str, MessageKey],
+                 profiles: Mapping[str, E2EProfile], transmit: bool = True) -> None:
+        self.layouts = dict(layouts)
+        self.keys = dict(keys)
+        self._profiles = dict(profiles)
+        self.transmit = transmit
+        self._counters = dict.fromkeys(self.layouts, 0)
+
+    @classmethod
+    def from_config(cls, config: MonitorConfig, bus_keys: Iterable[MessageKey]
+                    ) -> MonitorFrames:
+        """The monitor frames of ``config.bus.monitor``, checked against the IDs the drives'
+        messages have on this bus (``bus_keys``)."""
+        mon = config.bus.monitor
+        database, label = load_dbc(mon.dbc, config.path, "bus.monitor.dbc")
+        for name in mon.ids:
+            if name not in MONITOR_MESSAGES:
+                from canfdi.core.settings import unknown_name
+
+                raise unknown_name(f"bus.monitor.ids.{name}", "monitor message", name,
+                                   MONITOR_MESSAGES)
+        layouts, keys, profiles = {}, {}, {}
+        for i, name in enumerate(MONITOR_MESSAGES):
+            message = find_message(database, name, "bus.monitor.dbc", label)
+            fid = (mon.ids.get(name) if name in mon.ids
+                   else mon.base + i if mon.base is not None else message.frame_id)
+            key = message_key(fid, message.is_extended_frame or fid > 0x7FF)
+            layouts[name] = compile_layout(message)
+            keys[name] = key
+            places = {s.name: (s.start, s.length, s.byte_order) for s in message.signals}
+            profiles[name] = make_profile(mon.e2e, key[0], key[1], message.length, places,
+                                          "bus.monitor.e2e")
+        _check_collisions(keys, set(bus_keys), config.bus.canopen)
+        return cls(layouts, keys, profiles, config.bus.transmit)
+
+    def known(self) -> dict[MessageKey, Known]:
+        """The monitor's messages as a drive's BusMap knows them (status "monitor", checked
+        for length and E2E)."""
+        return {self.keys[name]: Known("monitor", layout.dlc, False, self._profiles[name])
+                for name, layout in self.layouts.items()}
+
+    def encode(self, name: str, values: Mapping[str, float]) -> tuple[MessageKey, bytes] | None:
+        """The frame of one monitor message with those signal values (E2E applied), or None
+        when listen-only."""
+        if not self.transmit:
+            return None
+        layout = self.layouts[name]
+        payload, _ = layout.encode({k: np.array([v]) for k, v in values.items()}, 1)
+        counter = self._counters[name]
+        self._counters[name] = counter + 1
+        protected = self._profiles[name].protect_batch(payload, np.array([counter]))
+        return self.keys[name], protected[0].tobytes()
+
+
+def _check_collisions(keys: Mapping[str, MessageKey], bus_keys: set[MessageKey],
+                      canopen: bool) -> None:
+    clashes = [f"{name} 0x{key[0]:X}" for name, key in keys.items() if key in bus_keys]
+    if clashes:
+        raise ConfigError("bus.monitor", f"the monitor's frames would use IDs of the drives' "
+                                         f"messages: {', '.join(clashes)}; choose others "
+                                         "(bus.monitor.base or bus.monitor.ids)")
+    if len(set(keys.values())) != len(keys):
+        raise ConfigError("bus.monitor.ids", "two monitor messages share an ID")
+    if canopen:
+        used = [f"{name} 0x{key[0]:X} ({_canopen_use(key[0])})" for name, key in keys.items()
+                if not key[1] and _canopen_use(key[0])]
+        if used:
+            raise ConfigError("bus.monitor", f"on a CANopen bus these IDs are CANopen's: "
+                                             f"{', '.join(used)}; choose IDs outside its "
+                                             "predefined connection set (e.g. 0x6E0)")
