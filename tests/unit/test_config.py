@@ -1,6 +1,7 @@
 import textwrap
 
 import pytest
+import yaml
 
 from canfdi.config import ConfigError, load_config, parse_config
 from tests.conftest import REPO
@@ -60,3 +61,71 @@ def test_missing_file_and_bad_yaml(tmp_path):
     bad.write_text(textwrap.dedent("model: [1, 2\n"))
     with pytest.raises(ConfigError, match="invalid YAML at line"):
         load_config(bad)
+
+
+# -- the bus section for real drives (docs/bus.md) ----------------------------------------------
+
+
+CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
+
+
+def _with_bus(tmp_path, bus: dict, drives=None):
+    data = yaml.safe_load(CONFIG.read_text())
+    data["bus"] = {**data["bus"], **bus}
+    if drives is not None:
+        data["drives"] = drives
+    return parse_config(data, CONFIG)
+
+
+def test_the_bus_section_parses_map_e2e_clock_node_monitor_and_drives(tmp_path):
+    config = _with_bus(tmp_path, {
+        "map": {"V": "DRIVE_CMD.V", "i_f": {"message": 0x105, "signal": "i_f"}},
+        "e2e": {"default": "none", "messages": {"DRIVE_CMD": "canfdi"}},
+        "clock": {"kind": "trigger", "message": "SYNC", "max_age": 0.02},
+        "node": {"id": "(id & ~0x7F) | node"},
+        "monitor": {"base": 0x6E0, "e2e": "none"},
+        "transmit": False, "canopen": True,
+    }, drives=[{"name": "left", "node": 1}, {"name": "right", "node": 2}])
+    bus = config.bus
+    assert str(bus.map["V"]) == "DRIVE_CMD.V" and str(bus.map["i_f"]) == "0x105.i_f"
+    assert bus.e2e.default == "none" and bus.e2e.messages == {"DRIVE_CMD": "canfdi"}
+    assert (bus.clock.kind, bus.clock.message, bus.clock.max_age) == ("trigger", "SYNC", 0.02)
+    assert bus.node_id == "(id & ~0x7F) | node" and bus.monitor.base == 0x6E0
+    assert (bus.transmit, bus.canopen) == (False, True)
+    assert [(d.name, d.node) for d in config.drive_list] == [("left", 1), ("right", 2)]
+
+
+def test_without_drives_the_config_is_one_drive_named_after_it(tmp_path):
+    config = _with_bus(tmp_path, {})
+    assert [(d.name, d.node) for d in config.drive_list] == [("dc_motor", None)]
+
+
+@pytest.mark.parametrize(("bus", "drives", "field", "match"), [
+    ({"map": {"Vv": "DRIVE_CMD.V"}}, None, "bus.map.Vv", "did you mean V"),
+    ({"map": {"V": "V"}}, None, "bus.map.V", "MESSAGE.SIGNAL"),
+    ({"e2e": {"default": "crc8"}}, None, "bus.e2e.default", "unknown E2E profile"),
+    ({"e2e": {"messages": {"DRIVE_CMD": {"profil": "none"}}}}, None,
+     "bus.e2e.messages.DRIVE_CMD.profile", "unknown E2E profile"),
+    ({"clock": {"kind": "sync"}}, None, "bus.clock.kind", "unknown value 'sync'"),
+    ({"clock": {"kind": "trigger"}}, None, "bus.clock.message", "needs the message"),
+    ({"clock": {"kind": "grid", "message": "SYNC"}}, None, "bus.clock.message",
+     "only a trigger clock"),
+    ({"node": {"id": "__import__('os')"}}, None, "bus.node.id", "not a node-id template"),
+    ({"node": {"id": "id + "}}, None, "bus.node.id", "not a node-id template"),
+    ({"monitor": {"base": 0x80, "ids": {"FDI_FAULT": 0x90}}}, None, "bus.monitor.ids",
+     "not both"),
+    ({"transmit": "no"}, None, "bus.transmit", "true or false"),
+    ({"clok": {}}, None, "bus.clok", "did you mean clock"),
+    ({}, [{"name": "a", "node": 1}, {"name": "b", "node": 2}], "bus.node.id",
+     "node-id template"),
+    ({"node": {"id": "id + node"}}, [{"name": "a", "node": 1}, {"name": "a", "node": 2}],
+     "drives[1].name", "named twice"),
+    ({"node": {"id": "id + node"}}, [{"name": "a"}, {"name": "b", "node": 2}],
+     "drives[0].node", "need a node"),
+    ({"node": {"id": "id + node"}}, [{"name": f"d{i}", "node": i} for i in range(9)], "drives",
+     "at most 8"),
+])
+def test_a_bad_bus_entry_names_its_field(tmp_path, bus, drives, field, match):
+    with pytest.raises(ConfigError, match=match) as info:
+        _with_bus(tmp_path, bus, drives)
+    assert info.value.field == field
