@@ -394,6 +394,20 @@ def summary_json(events: list[FaultEvent], frame_stats: dict, dt: float,
             "samples_missing": frame_stats["samples_missing"],
         },
     }
+    if samples == 0:
+        out["no_samples"] = no_samples_reason(out["frames"])
     if truth is not None:
         out["truth"] = truth
     return out
+
+
+def no_samples_reason(frames: dict) -> str:
+    """Why a run assembled no sample, from its frame counters (the keys of summary "frames")."""
+    if frames["received"] == 0:
+        return "0 samples: the log holds no CAN frame"
+    rejected = ", ".join(f"{n} {reason}" for reason, n in frames["invalid_by_reason"].items() if n)
+    if frames["valid"] == 0:
+        return (f"0 samples: no frame matched the config's bus map ({frames['received']} frames: "
+                f"{rejected}); check bus.map, the node ids of drives: and bus.e2e")
+    return (f"0 samples: {frames['valid']} frames matched the map but no control period was "
+            f"complete ({rejected or 'none rejected'}); check the sample clock (bus.clock)")

@@ -135,3 +135,5 @@ def print_comparison(result: dict, truth: list[dict] | None) -> None:
           f"{ {k: v for k, v in fr['invalid_by_reason'].items() if v} or ''}; "
           f"samples: {result['samples']} "
           f"({fr['samples_broken']} broken, {fr['samples_missing']} missing)")
+    if "no_samples" in result:
+        print(result["no_samples"])

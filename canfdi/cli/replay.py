@@ -17,7 +17,8 @@ frames are replayed with their timestamps, or any log python-can reads (candump 
 Replaying a live run's MCAP gives the live run's diagnoses. A truncated MCAP (a killed process)
 is read up to its last complete record.
 
-Exit status: 0 replayed; 1 the log could not be read (damaged); 2 bad config, no such log or
+Exit status: 0 replayed; 1 the log could not be read (damaged) or no frame of it made a
+sample (the summary says why: "0 samples: no frame matched ..."); 2 bad config, no such log or
 a suffix canfdi does not know.
 
 Prints each diagnosis and a summary table, or with --json one object: {"faults": [...],
@@ -83,4 +84,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(result, indent=2))
     else:
         print_comparison(result, truth)
+    if "no_samples" in result:
+        if args.json:  # the table printed it already
+            print(f"canfdi replay: {result['no_samples']}", file=sys.stderr)
+        return 1
     return 0

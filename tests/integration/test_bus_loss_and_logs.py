@@ -241,3 +241,21 @@ def test_a_socket_bus_gets_a_large_receive_buffer():
     if os.geteuid() == 0:  # privileged: past net.core.rmem_max
         assert after >= RECEIVE_BUFFER_BYTES
     assert after >= before
+
+
+def test_a_log_no_frame_of_which_matches_the_map_says_so_and_exits_1(tmp_path):
+    # Another bus's traffic (IDs the DBC does not define, a 29-bit frame): nothing to diagnose.
+    log = tmp_path / "other_bus.log"
+    with can.Logger(str(log)) as writer:
+        for i in range(50):
+            writer.on_message_received(can.Message(timestamp=1.0 + i / 100, arbitration_id=0x7E5,
+                                                   data=bytes(8), is_extended_id=False))
+        writer.on_message_received(can.Message(timestamp=2.0, arbitration_id=0x18FF0102,
+                                               data=bytes(8), is_extended_id=True))
+    res = run_cli("replay", log, "--config", CONFIG, "--no-progress")
+    assert res.returncode == 1, res.stderr
+    assert "0 samples: no frame matched the config's bus map (51 frames: 50 unknown_id, " \
+        "1 extended)" in res.stdout, res.stdout
+    res = run_cli("replay", log, "--config", CONFIG, "--json", "--no-progress")
+    assert res.returncode == 1 and "no frame matched" in res.stderr
+    assert json.loads(res.stdout)["no_samples"].startswith("0 samples: no frame matched")
