@@ -934,7 +934,9 @@ class AutosarP01(_Profile):
     ----------
     data_id : the Data ID, 0..0xFFFF (``low`` mode: 0..0xFF; ``nibble`` mode: 0..0xFFF).
     data_length : the protected data's length in bits, a multiple of 8 in 16..240.
-    data_id_mode : 'both' (default), 'alt', 'low' or 'nibble' (E2E_P01_DATAID_*).
+    data_id_mode : 'both' (default), 'alt', 'low' or 'nibble': E2E_P01_DATAID_BOTH, _ALT,
+        _LOW, _NIBBLE (in ARXML's DataIdModeEnum: ALL-16-BIT, ALTERNATING-8-BIT, LOWER-8-BIT,
+        LOWER-12-BIT).
     crc_offset : bit offset of the CRC byte, a multiple of 8 (default 0).
     counter_offset : bit offset of the 4-bit counter, a multiple of 4 (default 8).
     data_id_nibble_offset : bit offset of the explicit Data ID nibble in ``nibble`` mode, a
