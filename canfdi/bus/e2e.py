@@ -552,31 +552,86 @@ signal.byte_order)`` with DBC start-bit numbering and 'little_endian' or 'big_en
 class E2EProfile(Protocol):
     """What every E2E profile offers: a check and a counter, per frame and per block.
 
+    Attributes
+    ----------
     name : the profile's registry name (a key of `PROFILES`).
     counter_modulus : the alive counter's modulus (None: the profile has no counter).
+
+    The streaming forms (``check``, ``counter``) and the batch forms (``check_batch``,
+    ``counters``) give the same answers frame for frame. A profile is stateless: judging counter
+    steps across frames is the receiver's business.
+
+    Examples
+    --------
+    >>> profile = make_profile("canfdi", 0x104, False, 8, {}, "bus.e2e.messages.DRIVE_CMD")
+    >>> isinstance(profile, E2EProfile)
+    True
+    >>> frames = profile.protect_batch(np.zeros((3, 8), np.uint8), np.array([255, 256, 257]))
+    >>> profile.check_batch(frames, np.array([8, 8, 7])).tolist(), profile.counters(frames)
+    ([True, True, False], array([255,   0,   1]))
     """
 
     name: str
     counter_modulus: int | None
 
     def check(self, payload: bytes) -> bool:
-        """Whether one received payload passes (streaming form of `check_batch`)."""
+        """Whether one received payload passes (streaming form of `check_batch`).
+
+        Parameters
+        ----------
+        payload : (len,) the frame's bytes as received, of any length.
+
+        Returns
+        -------
+        bool; False (never an exception) for a payload too short or too long for the profile.
+        """
         ...
 
     def check_batch(self, payloads: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-        """(N, L) uint8 payloads (zero or garbage padded), (N,) actual lengths -> (N,) bool."""
+        """Whether each of a block of received payloads passes.
+
+        Parameters
+        ----------
+        payloads : (N, L) uint8, one frame per row, zero- or garbage-padded beyond its length.
+        lengths : (N,) ints in 0..L, each frame's actual length; bytes beyond it do not count.
+
+        Returns
+        -------
+        (N,) bool, row i equal to ``check(bytes(payloads[i, :lengths[i]]))``.
+        """
         ...
 
     def counters(self, payloads: np.ndarray) -> np.ndarray | None:
-        """(N, L) payloads -> (N,) int64 alive counters; None for a profile without one."""
+        """The alive counter of each of a block of payloads.
+
+        Parameters
+        ----------
+        payloads : (N, L) uint8; a row too short to hold the counter reads as zero-padded.
+
+        Returns
+        -------
+        (N,) int64, or None for a profile without a counter. Meaningful where the check passes.
+        """
         ...
 
     def counter(self, payload: bytes) -> int | None:
-        """The alive counter of one payload (streaming form of `counters`)."""
+        """The alive counter of one payload (streaming form of `counters`), or None."""
         ...
 
     def protect_batch(self, payloads: np.ndarray, counters: np.ndarray) -> np.ndarray:
-        """Sender side: (N, L) payloads with CRC and counter written, a new array."""
+        """Sender side: write the counter and the CRC into a block of payloads of one message.
+
+        Parameters
+        ----------
+        payloads : (N, L) uint8 (L at least what the profile covers); the argument is not
+            modified.
+        counters : (N,) non-negative ints (or one for all), reduced modulo `counter_modulus`
+            (sample indices may be passed as they are).
+
+        Returns
+        -------
+        (N, L) uint8, a new array whose rows pass `check_batch`.
+        """
         ...
 
 
@@ -689,7 +744,9 @@ def _options_of(where: str) -> Iterator[None]:
 
 
 def _no_options(options: Mapping[str, Any], name: str, where: str) -> None:
-    for key in options if isinstance(options, Mapping) else ():
+    """A ConfigError naming the first option given to a profile that takes none."""
+    if options:
+        key = next(iter(options))
         raise ConfigError(f"{where}.{key}", f"unknown key (profile {name} takes no options)")
 
 
