@@ -327,18 +327,19 @@ def test_scenario_values_stay_inside_the_signal_ranges(scenario_path: Path) -> N
     scenario = load_scenario(scenario_path)
     plant = scenario.make_plant()
     signals = _drive_signals(_database_of(plant))
-    run = simulate(scenario)
-    series = {
-        **{name: run.u_c[:, j] for j, name in enumerate(plant.input_names)},
-        **{name: run.z[:, j] for j, name in enumerate(plant.output_names)},
-        **{name: run.ref[:, j] for j, name in enumerate(plant.reference_names)},
-    }
-    for name, values in series.items():
-        lo, hi = _physical_limits(signals[name])
-        assert np.all(np.isfinite(values)), name
-        assert lo <= values.min() and values.max() <= hi, (
-            f"{scenario_path.name}: {name} spans {values.min():.4g} .. {values.max():.4g}, "
-            f"outside the DBC range {lo} .. {hi}")
+    for i in range(len(scenario.drives)):
+        run = simulate(scenario.drive_scenario(i))
+        series = {
+            **{name: run.u_c[:, j] for j, name in enumerate(plant.input_names)},
+            **{name: run.z[:, j] for j, name in enumerate(plant.output_names)},
+            **{name: run.ref[:, j] for j, name in enumerate(plant.reference_names)},
+        }
+        for name, values in series.items():
+            lo, hi = _physical_limits(signals[name])
+            assert np.all(np.isfinite(values)), name
+            assert lo <= values.min() and values.max() <= hi, (
+                f"{scenario_path.name}: {name} spans {values.min():.4g} .. "
+                f"{values.max():.4g}, outside the DBC range {lo} .. {hi}")
 
 
 # --- the other bus profiles' DBCs (vendor style: no E2E header, no monitor block) -------------

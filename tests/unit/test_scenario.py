@@ -174,6 +174,10 @@ def test_issue_example_with_two_drives():
     assert (right.name, right.node, right.seed_offset, right.faults) == ("right", 2, 1, ())
     assert sc.drive_scenario(1).seed == 2 and sc.drive_scenario(1).faults == ()
     assert sc.drive_scenario(0).faults == left.faults
+    from firmware_sim.simulate import Simulator
+
+    with pytest.raises(ValueError, match=r"drive_scenario"):
+        Simulator(sc)
 
 
 def test_shipped_profile_scenarios():
