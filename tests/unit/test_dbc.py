@@ -412,6 +412,12 @@ def _configs_of_profile_dbcs() -> list[Path]:
 
 def _mapped_signals(config: Path) -> tuple[dict, dict[str, Signal]]:
     """(document, model name -> the DBC signal its bus.map names) of a monitor config."""
+    doc, mapped = _mapped(config)
+    return doc, {name: sig for name, (_, sig) in mapped.items()}
+
+
+def _mapped(config: Path) -> tuple[dict, dict[str, tuple[Message, Signal]]]:
+    """(document, model name -> the DBC message and signal its bus.map names)."""
     import yaml
 
     doc = yaml.safe_load(config.read_text())
@@ -424,7 +430,7 @@ def _mapped_signals(config: Path) -> tuple[dict, dict[str, Signal]]:
         else:
             message = database.get_message_by_frame_id(where["message"])
             signal_name = where["signal"]
-        signals[name] = message.get_signal_by_name(signal_name)
+        signals[name] = (message, message.get_signal_by_name(signal_name))
     return doc, signals
 
 
@@ -497,3 +503,64 @@ def test_pyproject_ships_dbc_and_lists_every_package() -> None:
     # The list is explicit (find cannot rename dbc/ to canfdi.dbc), so a new subpackage must be
     # added by hand or it silently drops out of the wheel.
     assert found | {"canfdi.dbc"} <= listed, sorted(found - listed)
+
+
+# The shipped scenario each profile config is written for.
+CONFIG_SCENARIOS = {"dc_motor_cia402": "dc_motor_consecutive_cia402",
+                    "dc_motor_float": "dc_motor_consecutive_float",
+                    "dc_motor_two_drives_cia402": "dc_motor_two_drives_cia402"}
+# CANopen's predefined connection set: NMT, SYNC + EMCY, TIME, PDOs, SDOs, heartbeat, LSS.
+CANOPEN_IDS = {0x000, *range(0x080, 0x100), 0x100, *range(0x181, 0x580), *range(0x581, 0x680),
+               *range(0x701, 0x780), 0x7E4, 0x7E5}
+
+
+def _frame_id(template: str | None, dbc_id: int, node: int | None) -> int:
+    if template is None or node is None:
+        return dbc_id
+    return int(eval(template, {"__builtins__": {}}, {"id": dbc_id, "node": node}))
+
+
+@pytest.mark.parametrize("config", _configs_of_profile_dbcs(), ids=_stem)
+def test_monitor_config_reads_the_emulated_bus(config: Path) -> None:
+    """The config, as docs/bus.md reads it, finds on the emulator's bus: every drive's IDs (the
+    DBC's after bus.node.id), the clock's message, each model signal in the mapped message
+    carrying that drive's values; its own frames at IDs no drive uses (nor, on CANopen, a
+    predefined function code)."""
+    from firmware_sim.emitter import frame_log
+    from firmware_sim.scenario import load_scenario
+
+    doc, mapped = _mapped(config)
+    bus = doc["bus"]
+    database = cantools.database.load_file(DBC_DIR / f"{bus['dbc']}.dbc", strict=True)
+    template = (bus.get("node") or {}).get("id")
+    drives = doc.get("drives") or [{"name": doc["name"], "node": None}]
+    log = frame_log(load_scenario(CONFIG_SCENARIOS[config.stem]), duration=2.0)
+    if drives[0]["node"] is not None:
+        assert [d["node"] for d in drives] == [d.node for d in log.drives]
+    on_bus = set(log.frames.id.tolist())
+    expected = {_frame_id(template, m.frame_id, d["node"]) for m in database.messages
+                for d in drives}
+    assert expected == on_bus
+    clock = bus["clock"]
+    if clock["kind"] == "trigger":
+        database.get_message_by_name(clock["message"])
+    model = doc["signals"]
+    remote = (log.frames.flags & 2) != 0
+    for drive, run in zip(drives, log.drives, strict=True):
+        for name, (message, sig) in mapped.items():
+            fid = _frame_id(template, message.frame_id, drive["node"])
+            rows = np.flatnonzero((log.frames.id == fid) & ~remote)
+            payloads = log.frames.payloads()
+            values = np.array([message.decode(payloads[r], decode_choices=False)[sig.name]
+                               for r in rows])
+            if name in model["inputs"]:
+                want = run.chunk.u_c[:, model["inputs"].index(name)]
+            else:
+                want = run.chunk.z[:, model["outputs"].index(name)]
+            np.testing.assert_allclose(values, want, rtol=1e-6, atol=sig.scale / 2 + 1e-9,
+                                       err_msg=f"{config.name}: {drive['name']}.{name}")
+    base = bus["monitor"]["base"]
+    monitor_ids = set(range(base, base + 4))
+    assert not monitor_ids & on_bus
+    if bus.get("canopen"):
+        assert not monitor_ids & CANOPEN_IDS
