@@ -1,14 +1,19 @@
-"""The drive firmware on a bus: a scenario's frames, published through python-can.
+"""The drives on a bus: a scenario's frames, published through python-can.
 
-Every control period k the drive sends each of its DBC messages once (sender DRIVE), carrying
-the command u_c(k), the measurements z(k) and the references, with the alive counter k mod 256
-and the E2E CRC (dbc/README.md). Frames are encoded a block of samples at a time with the
-precompiled layouts of canfdi.bus.codec; sending is paced in real time (``speed`` 1), faster
-(``speed`` N) or as fast as the bus takes them (``speed`` 0).
+The scenario's bus profile (firmware_sim/profiles: canfdi by default, cia402, float_node) says
+which frames each control period carries, when within the period, and what each holds: on
+canfdi's own bus, every DBC message of the drive once per period with the alive counter
+k mod 256 and the E2E CRC (dbc/README.md); on a CANopen bus, SYNC, the master's RPDOs, the
+drives' TPDOs and heartbeats; on a node-ID float bus, estimates, RTR polls and answers,
+setpoints. Several drives of one scenario (``drives:``) share the bus, their frames
+interleaved in time. Frames are encoded a block of samples at a time (numpy); sending is paced
+in real time (``speed`` 1), faster (``speed`` N) or as fast as the bus takes them
+(``speed`` 0).
 
-For tests, frames can be dropped, delayed (jitter), sent with a wrong CRC or a wrong DLC.
-`frame_log` gives the same frames without a bus, as arrays stamped with their ideal arrival
-times (offline tests and evaluations: no pacing, no event loop).
+For tests, frames can be dropped, delayed (jitter), sent with a wrong CRC (profiles with a
+CRC) or a wrong DLC (data frames). `frame_log` gives the same frames without a bus, as a
+FrameBlock stamped with their ideal arrival times (offline tests and evaluations: no pacing, no
+event loop).
 """
 
 from __future__ import annotations
@@ -23,19 +28,22 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
-from canfdi import dbc as dbc_files
-from canfdi.bus.codec import MessageLayout, compile_layout
-from canfdi.bus.e2e import protect_batch
-from canfdi.bus.frames import FrameBlock
-from firmware_sim.plants import Plant
+from canfdi.bus.frames import FLAG_REMOTE, FrameBlock
+from firmware_sim.profiles import BusProfile, Slot, get_profile
+from firmware_sim.profiles.canfdi import FrameEncoder
 from firmware_sim.scenario import Scenario
 from firmware_sim.simulate import SimChunk, Simulator
 
-__all__ = ["Disturbance", "EmitStats", "FrameEncoder", "FrameLog", "emit", "frame_log"]
+__all__ = ["Disturbance", "DriveLog", "EmitStats", "FrameEncoder", "FrameLog", "emit",
+           "frame_log"]
 
 log = logging.getLogger("firmware_sim.emitter")
 
-_E2E_SIGNALS = {"CRC", "Counter"}
+FRAME_SPACING = 130e-6
+"""Seconds between frames sent back to back (one 8-byte frame at 1 Mbit/s)."""
+_BURST = 0.5e-3
+"""A paced `emit` sends a frame due within this many seconds at once (asyncio sleeps are
+millisecond-coarse); the first frame of a period is always waited for."""
 
 
 @dataclass(frozen=True)
@@ -74,64 +82,45 @@ class EmitStats:
     reopens: int = 0
     clipped: dict[str, int] = field(default_factory=dict)
     elapsed: float = 0.0
+    profile: str = "canfdi"
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
-class FrameEncoder:
-    """Turns simulated samples into the drive's protected frames, a block at a time.
+class _Bus:
+    """A scenario's drives, simulated side by side, and its profile's encoder."""
 
-    The DBC is the contract: every signal of a DRIVE message other than CRC and Counter must be
-    one of the plant's input, output or reference names.
-    """
+    def __init__(self, scenario: Scenario, frame_spacing: float,
+                 disturbance: Disturbance) -> None:
+        self.profile: BusProfile = get_profile(scenario.profile)
+        self.sims = [Simulator(scenario.drive_scenario(i)) for i in range(len(scenario.drives))]
+        self.plant = self.sims[0].plant
+        self.encoder = self.profile.encoder(self.plant, [d.node for d in scenario.drives],
+                                            frame_spacing)
+        self.slots: tuple[Slot, ...] = self.encoder.slots
+        if disturbance.bad_crc and not any(slot.crc for slot in self.slots):
+            raise ValueError(f"bad_crc: the {self.profile.name} profile's frames carry no CRC")
+        self.every = np.array([slot.every for slot in self.slots])
+        self.phase = np.array([slot.phase for slot in self.slots])
 
-    def __init__(self, plant: Plant, database=None) -> None:
-        database = database or dbc_files.load(plant.dbc)
-        sources = {}
-        for j, name in enumerate(plant.input_names):
-            sources[name] = ("u_c", j)
-        for j, name in enumerate(plant.output_names):
-            sources[name] = ("z", j)
-        for j, name in enumerate(plant.reference_names):
-            sources[name] = ("ref", j)
-        self.layouts: list[MessageLayout] = []
-        self._sources: list[list[tuple[str, str, int]]] = []
-        for message in sorted(database.messages, key=lambda m: m.frame_id):
-            if "DRIVE" not in (message.senders or []):
-                continue
-            layout = compile_layout(message)
-            mapping = []
-            for sig in layout.signals:
-                if sig.name in _E2E_SIGNALS:
-                    continue
-                if sig.name not in sources:
-                    raise ValueError(f"{plant.dbc}: {message.name}.{sig.name} is not an input, "
-                                     f"output or reference of {plant.name}")
-                mapping.append((sig.name, *sources[sig.name]))
-            self.layouts.append(layout)
-            self._sources.append(mapping)
-        if not self.layouts:
-            raise ValueError(f"{plant.dbc}: no message is sent by DRIVE")
+    @property
+    def k(self) -> int:
+        return self.sims[0].k
 
-    def encode(self, chunk: SimChunk) -> tuple[list[np.ndarray], dict[str, int]]:
-        """Protected payloads of every drive message for every sample of the chunk.
+    @property
+    def total_samples(self) -> int:
+        return self.sims[0].total_samples
 
-        Returns
-        -------
-        payloads : one (N, dlc) uint8 array per message, in ``self.layouts`` order.
-        clipped : signal name -> number of values clipped to the DBC range.
-        """
-        n = len(chunk)
-        counters = chunk.k.astype(np.int64) & 0xFF
-        out, clipped = [], {}
-        for layout, mapping in zip(self.layouts, self._sources, strict=True):
-            values = {name: getattr(chunk, src)[:, j] for name, src, j in mapping}
-            payload, clip = layout.encode(values, n)
-            for name, count in clip.items():
-                clipped[name] = clipped.get(name, 0) + count
-            out.append(protect_batch(layout.frame_id, payload, counters))
-        return out, clipped
+    def advance(self, count: int) -> tuple[list[SimChunk], np.ndarray, dict[str, int]]:
+        """Every drive's next ``count`` samples and the (count, slots, 8) payloads."""
+        chunks = [sim.advance(count) for sim in self.sims]
+        data, clipped = self.encoder.encode(chunks)
+        return chunks, data, clipped
+
+    def scheduled(self, k: np.ndarray) -> np.ndarray:
+        """(N, slots) bool: which slot is sent in which period."""
+        return (np.asarray(k)[:, None] % self.every) == self.phase
 
 
 class _Link:
@@ -179,8 +168,9 @@ async def emit(
     on_block: Callable[[SimChunk, EmitStats], None] | None = None,
     stop: asyncio.Event | None = None,
     reopen: Callable[[], can.BusABC] | None = None,
+    frame_spacing: float = FRAME_SPACING,
 ) -> EmitStats:
-    """Publish a scenario's frames on ``bus``.
+    """Publish a scenario's frames (its bus profile's, every drive's) on ``bus``.
 
     Parameters
     ----------
@@ -188,56 +178,78 @@ async def emit(
     duration : seconds to run (default: the scenario's duration).
     disturbance : drops, jitter and corruption to inject (none by default).
     block : samples simulated and encoded per step.
-    on_block : called after each block is sent (progress reporting).
+    on_block : called after each block is sent (progress reporting), with the first drive's
+        chunk.
     stop : set it to end the run early (orderly: the current sample is completed).
     reopen : opens the bus again when sending keeps failing (an interface deleted and re-added);
         buses it opens are shut down at the end, ``bus`` stays the caller's.
+    frame_spacing : the profile lays out a period's frames this many seconds apart; a paced
+        run sends each frame at its offset (frames due within 0.5 ms of each other leave back
+        to back).
+
+    Raises
+    ------
+    ValueError : a ``bad_crc`` disturbance on a profile without CRC.
     """
     if speed < 0:
         raise ValueError(f"speed: must be >= 0, got {speed}")
     disturbance = disturbance or Disturbance()
     rng = np.random.default_rng(disturbance.seed)
-    sim = Simulator(scenario)
-    encoder = FrameEncoder(sim.plant)
-    dt = sim.plant.dt
-    total = sim.total_samples if duration is None else round(duration / dt)
-    stats = EmitStats()
+    run = _Bus(scenario, frame_spacing, disturbance)
+    slots = run.slots
+    dt = run.plant.dt
+    total = run.total_samples if duration is None else round(duration / dt)
+    stats = EmitStats(profile=run.profile.name)
     loop = asyncio.get_running_loop()
     t0 = loop.time()
     wall0 = time.perf_counter()
     link = _Link(bus, reopen)
     try:
-        while sim.k < total and not (stop is not None and stop.is_set()):
-            chunk = sim.advance(min(block, total - sim.k))
-            payloads, clipped = encoder.encode(chunk)
+        while run.k < total and not (stop is not None and stop.is_set()):
+            chunks, data, clipped = run.advance(min(block, total - run.k))
+            chunk = chunks[0]
             for name, count in clipped.items():
                 if name not in stats.clipped:
                     log.warning("signal %s clipped to its DBC range", name)
                 stats.clipped[name] = stats.clipped.get(name, 0) + count
+            scheduled = run.scheduled(chunk.k)
             for i, k in enumerate(chunk.k):
+                start = 0.0
                 if speed > 0:
-                    delay = t0 + k * dt / speed - loop.time()
+                    start = t0 + k * dt / speed
                     if disturbance.jitter:
-                        delay += rng.uniform(0.0, disturbance.jitter)
-                    if delay > 0:
-                        await asyncio.sleep(delay)
+                        start += rng.uniform(0.0, disturbance.jitter)
                 elif i % 32 == 0:
                     await asyncio.sleep(0)  # let the rest of the loop (a monitor, say) run
-                for layout, payload in zip(encoder.layouts, payloads, strict=True):
-                    data = payload[i].tobytes()
-                    if disturbance.active:
-                        u = rng.random(3)
-                        if u[0] < disturbance.drop:
+                # One draw per slot, sent this period or not: the stream frame_log draws.
+                u = rng.random((len(slots), 3)) if disturbance.active else None
+                first = True
+                for j, slot in enumerate(slots):
+                    if not scheduled[i, j]:
+                        continue
+                    if speed > 0:
+                        delay = start + slot.offset / speed - loop.time()
+                        if delay > _BURST or (first and delay > 0):
+                            await asyncio.sleep(delay)
+                    first = False
+                    payload = data[i, j, : slot.dlc].tobytes()
+                    if u is not None:
+                        if u[j, 0] < disturbance.drop:
                             stats.frames_dropped += 1
                             continue
-                        if u[1] < disturbance.bad_crc:
-                            data = bytes([data[0] ^ 0xFF]) + data[1:]
+                        if slot.crc and u[j, 1] < disturbance.bad_crc:
+                            payload = bytes([payload[0] ^ 0xFF]) + payload[1:]
                             stats.frames_bad_crc += 1
-                        if u[2] < disturbance.wrong_dlc:
-                            data = data[:-1] if len(data) > 2 else data + b"\x00"
+                        if not slot.remote and u[j, 2] < disturbance.wrong_dlc:
+                            payload = payload[:-1] if len(payload) > 2 else payload + b"\x00"
                             stats.frames_wrong_dlc += 1
-                    msg = can.Message(arbitration_id=layout.frame_id, data=data,
-                                      is_extended_id=False, timestamp=time.time())
+                    if slot.remote:
+                        msg = can.Message(arbitration_id=slot.frame_id, is_remote_frame=True,
+                                          dlc=slot.dlc, is_extended_id=False,
+                                          timestamp=time.time())
+                    else:
+                        msg = can.Message(arbitration_id=slot.frame_id, data=payload,
+                                          is_extended_id=False, timestamp=time.time())
                     await link.send(msg, stats)
                     stats.frames_sent += 1
                 stats.samples += 1
@@ -250,59 +262,80 @@ async def emit(
 
 
 @dataclass(frozen=True)
-class FrameLog:
-    """A scenario's drive frames as arrays, in arrival order.
+class DriveLog:
+    """One drive of a FrameLog: its name and node, its injected faults, its simulated run."""
 
-    frames : the frames (canfdi.bus.frames.FrameBlock), sample k's from k dt on;
-    stats : what was injected; truth : the scenario's injected faults; chunk : the simulated
-    run.
+    name: str
+    node: int | None
+    truth: list[dict]
+    chunk: SimChunk
+
+
+@dataclass(frozen=True)
+class FrameLog:
+    """A scenario's bus frames as arrays, in arrival order.
+
+    frames : the frames (canfdi.bus.frames.FrameBlock; remote frames flagged FLAG_REMOTE,
+    with the requested DLC and zero data), sample k's from k dt on; stats : what was
+    injected; truth : the (first) drive's injected faults; chunk : its simulated run;
+    drives : every drive's (name, node, truth, chunk), in the scenario's order; profile : the
+    bus profile's name; slots : the profile's frames of one period (firmware_sim.profiles).
     """
 
     frames: FrameBlock
     stats: EmitStats
     truth: list[dict]
     chunk: SimChunk
+    drives: tuple[DriveLog, ...] = ()
+    profile: str = "canfdi"
+    slots: tuple[Slot, ...] = ()
 
 
 def frame_log(scenario: Scenario, disturbance: Disturbance | None = None,
-              duration: float | None = None, frame_spacing: float = 130e-6) -> FrameLog:
+              duration: float | None = None, frame_spacing: float = FRAME_SPACING) -> FrameLog:
     """The frames ``emit`` would send for a scenario, with its disturbance, without a bus.
 
-    Sample k's messages leave at k dt + i ``frame_spacing`` (i: the message's place, ID order;
+    Sample k's frames leave at k dt + their slot's offset (the profile's layout, frames
+    ``frame_spacing`` apart; canfdi: the i-th message in ID order at i ``frame_spacing``;
     130 us is one 8-byte frame at 1 Mbit/s); jitter delays each frame independently by
     U(0, jitter) seconds, so frames of a period can arrive reordered. Drops, bad CRCs and wrong
     DLCs are drawn per frame as in ``emit``.
     """
     disturbance = disturbance or Disturbance()
-    sim = Simulator(scenario)
-    total = sim.total_samples if duration is None else round(duration / sim.plant.dt)
-    chunk = sim.advance(total)
-    encoder = FrameEncoder(sim.plant)
-    payloads, clipped = encoder.encode(chunk)
-    n, m = len(chunk), len(payloads)
+    run = _Bus(scenario, frame_spacing, disturbance)
+    dt = run.plant.dt
+    total = run.total_samples if duration is None else round(duration / dt)
+    chunks, data, clipped = run.advance(total)
+    chunk = chunks[0]
+    slots = run.slots
+    n, m = len(chunk), len(slots)
     rng = np.random.default_rng(disturbance.seed)
-    base = np.round(chunk.k * sim.plant.dt * 1e9).astype(np.int64)
-    t = base[:, None] + np.round(np.arange(m) * frame_spacing * 1e9).astype(np.int64)
+    base = np.round(chunk.k * dt * 1e9).astype(np.int64)
+    offsets = np.round(np.array([slot.offset for slot in slots]) * 1e9).astype(np.int64)
+    t = base[:, None] + offsets
     if disturbance.jitter:
         t = t + np.round(rng.uniform(0.0, disturbance.jitter, (n, m)) * 1e9).astype(np.int64)
-    ids = np.broadcast_to([lay.frame_id for lay in encoder.layouts], (n, m))
-    dlc = np.broadcast_to([p.shape[1] for p in payloads], (n, m)).copy()
-    data = np.zeros((n, m, 8), dtype=np.uint8)
-    for i, p in enumerate(payloads):
-        data[:, i, : p.shape[1]] = p
-    stats = EmitStats(samples=n, clipped=clipped)
+    ids = np.broadcast_to([slot.frame_id for slot in slots], (n, m))
+    dlc = np.broadcast_to([slot.dlc for slot in slots], (n, m)).copy()
+    remote = np.array([slot.remote for slot in slots])
+    flags = np.broadcast_to(np.where(remote, FLAG_REMOTE, 0), (n, m))
+    has_crc = np.array([slot.crc for slot in slots])
+    scheduled = run.scheduled(chunk.k)
+    stats = EmitStats(samples=n, clipped=clipped, profile=run.profile.name)
     u = rng.random((n, m, 3))
-    keep = u[..., 0] >= disturbance.drop
-    bad_crc = keep & (u[..., 1] < disturbance.bad_crc)
+    keep = scheduled & (u[..., 0] >= disturbance.drop)
+    bad_crc = keep & has_crc & (u[..., 1] < disturbance.bad_crc)
     data[..., 0] ^= np.where(bad_crc, 0xFF, 0).astype(np.uint8)
-    wrong = keep & (u[..., 2] < disturbance.wrong_dlc)
+    wrong = keep & ~remote & (u[..., 2] < disturbance.wrong_dlc)
     dlc = np.where(wrong, np.where(dlc > 2, dlc - 1, dlc + 1), dlc)
-    stats.frames_dropped = int((~keep).sum())
+    stats.frames_dropped = int((scheduled & ~keep).sum())
     stats.frames_bad_crc = int(bad_crc.sum())
     stats.frames_wrong_dlc = int(wrong.sum())
     stats.frames_sent = int(keep.sum())
     order = np.argsort(t[keep], kind="stable")
-    n_kept = int(keep.sum())
     frames = FrameBlock(t[keep][order], ids[keep][order], dlc[keep][order],
-                        np.zeros(n_kept, dtype=np.uint8), data[keep][order])
-    return FrameLog(frames=frames, stats=stats, truth=sim.truth(), chunk=chunk)
+                        flags[keep][order], data[keep][order])
+    drives = tuple(DriveLog(name=d.name, node=d.node, truth=sim.truth(), chunk=c)
+                   for d, sim, c in zip(scenario.drives, run.sims, chunks, strict=True))
+    return FrameLog(frames=frames, stats=stats, truth=drives[0].truth, chunk=chunk,
+                    drives=drives, profile=run.profile.name, slots=slots)

@@ -12,10 +12,28 @@
 Optional: ``name``, ``description``. A fault's ``kind`` defaults to ``scale_bias`` for
 actuators and ``bias`` for sensors; ``end`` (seconds) repairs it. Every error names its field,
 e.g. ``faults[1].index``.
+
+The bus (optional): which bus profile the drive speaks (firmware_sim/profiles: canfdi by
+default, cia402, float_node) and its node ID (default: the profile's; canfdi has none):
+
+    bus: {profile: cia402, node: 1}
+
+Several drives of the same plant on one bus (optional): each with its name, node ID, faults
+and seed offset (default: its index; its run uses seed + seed_offset). With ``drives:`` the
+top-level ``faults`` and ``bus.node`` are not used (each drive says its own):
+
+    bus: {profile: cia402}
+    drives:
+      - {name: left, node: 1, faults: [{target: actuator, index: 0, onset: 10.0, eta: 2.0}]}
+      - {name: right, node: 2}
+
+A scenario without ``drives:`` is one drive, named after the scenario, with the top-level
+faults.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,8 +43,13 @@ import numpy as np
 from canfdi.config import read_yaml
 from firmware_sim.faults import ACTUATOR_KINDS, SENSOR_KINDS, Fault
 from firmware_sim.plants import PLANTS, Plant, make_plant
+from firmware_sim.profiles import DEFAULT_PROFILE, PROFILES, BusProfile, get_profile
 
-__all__ = ["SCENARIO_DIR", "Scenario", "ScenarioError", "load_scenario", "parse_scenario"]
+__all__ = ["MAX_DRIVES", "SCENARIO_DIR", "Drive", "Scenario", "ScenarioError", "load_scenario",
+           "parse_scenario"]
+
+MAX_DRIVES = 8
+"""Drives on one bus at most (as many as one monitor diagnoses)."""
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 
@@ -51,10 +74,27 @@ class ScenarioError(ValueError):
 
 
 @dataclass(frozen=True)
+class Drive:
+    """One drive on the scenario's bus.
+
+    name : unique in the scenario; node : its node ID (None: the profile has none);
+    faults : its fault schedule; seed_offset : its run uses the scenario's seed plus this.
+    """
+
+    name: str
+    node: int | None
+    faults: tuple[Fault, ...] = ()
+    seed_offset: int = 0
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A validated scenario.
 
-    measurement_std : (q,); process_std : (n,); faults in the order given.
+    measurement_std : (q,); process_std : (n,); faults in the order given (the one drive's;
+    empty with several drives: each has its own, in ``drives``). profile : the bus profile's
+    name; drives : the drives on the bus (one, named after the scenario, when the YAML has no
+    ``drives:``).
     """
 
     name: str
@@ -66,9 +106,23 @@ class Scenario:
     process_std: np.ndarray
     faults: tuple[Fault, ...]
     path: Path | None = None
+    profile: str = DEFAULT_PROFILE
+    drives: tuple[Drive, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not self.drives:
+            node = get_profile(self.profile).default_node
+            object.__setattr__(self, "drives", (Drive(self.name, node, self.faults),))
 
     def make_plant(self) -> Plant:
         return make_plant(self.plant)
+
+    def drive_scenario(self, index: int) -> Scenario:
+        """Drive ``index`` alone: its faults, run with the seed plus its seed offset (the
+        scenario itself, for a scenario of one drive with offset 0)."""
+        drive = self.drives[index]
+        return dataclasses.replace(self, seed=self.seed + drive.seed_offset,
+                                   faults=drive.faults, drives=(drive,))
 
 
 def _number(value: Any, field: str, minimum: float | None = None, strict: bool = False) -> float:
@@ -138,7 +192,8 @@ def parse_scenario(data: Any, path: Path | None = None) -> Scenario:
     """Validate a loaded YAML document and build a Scenario."""
     if not isinstance(data, dict):
         raise ScenarioError("(top level)", "expected a mapping")
-    allowed = {"name", "description", "plant", "duration", "seed", "noise", "faults"}
+    allowed = {"name", "description", "plant", "duration", "seed", "noise", "faults", "bus",
+               "drives"}
     for key in data:
         if key not in allowed:
             raise ScenarioError(str(key), f"unknown key (allowed: {', '.join(sorted(allowed))})")
@@ -170,8 +225,104 @@ def parse_scenario(data: Any, path: Path | None = None) -> Scenario:
     if not isinstance(name, str) or not isinstance(description, str):
         raise ScenarioError("name" if not isinstance(name, str) else "description",
                             "expected a string")
+    profile, node = _bus(data.get("bus"), plant_name)
+    if data.get("drives") is None:
+        if node is None:
+            node = profile.default_node
+        drives = (Drive(name=name, node=node, faults=faults),)
+    else:
+        if faults:
+            raise ScenarioError("faults", "not used with drives: (each drive lists its own "
+                                          "faults, drives[i].faults)")
+        if node is not None:
+            raise ScenarioError("bus.node", "not used with drives: (each drive names its "
+                                            "node, drives[i].node)")
+        drives = _drives(data["drives"], profile, plant, duration)
+        faults = ()
     return Scenario(name=name, description=description, plant=plant_name, duration=duration,
-                    seed=seed, measurement_std=meas, process_std=proc, faults=faults, path=path)
+                    seed=seed, measurement_std=meas, process_std=proc, faults=faults, path=path,
+                    profile=profile.name, drives=drives)
+
+
+def _bus(data: Any, plant_name: str) -> tuple[BusProfile, int | None]:
+    """The ``bus:`` section: (profile, node or None)."""
+    if data is None:
+        return get_profile(DEFAULT_PROFILE), None
+    if not isinstance(data, dict):
+        raise ScenarioError("bus", "expected a mapping like {profile: cia402, node: 1}")
+    for key in data:
+        if key not in ("profile", "node"):
+            raise ScenarioError(f"bus.{key}", "unknown key (allowed: node, profile)")
+    try:
+        profile = get_profile(data.get("profile", DEFAULT_PROFILE))
+    except ValueError as exc:
+        raise ScenarioError("bus.profile", str(exc)) from None
+    if profile.dbc(plant_name) is None:
+        covering = [p.name for p in PROFILES.values() if p.dbc(plant_name) is not None]
+        raise ScenarioError("bus.profile", f"the {profile.name} profile has no DBC for plant "
+                                           f"{plant_name} (profiles for {plant_name}: "
+                                           f"{', '.join(covering)})")
+    node = None if data.get("node") is None else _node(data["node"], "bus.node", profile)
+    return profile, node
+
+
+def _node(value: Any, field: str, profile: BusProfile) -> int:
+    if profile.nodes is None:
+        raise ScenarioError(field, f"the {profile.name} profile has no node IDs (one drive per "
+                                   "bus, the DBC's IDs as written)")
+    lo, hi = profile.nodes
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise ScenarioError(field, f"a {profile.name} node ID is an integer in {lo}..{hi}, got "
+                                   f"{value!r}")
+    return value
+
+
+def _drives(data: Any, profile: BusProfile, plant: Plant, duration: float
+            ) -> tuple[Drive, ...]:
+    """The ``drives:`` list."""
+    if not isinstance(data, list) or not data:
+        raise ScenarioError("drives", "expected a non-empty list like [{name: left, node: 1}]")
+    if len(data) > 1 and profile.nodes is None:
+        raise ScenarioError("drives", f"the {profile.name} profile carries one drive per bus "
+                                      "(its frames have no node IDs); choose bus.profile "
+                                      "cia402 or float_node for several")
+    if len(data) > MAX_DRIVES:
+        raise ScenarioError("drives", f"at most {MAX_DRIVES} drives on one bus, got {len(data)}")
+    drives: list[Drive] = []
+    for i, item in enumerate(data):
+        where = f"drives[{i}]"
+        if not isinstance(item, dict):
+            raise ScenarioError(where, "expected a mapping like {name: left, node: 1}")
+        for key in item:
+            if key not in ("name", "node", "faults", "seed_offset"):
+                raise ScenarioError(f"{where}.{key}", "unknown key (allowed: faults, name, "
+                                                      "node, seed_offset)")
+        name = item.get("name")
+        if not isinstance(name, str) or not name:
+            raise ScenarioError(f"{where}.name", f"expected a non-empty string, got {name!r}")
+        if name in {d.name for d in drives}:
+            raise ScenarioError(f"{where}.name", f"{name!r} names an earlier drive too")
+        node = None
+        if profile.nodes is not None:
+            if item.get("node") is None:
+                raise ScenarioError(f"{where}.node", f"missing (the drive's node ID, "
+                                                     f"{profile.nodes[0]}..{profile.nodes[1]})")
+            node = _node(item["node"], f"{where}.node", profile)
+            if node in {d.node for d in drives}:
+                raise ScenarioError(f"{where}.node", f"node {node} is an earlier drive's too")
+        elif item.get("node") is not None:
+            _node(item["node"], f"{where}.node", profile)
+        faults_data = item.get("faults") or []
+        if not isinstance(faults_data, list):
+            raise ScenarioError(f"{where}.faults", "expected a list of faults")
+        faults = tuple(_fault(f, f"{where}.faults[{j}]", plant, duration)
+                       for j, f in enumerate(faults_data))
+        offset = item.get("seed_offset", i)
+        if isinstance(offset, bool) or not isinstance(offset, int) or offset < 0:
+            raise ScenarioError(f"{where}.seed_offset", f"expected an integer >= 0, got "
+                                                        f"{offset!r}")
+        drives.append(Drive(name=name, node=node, faults=faults, seed_offset=offset))
+    return tuple(drives)
 
 
 def load_scenario(path: str | Path) -> Scenario:

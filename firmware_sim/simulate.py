@@ -43,9 +43,13 @@ class SimChunk:
 
 
 class Simulator:
-    """A scenario's closed loop, advanced on demand."""
+    """A scenario's closed loop, advanced on demand (one drive: a scenario with several
+    drives runs each through ``scenario.drive_scenario(i)``)."""
 
     def __init__(self, scenario: Scenario, plant: Plant | None = None) -> None:
+        if len(scenario.drives) != 1:
+            raise ValueError(f"scenario {scenario.name} has {len(scenario.drives)} drives: "
+                             "simulate each one, scenario.drive_scenario(i)")
         self.scenario = scenario
         self.plant = plant or scenario.make_plant()
         seeds = np.random.SeedSequence(scenario.seed).spawn(2)

@@ -11,8 +11,10 @@ from pathlib import Path
 from canfdi.cli.common import stop_event
 
 HELP = """\
-Run the plant emulator (firmware_sim) for a scenario and publish the drive's frames, encoded
-with the plant's DBC file (alive counter and CRC-8 in every frame), on a python-can bus.
+Run the plant emulator (firmware_sim) for a scenario and publish its drives' frames on a
+python-can bus, in the scenario's bus profile (bus.profile): canfdi (the plant's DBC, alive
+counter and CRC-8 in every frame; the default), cia402 (a CANopen drive and its master: SYNC,
+PDOs, heartbeat) or float_node (node-ID float protocol, currents polled by RTR).
 
 The default bus is python-can's in-process virtual bus, which only other code in the same
 process can hear: use --interface socketcan --channel vcan0 to reach other programs.
@@ -40,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--jitter", type=float, default=0.0, metavar="S",
                    help="delay each sample's frames by up to S seconds (uniform)")
     p.add_argument("--bad-crc", type=float, default=0.0, metavar="P",
-                   help="corrupt each frame's CRC with probability P")
+                   help="corrupt each frame's CRC with probability P (profiles with a CRC)")
     p.add_argument("--wrong-dlc", type=float, default=0.0, metavar="P",
                    help="send each frame one byte short (or long) with probability P")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -61,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     import can
 
     from firmware_sim.emitter import Disturbance, emit
+    from firmware_sim.profiles import get_profile
     from firmware_sim.scenario import ScenarioError, load_scenario
 
     try:
@@ -76,13 +79,22 @@ def run(args: argparse.Namespace) -> int:
             return _fail(f"--{name.replace('_', '-')}: a probability in [0, 1]")
     if args.jitter < 0:
         return _fail("--jitter: must be >= 0 seconds")
+    if args.bad_crc and not get_profile(scenario.profile).has_crc:
+        return _fail(f"--bad-crc: the {scenario.profile} profile's frames carry no CRC")
     disturbance = Disturbance(drop=args.drop, jitter=args.jitter, bad_crc=args.bad_crc,
                               wrong_dlc=args.wrong_dlc, seed=scenario.seed)
     plant = scenario.make_plant()
     if args.truth:
+        def faults(drive) -> list[dict]:
+            return [f.truth(plant.dt, plant.input_names if f.target == "actuator"
+                            else plant.output_names) for f in drive.faults]
+
+        drives = [{"name": d.name, "node": d.node, "faults": faults(d)} for d in scenario.drives]
+        # "faults": the one drive's; with several drives, all of them, each naming its drive.
+        everything = (drives[0]["faults"] if len(drives) == 1 else
+                      [{**f, "drive": d["name"]} for d in drives for f in d["faults"]])
         truth = {"scenario": scenario.name, "plant": plant.name, "dt": plant.dt,
-                 "faults": [f.truth(plant.dt, plant.input_names if f.target == "actuator"
-                                    else plant.output_names) for f in scenario.faults]}
+                 "profile": scenario.profile, "faults": everything, "drives": drives}
         args.truth.write_text(json.dumps(truth, indent=2) + "\n")
     kwargs = {"interface": args.interface, "channel": args.channel}
     if args.bitrate is not None:
@@ -97,7 +109,9 @@ def run(args: argparse.Namespace) -> int:
 
     def progress(chunk, stats) -> None:
         if not args.quiet:
-            print(f"\rcanfdi sim: {scenario.name}: sample {stats.samples}/{total} "
+            print(f"\rcanfdi sim: {scenario.name} ({scenario.profile}, {len(scenario.drives)} "
+                  f"drive{'s' if len(scenario.drives) > 1 else ''}): sample "
+                  f"{stats.samples}/{total} "
                   f"({100 * stats.samples / total:.0f}%), {stats.frames_sent} frames",
                   end="", file=sys.stderr, flush=True)
 

@@ -4,13 +4,16 @@ import asyncio
 import json
 import subprocess
 import sys
+import time
 
 import can
 import numpy as np
+import pytest
 
 from canfdi import dbc as dbc_files
 from canfdi.bus import e2e
-from firmware_sim.emitter import Disturbance, emit
+from firmware_sim.emitter import Disturbance, emit, frame_log
+from firmware_sim.profiles import PROFILES
 from firmware_sim.scenario import load_scenario, parse_scenario
 from firmware_sim.simulate import simulate
 from tests.conftest import REPO
@@ -117,3 +120,173 @@ def test_cli_bad_scenario_exits_2_naming_the_field(tmp_path):
     res = subprocess.run([sys.executable, "-m", "canfdi", "sim", "--scenario", str(bad)],
                          capture_output=True, text=True, cwd=REPO, timeout=60)
     assert res.returncode == 2 and "faults[0].index" in res.stderr
+
+
+# --- every bus profile, heard by python-can, cantools and python-canopen ----------------------
+
+PROFILE_SCENARIOS = ["dc_motor_consecutive", "dc_motor_consecutive_cia402",
+                     "dc_motor_consecutive_float", "dc_motor_two_drives_cia402"]
+# DBC ID of a received frame ID, per profile (several drives: back to the DBC's node)
+DBC_ID = {"canfdi": lambda fid: fid, "cia402": lambda fid: (fid & ~0x7F) | min(fid & 0x7F, 1),
+          "float_node": lambda fid: fid & 0x1F}
+
+
+def _emit_and_receive(scenario, channel, **kwargs):
+    receiver = can.Bus(interface="virtual", channel=channel)
+    sender = can.Bus(interface="virtual", channel=channel)
+    try:
+        stats = asyncio.run(emit(sender, scenario, **kwargs))
+        frames = _drain(receiver)
+    finally:
+        sender.shutdown()
+        receiver.shutdown()
+    return stats, frames
+
+
+@pytest.mark.parametrize("name", PROFILE_SCENARIOS)
+def test_an_independent_receiver_logs_and_decodes_every_frame(tmp_path, name):
+    """python-can receives an emit run, writes it with its own loggers (.asc, .blf), reads it
+    back with its LogReader and cantools decodes every data frame: the frames are frame_log's,
+    in order, and carry the drives' values."""
+    scenario = load_scenario(name)
+    stats, received = _emit_and_receive(scenario, f"canfdi-test-{name}", speed=0,
+                                        duration=5.0, block=64)
+    ref = frame_log(scenario, duration=5.0)
+    assert stats.profile == scenario.profile and stats.clipped == {}
+    assert len(received) == stats.frames_sent == ref.frames.size
+    database = dbc_files.load(PROFILES[scenario.profile].dbc("dc_motor"))
+    to_dbc = DBC_ID[scenario.profile]
+    for suffix in (".asc", ".blf"):
+        path = tmp_path / f"run{suffix}"
+        with can.Logger(path) as writer:
+            for msg in received:
+                writer(msg)
+        frames = list(can.LogReader(path))
+        assert len(frames) == ref.frames.size, suffix
+        np.testing.assert_array_equal([f.arbitration_id for f in frames], ref.frames.id)
+        np.testing.assert_array_equal([f.is_remote_frame for f in frames],
+                                      (ref.frames.flags & 2) != 0)
+        np.testing.assert_array_equal([f.dlc for f in frames], ref.frames.dlc)
+        data = [bytes(f.data) for f in frames if not f.is_remote_frame]
+        want = [p for p, fl in zip(ref.frames.payloads(), ref.frames.flags.tolist(), strict=True)
+                if not fl & 2]
+        assert data == want, suffix
+    # Every data frame decodes; the command and the speed are each drive's.
+    values: dict[tuple[int, str], list[float]] = {}
+    for f in frames:
+        if f.is_remote_frame:
+            continue
+        for sig, v in database.decode_message(to_dbc(f.arbitration_id), f.data,
+                                              decode_choices=False).items():
+            values.setdefault((f.arbitration_id, sig), []).append(v)
+    carriers = {"canfdi": lambda node: ((0x104, "V"), (0x106, "omega_r")),
+                "cia402": lambda node: ((0x200 + node, "TargetVoltage"),
+                                        (0x180 + node, "VelocityActualValue")),
+                "float_node": lambda node: ((node << 5 | 0x0E, "Input_Voltage"),
+                                            (node << 5 | 0x09, "Vel_Estimate"))}
+    for drive in ref.drives:
+        command, speed = carriers[scenario.profile](drive.node)
+        np.testing.assert_allclose(values[command], drive.chunk.u_c[:, 0], atol=0.005)
+        np.testing.assert_allclose(values[speed], drive.chunk.z[:, 3], atol=0.005)
+
+
+@pytest.mark.parametrize("name", ["dc_motor_consecutive_cia402", "dc_motor_consecutive_float",
+                                  "dc_motor_two_drives_cia402"])
+def test_disturbed_emit_sends_what_frame_log_lists(name):
+    scenario = load_scenario(name)
+    disturbance = Disturbance(drop=0.05, wrong_dlc=0.05, seed=11)
+    stats, received = _emit_and_receive(scenario, f"canfdi-test-disturbed-{name}", speed=0,
+                                        duration=3.0, disturbance=disturbance, block=50)
+    ref = frame_log(scenario, disturbance, duration=3.0)
+    assert (stats.frames_dropped, stats.frames_wrong_dlc, stats.frames_sent) == (
+        ref.stats.frames_dropped, ref.stats.frames_wrong_dlc, ref.stats.frames_sent)
+    assert stats.frames_dropped > 0 and stats.frames_wrong_dlc > 0
+    np.testing.assert_array_equal([m.arbitration_id for m in received], ref.frames.id)
+    np.testing.assert_array_equal([m.dlc for m in received], ref.frames.dlc)
+
+
+def test_bad_crc_is_refused_where_the_profile_has_no_crc():
+    scenario = load_scenario("dc_motor_consecutive_float")
+    bus = can.Bus(interface="virtual", channel="canfdi-test-nocrc")
+    try:
+        with pytest.raises(ValueError, match="no CRC"):
+            asyncio.run(emit(bus, scenario, speed=0, disturbance=Disturbance(bad_crc=0.1)))
+    finally:
+        bus.shutdown()
+
+
+def test_a_python_canopen_master_hears_the_cia402_drives():
+    """python-canopen on the same virtual bus, with the EDS: both nodes' TPDOs arrive with the
+    drives' values, and their heartbeats say OPERATIONAL."""
+    import canopen
+
+    scenario = load_scenario("dc_motor_two_drives_cia402")
+    channel = "canfdi-test-canopen"
+    eds = str(PROFILES["cia402"].eds("dc_motor"))
+    network = canopen.Network()
+    network.connect(interface="virtual", channel=channel)
+    sender = can.Bus(interface="virtual", channel=channel)
+    try:
+        speeds: dict[int, list[float]] = {1: [], 2: []}
+        nodes = {}
+        for node_id in (1, 2):
+            node = network.add_node(node_id, eds)
+            node.tpdo.read(from_od=True)
+            node.tpdo[1].add_callback(
+                lambda m, n=node_id: speeds[n].append(m["Velocity actual value"].phys))
+            nodes[node_id] = node
+        stats = asyncio.run(emit(sender, scenario, speed=0, duration=2.0))
+        deadline = time.monotonic() + 10.0
+        while min(len(v) for v in speeds.values()) < 200 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        states = {n: node.nmt.state for n, node in nodes.items()}
+    finally:
+        network.disconnect()
+        sender.shutdown()
+    assert stats.samples == 200
+    ref = frame_log(scenario, duration=2.0)
+    for i, node_id in enumerate((1, 2)):
+        np.testing.assert_allclose(speeds[node_id], ref.drives[i].chunk.z[:, 3], atol=0.0006)
+    assert states == {1: "OPERATIONAL", 2: "OPERATIONAL"}
+
+
+def test_paced_cia402_run_keeps_sync_period_and_order():
+    """At real time, SYNC comes every 10 ms and each period's PDOs arrive before the next SYNC;
+    the heartbeat every 100 ms."""
+    scenario = load_scenario("dc_motor_consecutive_cia402")
+    stats, received = _emit_and_receive(scenario, "canfdi-test-paced-cia402", speed=1.0,
+                                        duration=0.5)
+    assert stats.samples == 50
+    ids = [m.arbitration_id for m in received]
+    # Periods in order: SYNC, TPDO1, TPDO2, RPDO1 (and every tenth period the heartbeat).
+    period = [0x080, 0x181, 0x281, 0x201]
+    expected = []
+    for k in range(50):
+        expected += period + ([0x701] if k % 10 == 0 else [])
+    assert ids == expected
+    sync_t = np.array([m.timestamp for m in received if m.arbitration_id == 0x080])
+    assert abs(np.mean(np.diff(sync_t)) - 0.010) < 0.002
+    hb_t = np.array([m.timestamp for m in received if m.arbitration_id == 0x701])
+    assert abs(np.mean(np.diff(hb_t)) - 0.100) < 0.01
+
+
+def test_cli_plays_a_profile_scenario_and_writes_per_drive_truth(tmp_path):
+    truth = tmp_path / "truth.json"
+    res = subprocess.run(
+        [sys.executable, "-m", "canfdi", "sim", "--scenario", "dc_motor_two_drives_cia402",
+         "--speed", "0", "--duration", "1", "--truth", str(truth), "--quiet"],
+        capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert res.returncode == 0, res.stderr
+    report = json.loads(res.stdout)
+    assert report["profile"] == "cia402" and report["samples"] == 100
+    assert report["frames_sent"] == 100 * (1 + 2 * 3) + 10 * 2
+    doc = json.loads(truth.read_text())
+    assert doc["profile"] == "cia402"
+    assert [(d["name"], d["node"], len(d["faults"])) for d in doc["drives"]] == [
+        ("left", 1, 3), ("right", 2, 0)]
+    assert {f["drive"] for f in doc["faults"]} == {"left"}
+    res = subprocess.run(
+        [sys.executable, "-m", "canfdi", "sim", "--scenario", "dc_motor_consecutive_float",
+         "--speed", "0", "--duration", "1", "--bad-crc", "0.1"],
+        capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert res.returncode == 2 and "float_node" in res.stderr and "CRC" in res.stderr

@@ -1,6 +1,10 @@
 """Every DBC file in dbc/ against the conventions of dbc/README.md.
 
-The files are globbed, so a new plant's DBC is checked as soon as it lands.
+The files are globbed, so a new plant's DBC is checked as soon as it lands: against canfdi's
+conventions (E2E header, monitor block, ...) unless a bus profile of the emulator other than
+canfdi claims it (firmware_sim/profiles: cia402, float_node), whose vendor-style DBCs are
+checked for what every DBC here must give (a strict load, comments, cycle times, round trips)
+and, with the monitor configs that read them, for their signals' ranges.
 """
 
 from __future__ import annotations
@@ -21,8 +25,23 @@ from canfdi.bus import e2e
 
 REPO = Path(__file__).resolve().parents[2]
 DBC_DIR = REPO / "dbc"
-DBC_FILES = sorted(DBC_DIR.glob("*.dbc"))
+ALL_DBC_FILES = sorted(DBC_DIR.glob("*.dbc"))
 README = DBC_DIR / "README.md"
+
+
+def _profile_dbcs() -> dict[str, str]:
+    """DBC stem -> the (non-canfdi) bus profile that claims it."""
+    from firmware_sim.plants import PLANTS
+    from firmware_sim.profiles import PROFILES
+
+    return {profile.dbc(plant): name for name, profile in PROFILES.items() if name != "canfdi"
+            for plant in PLANTS if profile.dbc(plant) is not None}
+
+
+PROFILE_DBCS = _profile_dbcs()
+DBC_FILES = [p for p in ALL_DBC_FILES if p.stem not in PROFILE_DBCS]
+"""The files of canfdi's own bus (every file no other profile claims)."""
+PROFILE_DBC_FILES = [p for p in ALL_DBC_FILES if p.stem in PROFILE_DBCS]
 
 # name: (frame_id, dlc, cycle_time (None: event-driven), {signal: (start, length, signed, float,
 # minimum, maximum, choices)}) -- the monitor block of dbc/README.md.
@@ -294,6 +313,12 @@ def _scenarios() -> list[Path]:
     return sorted((REPO / "firmware_sim" / "scenarios").glob("*.yaml"))
 
 
+def _scenarios_of(plant: str) -> list[Path]:
+    import yaml
+
+    return [p for p in _scenarios() if yaml.safe_load(p.read_text()).get("plant") == plant]
+
+
 @pytest.mark.parametrize("scenario_path", _scenarios(), ids=_stem)
 def test_scenario_values_stay_inside_the_signal_ranges(scenario_path: Path) -> None:
     from firmware_sim.scenario import load_scenario
@@ -302,25 +327,154 @@ def test_scenario_values_stay_inside_the_signal_ranges(scenario_path: Path) -> N
     scenario = load_scenario(scenario_path)
     plant = scenario.make_plant()
     signals = _drive_signals(_database_of(plant))
-    run = simulate(scenario)
-    series = {
-        **{name: run.u_c[:, j] for j, name in enumerate(plant.input_names)},
-        **{name: run.z[:, j] for j, name in enumerate(plant.output_names)},
-        **{name: run.ref[:, j] for j, name in enumerate(plant.reference_names)},
-    }
-    for name, values in series.items():
-        lo, hi = _physical_limits(signals[name])
-        assert np.all(np.isfinite(values)), name
-        assert lo <= values.min() and values.max() <= hi, (
-            f"{scenario_path.name}: {name} spans {values.min():.4g} .. {values.max():.4g}, "
-            f"outside the DBC range {lo} .. {hi}")
+    for i in range(len(scenario.drives)):
+        run = simulate(scenario.drive_scenario(i))
+        series = {
+            **{name: run.u_c[:, j] for j, name in enumerate(plant.input_names)},
+            **{name: run.z[:, j] for j, name in enumerate(plant.output_names)},
+            **{name: run.ref[:, j] for j, name in enumerate(plant.reference_names)},
+        }
+        for name, values in series.items():
+            lo, hi = _physical_limits(signals[name])
+            assert np.all(np.isfinite(values)), name
+            assert lo <= values.min() and values.max() <= hi, (
+                f"{scenario_path.name}: {name} spans {values.min():.4g} .. "
+                f"{values.max():.4g}, outside the DBC range {lo} .. {hi}")
+
+
+# --- the other bus profiles' DBCs (vendor style: no E2E header, no monitor block) -------------
+
+
+def test_every_profile_dbc_has_landed() -> None:
+    assert sorted(PROFILE_DBCS) == sorted(p.stem for p in PROFILE_DBC_FILES)
+    assert {"dc_motor_cia402", "dc_motor_float"} <= set(PROFILE_DBCS)
+
+
+@pytest.fixture(scope="module", params=PROFILE_DBC_FILES, ids=_stem)
+def profile_db(request: pytest.FixtureRequest) -> Database:
+    return cantools.database.load_file(request.param, strict=True)
+
+
+@pytest.mark.parametrize("path", PROFILE_DBC_FILES, ids=_stem)
+def test_cantools_dump_cli_accepts_a_profile_dbc(path: Path) -> None:
+    result = subprocess.run([sys.executable, "-m", "cantools", "dump", str(path)],
+                            capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 0, result.stderr
+
+
+def test_profile_dbc_conventions(profile_db: Database) -> None:
+    assert sorted(node.name for node in profile_db.nodes) == ["DRIVE", "MASTER"]
+    assert all(node.comment for node in profile_db.nodes)
+    ids = [m.frame_id for m in profile_db.messages]
+    assert ids == sorted(ids) and len(set(ids)) == len(ids), "ascending, distinct IDs"
+    for msg in profile_db.messages:
+        assert not msg.is_extended_frame and not msg.is_multiplexed(), msg.name
+        assert msg.frame_id <= 0x7FF and 0 <= msg.length <= 8, msg.name
+        assert msg.senders in (["DRIVE"], ["MASTER"]), msg.name
+        assert msg.comment and msg.cycle_time and msg.send_type == "Cyclic", msg.name
+        assert not msg.name.startswith("FDI_"), "the monitor's frames are in its own DBC"
+        for sig in msg.signals:
+            assert sig.byte_order == "little_endian", (msg.name, sig.name)
+            assert sig.comment, (msg.name, sig.name)
+            assert sig.start + sig.length <= 8 * msg.length, (msg.name, sig.name)
+            assert sig.receivers and set(sig.receivers) <= {"DRIVE", "MASTER"}, sig.name
+            assert not sig.is_float or (sig.length, sig.minimum, sig.maximum) == (
+                32, -3.4e38, 3.4e38), sig.name
+
+
+def test_profile_dbc_encode_decode_round_trip(profile_db: Database) -> None:
+    rng = np.random.default_rng(20250601)
+    for msg in profile_db.messages:
+        for trial in range(50):
+            where = ("min", "max", "random")[min(trial, 2)]
+            values = {s.name: _value(s, rng, where) for s in msg.signals}
+            frame = msg.encode(values)
+            assert len(frame) == msg.length
+            decoded = msg.decode(frame, decode_choices=False)
+            for sig in msg.signals:
+                got, want = decoded[sig.name], values[sig.name]
+                if sig.is_float:
+                    assert got == np.float32(want), (msg.name, sig.name)
+                else:
+                    assert abs(got - want) <= sig.scale / 2, (msg.name, sig.name, got, want)
+
+
+def _configs_of_profile_dbcs() -> list[Path]:
+    import yaml
+
+    out = []
+    for path in sorted((REPO / "deploy" / "config").glob("*.yaml")):
+        bus = yaml.safe_load(path.read_text()).get("bus") or {}
+        if str(bus.get("dbc", "")).removesuffix(".dbc") in PROFILE_DBCS:
+            out.append(path)
+    return out
+
+
+def _mapped_signals(config: Path) -> tuple[dict, dict[str, Signal]]:
+    """(document, model name -> the DBC signal its bus.map names) of a monitor config."""
+    doc, mapped = _mapped(config)
+    return doc, {name: sig for name, (_, sig) in mapped.items()}
+
+
+def _mapped(config: Path) -> tuple[dict, dict[str, tuple[Message, Signal]]]:
+    """(document, model name -> the DBC message and signal its bus.map names)."""
+    import yaml
+
+    doc = yaml.safe_load(config.read_text())
+    database = cantools.database.load_file(DBC_DIR / f"{doc['bus']['dbc']}.dbc", strict=True)
+    signals = {}
+    for name, where in doc["bus"]["map"].items():
+        if isinstance(where, str):
+            message_name, signal_name = where.split(".")
+            message = database.get_message_by_name(message_name)
+        else:
+            message = database.get_message_by_frame_id(where["message"])
+            signal_name = where["signal"]
+        signals[name] = (message, message.get_signal_by_name(signal_name))
+    return doc, signals
+
+
+def test_monitor_configs_of_profile_dbcs_map_every_model_signal() -> None:
+    configs = _configs_of_profile_dbcs()
+    assert {p.stem for p in configs} >= {"dc_motor_cia402", "dc_motor_float",
+                                          "dc_motor_two_drives_cia402"}
+    for config in configs:
+        doc, signals = _mapped_signals(config)
+        names = [*doc["signals"]["inputs"], *doc["signals"]["outputs"]]
+        assert sorted(signals) == sorted(names), config.name
+
+
+@pytest.mark.parametrize("config", _configs_of_profile_dbcs(), ids=_stem)
+@pytest.mark.parametrize("scenario_path", _scenarios_of("dc_motor"), ids=_stem)
+def test_scenario_values_stay_inside_the_mapped_signal_ranges(config: Path,
+                                                              scenario_path: Path) -> None:
+    """Every shipped DC motor scenario's values (faults and noise included), in the signals a
+    profile's monitor config maps them to, stay inside each signal's range."""
+    from firmware_sim.scenario import load_scenario
+    from firmware_sim.simulate import simulate
+
+    _, signals = _mapped_signals(config)
+    scenario = load_scenario(scenario_path)
+    plant = scenario.make_plant()
+    for i in range(len(scenario.drives)):
+        run = simulate(scenario.drive_scenario(i))
+        series = {
+            **{name: run.u_c[:, j] for j, name in enumerate(plant.input_names)},
+            **{name: run.z[:, j] for j, name in enumerate(plant.output_names)},
+        }
+        for name, values in series.items():
+            lo, hi = _physical_limits(signals[name])
+            assert np.all(np.isfinite(values)), name
+            assert lo <= values.min() and values.max() <= hi, (
+                f"{scenario_path.name}: {name} spans {values.min():.4g} .. "
+                f"{values.max():.4g}, outside {signals[name].name}'s range {lo} .. {hi}")
 
 
 # --- canfdi.dbc and packaging -------------------------------------------------------------------
 
 
 def test_package_lists_the_files() -> None:
-    assert dbc_package.available() == [p.stem for p in DBC_FILES]
+    assert dbc_package.available() == [p.stem for p in ALL_DBC_FILES]
     assert dbc_package.path("motor_drive") == dbc_package.path("motor_drive.dbc")
     shipped = dbc_package.path("motor_drive")
     assert shipped.read_bytes() == (DBC_DIR / "motor_drive.dbc").read_bytes()
@@ -349,3 +503,64 @@ def test_pyproject_ships_dbc_and_lists_every_package() -> None:
     # The list is explicit (find cannot rename dbc/ to canfdi.dbc), so a new subpackage must be
     # added by hand or it silently drops out of the wheel.
     assert found | {"canfdi.dbc"} <= listed, sorted(found - listed)
+
+
+# The shipped scenario each profile config is written for.
+CONFIG_SCENARIOS = {"dc_motor_cia402": "dc_motor_consecutive_cia402",
+                    "dc_motor_float": "dc_motor_consecutive_float",
+                    "dc_motor_two_drives_cia402": "dc_motor_two_drives_cia402"}
+# CANopen's predefined connection set: NMT, SYNC + EMCY, TIME, PDOs, SDOs, heartbeat, LSS.
+CANOPEN_IDS = {0x000, *range(0x080, 0x100), 0x100, *range(0x181, 0x580), *range(0x581, 0x680),
+               *range(0x701, 0x780), 0x7E4, 0x7E5}
+
+
+def _frame_id(template: str | None, dbc_id: int, node: int | None) -> int:
+    if template is None or node is None:
+        return dbc_id
+    return int(eval(template, {"__builtins__": {}}, {"id": dbc_id, "node": node}))
+
+
+@pytest.mark.parametrize("config", _configs_of_profile_dbcs(), ids=_stem)
+def test_monitor_config_reads_the_emulated_bus(config: Path) -> None:
+    """The config, as docs/bus.md reads it, finds on the emulator's bus: every drive's IDs (the
+    DBC's after bus.node.id), the clock's message, each model signal in the mapped message
+    carrying that drive's values; its own frames at IDs no drive uses (nor, on CANopen, a
+    predefined function code)."""
+    from firmware_sim.emitter import frame_log
+    from firmware_sim.scenario import load_scenario
+
+    doc, mapped = _mapped(config)
+    bus = doc["bus"]
+    database = cantools.database.load_file(DBC_DIR / f"{bus['dbc']}.dbc", strict=True)
+    template = (bus.get("node") or {}).get("id")
+    drives = doc.get("drives") or [{"name": doc["name"], "node": None}]
+    log = frame_log(load_scenario(CONFIG_SCENARIOS[config.stem]), duration=2.0)
+    if drives[0]["node"] is not None:
+        assert [d["node"] for d in drives] == [d.node for d in log.drives]
+    on_bus = set(log.frames.id.tolist())
+    expected = {_frame_id(template, m.frame_id, d["node"]) for m in database.messages
+                for d in drives}
+    assert expected == on_bus
+    clock = bus["clock"]
+    if clock["kind"] == "trigger":
+        database.get_message_by_name(clock["message"])
+    model = doc["signals"]
+    remote = (log.frames.flags & 2) != 0
+    for drive, run in zip(drives, log.drives, strict=True):
+        for name, (message, sig) in mapped.items():
+            fid = _frame_id(template, message.frame_id, drive["node"])
+            rows = np.flatnonzero((log.frames.id == fid) & ~remote)
+            payloads = log.frames.payloads()
+            values = np.array([message.decode(payloads[r], decode_choices=False)[sig.name]
+                               for r in rows])
+            if name in model["inputs"]:
+                want = run.chunk.u_c[:, model["inputs"].index(name)]
+            else:
+                want = run.chunk.z[:, model["outputs"].index(name)]
+            np.testing.assert_allclose(values, want, rtol=1e-6, atol=sig.scale / 2 + 1e-9,
+                                       err_msg=f"{config.name}: {drive['name']}.{name}")
+    base = bus["monitor"]["base"]
+    monitor_ids = set(range(base, base + 4))
+    assert not monitor_ids & on_bus
+    if bus.get("canopen"):
+        assert not monitor_ids & CANOPEN_IDS

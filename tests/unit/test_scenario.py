@@ -87,3 +87,107 @@ def test_issue_example_parses_with_defaults():
 def test_missing_file_names_it(tmp_path):
     with pytest.raises(ScenarioError, match="file not found"):
         load_scenario(tmp_path / "none.yaml")
+
+
+# --- bus: and drives: -------------------------------------------------------------------------
+
+CIA = {**BASE, "bus": {"profile": "cia402"}}
+FAULT = {"target": "sensor", "index": 0, "onset": 1.0, "bias": 1}
+
+
+@pytest.mark.parametrize(
+    ("data", "field", "words"),
+    [
+        (_with(bus="cia402"), "bus", "mapping"),
+        (_with(bus={"profile": "cia401"}), "bus.profile", "cia402"),
+        (_with(bus={"profile": "canopen"}), "bus.profile", "known: canfdi, cia402, float_node"),
+        ({**BASE, "plant": "vtol", "bus": {"profile": "cia402"}}, "bus.profile",
+         "profiles for vtol: canfdi"),
+        (_with(bus={"profile": "cia402", "node": 0}), "bus.node", "1..127"),
+        (_with(bus={"profile": "cia402", "node": 128}), "bus.node", "1..127"),
+        (_with(bus={"profile": "float_node", "node": 63}), "bus.node", "0..62"),
+        (_with(bus={"profile": "cia402", "node": True}), "bus.node", "integer"),
+        (_with(bus={"node": 1}), "bus.node", "no node IDs"),
+        (_with(bus={"profile": "cia402", "bitrate": 500000}), "bus.bitrate", "unknown key"),
+        ({**CIA, "drives": {"name": "left"}}, "drives", "list"),
+        ({**CIA, "drives": []}, "drives", "list"),
+        ({**CIA, "drives": ["left"]}, "drives[0]", "mapping"),
+        ({**CIA, "drives": [{"node": 1}]}, "drives[0].name", "string"),
+        ({**CIA, "drives": [{"name": "a"}]}, "drives[0].node", "missing"),
+        ({**CIA, "drives": [{"name": "a", "node": 1}, {"name": "a", "node": 2}]},
+         "drives[1].name", "earlier"),
+        ({**CIA, "drives": [{"name": "a", "node": 1}, {"name": "b", "node": 1}]},
+         "drives[1].node", "earlier"),
+        ({**CIA, "drives": [{"name": "a", "node": 1}, {"name": "b", "node": 300}]},
+         "drives[1].node", "1..127"),
+        ({**CIA, "drives": [{"name": "a", "node": 1, "color": "red"}]}, "drives[0].color",
+         "unknown key"),
+        ({**CIA, "drives": [{"name": "a", "node": 1, "faults": [{**FAULT, "index": 9}]}]},
+         "drives[0].faults[0].index", "integer"),
+        ({**CIA, "drives": [{"name": "a", "node": 1, "faults": FAULT}]}, "drives[0].faults",
+         "list"),
+        ({**CIA, "drives": [{"name": "a", "node": 1, "seed_offset": -1}]},
+         "drives[0].seed_offset", "integer"),
+        ({**CIA, "faults": [FAULT], "drives": [{"name": "a", "node": 1}]}, "faults",
+         "drives[i].faults"),
+        ({**BASE, "bus": {"profile": "cia402", "node": 3}, "drives": [{"name": "a", "node": 1}]},
+         "bus.node", "drives[i].node"),
+        (_with(drives=[{"name": "a"}, {"name": "b"}]), "drives", "one drive per bus"),
+        (_with(drives=[{"name": "a", "node": 1}]), "drives[0].node", "no node IDs"),
+        ({**CIA, "drives": [{"name": f"d{i}", "node": i + 1} for i in range(9)]}, "drives",
+         "at most 8"),
+    ],
+)
+def test_bus_and_drives_errors_name_the_field(data, field, words):
+    with pytest.raises(ScenarioError) as err:
+        parse_scenario(data)
+    assert err.value.field == field
+    assert words in str(err.value)
+
+
+def test_a_scenario_without_bus_is_one_canfdi_drive_named_after_it():
+    sc = parse_scenario({**BASE, "name": "x", "faults": [FAULT]})
+    assert sc.profile == "canfdi"
+    assert [(d.name, d.node, d.seed_offset) for d in sc.drives] == [("x", None, 0)]
+    assert sc.drives[0].faults == sc.faults and len(sc.faults) == 1
+    assert sc.drive_scenario(0) == sc
+
+
+@pytest.mark.parametrize(("profile", "node"), [("cia402", 1), ("float_node", 0)])
+def test_a_profile_without_node_takes_its_default(profile, node):
+    sc = parse_scenario({**BASE, "bus": {"profile": profile}})
+    assert sc.profile == profile and sc.drives[0].node == node
+    assert parse_scenario({**BASE, "bus": {"profile": profile, "node": 7}}).drives[0].node == 7
+
+
+def test_issue_example_with_two_drives():
+    sc = parse_scenario({"plant": "dc_motor", "duration": 60.0, "seed": 1,
+                         "bus": {"profile": "cia402"},
+                         "drives": [
+                             {"name": "left", "node": 1, "faults": [
+                                 {"target": "actuator", "index": 0, "onset": 10.0, "eta": 2.0,
+                                  "lambda": 10.0}]},
+                             {"name": "right", "node": 2}]})
+    assert sc.faults == ()
+    left, right = sc.drives
+    assert (left.name, left.node, left.seed_offset, len(left.faults)) == ("left", 1, 0, 1)
+    assert (right.name, right.node, right.seed_offset, right.faults) == ("right", 2, 1, ())
+    assert sc.drive_scenario(1).seed == 2 and sc.drive_scenario(1).faults == ()
+    assert sc.drive_scenario(0).faults == left.faults
+    from firmware_sim.simulate import Simulator
+
+    with pytest.raises(ValueError, match=r"drive_scenario"):
+        Simulator(sc)
+
+
+def test_shipped_profile_scenarios():
+    cia = load_scenario("dc_motor_consecutive_cia402")
+    flt = load_scenario("dc_motor_consecutive_float")
+    base = load_scenario("dc_motor_consecutive")
+    assert (cia.profile, cia.drives[0].node) == ("cia402", 1)
+    assert (flt.profile, flt.drives[0].node) == ("float_node", 0)
+    for sc in (cia, flt):
+        assert (sc.seed, sc.duration, sc.faults) == (base.seed, base.duration, base.faults)
+    two = load_scenario("dc_motor_two_drives_cia402")
+    assert two.profile == "cia402" and [d.node for d in two.drives] == [1, 2]
+    assert two.drives[0].faults == base.faults and two.drives[1].faults == ()
