@@ -43,6 +43,14 @@ def _has_e2e_header(layout: MessageLayout) -> bool:
     return all(found.get(name) == place for name, place in _E2E_HEADER.items())
 
 
+def _in_word_program(sig: SignalLayout, dlc: int) -> bool:
+    """Whether `BusMap.decode_frame`'s shift-and-mask program reads ``sig`` as the codec does:
+    an Intel integer, or an unscaled float32, within an 8-byte payload, not multiplexed."""
+    return (sig.byte_order == "little_endian" and sig.multiplexer_signal is None and dlc <= 8
+            and sig.start + sig.length <= 64
+            and (not sig.is_float or (sig.length == 32 and sig.scale == 1 and sig.offset == 0)))
+
+
 def _crc_seed(frame_id: int) -> int:
     # The CRC register after the Data ID is a constant of the ID: precompute it so a frame's
     # check only runs over its own payload bytes (crc8 returns the register XOR-ed out).
@@ -102,13 +110,16 @@ class BusMap:
                 seed = _crc_seed(lay.frame_id) if _has_e2e_header(lay) else -1
                 entries[lay.frame_id] = (kind, -1, lay.dlc, seed, ())
         for slot, (lay, f) in enumerate(zip(self.layouts, self.fields, strict=True)):
-            program = []
+            program: tuple | None = []
             for name, _, _ in f:
                 sig = lay.signal(name)
+                if not _in_word_program(sig, lay.dlc):
+                    program = None  # decode_frame goes through the layout's decode
+                    break
                 sign = 1 << (sig.length - 1) if sig.signed and not sig.is_float else 0
                 program.append((sig.start, sig.mask, sign, sig.scale, sig.offset, sig.is_float))
             entries[lay.frame_id] = (_KIND_DRIVE, slot, lay.dlc, _crc_seed(lay.frame_id),
-                                     tuple(program))
+                                     None if program is None else tuple(program))
         self._entries = entries
         # Dense tables over the 11-bit ID space for the vectorised decode.
         self._kind_table = np.full(_MAX_STD_ID + 1, _UNKNOWN_ID, dtype=np.int8)
@@ -211,7 +222,10 @@ class BusMap:
             try:
                 layout = compile_layout(message)
             except ValueError as exc:
-                raise ConfigError("bus.dbc", f"{dbc_label}: {exc}") from None
+                if "DRIVE" in senders or "FDI" in senders:
+                    raise ConfigError("bus.dbc", f"{dbc_label}: {exc}") from None
+                # A message of no interest: its ID and length are all that is needed.
+                layout = compile_layout(message, signals=())
             if "DRIVE" in senders:
                 drive.append(layout)
             elif "FDI" in senders:
@@ -281,6 +295,9 @@ class BusMap:
             return "crc", slot, ()
         if kind != _KIND_DRIVE:
             return STATUS_NAMES[kind], -1, ()
+        if program is None:
+            decoded = self.layouts[slot].decode(np.frombuffer(bytes(data), np.uint8)[None, :])
+            return "ok", slot, tuple(float(decoded[name][0]) for name, _, _ in self.fields[slot])
         # A payload shorter than 8 bytes reads as if zero-padded: from_bytes needs no padding.
         word = int.from_bytes(data, "little")
         values = []

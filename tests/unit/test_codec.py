@@ -55,10 +55,11 @@ def test_out_of_range_values_are_clipped_and_counted():
     np.testing.assert_allclose(layout.decode(payloads)["i_f"], [1.0, 32.767, -32.768, 0.0])
 
 
-def test_big_endian_signal_is_rejected_by_name():
+def test_a_signal_outside_the_payload_is_refused_by_name():
     import cantools
 
     sig = cantools.database.can.Signal("Speed", start=7, length=16, byte_order="big_endian")
-    msg = cantools.database.can.Message(frame_id=1, name="M", length=8, signals=[sig])
+    msg = cantools.database.can.Message(frame_id=1, name="M", length=1, signals=[sig],
+                                        strict=False)
     with pytest.raises(ValueError, match=r"M\.Speed"):
         compile_layout(msg)
