@@ -152,10 +152,10 @@ class SignalLayout:
         v = np.asarray(values, dtype=float)
         lo, hi = self.physical_limits()
         if self.is_float:
-            v = np.where(np.isfinite(v), np.clip(v, lo, hi), v)
-            with np.errstate(over="ignore"):
+            with np.errstate(over="ignore", invalid="ignore"):  # signalling NaNs pass
+                v = np.where(np.isfinite(v), np.clip(v, lo, hi), v)
                 raw = ((v - self.offset) / self.scale).astype(_float_dtype(self.length))
-            return raw.astype(np.float64) * self.scale + self.offset
+                return raw.astype(np.float64) * self.scale + self.offset
         v = np.clip(np.nan_to_num(v, nan=0.0), lo, hi)
         return np.rint((v - self.offset) / self.scale) * self.scale + self.offset
 
@@ -325,9 +325,10 @@ class _Field:
         else:
             x = bits.astype(np.float64)
         if self.conv == _LINEAR:
-            x *= self.scale
-            if self.offset:
-                x += self.offset
+            with np.errstate(invalid="ignore"):  # signalling NaNs of float64 fields
+                x *= self.scale
+                if self.offset:
+                    x += self.offset
         return x
 
     def number(self, raw: np.ndarray) -> np.ndarray:
@@ -702,14 +703,14 @@ def _to_raw(f: _Field, v: np.ndarray, scaled: bool
     if f.is_float:
         v = np.asarray(v, dtype=np.float64)
         lo, hi = (f.lo, f.hi) if scaled else (f.raw_lo, f.raw_hi)
-        bad = np.isfinite(v) & ((v < lo) | (v > hi))
-        if bad.any():
-            v = np.where(bad, np.clip(v, lo, hi), v)
-        else:
-            bad = None
-        if scaled and f.conv != _IDENTITY:
-            v = (v - f.offset) / f.scale
-        with np.errstate(over="ignore"):
+        with np.errstate(over="ignore", invalid="ignore"):  # signalling NaNs pass
+            bad = np.isfinite(v) & ((v < lo) | (v > hi))
+            if bad.any():
+                v = np.where(bad, np.clip(v, lo, hi), v)
+            else:
+                bad = None
+            if scaled and f.conv != _IDENTITY:
+                v = (v - f.offset) / f.scale
             return v.astype(_float_dtype(f.n)).astype(np.float64), bad
     target = np.uint64 if f.u64 else np.int64
     if not scaled and v.dtype.kind in "iub":
