@@ -331,15 +331,23 @@ class _Field:
                     x += self.offset
         return x
 
+    @property
+    def number_dtype(self) -> np.dtype:
+        """The dtype of `number`: exact integers where the physical value is one."""
+        if self.is_float or self.conv == _LINEAR or (
+                self.conv == _INTEGER and self.ioffset is None):
+            return np.dtype(np.float64)
+        return np.dtype(np.uint64 if self.u64 and self.conv == _IDENTITY else np.int64)
+
     def number(self, raw: np.ndarray) -> np.ndarray:
         """The multiplexer value cantools selects by, int(physical), from the raw value."""
-        if not self.is_float:
+        kind = self.number_dtype
+        if kind.kind != "f":
             if self.conv == _IDENTITY:
                 return raw
-            if self.conv == _INTEGER and self.ioffset is not None:
-                return raw.astype(np.int64) * self.iscale + self.ioffset
-        x = raw.astype(np.float64) * self.scale + self.offset
-        return np.trunc(x)
+            return raw.astype(np.int64) * self.iscale + self.ioffset
+        with np.errstate(invalid="ignore"):
+            return np.trunc(raw.astype(np.float64) * self.scale + self.offset)
 
 
 def _fits_int64(lo: int, hi: int, scale: int, offset: int) -> bool:
@@ -423,6 +431,7 @@ class MessageLayout:
     _width: int = field(init=False, repr=False, compare=False)
     _reach: int = field(init=False, repr=False, compare=False)
     _views_only: bool = field(init=False, repr=False, compare=False)
+    _order: dict = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         width = max(8, -(-self.dlc // 8) * 8)
@@ -465,13 +474,7 @@ class MessageLayout:
                 f.parent = position[f.parent]
         for f in ordered:
             if f.parent >= 0 and not f.never:
-                mux = ordered[f.parent]
-                number_dtype = (np.dtype(np.float64) if mux.is_float or
-                                (mux.conv == _LINEAR or
-                                 (mux.conv == _INTEGER and mux.ioffset is None))
-                                else np.dtype(np.uint64) if mux.u64 and mux.conv == _IDENTITY
-                                else np.dtype(np.int64))
-                f.ids = _ids_for(number_dtype, tuple(f.sig.multiplexer_ids or ()))
+                f.ids = _ids_for(ordered[f.parent].number_dtype, f.sig.multiplexer_ids or ())
         object.__setattr__(self, "_fields", tuple(ordered))
         object.__setattr__(self, "_width", width)
         # Bytes the decode reads: a typed view reads its own; a word 8 from its window.
@@ -479,6 +482,7 @@ class MessageLayout:
                  f.window + (9 if f.way == _WIDE else 8) for f in ordered]
         object.__setattr__(self, "_reach", max(reach, default=0))
         object.__setattr__(self, "_views_only", all(f.way == _VIEW for f in ordered))
+        object.__setattr__(self, "_order", dict.fromkeys(sig.name for sig in self.signals))
 
     @property
     def length(self) -> int:
@@ -527,6 +531,7 @@ class MessageLayout:
         selection: list[np.ndarray | None] = [None] * len(fields)
         cache: dict = {}
         n = buf.shape[0]
+        values.update(self._order)  # the message's order, whatever the order of the reads
         for k, f in enumerate(fields):
             bits = f.bits(buf, words)
             if f.sig.is_multiplexer or not physical:
@@ -678,15 +683,10 @@ class MessageLayout:
             if f.sig.is_multiplexer:
                 numbers[k] = f.number(raw)
             _place(f, raw, sel, acc, extra)
-        if width == 8 and not extra:
-            word = acc.get((False, 0))
-            be = acc.get((True, 0))
-            if be is not None:
-                be = be.astype(">u8").view("<u8").astype(np.uint64, copy=False)
-                word = be if word is None else word | be
-            if word is None:
-                word = np.zeros(count, dtype=np.uint64)
-            buf = word.astype("<u8", copy=False).view(np.uint8).reshape(count, 8)
+        if len(acc) == 1 and width == 8:  # one word is the whole payload: no copy
+            ((big, _), word), = acc.items()
+            buf = word.astype(">u8" if big else "<u8", copy=False).view(np.uint8)
+            buf = buf.reshape(count, 8)
         else:
             buf = np.zeros((count, width), dtype=np.uint8)
             for (big, w), a in acc.items():
