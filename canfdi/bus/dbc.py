@@ -203,15 +203,17 @@ class Known:
 
 
 def _program(layout: MessageLayout, fields: Sequence[tuple[str, str, int]]) -> tuple | None:
-    """(start, mask, sign, scale, offset, is_float) per field for the scalar decode of an
-    Intel message of <= 8 bytes (integer shifts, no numpy); None when it is not one."""
+    """(start, mask, sign, scale, offset, is_float) per field for the scalar decode (integer
+    shifts, no numpy) when it reads every field as the codec does: Intel integers and unscaled
+    float32 within 8 bytes, none multiplexed; None otherwise (decode through the layout)."""
     if layout.dlc > MAX_DATA:
         return None
     out = []
     for name, _, _ in fields:
         sig = layout.signal(name)
-        if getattr(sig, "byte_order", "little_endian") != "little_endian" \
-                or getattr(sig, "multiplexer", None) or (sig.is_float and sig.length != 32):
+        if (sig.is_big_endian or sig.multiplexer_signal is not None
+                or sig.start + sig.length > 64
+                or (sig.is_float and (sig.length != 32 or sig.scale != 1 or sig.offset != 0))):
             return None
         sign = 1 << (sig.length - 1) if sig.signed and not sig.is_float else 0
         out.append((sig.start, sig.mask, sign, sig.scale, sig.offset, sig.is_float))
@@ -356,7 +358,7 @@ class BusMap:
                                       key=lambda e: (e[0].is_extended_frame, e[0].frame_id)):
             key = _drive_key(bus.node_id, message, drive)
             try:
-                layout = compile_layout(message)
+                layout = compile_layout(message, [f[0] for f in fields])
             except ValueError as exc:
                 raise ConfigError("bus.dbc", f"{dbc_label}: {exc}") from None
             profile = _profile(bus.e2e, message, key, explicit_only=False)
