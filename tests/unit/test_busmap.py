@@ -247,8 +247,8 @@ def test_node_ids_put_each_drive_on_its_own_ids(tmp_path):
         drives=(DriveConfig("a", 1), DriveConfig("b", 2)))
     monitor = Monitor(config, diagnose=False)
     a, b = (d.bus_map for d in monitor.drives)
-    assert [k[0] for k in a.keys] == [0x21, 0x101, 0x8C000001]
-    assert [k[0] for k in b.keys] == [0x22, 0x102, 0x8C000002]
+    assert [k[0] for k in a.keys] == [0x21, 0x101, 0x0C00FF01]
+    assert [k[0] for k in b.keys] == [0x22, 0x102, 0x0C00FF02]
     # Each drive's messages are the other's "unused": known, not strangers.
     assert (0x22, False) in a.unused_keys and (0x21, False) in b.unused_keys
     bad = dataclasses.replace(config, bus=dataclasses.replace(config.bus,

@@ -3,12 +3,16 @@ messages of no interest that cannot be compiled."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import cantools
 import numpy as np
 
 from canfdi.bus.dbc import BusMap
 from canfdi.bus.e2e import protect
 from canfdi.bus.frames import STATUS_CODES, FrameBlock
+from canfdi.config import BusConfig, load_config
+from tests.conftest import REPO
 
 _DBC = """VERSION ""
 NS_ :
@@ -29,11 +33,16 @@ SIG_VALTYPE_ 260 z : 1;
 """
 
 
-def test_motorola_and_scaled_float_model_signals_decode_as_cantools():
+def test_motorola_and_scaled_float_model_signals_decode_as_cantools(tmp_path):
+    (tmp_path / "test.dbc").write_text(_DBC)
+    base = load_config(REPO / "deploy" / "config" / "dc_motor.yaml")
+    config = dataclasses.replace(base, path=tmp_path / "monitor.yaml", inputs=["u"],
+                                 outputs=["z", "y"], bus=BusConfig(dbc="test.dbc"))
+    bus_map = BusMap.from_config(config)
     database = cantools.database.load_string(_DBC, database_format="dbc", strict=False)
-    bus_map = BusMap.from_dbc(database, ["u"], ["z", "y"], "test.dbc")
     assert [lay.name for lay in bus_map.layouts] == ["DRIVE_A", "DRIVE_B"]
-    assert bus_map.unused_ids == {300}  # its signal lies outside its 2 bytes: still mapped
+    # OTHER's signal lies outside its 2 bytes: the message is still known, by its ID.
+    assert bus_map.unused_keys == {(300, False)}
     rng = np.random.default_rng(7)
     frames = []
     for k in range(40):
@@ -53,7 +62,8 @@ def test_motorola_and_scaled_float_model_signals_decode_as_cantools():
     status, slot, values, _ = bus_map.decode_frames(block)
     assert status.tolist() == [STATUS_CODES["ok"]] * n
     for i, (frame_id, data) in enumerate(frames):
-        got_status, got_slot, got = bus_map.decode_frame(frame_id, data)
+        got_status, got_slot, got, counter = bus_map.decode_frame(frame_id, data)
+        assert counter == i // 2
         assert (got_status, got_slot) == ("ok", slot[i])
         want = database.get_message_by_frame_id(frame_id).decode(data, decode_choices=False)
         names = [name for name, _, _ in bus_map.fields[got_slot]]
