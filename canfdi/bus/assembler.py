@@ -22,14 +22,15 @@ Frame statuses (canfdi.bus.frames ``STATUS_NAMES``, int8 codes in the batch form
 =============== ============================================================================
 ``ok``          a drive frame accepted into the pending sample
 ``monitor``     a valid frame of the monitor's own ``FDI_*`` messages: known, not a sample's
-``unused``      a valid frame of a DBC message that carries no model signal (not a sample's)
-``unknown_id``  an 11-bit ID the DBC does not define
-``extended``    a 29-bit (extended) ID frame: the DBCs use 11-bit IDs only
-``remote``      a remote transmission request (no data)
+``unused``      a valid frame of a DBC message that carries no model signal (not a sample's),
+                or a remote request for a DBC message (a master polling it: no data)
+``unknown_id``  an 11-bit ID the DBC does not define (after the drives' node ids)
+``extended``    a 29-bit (extended) ID the DBC does not define
+``remote``      a remote transmission request for an ID the DBC does not define
 ``error_frame`` a bus error frame
-``fd``          a CAN FD frame: the DBCs use classic CAN only
+``fd``          a CAN FD frame of no FD message (or a classic frame of an FD message)
 ``dlc``         wrong payload length for the message
-``crc``         E2E CRC mismatch (the payload, counter or ID was corrupted)
+``crc``         the message's E2E check failed (CRC, or a counter out of its range)
 ``duplicate``   the same message and counter again while that sample is held
 ``stale``       a counter older than the pending sample's (a late or replayed frame)
 ``jump``        a counter further ahead than the time since the last frame allows (the drive
@@ -56,18 +57,16 @@ from canfdi.bus.frames import (
     FLAG_REMOTE,
     STATUS_CODES,
     STATUS_NAMES,
-    VALID_STATUSES,
     FrameBlock,
+    frame_counters,
 )
 from canfdi.core.records import Sample
 from canfdi.core.settings import ConfigError
 
 __all__ = ["AssembledLog", "SampleAssembler", "assemble_batch"]
 
-_INVALID_NAMES = tuple(name for name in STATUS_NAMES if name not in VALID_STATUSES)
 (_OK, _MONITOR, _UNUSED, _UNKNOWN_ID, _EXTENDED, _REMOTE, _ERROR_FRAME, _FD, _DLC, _CRC,
  _DUPLICATE, _STALE, _JUMP) = range(len(STATUS_NAMES))
-_N_VALID = 3  # codes below this are valid (ok, monitor, unused)
 
 # Fewest accepted drive frames push_batch sends through the state machine at a time (unless a
 # regular run can take over), and fewest periods of a run it assembles with numpy: below these
@@ -171,19 +170,7 @@ class SampleAssembler:
         never completed, including one closed by `flush`; delivered with NaN for the signals of
         their missing messages), samples_missing (no valid frame at all), duplicates.
         """
-        counts = self._counts
-        invalid = {name: counts[STATUS_CODES[name]] for name in _INVALID_NAMES}
-        valid = sum(counts[:_N_VALID])
-        return {
-            "frames_received": valid + sum(invalid.values()),
-            "frames_valid": valid,
-            "frames_invalid": sum(invalid.values()),
-            "invalid_by_reason": invalid,
-            "samples_complete": self._complete,
-            "samples_broken": self._broken,
-            "samples_missing": self._missing,
-            "duplicates": counts[_DUPLICATE],
-        }
+        return frame_counters(self._counts, self._complete, self._broken, self._missing)
 
     def push(
         self,

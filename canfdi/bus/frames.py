@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from canfdi.core._check import check_shape
 
 __all__ = ["FLAG_ERROR", "FLAG_EXTENDED", "FLAG_FD", "FLAG_REMOTE", "MAX_DATA", "SENT",
-           "STATUS_CODES", "STATUS_NAMES", "VALID_STATUSES", "FrameBlock"]
+           "STATUS_CODES", "STATUS_NAMES", "VALID_STATUSES", "FrameBlock", "frame_counters"]
 
 # Bits of a frame's ``flags`` (python-can's Message booleans).
 FLAG_EXTENDED = 1
@@ -40,8 +40,38 @@ STATUS_NAMES: tuple[str, ...] = (
 """What the assembler found of each received frame (canfdi.bus.assembler explains each)."""
 STATUS_CODES: dict[str, int] = {name: code for code, name in enumerate(STATUS_NAMES)}
 VALID_STATUSES: frozenset[str] = frozenset({"ok", "monitor", "unused"})
+_INVALID_NAMES = tuple(name for name in STATUS_NAMES if name not in VALID_STATUSES)
 SENT = "sent"
 """The status of a frame the monitor itself sent (a log holds both directions)."""
+
+
+def frame_counters(counts, complete: int, broken: int, missing: int) -> dict:
+    """The counters of a sample clock (and of the monitor) from its per-status frame counts.
+
+    Parameters
+    ----------
+    counts : (len(STATUS_NAMES),) frames seen with each status code.
+    complete, broken, missing : samples complete, broken (delivered with NaN for the signals of
+        their missing messages) and missing (no valid frame at all).
+
+    Returns
+    -------
+    dict with frames_received, frames_valid, frames_invalid, invalid_by_reason (every invalid
+    status -> count, zeros included), samples_complete, samples_broken, samples_missing,
+    duplicates.
+    """
+    invalid = {name: int(counts[STATUS_CODES[name]]) for name in _INVALID_NAMES}
+    valid = sum(int(counts[STATUS_CODES[name]]) for name in VALID_STATUSES)
+    return {
+        "frames_received": valid + sum(invalid.values()),
+        "frames_valid": valid,
+        "frames_invalid": sum(invalid.values()),
+        "invalid_by_reason": invalid,
+        "samples_complete": complete,
+        "samples_broken": broken,
+        "samples_missing": missing,
+        "duplicates": int(counts[STATUS_CODES["duplicate"]]),
+    }
 
 MAX_DATA = 8
 """Bytes of payload held in ``data``; a longer (CAN FD) payload is kept whole in ``long``."""
@@ -121,7 +151,9 @@ class FrameBlock:
                 ).astype(np.int64)
         ids = np.fromiter([m.arbitration_id for m in messages], np.int64, n)
         lengths = [len(m.data) for m in messages]
-        dlc = np.fromiter(lengths, np.int64, n)
+        # A remote request has no data: its DLC is the length it asks for.
+        dlc = np.fromiter([m.dlc if m.is_remote_frame else size
+                           for m, size in zip(messages, lengths, strict=True)], np.int64, n)
         flags = np.fromiter([m.is_extended_id | (m.is_remote_frame << 1)
                              | (m.is_error_frame << 2) | (m.is_fd << 3) for m in messages],
                             np.int64, n)
@@ -206,7 +238,8 @@ class FrameBlock:
         n = self.size if count is None else min(count, self.size)
         payloads = self.payloads()
         return [can.Message(timestamp=int(self.t_ns[i]) / 1e9, arbitration_id=int(self.id[i]),
-                            data=payloads[i], is_extended_id=bool(self.flags[i] & FLAG_EXTENDED),
+                            data=b"" if self.flags[i] & FLAG_REMOTE else payloads[i],
+                            is_extended_id=bool(self.flags[i] & FLAG_EXTENDED),
                             is_remote_frame=bool(self.flags[i] & FLAG_REMOTE),
                             is_error_frame=bool(self.flags[i] & FLAG_ERROR),
                             is_fd=bool(self.flags[i] & FLAG_FD), dlc=int(self.dlc[i]),
