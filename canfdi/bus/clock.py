@@ -11,7 +11,9 @@ canfdi.bus.assembler's `AssembledLog`:
 * ``trigger``: every valid frame of one message (CANopen SYNC, or the drive's own feedback
   frame) closes a sample holding the newest value of each mapped signal received up to and
   including it, if not older than ``max_age``; lost triggers are counted from the time between
-  them.
+  them. The first trigger only starts the clock (what came before it is no whole period): the
+  second closes sample 0, so that on a CANopen bus sample k holds period k (SYNC k+1 closes
+  the PDOs sent after SYNC k).
 * ``grid``: samples at fixed instants ``t0 + phase + k period`` (t0: the first mapped frame's
   arrival), each holding the newest value of each mapped signal received up to the instant, if
   not older than ``max_age``. A sample is delivered once a frame later than its instant has
@@ -37,8 +39,8 @@ from canfdi.bus.frames import (
     FLAG_REMOTE,
     STATUS_CODES,
     STATUS_NAMES,
-    VALID_STATUSES,
     FrameBlock,
+    frame_counters,
 )
 from canfdi.core.records import Sample
 from canfdi.core.settings import ClockConfig, ConfigError
@@ -50,8 +52,6 @@ CLOCKS = ("counter", "trigger", "grid")
 
 _OK = STATUS_CODES["ok"]
 _DUPLICATE = STATUS_CODES["duplicate"]
-_VALID = [STATUS_CODES[name] for name in VALID_STATUSES]
-_INVALID_NAMES = tuple(name for name in STATUS_NAMES if name not in VALID_STATUSES)
 
 
 class LatestValueClock:
@@ -84,7 +84,8 @@ class LatestValueClock:
         self._time = np.full(width, np.iinfo(np.int64).min // 4, dtype=np.int64)
         self._last_counter = np.full(len(bus_map.layouts), -1, dtype=np.int64)
         self._k = -1  # latest sample delivered
-        self._t_last = 0  # its instant (trigger time or grid instant), ns
+        self._t_last: int | None = None  # its instant (trigger time or grid instant), ns;
+        # trigger: the first trigger's time once seen (it starts the clock, closes nothing)
         self._t0: int | None = None  # grid: the first mapped frame's time
         self._counts = [0] * len(STATUS_NAMES)
         self._complete = self._broken = self._missing = 0
@@ -92,19 +93,7 @@ class LatestValueClock:
     @property
     def stats(self) -> dict:
         """Counters since construction, as `SampleAssembler.stats`."""
-        counts = self._counts
-        invalid = {name: counts[STATUS_CODES[name]] for name in _INVALID_NAMES}
-        valid = sum(counts[c] for c in _VALID)
-        return {
-            "frames_received": valid + sum(invalid.values()),
-            "frames_valid": valid,
-            "frames_invalid": sum(invalid.values()),
-            "invalid_by_reason": invalid,
-            "samples_complete": self._complete,
-            "samples_broken": self._broken,
-            "samples_missing": self._missing,
-            "duplicates": counts[_DUPLICATE],
-        }
+        return frame_counters(self._counts, self._complete, self._broken, self._missing)
 
     # -- streaming ----------------------------------------------------------------------------
     def push(self, timestamp_ns: int, frame_id: int, data: bytes | bytearray, *,
@@ -141,6 +130,10 @@ class LatestValueClock:
         ok = np.flatnonzero(status == _OK)
         if self.kind == "trigger":
             at = ok[slot[ok] == self.bus_map.trigger_slot]
+            if self._t_last is None and at.size:
+                # The first trigger starts the clock: what came before it is no whole period.
+                self._t_last = int(t[at[0]])
+                at = at[1:]
             instants, upto = self._trigger_instants(t, at)
         else:
             mapped = ok
@@ -205,8 +198,6 @@ class LatestValueClock:
         else:
             previous = np.concatenate([[self._t_last], instants[:-1]])
             steps = np.maximum(np.rint((instants - previous) / self._dt_ns), 1).astype(np.int64)
-            if self._k < 0:
-                steps[0] = 1  # the first trigger is sample 0
             ks = self._k + np.cumsum(steps)
             gaps = steps - 1
             self._missing += int(gaps.sum())
