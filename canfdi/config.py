@@ -284,10 +284,16 @@ def _bus(data: dict, names: list[str]) -> BusConfig:
         raise ConfigError("bus.clock.message", f"only a trigger clock takes a message (this "
                                                f"one is {clock.kind})")
     node = section(data, "node", "bus")
-    parse_options(node, {"id": Option(str)}, "bus.node")
+    parse_options(node, {"id": Option(str)}, "bus.node", extra=("shared",))
     node_id = node.get("id")
     if node_id is not None:
         check_template(node_id, "bus.node.id")
+    shared = node.get("shared", [])
+    if not isinstance(shared, list):
+        raise ConfigError("bus.node.shared", f"expected a list of message names or IDs, got "
+                                             f"{shared!r}")
+    node_shared = tuple(_message_ref(ref, f"bus.node.shared[{i}]")
+                        for i, ref in enumerate(shared))
     monitor_data = section(data, "monitor", "bus")
     mon = parse_options(monitor_data, _MONITOR, "bus.monitor", extra=("ids", "e2e"))
     ids = section(monitor_data, "ids", "bus.monitor")
@@ -299,7 +305,7 @@ def _bus(data: dict, names: list[str]) -> BusConfig:
         **mon, ids=dict(ids),
         e2e=_e2e_spec(monitor_data.get("e2e", "canfdi"), "bus.monitor.e2e"))
     return BusConfig(**values, map=signal_map, e2e=e2e, clock=clock, node_id=node_id,
-                     monitor=monitor)
+                     node_shared=node_shared, monitor=monitor)
 
 
 def _drives(value: Any, bus: BusConfig) -> tuple[DriveConfig, ...]:

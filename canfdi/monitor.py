@@ -9,8 +9,9 @@ with the frames, frames to send are returned, records go to an optional sink (th
           -> FDI_FAULT / FDI_ESTIMATE frames (with the drive's index), unless listen-only
 
 Several drives of one description share a bus (the config's ``drives:``, docs/bus.md): each
-has its own sample clock and diagnoser; a frame goes to the drive whose message it is, and a
-frame of no drive (the monitor's own, other nodes, unknown IDs) to the first, which only
+has its own sample clock and diagnoser; a frame goes to the drive whose message it is (to each
+drive that maps it, for a message they share, such as the CANopen SYNC that triggers them all),
+and a frame of no drive (the monitor's own, other nodes, unknown IDs) to the first, which only
 counts it.
 """
 
@@ -26,7 +27,13 @@ from canfdi import __version__, methods
 from canfdi.bus.assembler import SampleAssembler
 from canfdi.bus.clock import LatestValueClock, make_clock
 from canfdi.bus.dbc import BusMap, MessageKey, keys_of, load_dbc, message_key
-from canfdi.bus.frames import FLAG_EXTENDED, STATUS_NAMES, FrameBlock
+from canfdi.bus.frames import (
+    FLAG_EXTENDED,
+    STATUS_CODES,
+    STATUS_NAMES,
+    FrameBlock,
+    frame_counters,
+)
 from canfdi.bus.monitorframes import MonitorFrames
 from canfdi.core.protocol import DIAGNOSE, Diagnoser
 from canfdi.core.records import FaultEvent, Sample
@@ -120,13 +127,19 @@ class Monitor:
             self.drives.append(Drive(
                 drive.name, index, bus_map, make_clock(bus_map, self.dt, config.bus.clock),
                 self.method.build(config) if diagnose else None))
-        # Which drive a frame belongs to: (ID, extended) -> drive index; others go to drive 0.
-        self._owner: dict[MessageKey, int] = {
-            key: d.index for d in self.drives for key in d.bus_map.keys}
-        self._owner_ids = np.array(sorted(k[0] + (k[1] << 32) for k in self._owner),
-                                   dtype=np.int64)
-        self._owner_of = np.array([self._owner[(int(v) & 0xFFFFFFFF, bool(v >> 32))]
-                                   for v in self._owner_ids], dtype=np.int64)
+        # Which drives a frame goes to: (ID, extended) -> bit mask of drive indices. A message
+        # several drives share (a CANopen SYNC that triggers all) goes to each; a frame of no
+        # drive goes to the first, which only counts it.
+        owners: dict[MessageKey, int] = {}
+        for d in self.drives:
+            for key in d.bus_map.keys:
+                owners[key] = owners.get(key, 0) | (1 << d.index)
+        self._owners_of = owners
+        self._owner_keys = np.array(sorted(k[0] + (k[1] << 32) for k in owners), dtype=np.int64)
+        self._owner_mask = np.array([owners[(int(v) & 0xFFFFFFFF, bool(v >> 32))]
+                                     for v in self._owner_keys], dtype=np.int64)
+        # Frame counters of the whole bus (a shared frame once), by status code.
+        self._frame_counts = np.zeros(len(STATUS_NAMES), dtype=np.int64)
         self.sink = sink
         self.record_residuals = record_residuals
         self.events: list[FaultEvent] = []
@@ -155,8 +168,13 @@ class Monitor:
 
     @property
     def frame_stats(self) -> dict:
-        """Frame and sample counters of every drive's clock, summed."""
-        return _sum_stats([d.clock.stats for d in self.drives])
+        """Frame counters of the bus (a frame several drives share counted once) and sample
+        counters of every drive's clock, summed."""
+        if len(self.drives) == 1:
+            return self.drives[0].clock.stats
+        clocks = [d.clock.stats for d in self.drives]
+        return frame_counters(self._frame_counts, *(sum(c[key] for c in clocks) for key in (
+            "samples_complete", "samples_broken", "samples_missing")))
 
     # -- metadata ---------------------------------------------------------------------------
     def metadata(self, truth: list[dict] | None = None) -> dict[str, str]:
@@ -186,15 +204,23 @@ class Monitor:
         """Process one received frame; returns the frames to send in reply (fault frames)."""
         if self.first_timestamp_ns is None:
             self.first_timestamp_ns = timestamp_ns
-        drive = self.drives[self._owner.get(message_key(frame_id, is_extended), 0)]
-        status, samples = drive.clock.push(timestamp_ns, frame_id, data,
-                                           is_extended=is_extended, is_remote=is_remote,
-                                           is_error=is_error, is_fd=is_fd)
+        mask = self._owners_of.get(message_key(frame_id, is_extended), 1)
+        delivered: list[tuple[Drive, list[Sample]]] = []
+        first_status = None
+        for drive in self.drives:
+            if mask >> drive.index & 1:
+                status, samples = drive.clock.push(timestamp_ns, frame_id, data,
+                                                   is_extended=is_extended, is_remote=is_remote,
+                                                   is_error=is_error, is_fd=is_fd)
+                first_status = first_status or status  # a shared frame's: its first drive's
+                delivered.append((drive, samples))
+        self._frame_counts[STATUS_CODES[first_status]] += 1
         if self.sink is not None:
-            self.sink.write_frame(timestamp_ns, frame_id, bytes(data), status, is_extended)
+            self.sink.write_frame(timestamp_ns, frame_id, bytes(data), first_status, is_extended)
         out: list[OutFrame] = []
-        for sample in samples:
-            out.extend(self.on_sample(sample, drive))
+        for drive, samples in delivered:
+            for sample in samples:
+                out.extend(self.on_sample(sample, drive))
         return out
 
     def on_frames(self, block: FrameBlock) -> list[OutFrame]:
@@ -209,15 +235,17 @@ class Monitor:
             if self.sink is not None:
                 self.sink.write_frames(block, log.statuses, STATUS_NAMES)
             return self.on_samples(log.k, log.timestamp_ns, log.u, log.z, log.gap)
-        owner = self._owners(block)
-        statuses = np.zeros(block.size, dtype=np.int8)
+        masks = self._masks(block)
+        statuses = np.full(block.size, -1, dtype=np.int8)
         logs = []
         for drive in self.drives:
-            rows = np.flatnonzero(owner == drive.index)
+            rows = np.flatnonzero(masks >> drive.index & 1)
             if rows.size:
                 log = drive.clock.push_batch(block.select(rows))
-                statuses[rows] = log.statuses
+                first = statuses[rows] < 0  # a shared frame's status is its first drive's
+                statuses[rows[first]] = log.statuses[first]
                 logs.append((drive, log))
+        self._frame_counts += np.bincount(statuses, minlength=len(STATUS_NAMES))
         if self.sink is not None:
             self.sink.write_frames(block, statuses, STATUS_NAMES)
         out: list[OutFrame] = []
@@ -225,14 +253,15 @@ class Monitor:
             out += self.on_samples(log.k, log.timestamp_ns, log.u, log.z, log.gap, drive)
         return out
 
-    def _owners(self, block: FrameBlock) -> np.ndarray:
-        """(N,) the index of the drive each frame goes to (0 for a frame of no drive)."""
+    def _masks(self, block: FrameBlock) -> np.ndarray:
+        """(N,) int64 bit masks of the drives each frame goes to (the first for a frame of no
+        drive)."""
         key = block.id.astype(np.int64) + (((block.flags & FLAG_EXTENDED) != 0)
                                            .astype(np.int64) << 32)
-        if not len(self._owner_ids):
-            return np.zeros(block.size, dtype=np.int64)
-        pos = np.clip(np.searchsorted(self._owner_ids, key), 0, len(self._owner_ids) - 1)
-        return np.where(self._owner_ids[pos] == key, self._owner_of[pos], 0)
+        if not len(self._owner_keys):
+            return np.ones(block.size, dtype=np.int64)
+        pos = np.clip(np.searchsorted(self._owner_keys, key), 0, len(self._owner_keys) - 1)
+        return np.where(self._owner_keys[pos] == key, self._owner_mask[pos], 1)
 
     def on_samples(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
                    gap: np.ndarray, drive: Drive | None = None) -> list[OutFrame]:
@@ -349,16 +378,6 @@ class Monitor:
             out["drives"] = {d.name: {"samples": d.samples, "frames": d.clock.stats}
                              for d in self.drives}
         return out
-
-
-def _sum_stats(stats: list[dict]) -> dict:
-    if len(stats) == 1:
-        return stats[0]
-    out = {key: sum(s[key] for s in stats) for key, value in stats[0].items()
-           if isinstance(value, int)}
-    out["invalid_by_reason"] = {name: sum(s["invalid_by_reason"][name] for s in stats)
-                                for name in stats[0]["invalid_by_reason"]}
-    return out
 
 
 def summary_json(events: list[FaultEvent], frame_stats: dict, dt: float,

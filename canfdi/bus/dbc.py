@@ -10,10 +10,11 @@ signal of its own. Every other message of the DBC (and the other drives') is kno
 "unused"; the monitor's own frames are "monitor".
 
 `BusMap.decode_frame` checks and decodes one frame; `BusMap.decode_frames` a whole `FrameBlock`
-with numpy. Statuses are canfdi.bus.frames' ``STATUS_NAMES``: ``error_frame``, ``remote``,
-``unknown_id`` (11-bit) / ``extended`` (29-bit) for an ID no message has, ``fd`` for a frame
-whose FD flag is not its message's, ``dlc``, ``crc`` (the E2E check failed), ``monitor``,
-``unused``, ``ok``.
+with numpy. Statuses are canfdi.bus.frames' ``STATUS_NAMES``: ``error_frame``, ``remote`` (a
+request for an ID no message has; one for a known message, as a master polling it, is
+``unused``), ``unknown_id`` (11-bit) / ``extended`` (29-bit) for an ID no message has, ``fd``
+for a frame whose FD flag is not its message's, ``dlc``, ``crc`` (the E2E check failed),
+``monitor``, ``unused``, ``ok``.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from canfdi.bus.frames import (
 )
 from canfdi.bus.nodeid import MAX_STANDARD_ID, frame_id
 from canfdi.core.settings import (
+    BusConfig,
     ConfigError,
     DriveConfig,
     MonitorConfig,
@@ -342,6 +344,8 @@ class BusMap:
         """`from_config` with the DBC already loaded. Every message of the DBC, on every drive
         of the config, that is not this drive's slot is known as "unused"."""
         bus = config.bus
+        for i, ref in enumerate(bus.node_shared):
+            find_message(database, ref, f"bus.node.shared[{i}]", dbc_label)
         p = len(config.inputs)
         by_message: dict[str, tuple[Message, list[tuple[str, str, int]]]] = {}
         for vector, names in (("u", config.inputs), ("z", config.outputs)):
@@ -356,7 +360,7 @@ class BusMap:
         slots = []
         for message, fields in sorted(by_message.values(),
                                       key=lambda e: (e[0].is_extended_frame, e[0].frame_id)):
-            key = _drive_key(bus.node_id, message, drive)
+            key = _drive_key(bus, message, drive)
             try:
                 layout = compile_layout(message, [f[0] for f in fields])
             except ValueError as exc:
@@ -373,13 +377,13 @@ class BusMap:
         others: dict[MessageKey, Known] = {}
         for other in [*config.drive_list, None]:
             for message in database.messages:
-                key = (_drive_key(bus.node_id, message, other) if other is not None
+                key = (_drive_key(bus, message, other) if other is not None
                        else message_key(message.frame_id, message.is_extended_frame))
                 if key not in others:
                     others[key] = Known("unused", message.length, message.is_fd,
                                         _profile(bus.e2e, message, key, explicit_only=True))
         others.update(monitor or {})
-        trigger_slot = (keys.index(_drive_key(bus.node_id, trigger, drive))
+        trigger_slot = (keys.index(_drive_key(bus, trigger, drive))
                         if trigger is not None else None)
         return cls(dbc_label, drive.name, config.inputs, config.outputs, slots, others,
                    trigger_slot)
@@ -399,10 +403,10 @@ class BusMap:
         """
         if flags & FLAG_ERROR:
             return "error_frame", -1, (), -1
-        if flags & FLAG_REMOTE:
-            return "remote", -1, (), -1
         extended = bool(flags & FLAG_EXTENDED)
         e = self._entry_of.get((frame_id, extended))
+        if flags & FLAG_REMOTE:  # a request: known traffic (polling) when for a known message
+            return ("remote" if e is None else "unused"), -1, (), -1
         if e is None:
             return ("fd" if flags & FLAG_FD else "extended" if extended else "unknown_id",
                     -1, (), -1)
@@ -458,7 +462,8 @@ class BusMap:
         status[known & (status != _FD) & (dlc != self._length[e])] = _DLC
         slot = np.where(known & (entry < len(self._slots)), entry, -1).astype(np.int16)
         blocked = (flags & (FLAG_REMOTE | FLAG_ERROR)) != 0
-        status[(flags & FLAG_REMOTE) != 0] = _REMOTE
+        remote = (flags & FLAG_REMOTE) != 0
+        status[remote] = np.where(known[remote], _UNUSED, _REMOTE)
         status[(flags & FLAG_ERROR) != 0] = _ERROR
         slot[blocked] = -1
         values = np.full((n, self.n_signals_max), np.nan)
@@ -503,10 +508,13 @@ def _run_program(program: tuple, data: bytes | bytearray) -> tuple[float, ...]:
     return tuple(values)
 
 
-def _drive_key(template: str | None, message: Message, drive: DriveConfig) -> MessageKey:
-    """The message's (ID, extended) on this drive (the node-id template applied)."""
+def _drive_key(bus: BusConfig, message: Message, drive: DriveConfig) -> MessageKey:
+    """The message's (ID, extended) on this drive (the node-id template applied, unless the
+    message is one of the bus's shared ones)."""
+    if message.name in bus.node_shared or message.frame_id in bus.node_shared:
+        return message_key(message.frame_id, message.is_extended_frame)
     try:
-        fid = frame_id(template, message.frame_id, drive.node)
+        fid = frame_id(bus.node_id, message.frame_id, drive.node)
     except ValueError as exc:
         raise ConfigError("bus.node.id", f"{message.name}: {exc}") from None
     if not message.is_extended_frame and fid > MAX_STANDARD_ID:
@@ -519,5 +527,5 @@ def keys_of(database: Database, config: MonitorConfig) -> set[MessageKey]:
     """Every message of the DBC on every drive of the config (and as the DBC writes it)."""
     out = {message_key(m.frame_id, m.is_extended_frame) for m in database.messages}
     for drive in config.drive_list:
-        out |= {_drive_key(config.bus.node_id, m, drive) for m in database.messages}
+        out |= {_drive_key(config.bus, m, drive) for m in database.messages}
     return out

@@ -242,7 +242,9 @@ class BusConfig:
     listen-only monitor. canopen : a CANopen bus (the monitor's IDs avoid its function codes).
     map : model signal name -> SignalRef (names not listed: the same-named DBC signal).
     e2e, clock, monitor : see their records. node_id : the node-id template, an expression of
-    ``id`` (a message's DBC ID) and ``node`` (None: the DBC's IDs as written).
+    ``id`` (a message's DBC ID) and ``node`` (None: the DBC's IDs as written). node_shared :
+    messages of the bus rather than of a drive (a CANopen SYNC), by name or DBC ID: the template
+    leaves their IDs alone and every drive reads them.
     """
 
     interface: str = "virtual"
@@ -256,6 +258,7 @@ class BusConfig:
     e2e: E2EConfig = E2EConfig()
     clock: ClockConfig = ClockConfig()
     node_id: str | None = None
+    node_shared: tuple[str | int, ...] = ()
     monitor: MonitorFramesConfig = MonitorFramesConfig()
 
 
