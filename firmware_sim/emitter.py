@@ -174,7 +174,11 @@ async def emit(
 
     Parameters
     ----------
-    speed : 1 real time, N times real time, 0 as fast as the bus accepts frames.
+    speed : 1 real time, N times real time, 0 as fast as the bus accepts frames. Frames carry
+        the time they are sent, except at speed 0, where they carry the time they would leave
+        at in real time (the run's start plus k dt plus the slot's offset): a bus that keeps
+        the sender's timestamps (python-can's virtual bus with ``preserve_timestamps=True``)
+        then shows a receiver the drive's timing, which a time-grid sample clock needs.
     duration : seconds to run (default: the scenario's duration).
     disturbance : drops, jitter and corruption to inject (none by default).
     block : samples simulated and encoded per step.
@@ -202,6 +206,7 @@ async def emit(
     stats = EmitStats(profile=run.profile.name)
     loop = asyncio.get_running_loop()
     t0 = loop.time()
+    epoch0 = time.time()
     wall0 = time.perf_counter()
     link = _Link(bus, reopen)
     try:
@@ -243,13 +248,13 @@ async def emit(
                         if not slot.remote and u[j, 2] < disturbance.wrong_dlc:
                             payload = payload[:-1] if len(payload) > 2 else payload + b"\x00"
                             stats.frames_wrong_dlc += 1
+                    stamp = time.time() if speed > 0 else epoch0 + k * dt + slot.offset
                     if slot.remote:
                         msg = can.Message(arbitration_id=slot.frame_id, is_remote_frame=True,
-                                          dlc=slot.dlc, is_extended_id=False,
-                                          timestamp=time.time())
+                                          dlc=slot.dlc, is_extended_id=False, timestamp=stamp)
                     else:
                         msg = can.Message(arbitration_id=slot.frame_id, data=payload,
-                                          is_extended_id=False, timestamp=time.time())
+                                          is_extended_id=False, timestamp=stamp)
                     await link.send(msg, stats)
                     stats.frames_sent += 1
                 stats.samples += 1

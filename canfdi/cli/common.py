@@ -88,26 +88,35 @@ def _estimates(estimates: dict) -> str:
     return ", ".join(f"{k}={v:.4g}" for k, v in estimates.items())
 
 
-def format_event(event: FaultEvent, dt: float) -> str:
-    """One line per diagnosis, as it happens."""
+def format_event(event: FaultEvent, dt: float, show_drive: bool = False) -> str:
+    """One line per diagnosis, as it happens (with the drive's name when ``show_drive``: a
+    monitor of several drives)."""
     t = event.sample * dt
+    who = f"[{event.drive}] " if show_drive and event.drive else ""
     if event.kind == "detected":
-        return (f"  t={t:8.2f} s  k={event.sample:<7d} DETECTED   change near k="
+        return (f"  t={t:8.2f} s  k={event.sample:<7d} {who}DETECTED   change near k="
                 f"{event.onset_sample} in {', '.join(event.residuals)}")
     if event.kind == "accepted":
-        line = (f"  t={t:8.2f} s  k={event.sample:<7d} FAULT      {event.target} {event.index} "
-                f"({event.name}): {_estimates(event.estimates)}, onset k={event.onset_sample}")
+        line = (f"  t={t:8.2f} s  k={event.sample:<7d} {who}FAULT      {event.target} "
+                f"{event.index} ({event.name}): {_estimates(event.estimates)}, "
+                f"onset k={event.onset_sample}")
         if event.candidates:
             alts = "; ".join(f"{c['name']} {_estimates(c['estimates'])}"
                              for c in event.candidates)
             line += f"\n{'':33}indistinguishable from the bus: {alts}"
         return line
-    return f"  t={t:8.2f} s  k={event.sample:<7d} UNEXPLAINED change detected at k=" \
+    return f"  t={t:8.2f} s  k={event.sample:<7d} {who}UNEXPLAINED change detected at k=" \
            f"{event.detected_sample}: no single fault fits"
 
 
 def print_comparison(result: dict, truth: list[dict] | None) -> None:
-    """Injected faults against diagnosed ones, then the frame counters."""
+    """Injected faults against diagnosed ones (each with its drive's name on a bus of several),
+    then the frame counters."""
+    several = "drives" in result
+
+    def who(f: dict) -> str:
+        return f"{f.get('drive') or '':<8} " if several else ""
+
     print()
     if truth is not None:
         print("injected:")
@@ -116,7 +125,7 @@ def print_comparison(result: dict, truth: list[dict] | None) -> None:
         for f in truth:
             params = {k: f[k] for k in ("eta", "lambda", "bias", "rate", "scale", "value", "std")
                       if k in f}
-            print(f"  {f['target']:<8} {f['index']} {f['name']:<14} {f['kind']:<10} "
+            print(f"  {who(f)}{f['target']:<8} {f['index']} {f['name']:<14} {f['kind']:<10} "
                   f"onset k={f['onset_sample']:<7d} {_estimates(params)}")
     print("diagnosed:")
     if not result["faults"]:
@@ -125,7 +134,8 @@ def print_comparison(result: dict, truth: list[dict] | None) -> None:
         twins = ""
         if f["candidates"]:
             twins = "  (or " + ", ".join(c["name"] for c in f["candidates"][1:]) + ")"
-        print(f"  {f['kind']:<8} {f['index']} {f['name']:<14} onset k={f['onset_sample']:<7d}"
+        print(f"  {who(f)}{f['kind']:<8} {f['index']} {f['name']:<14} "
+              f"onset k={f['onset_sample']:<7d}"
               f"detected k={f['detected_sample']:<7d} accepted k={f['accepted_sample']:<7d} "
               f"{_estimates(f['estimate'])}{twins}")
     for u in result.get("unexplained", []):

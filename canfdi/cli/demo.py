@@ -27,8 +27,11 @@ shows each residual's Page-Hinkley statistic against its threshold, the detector
 active (compensated) faults and the frame counters (--no-live turns it off; it is off when
 stdout is not a terminal).
 
-Defaults: scenario dc_motor_consecutive, the monitor config of the scenario's plant
-(deploy/config/<plant>.yaml), as fast as the monitor keeps up (--speed 0).
+Defaults: scenario dc_motor_consecutive; the monitor config in deploy/config/ that reads the
+scenario's bus (its bus profile's DBC, as many drives): the plant's own config
+(deploy/config/<plant>.yaml) on canfdi's bus, dc_motor_cia402.yaml for a CiA 402 scenario, and
+so on; as fast as the monitor keeps up (--speed 0: each frame carries its time in the drive's
+run, so every sample clock sees the drive's timing).
 Exit status: 0 done, 2 bad scenario, config or arguments."""
 
 
@@ -38,7 +41,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default="dc_motor_consecutive", metavar="FILE",
                    help="scenario YAML or shipped name (default: dc_motor_consecutive)")
     p.add_argument("--config", type=Path, metavar="FILE",
-                   help="monitor config (default: deploy/config/<plant>.yaml)")
+                   help="monitor config (default: the one in deploy/config/ that reads the "
+                        "scenario's bus)")
     p.add_argument("--speed", type=float, default=0.0, metavar="N",
                    help="N times real time; 0 = as fast as possible (default: 0)")
     p.add_argument("--json", action="store_true",
@@ -63,7 +67,9 @@ async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canf
 
     plant = scenario.make_plant()
     names = {"actuator": plant.input_names, "sensor": plant.output_names}
-    truth = [f.truth(plant.dt, names[f.target]) for f in scenario.faults]
+    several = len(scenario.drives) > 1
+    truth = [{**f.truth(plant.dt, names[f.target]), **({"drive": d.name} if several else {})}
+             for d in scenario.drives for f in d.faults]
     monitor = Monitor(config)
     if recorder is not None:
         monitor.sink = recorder(monitor.metadata(truth))
@@ -81,7 +87,9 @@ async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canf
         view_task = asyncio.create_task(view.run(stop))
     while service.bus is None and not monitor_task.done():
         await asyncio.sleep(0.01)
-    sim_bus = can.Bus(interface="virtual", channel=channel)
+    # The emulator stamps each frame with its time in the drive's run (at speed 0, faster than
+    # the wall clock); the bus keeps it, as the frames' timing is what a grid clock samples.
+    sim_bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
     try:
         if announce is not None:
             announce(f"canfdi demo: {scenario.name} ({scenario.duration:g} s of {plant.name}) "
@@ -118,7 +126,15 @@ def run(args: argparse.Namespace) -> int:
         print("canfdi demo: --speed: must be >= 0", file=sys.stderr)
         return 2
     plant = scenario.make_plant()
-    config = load_config_or_exit(args.config or DEFAULT_CONFIG_DIR / plant.config, "demo")
+    if args.config is None:
+        from canfdi.tools.pairing import NoPairing, config_for
+
+        try:
+            args.config = config_for(scenario, DEFAULT_CONFIG_DIR)
+        except NoPairing as exc:
+            print(f"canfdi demo: {exc}", file=sys.stderr)
+            return 2
+    config = load_config_or_exit(args.config, "demo")
     if isinstance(config, int):
         return config
     quiet = args.json
@@ -143,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
 
     def on_event(event) -> None:
         if not quiet:
-            say(format_event(event, plant.dt))
+            say(format_event(event, plant.dt, len(config.drive_list) > 1))
 
     try:
         monitor, stats, truth = asyncio.run(run_demo(

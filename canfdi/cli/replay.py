@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
             if len(monitor.events) != n_events:
                 if not args.json:
                     for event in monitor.events[n_events:]:
-                        print(format_event(event, monitor.dt), flush=True)
+                        print(format_event(event, monitor.dt, len(monitor.drives) > 1), flush=True)
                 n_events = len(monitor.events)
             if progress:
                 rate = monitor.samples / max(time.monotonic() - start, 1e-9)

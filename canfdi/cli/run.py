@@ -114,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     def on_event(event) -> None:
         log.info("event %s", json.dumps(event.as_dict()))
         if not args.quiet:
-            line = format_event(event, monitor.dt)
+            line = format_event(event, monitor.dt, len(monitor.drives) > 1)
             if view is not None:
                 view.print(line)
             else:
