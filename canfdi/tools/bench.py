@@ -7,6 +7,7 @@ generated once and reused, so every stage is timed on the same traffic.
 from __future__ import annotations
 
 import asyncio
+import math
 import os
 import statistics
 import tempfile
@@ -14,12 +15,16 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from canfdi.bus.frames import FrameBlock
+from canfdi.bus.frames import FLAG_EXTENDED, FLAG_REMOTE, FrameBlock
 
-__all__ = ["bus_limit", "make_traffic", "run_bench"]
+if TYPE_CHECKING:
+    from firmware_sim.scenario import Scenario
+
+__all__ = ["bus_limit", "data_lengths", "make_traffic", "run_bench"]
 
 
 def frame_bits(dlc: int, stuffed: bool) -> int:
@@ -35,37 +40,29 @@ def frame_bits(dlc: int, stuffed: bool) -> int:
     return bits
 
 
-def bus_limit(dlcs: list[int], bitrate: float = 1e6) -> tuple[float, float]:
-    """Frames/s of a saturated bus carrying frames of these sizes in equal numbers:
-    (without stuffing, with worst-case stuffing)."""
-    plain = float(np.mean([frame_bits(d, False) for d in dlcs]))
-    stuffed = float(np.mean([frame_bits(d, True) for d in dlcs]))
+def bus_limit(dlcs, bitrate: float = 1e6) -> tuple[float, float]:
+    """Frames/s of a saturated bus carrying frames of these data lengths (a remote request
+    counts 0) in these proportions: (without stuffing, with worst-case stuffing)."""
+    sizes = np.asarray(dlcs, dtype=np.int64)
+    plain = float(np.mean(frame_bits(sizes, False)))
+    stuffed = float(np.mean(frame_bits(sizes, True)))
     return bitrate / plain, bitrate / stuffed
 
 
-def make_traffic(frames: int, scenario: str = "dc_motor_nominal") -> FrameBlock:
-    """About ``frames`` drive frames of a scenario (repeated past its duration)."""
-    from firmware_sim.emitter import FrameEncoder
-    from firmware_sim.scenario import load_scenario
-    from firmware_sim.simulate import Simulator
+def data_lengths(traffic: FrameBlock) -> np.ndarray:
+    """(N,) bytes of data on the wire per frame (0 for a remote request, whatever its DLC)."""
+    return np.where((traffic.flags & FLAG_REMOTE) != 0, 0, traffic.dlc).astype(np.int64)
 
-    sc = load_scenario(scenario)
-    sim = Simulator(sc)
-    enc = FrameEncoder(sim.plant)
-    per = len(enc.layouts)
-    samples = -(-frames // per)
-    chunk = sim.advance(samples)
-    payloads, _ = enc.encode(chunk)
-    n = samples * per
-    ids = np.tile([lay.frame_id for lay in enc.layouts], samples)
-    dlc = np.tile([lay.dlc for lay in enc.layouts], samples)
-    P = np.zeros((n, 8), dtype=np.uint8)
-    for j, (lay, p) in enumerate(zip(enc.layouts, payloads, strict=True)):
-        P[j::per, : lay.dlc] = p
-    # Frames of a period 100 us apart, periods dt apart.
-    t = (np.repeat(chunk.t, per) * 1e9).astype(np.int64) + np.tile(np.arange(per) * 100_000,
-                                                                   samples)
-    return FrameBlock(t, ids, dlc, np.zeros(n, dtype=np.uint8), P)
+
+def make_traffic(frames: int, scenario: str | Scenario = "dc_motor_nominal") -> FrameBlock:
+    """The first ``frames`` frames of a scenario's bus (run past its duration as needed)."""
+    from firmware_sim.emitter import frame_log
+    from firmware_sim.scenario import load_scenario
+
+    sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
+    second = frame_log(sc, duration=1.0).frames.size  # frames per second of this bus
+    log = frame_log(sc, duration=math.ceil(frames / max(second, 1)) + 1.0)
+    return log.frames.slice(0, min(frames, log.frames.size))
 
 
 def _rss_mib() -> float:
@@ -94,9 +91,13 @@ def _feed(monitor, traffic: FrameBlock, block: int = 4096,
 
 
 def run_bench(config, frames: int = 1_000_000, quick: bool = False,
-              progress: Callable[[str], None] | None = None, workdir: Path | None = None) -> dict:
-    """Measure everything; returns the JSON-ready result."""
-    from canfdi.bus.dbc import BusMap
+              progress: Callable[[str], None] | None = None, workdir: Path | None = None,
+              scenario: Scenario | str = "dc_motor_nominal",
+              faulty: Scenario | str = "dc_motor_consecutive") -> dict:
+    """Measure everything; returns the JSON-ready result.
+
+    ``scenario`` plays the config's bus fault-free (throughput, decode, capture, replay);
+    ``faulty`` plays it with faults (latency, diagnoses included)."""
     from canfdi.io.writer import McapRecorder
     from canfdi.monitor import Monitor
 
@@ -104,16 +105,15 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     tmp = Path(workdir or tempfile.mkdtemp(prefix="canfdi-bench-"))
     out: dict = {"frames": frames, "quick": quick}
 
-    bus_map = BusMap.from_config(config)
-    dlcs = [lay.dlc for lay in bus_map.layouts]
-    plain, stuffed = bus_limit(dlcs)
+    say(f"generating {frames:,} drive frames")
+    traffic = make_traffic(frames, scenario)
+    n = traffic.size
+    sizes = data_lengths(traffic)
+    plain, stuffed = bus_limit(sizes)
+    out["scenario"] = getattr(scenario, "name", scenario)
     out["bus_limit_fps"] = plain
     out["bus_limit_stuffed_fps"] = stuffed
-    out["frame_dlcs"] = dlcs
-
-    say(f"generating {frames:,} drive frames")
-    traffic = make_traffic(frames)
-    n = traffic.size
+    out["frame_dlcs"] = sorted(set(sizes.tolist()))
 
     # -- throughput from memory: decode -> assemble -> diagnose -> record ------------------
     say("throughput from memory (decode, assemble, diagnose, record)")
@@ -158,18 +158,23 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
 
     # -- decode: ours (vectorised, precompiled) against cantools --------------------------
     say("decode: canfdi against cantools")
-    from canfdi import dbc as dbc_files
+    from canfdi.bus.dbc import load_dbc
 
-    db = dbc_files.load(config.bus.dbc)
+    bus_map = monitor.bus_map
+    db, _ = load_dbc(config.bus.dbc, config.path)
     wall_ours, _ = _timed(lambda: bus_map.decode_frames(traffic))
+    # cantools decodes every data frame of a DBC message (at the DBC's own IDs) among the first
+    # frames: the whole message, as its decode does.
+    msgs = {(m.frame_id, m.is_extended_frame): m for m in db.messages}
+    head = traffic.slice(0, min(n, 30_000 if quick else 100_000))
+    payloads = head.payloads()
+    work = [(msgs[key], payloads[i]) for i, key in enumerate(zip(
+        head.id.tolist(), ((head.flags & FLAG_EXTENDED) != 0).tolist(), strict=True))
+        if key in msgs and not head.flags[i] & FLAG_REMOTE]
+    wall_ct, _ = _timed(lambda: [m.decode(d, decode_choices=False) for m, d in work])
     sub = min(n, 30_000 if quick else 100_000)
-    datas = [traffic.data[i, : traffic.dlc[i]].tobytes() for i in range(sub)]
-    ids = traffic.id[:sub].tolist()
-    msgs = {m.frame_id: m for m in db.messages}
-    wall_ct, _ = _timed(lambda: [msgs[i].decode(d, decode_choices=False)
-                                 for i, d in zip(ids, datas, strict=True)])
     out["decode_fps"] = n / wall_ours
-    out["cantools_decode_fps"] = sub / wall_ct
+    out["cantools_decode_fps"] = len(work) / wall_ct
     out["decode_ratio_vs_cantools"] = out["decode_fps"] / out["cantools_decode_fps"]
 
     # -- capture: canfdi capture's path against python-can's BLF logger ---------------------
@@ -206,7 +211,7 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     say("over python-can's virtual bus")
     out.update(_virtual_bus(config, traffic, sub))
     say("latency at 50% bus load")
-    out.update(_latency(config, plain, seconds=2.0 if quick else 6.0))
+    out.update(_latency(config, plain, faulty, seconds=2.0 if quick else 6.0))
     return out
 
 
@@ -266,10 +271,10 @@ def _virtual_bus(config, traffic: FrameBlock, count: int) -> dict:
     return {"virtual_bus_fps": len(messages) / wall}
 
 
-def _latency(config, bus_fps: float, seconds: float) -> dict:
+def _latency(config, bus_fps: float, faulty: Scenario | str, seconds: float) -> dict:
     """The live service's reaction time at 50 % of the bus limit.
 
-    The consecutive-faults scenario's frames are delivered to the service at their scheduled
+    The faulty scenario's frames are delivered to the service at their scheduled
     times (50 % load), each stamped on arrival; a latency is measured for every handled block
     that completed a sample: from its last frame's arrival to the end of its handling, fault
     frames sent on a virtual bus included. Frames are delivered from the monitor's own event
@@ -283,7 +288,7 @@ def _latency(config, bus_fps: float, seconds: float) -> dict:
 
     frames_per_s = 0.5 * bus_fps
     count = int(frames_per_s * seconds)
-    traffic = make_traffic(count, scenario="dc_motor_consecutive")
+    traffic = make_traffic(count, faulty)
     messages = traffic.to_messages()
     channel = f"canfdi-latency-{os.getpid()}"
     latencies: list[int] = []

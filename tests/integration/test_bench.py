@@ -5,6 +5,8 @@ import math
 import subprocess
 import sys
 
+import pytest
+
 from tests.conftest import REPO
 
 FIELDS = ("bus_limit_fps", "throughput_fps", "throughput_ratio", "decode_ratio_vs_cantools",
@@ -33,3 +35,31 @@ def test_bench_rejects_too_few_frames():
     res = subprocess.run([sys.executable, "-m", "canfdi", "bench", "--frames", "10"],
                          capture_output=True, text=True, timeout=120, cwd=REPO)
     assert res.returncode == 2 and "--frames" in res.stderr
+
+
+def test_bench_measures_the_bus_of_the_config_it_is_given():
+    # The CiA 402 bus: SYNC (no data), three 6-byte PDOs a period, a 1-byte heartbeat every
+    # tenth; the traffic is that bus's emulated drive, and the bus limit follows its frames.
+    res = subprocess.run([sys.executable, "-m", "canfdi", "bench", "--quick", "--json",
+                          "--frames", "20000", "--config",
+                          str(REPO / "deploy" / "config" / "dc_motor_cia402.yaml")],
+                         capture_output=True, text=True, timeout=600, cwd=REPO)
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout)
+    assert out["scenario"] == "dc_motor_consecutive_cia402 without faults"
+    assert out["frame_dlcs"] == [0, 1, 6]
+    bits = (47 + 3 * (47 + 48) + 0.1 * (47 + 8)) / 4.1
+    assert out["bus_limit_fps"] == pytest.approx(1e6 / bits, rel=2e-3)
+    assert out["throughput_samples"] > 0.99 * 20000 / 4.1
+    assert out["throughput_false_alarms"] == 0
+
+
+def test_bench_without_a_scenario_for_the_bus_says_which_to_give(tmp_path):
+    config = tmp_path / "three.yaml"
+    text = (REPO / "deploy" / "config" / "dc_motor_two_drives_cia402.yaml").read_text()
+    config.write_text(text.replace("  - {name: right, node: 2}",
+                                   "  - {name: right, node: 2}\n  - {name: third, node: 3}"))
+    res = subprocess.run([sys.executable, "-m", "canfdi", "bench", "--quick", "--config",
+                          str(config)], capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert res.returncode == 2
+    assert "no scenario" in res.stderr and "--scenario" in res.stderr
