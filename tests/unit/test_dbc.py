@@ -1,14 +1,20 @@
-"""Every DBC file in dbc/ against the conventions of dbc/README.md.
+"""Every DBC file in dbc/ against the conventions of dbc/README.md, by kind.
 
-The files are globbed, so a new plant's DBC is checked as soon as it lands: against canfdi's
-conventions (E2E header, monitor block, ...) unless a bus profile of the emulator other than
-canfdi claims it (firmware_sim/profiles: cia402, float_node), whose vendor-style DBCs are
-checked for what every DBC here must give (a strict load, comments, cycle times, round trips)
-and, with the monitor configs that read them, for their signals' ranges.
+The files are globbed, so a new file is checked as soon as it lands:
+
+- plant DBCs of canfdi's own bus (every file that is neither the monitor's DBC nor claimed by a
+  bus profile of the emulator other than canfdi): drive messages only, E2E header, IDs no
+  monitor default ID can be confused with, the plant's names, the scenarios' ranges;
+- canfdi_monitor.dbc, the monitor's own four messages: the README's tables and dbc blocks, and
+  round trips through the monitor's own encoder (canfdi.bus.monitorframes);
+- the vendor-style DBCs of the other bus profiles (firmware_sim/profiles: cia402, float_node):
+  what every DBC here must give (a strict load, comments, cycle times, round trips) and, with
+  the monitor configs that read them, their signals' ranges.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import subprocess
 import sys
@@ -22,11 +28,16 @@ from cantools.database.can import Database, Message, Signal
 
 from canfdi import dbc as dbc_package
 from canfdi.bus import e2e
+from canfdi.bus.monitorframes import MONITOR_MESSAGES, MonitorFrames
+from canfdi.config import MAX_DRIVES, load_config
+from canfdi.core.settings import MonitorFramesConfig
 
 REPO = Path(__file__).resolve().parents[2]
 DBC_DIR = REPO / "dbc"
 ALL_DBC_FILES = sorted(DBC_DIR.glob("*.dbc"))
 README = DBC_DIR / "README.md"
+MONITOR_DBC = DBC_DIR / "canfdi_monitor.dbc"
+DC_MOTOR_CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
 
 
 def _profile_dbcs() -> dict[str, str]:
@@ -39,50 +50,60 @@ def _profile_dbcs() -> dict[str, str]:
 
 
 PROFILE_DBCS = _profile_dbcs()
-DBC_FILES = [p for p in ALL_DBC_FILES if p.stem not in PROFILE_DBCS]
-"""The files of canfdi's own bus (every file no other profile claims)."""
+DBC_FILES = [p for p in ALL_DBC_FILES if p.stem not in PROFILE_DBCS and p != MONITOR_DBC]
+"""The plant DBCs of canfdi's own bus (every file neither the monitor's nor a profile's)."""
 PROFILE_DBC_FILES = [p for p in ALL_DBC_FILES if p.stem in PROFILE_DBCS]
 
-# name: (frame_id, dlc, cycle_time (None: event-driven), {signal: (start, length, signed, float,
-# minimum, maximum, choices)}) -- the monitor block of dbc/README.md.
-KIND = {0: "none", 1: "actuator", 2: "sensor"}
 HEADER = {"CRC": (0, 8, False, False, 0, 255, None), "Counter": (8, 8, False, False, 0, 255, None)}
-FLOAT = (32, 32, True, True, -3.4e38, 3.4e38, None)
-MONITOR = {
-    "FDI_FAULT": (0x080, 8, None, {
-        **HEADER,
-        "Kind": (16, 2, False, False, 0, 2, KIND),
-        "State": (18, 2, False, False, 0, 3,
-                  {0: "cleared", 1: "detected", 2: "isolated", 3: "accepted"}),
-        "Index": (24, 8, False, False, 0, 255, None),
-        "Sample": (32, 32, False, False, 0, 2**32 - 1, None),
-    }),
-    "FDI_ESTIMATE": (0x081, 8, None, {
-        **HEADER,
-        "Kind": (16, 2, False, False, 0, 2, KIND),
-        "Param": (18, 4, False, False, 0, 5, {0: "eta", 1: "lambda", 2: "bias", 3: "eta_std",
-                                             4: "lambda_std", 5: "bias_std"}),
-        "Index": (24, 8, False, False, 0, 255, None),
-        "Value": FLOAT,
-    }),
-    "FDI_STATUS": (0x082, 8, 1000, {
-        **HEADER,
-        "State": (16, 4, False, False, 0, 4, {0: "starting", 1: "monitoring", 2: "diagnosing",
-                                             3: "degraded", 4: "bus_error"}),
-        "ActiveFaults": (20, 4, False, False, 0, 15, None),
-        "Samples": (24, 24, False, False, 0, 2**24 - 1, None),
-        "InvalidFrames": (48, 16, False, False, 0, 2**16 - 1, None),
-    }),
-    "FDI_RESIDUAL": (0x083, 8, None, {
-        **HEADER,
-        "Index": (16, 8, False, False, 0, 255, None),
-        "Alarm": (24, 2, False, False, 0, 2, {0: "none", 1: "up", 2: "down"}),
-        "Value": FLOAT,
-    }),
-}
+
+# README sections whose ```dbc blocks the tests compare, line by line, with files.
+MONITOR_SECTION = "Monitor messages"
+WRITING_SECTION = "Writing a new DBC file"
+DBC_BLOCK = re.compile(r"^```dbc\n(.*?)^```", flags=re.M | re.S)
+
 
 def _stem(path: Path) -> str:
     return path.stem
+
+
+def _choices(sig: Signal) -> dict[int, str] | None:
+    return None if sig.choices is None else {int(k): str(v) for k, v in sig.choices.items()}
+
+
+def _is_drive(msg: Message) -> bool:
+    return msg.name.startswith("DRIVE_")
+
+
+def _readme_section(title: str) -> str:
+    """The text of the README's "## <title> ..." section, up to the next "## " heading."""
+    parts = re.split(r"^## (.+)$", README.read_text(), flags=re.M)
+    found = [text for heading, text in zip(parts[1::2], parts[2::2], strict=True)
+             if heading.startswith(title)]
+    assert len(found) == 1, f"dbc/README.md needs one section '## {title}'"
+    return found[0]
+
+
+def _dbc_lines(text: str) -> list[str]:
+    """Every non-blank line of the ```dbc blocks of a README text, stripped."""
+    blocks = DBC_BLOCK.findall(text)
+    assert blocks, "no ```dbc blocks"
+    return [line.strip() for block in blocks for line in block.splitlines() if line.strip()]
+
+
+def _missing_lines(path: Path, lines: list[str]) -> list[str]:
+    have = {line.strip() for line in path.read_text().splitlines()}
+    return [line for line in lines if line not in have]
+
+
+def test_every_readme_dbc_block_is_compared_with_files() -> None:
+    """A ```dbc block outside the two sections the tests read would be checked by nothing."""
+    total = len(DBC_BLOCK.findall(README.read_text()))
+    compared = sum(len(DBC_BLOCK.findall(_readme_section(title)))
+                   for title in (MONITOR_SECTION, WRITING_SECTION))
+    assert compared == total
+
+
+# --- plant DBCs of canfdi's own bus -------------------------------------------------------------
 
 
 @pytest.fixture(scope="module", params=DBC_FILES, ids=_stem)
@@ -95,123 +116,109 @@ def db(dbc_file: Path) -> Database:
     return cantools.database.load_file(dbc_file, strict=True)
 
 
-def _choices(sig: Signal) -> dict[int, str] | None:
-    return None if sig.choices is None else {int(k): str(v) for k, v in sig.choices.items()}
+@pytest.fixture(scope="module")
+def monitor_db() -> Database:
+    return cantools.database.load_file(MONITOR_DBC, strict=True)
 
 
-def _signal_layout(sig: Signal) -> tuple:
-    return (sig.name, sig.start, sig.length, sig.byte_order, sig.is_signed, sig.is_float,
-            sig.scale, sig.offset, sig.minimum, sig.maximum, sig.unit, _choices(sig), sig.comment)
+def test_every_plant_has_its_plant_dbc_and_every_plant_dbc_a_plant() -> None:
+    from firmware_sim.plants import PLANTS
+    from firmware_sim.profiles import PROFILES
 
-
-def _message_layout(msg: Message) -> tuple:
-    return (msg.name, msg.frame_id, msg.is_extended_frame, msg.length, msg.senders,
-            msg.cycle_time, msg.send_type, msg.comment,
-            tuple(_signal_layout(s) for s in msg.signals))
-
-
-def _is_drive(msg: Message) -> bool:
-    return msg.name.startswith("DRIVE_")
-
-
-def test_there_is_a_dbc_file() -> None:
-    assert [p.name for p in DBC_FILES if p.name == "motor_drive.dbc"] == ["motor_drive.dbc"]
+    plants = {name: factory() for name, factory in PLANTS.items()}
+    assert sorted(p.name for p in DBC_FILES) == sorted(p.dbc for p in plants.values())
+    for name, plant in plants.items():
+        assert PROFILES["canfdi"].dbc(name) == Path(plant.dbc).stem, name
+    assert "motor_drive.dbc" in {p.name for p in DBC_FILES}
 
 
 def test_cantools_dump_cli_accepts_the_file(dbc_file: Path) -> None:
     result = subprocess.run([sys.executable, "-m", "cantools", "dump", str(dbc_file)],
                             capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode == 0, result.stderr
-    assert "FDI_FAULT" in result.stdout
+    names = re.findall(r"^BO_ \d+ (\w+):", dbc_file.read_text(), flags=re.M)
+    assert names and all(name.startswith("DRIVE_") for name in names), names
+    for name in names:
+        assert name in result.stdout, name
+    assert "FDI_" not in result.stdout, "the monitor's messages are in canfdi_monitor.dbc"
 
 
-def test_nodes_and_message_names(db: Database) -> None:
+def test_nodes_senders_and_receivers(db: Database, dbc_file: Path) -> None:
     assert sorted(node.name for node in db.nodes) == ["DRIVE", "FDI"]
     assert all(node.comment for node in db.nodes)
+    assert db.version == f"canfdi {dbc_file.stem} 1"
+    assert db.messages
     for msg in db.messages:
-        assert msg.name.startswith(("DRIVE_", "FDI_")), msg.name
-
-
-def test_monitor_messages_follow_the_readme(db: Database) -> None:
-    for name, (frame_id, dlc, cycle_time, signals) in MONITOR.items():
-        msg = db.get_message_by_name(name)
-        assert (msg.frame_id, msg.length, msg.is_extended_frame) == (frame_id, dlc, False), name
-        assert msg.cycle_time == cycle_time, name
-        assert msg.send_type == ("Cyclic" if cycle_time else "Event"), name
-        got = {s.name: (s.start, s.length, s.is_signed, s.is_float, s.minimum, s.maximum,
-                        _choices(s)) for s in msg.signals}
-        assert got == signals, name
+        assert _is_drive(msg), msg.name
+        assert msg.senders == ["DRIVE"], msg.name
         for sig in msg.signals:
-            assert (sig.byte_order, sig.scale, sig.offset) == ("little_endian", 1, 0), sig.name
-    assert sorted(m.name for m in db.messages if not _is_drive(m)) == sorted(MONITOR)
+            assert sig.receivers == ["FDI"], (msg.name, sig.name)
 
 
-def test_monitor_messages_are_identical_in_every_file() -> None:
-    layouts = {}
-    for path in DBC_FILES:
-        database = cantools.database.load_file(path, strict=True)
-        layouts[path.name] = [_message_layout(database.get_message_by_name(n)) for n in MONITOR]
-    reference = layouts["motor_drive.dbc"]
-    for name, layout in layouts.items():
-        assert layout == reference, name
+def test_file_comment_names_the_plant_only(dbc_file: Path) -> None:
+    """One file-level CM_ (plant, seed, dt); the monitor's messages are not in this file."""
+    comments = re.findall(r'^CM_ "(.*)";$', dbc_file.read_text(), flags=re.M)
+    assert len(comments) == 1, comments
+    assert "dt = " in comments[0] and comments[0].endswith("Conventions: dbc/README.md.")
+    assert "monitor" not in comments[0]
 
 
-def _readme_dbc_lines() -> list[str]:
-    blocks = re.findall(r"^```dbc\n(.*?)^```", README.read_text(), flags=re.M | re.S)
-    assert blocks, "dbc/README.md has no ```dbc blocks"
-    return [line.strip() for block in blocks for line in block.splitlines() if line.strip()]
-
-
-def test_readme_monitor_block_is_in_the_file_verbatim(dbc_file: Path) -> None:
-    lines = {line.strip() for line in dbc_file.read_text().splitlines()}
-    missing = [line for line in _readme_dbc_lines() if line not in lines]
+def test_readme_plant_blocks_are_in_the_file_verbatim(dbc_file: Path) -> None:
+    missing = _missing_lines(dbc_file, _dbc_lines(_readme_section(WRITING_SECTION)))
     assert not missing, f"{dbc_file.name} lacks these README lines: {missing[:5]}"
+
+
+def _assert_e2e_header(msg: Message) -> None:
+    by_name = {s.name: s for s in msg.signals}
+    for name, start in (("CRC", 0), ("Counter", 8)):
+        assert name in by_name, (msg.name, name)
+        sig = by_name[name]
+        assert (sig.start, sig.length, sig.byte_order, sig.is_signed, sig.is_float,
+                sig.scale, sig.offset, sig.minimum, sig.maximum) == (
+            start, 8, "little_endian", False, False, 1, 0, 0, 255), (msg.name, name)
 
 
 def test_every_message_starts_with_the_e2e_header(db: Database) -> None:
     for msg in db.messages:
-        by_name = {s.name: s for s in msg.signals}
-        for name, start in (("CRC", 0), ("Counter", 8)):
-            sig = by_name[name]
-            assert (sig.start, sig.length, sig.byte_order, sig.is_signed, sig.is_float,
-                    sig.scale, sig.offset) == (start, 8, "little_endian", False, False, 1, 0), (
-                msg.name, name)
+        _assert_e2e_header(msg)
 
 
-def test_ids_dlc_and_signal_conventions(db: Database) -> None:
-    drive = [m for m in db.messages if _is_drive(m)]
-    assert drive
-    assert max(MONITOR[n][0] for n in MONITOR) < min(m.frame_id for m in drive)
+def test_ids_dlc_and_signal_conventions(db: Database, monitor_db: Database) -> None:
+    ids = [m.frame_id for m in db.messages]
+    assert ids == sorted(set(ids)), "ascending, distinct IDs"
+    assert min(ids) > max(m.frame_id for m in monitor_db.messages), (
+        "drive IDs above the monitor's default IDs")
     for msg in db.messages:
         assert not msg.is_extended_frame and not msg.is_multiplexed(), msg.name
-        assert msg.frame_id <= e2e.MAX_ARBITRATION_ID and 2 <= msg.length <= 8, msg.name
+        assert msg.frame_id <= e2e.MAX_ARBITRATION_ID, msg.name
         assert msg.comment, msg.name
-        assert "GenMsgCycleTime" in msg.dbc.attributes, msg.name
+        assert {"GenMsgCycleTime", "GenMsgSendType"} <= set(msg.dbc.attributes), msg.name
+        assert msg.send_type == "Cyclic" and msg.cycle_time, msg.name
+        starts = []
         for sig in msg.signals:
             assert sig.byte_order == "little_endian", (msg.name, sig.name)
             assert sig.comment, (msg.name, sig.name)
             assert (sig.start + sig.length) <= 8 * msg.length, (msg.name, sig.name)
-    for msg in drive:
-        assert msg.length in (4, 8), msg.name
-        assert msg.send_type == "Cyclic" and msg.cycle_time, msg.name
-        for sig in msg.signals:
             if sig.name in HEADER:
                 continue
             assert (sig.length, sig.is_signed, sig.is_float, sig.offset) == (16, True, False, 0), (
                 msg.name, sig.name)
-            assert sig.start in (16, 32, 48), (msg.name, sig.name)
-            assert sig.receivers == ["FDI"], (msg.name, sig.name)
-    assert len({m.cycle_time for m in drive}) == 1, "drive messages share the control period"
+            # Declared range = full raw range.
+            assert (sig.minimum, sig.maximum) == pytest.approx(
+                (-32768 * sig.scale, 32767 * sig.scale), rel=1e-9), (msg.name, sig.name)
+            starts.append(sig.start)
+        assert starts and set(starts) <= {16, 32, 48}, (msg.name, starts)
+        assert msg.length == 8 or (msg.length == 4 and starts == [16]), msg.name
+    assert len({m.cycle_time for m in db.messages}) == 1, "drive messages share the period"
 
 
-def test_senders(db: Database) -> None:
-    for msg in db.messages:
-        assert msg.senders == (["DRIVE"] if _is_drive(msg) else ["FDI"]), msg.name
-
-
-def test_no_two_ids_of_a_file_are_confusable_under_the_crc(db: Database) -> None:
-    """A frame replayed under another ID of the same bus must fail the E2E check."""
-    assert e2e.confusable_ids([msg.frame_id for msg in db.messages]) == []
+def test_no_id_is_confusable_under_the_crc(db: Database, monitor_db: Database) -> None:
+    """A frame replayed under another ID of the same bus, the monitor's default IDs included,
+    must fail the E2E check."""
+    ids = [msg.frame_id for msg in db.messages]
+    monitor_ids = [msg.frame_id for msg in monitor_db.messages]
+    assert not set(ids) & set(monitor_ids)
+    assert e2e.confusable_ids(ids + monitor_ids) == []
 
 
 def _raw_limits(sig: Signal) -> tuple[int, int]:
@@ -244,6 +251,17 @@ def _value(sig: Signal, rng: np.random.Generator, where: str) -> float:
     return float(np.clip(raw * sig.scale + sig.offset, lo, hi))
 
 
+def _assert_decoded(msg: Message, decoded: dict, values: dict) -> None:
+    for sig in msg.signals:
+        if sig.name in HEADER:
+            continue
+        got, want = decoded[sig.name], values[sig.name]
+        if sig.is_float:
+            assert got == np.float32(want), (msg.name, sig.name)
+        else:
+            assert abs(got - want) <= sig.scale / 2, (msg.name, sig.name, got, want)
+
+
 def test_encode_decode_round_trip_with_e2e(db: Database) -> None:
     rng = np.random.default_rng(20240601)
     for msg in db.messages:
@@ -257,22 +275,24 @@ def test_encode_decode_round_trip_with_e2e(db: Database) -> None:
             assert e2e.check(msg.frame_id, frame), msg.name
             decoded = msg.decode(frame, decode_choices=False)
             assert decoded["CRC"] == frame[0] and decoded["Counter"] == counter % 256
-            for sig in msg.signals:
-                if sig.name in HEADER:
-                    continue
-                got, want = decoded[sig.name], values[sig.name]
-                if sig.is_float:
-                    assert got == np.float32(want), (msg.name, sig.name)
-                else:
-                    assert abs(got - want) <= sig.scale / 2, (msg.name, sig.name, got, want)
+            _assert_decoded(msg, decoded, values)
+
+
+def _single_bit_errors(frame: bytes):
+    """Every copy of the frame with one bit flipped."""
+    for byte in range(len(frame)):
+        for bit in range(8):
+            corrupted = bytearray(frame)
+            corrupted[byte] ^= 1 << bit
+            yield bytes(corrupted)
 
 
 def test_a_corrupted_encoded_frame_fails_the_check(db: Database) -> None:
-    msg = next(m for m in db.messages if _is_drive(m))
-    frame = bytearray(e2e.protect(msg.frame_id, msg.encode(
-        {s.name: 0 for s in msg.signals}), 7))
-    frame[-1] ^= 0x01
-    assert not e2e.check(msg.frame_id, frame)
+    for msg in db.messages:
+        frame = e2e.protect(msg.frame_id, msg.encode({s.name: 0 for s in msg.signals}), 7)
+        assert e2e.check(msg.frame_id, frame), msg.name
+        for corrupted in _single_bit_errors(frame):
+            assert not e2e.check(msg.frame_id, corrupted), (msg.name, corrupted.hex())
 
 
 # --- the plants' names and the scenarios' values ----------------------------------------------
@@ -290,10 +310,7 @@ def _drive_signals(database: Database) -> dict[str, Signal]:
 
 
 def _database_of(plant) -> Database:
-    path = DBC_DIR / plant.dbc
-    if not path.is_file():
-        pytest.skip(f"{plant.dbc} (plant {plant.name}) has not landed in dbc/ yet")
-    return cantools.database.load_file(path, strict=True)
+    return cantools.database.load_file(DBC_DIR / plant.dbc, strict=True)
 
 
 @pytest.mark.parametrize("plant", _plants(), ids=lambda p: p.name)
@@ -340,6 +357,215 @@ def test_scenario_values_stay_inside_the_signal_ranges(scenario_path: Path) -> N
             assert lo <= values.min() and values.max() <= hi, (
                 f"{scenario_path.name}: {name} spans {values.min():.4g} .. "
                 f"{values.max():.4g}, outside the DBC range {lo} .. {hi}")
+
+
+# --- the monitor's DBC (canfdi_monitor.dbc) ------------------------------------------------------
+
+# name: (default frame_id, dlc, cycle_time (None: event-driven), {signal: (start, length, signed,
+# float, minimum, maximum, choices)}) -- the monitor's messages as dbc/README.md documents them.
+KIND = {0: "none", 1: "actuator", 2: "sensor"}
+FLOAT = (32, 32, True, True, -3.4e38, 3.4e38, None)
+MONITOR = {
+    "FDI_FAULT": (0x080, 8, None, {
+        **HEADER,
+        "Kind": (16, 2, False, False, 0, 2, KIND),
+        "State": (18, 2, False, False, 0, 3,
+                  {0: "cleared", 1: "detected", 2: "isolated", 3: "accepted"}),
+        "Drive": (20, 3, False, False, 0, 7, None),
+        "Index": (24, 8, False, False, 0, 255, None),
+        "Sample": (32, 32, False, False, 0, 2**32 - 1, None),
+    }),
+    "FDI_ESTIMATE": (0x081, 8, None, {
+        **HEADER,
+        "Kind": (16, 2, False, False, 0, 2, KIND),
+        "Param": (18, 3, False, False, 0, 5, {0: "eta", 1: "lambda", 2: "bias", 3: "eta_std",
+                                             4: "lambda_std", 5: "bias_std"}),
+        "Drive": (21, 3, False, False, 0, 7, None),
+        "Index": (24, 8, False, False, 0, 255, None),
+        "Value": FLOAT,
+    }),
+    "FDI_STATUS": (0x082, 8, 1000, {
+        **HEADER,
+        "State": (16, 3, False, False, 0, 4, {0: "starting", 1: "monitoring", 2: "diagnosing",
+                                             3: "degraded", 4: "bus_error"}),
+        "Drive": (19, 3, False, False, 0, 7, None),
+        "ActiveFaults": (22, 4, False, False, 0, 15, None),
+        "Samples": (26, 22, False, False, 0, 2**22 - 1, None),
+        "InvalidFrames": (48, 16, False, False, 0, 2**16 - 1, None),
+    }),
+    "FDI_RESIDUAL": (0x083, 8, None, {
+        **HEADER,
+        "Index": (16, 8, False, False, 0, 255, None),
+        "Alarm": (24, 2, False, False, 0, 2, {0: "none", 1: "up", 2: "down"}),
+        "Drive": (26, 3, False, False, 0, 7, None),
+        "Value": FLOAT,
+    }),
+}
+
+
+def test_cantools_dump_cli_accepts_the_monitor_dbc() -> None:
+    result = subprocess.run([sys.executable, "-m", "cantools", "dump", str(MONITOR_DBC)],
+                            capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 0, result.stderr
+    for name in MONITOR:
+        assert name in result.stdout, name
+    assert "DRIVE_" not in result.stdout
+
+
+def test_monitor_dbc_has_the_monitor_node_and_its_four_messages(monitor_db: Database) -> None:
+    assert [node.name for node in monitor_db.nodes] == ["FDI"]
+    assert monitor_db.nodes[0].comment
+    assert monitor_db.version == "canfdi monitor 2"
+    # In the order bus.monitor.base numbers them: base, base + 1, ... (the defaults from 0x080).
+    assert [m.name for m in monitor_db.messages] == list(MONITOR) == list(MONITOR_MESSAGES)
+    assert [m.frame_id for m in monitor_db.messages] == [0x080, 0x081, 0x082, 0x083]
+    for msg in monitor_db.messages:
+        assert msg.senders == ["FDI"], msg.name
+        assert msg.comment, msg.name
+        assert all(sig.comment for sig in msg.signals), msg.name
+        assert {"GenMsgCycleTime", "GenMsgSendType"} <= set(msg.dbc.attributes), msg.name
+
+
+def test_monitor_messages_follow_the_readme(monitor_db: Database) -> None:
+    for name, (frame_id, dlc, cycle_time, signals) in MONITOR.items():
+        msg = monitor_db.get_message_by_name(name)
+        assert (msg.frame_id, msg.length, msg.is_extended_frame) == (frame_id, dlc, False), name
+        assert not msg.is_multiplexed(), name
+        assert msg.cycle_time == cycle_time, name
+        assert msg.send_type == ("Cyclic" if cycle_time else "Event"), name
+        got = {s.name: (s.start, s.length, s.is_signed, s.is_float, s.minimum, s.maximum,
+                        _choices(s)) for s in msg.signals}
+        assert got == signals, name
+        for sig in msg.signals:
+            assert (sig.byte_order, sig.scale, sig.offset) == ("little_endian", 1, 0), sig.name
+            assert sig.receivers == [], (name, sig.name)  # Vector__XXX: any logger or HMI
+        _assert_e2e_header(msg)
+
+
+def test_the_drive_signal_names_every_drive_a_config_may_have(monitor_db: Database) -> None:
+    for msg in monitor_db.messages:
+        drive = msg.get_signal_by_name("Drive")
+        assert drive.maximum == 2**drive.length - 1 >= MAX_DRIVES - 1, msg.name
+
+
+TABLE_HEADING = re.compile(
+    r"^### `(\w+)` \(default ID 0x([0-9A-F]+), DLC (\d+), (?:event|cyclic (\d+) ms)\)$",
+    flags=re.M)
+TABLE_ROW = re.compile(r"^\| `(\w+)` \| (\d+)\\\|(\d+) \| (unsigned|signed|float32) \| ([^|]*) \|",
+                       flags=re.M)
+
+
+def _readme_values(text: str) -> tuple[float, float] | dict[int, str]:
+    """A table's "values" cell: "lo .. hi", or a VAL_ table "0 none, 1 actuator, ..."."""
+    match = re.fullmatch(r"(-?[0-9.E+]+) \.\. (-?[0-9.E+]+)", text)
+    if match:
+        return float(match[1]), float(match[2])
+    pairs = re.findall(r"(\d+) (\w+)", text)
+    assert pairs and ", ".join(f"{k} {v}" for k, v in pairs) == text, text
+    return {int(k): v for k, v in pairs}
+
+
+def _readme_monitor_tables() -> dict[str, tuple[int, int, int | None, list[tuple]]]:
+    """message -> (default ID, DLC, cycle time, [(signal, start, length, type, values)]), as
+    the "Monitor messages" section of dbc/README.md tabulates them."""
+    text = _readme_section(MONITOR_SECTION)
+    headings = list(TABLE_HEADING.finditer(text))
+    tables = {}
+    for i, heading in enumerate(headings):
+        end = headings[i + 1].start() if i + 1 < len(headings) else len(text)
+        body = text[heading.end():end].split("\n### ")[0]
+        rows = [(name, int(start), int(length), kind, _readme_values(values.strip()))
+                for name, start, length, kind, values in TABLE_ROW.findall(body)]
+        cycle = int(heading[4]) if heading[4] else None
+        tables[heading[1]] = (int(heading[2], 16), int(heading[3]), cycle, rows)
+    return tables
+
+
+def test_readme_tables_describe_the_monitor_dbc(monitor_db: Database) -> None:
+    tables = _readme_monitor_tables()
+    assert list(tables) == list(MONITOR_MESSAGES)
+    for name, (frame_id, dlc, cycle_time, rows) in tables.items():
+        msg = monitor_db.get_message_by_name(name)
+        assert (msg.frame_id, msg.length, msg.cycle_time) == (frame_id, dlc, cycle_time), name
+        want = [(sig.name, sig.start, sig.length,
+                 "float32" if sig.is_float else "signed" if sig.is_signed else "unsigned",
+                 _choices(sig) or (sig.minimum, sig.maximum)) for sig in msg.signals]
+        assert rows == want, name
+
+
+def test_readme_monitor_blocks_are_in_the_monitor_dbc_verbatim() -> None:
+    lines = _dbc_lines(_readme_section(MONITOR_SECTION))
+    assert any(line.startswith("BO_ ") for line in lines)
+    missing = _missing_lines(MONITOR_DBC, lines)
+    assert not missing, f"canfdi_monitor.dbc lacks these README lines: {missing[:5]}"
+
+
+def _monitor_frames(**monitor) -> MonitorFrames:
+    """The monitor's frames as the DC motor's config, with this bus.monitor, builds them."""
+    config = load_config(DC_MOTOR_CONFIG)
+    bus = dataclasses.replace(config.bus, monitor=MonitorFramesConfig(**monitor))
+    return MonitorFrames.from_config(dataclasses.replace(config, bus=bus), [])
+
+
+def test_monitor_frames_round_trip_through_the_monitor_dbc(monitor_db: Database) -> None:
+    """What the monitor sends (canfdi.bus.monitorframes) decodes with canfdi_monitor.dbc, and
+    passes the E2E check at the message's default ID."""
+    frames = _monitor_frames()
+    rng = np.random.default_rng(20250615)
+    for msg in monitor_db.messages:
+        assert frames.keys[msg.name] == (msg.frame_id, False)
+        for trial in range(50):
+            where = ("min", "max", "random")[min(trial, 2)]
+            values = {s.name: _value(s, rng, where) for s in msg.signals if s.name not in HEADER}
+            key, frame = frames.encode(msg.name, values)
+            assert key == (msg.frame_id, False) and len(frame) == msg.length
+            assert e2e.check(msg.frame_id, frame), msg.name
+            decoded = msg.decode(frame, decode_choices=False)
+            assert decoded["CRC"] == frame[0] and decoded["Counter"] == trial, msg.name
+            _assert_decoded(msg, decoded, values)
+
+
+def test_monitor_frames_at_ids_the_config_chooses(monitor_db: Database) -> None:
+    """bus.monitor moves the frames: same signals, the CRC over the new ID; e2e none sends the
+    header as zeros."""
+    default = _monitor_frames()
+    moved = _monitor_frames(base=0x6E0)
+    bare = _monitor_frames(e2e="none")
+    for i, msg in enumerate(monitor_db.messages):
+        values = {"Drive": 5}
+        (fid, _), at_default = default.encode(msg.name, values)
+        (moved_id, _), at_base = moved.encode(msg.name, values)
+        _, unprotected = bare.encode(msg.name, values)
+        assert (fid, moved_id) == (msg.frame_id, 0x6E0 + i)
+        assert msg.decode(at_base, decode_choices=False)["Drive"] == 5
+        assert at_base[1:] == at_default[1:] and at_base[0] != at_default[0], msg.name
+        assert e2e.check(moved_id, at_base) and not e2e.check(fid, at_base), msg.name
+        assert unprotected == bytes(2) + at_default[2:], msg.name
+    one = _monitor_frames(ids={"FDI_STATUS": 0x6F0})
+    assert one.keys["FDI_STATUS"] == (0x6F0, False) and one.keys["FDI_FAULT"] == (0x080, False)
+
+
+def test_a_corrupted_monitor_frame_fails_the_check(monitor_db: Database) -> None:
+    frames = _monitor_frames()
+    other_ids = {m.name: [o.frame_id for o in monitor_db.messages if o is not m]
+                 for m in monitor_db.messages}
+    for msg in monitor_db.messages:
+        _, frame = frames.encode(msg.name, {"Drive": 3})
+        assert e2e.check(msg.frame_id, frame), msg.name
+        for corrupted in _single_bit_errors(frame):
+            assert not e2e.check(msg.frame_id, corrupted), (msg.name, corrupted.hex())
+        for other in other_ids[msg.name]:
+            assert not e2e.check(other, frame), (msg.name, hex(other))
+
+
+def test_a_plant_dbc_and_the_monitor_dbc_load_as_one_bus(dbc_file: Path) -> None:
+    """The README's way of seeing a whole canfdi bus in one cantools Database."""
+    database = cantools.database.load_file(dbc_file, strict=True)
+    database.add_dbc_file(MONITOR_DBC)
+    names = [m.name for m in database.messages]
+    assert sorted(names) == sorted(
+        [*re.findall(r"^BO_ \d+ (\w+):", dbc_file.read_text(), flags=re.M), *MONITOR])
+    assert len({m.frame_id for m in database.messages}) == len(names)
 
 
 # --- the other bus profiles' DBCs (vendor style: no E2E header, no monitor block) -------------
@@ -475,10 +701,38 @@ def test_scenario_values_stay_inside_the_mapped_signal_ranges(config: Path,
 
 def test_package_lists_the_files() -> None:
     assert dbc_package.available() == [p.stem for p in ALL_DBC_FILES]
+    assert {"canfdi_monitor", "motor_drive"} <= set(dbc_package.available())
     assert dbc_package.path("motor_drive") == dbc_package.path("motor_drive.dbc")
     shipped = dbc_package.path("motor_drive")
     assert shipped.read_bytes() == (DBC_DIR / "motor_drive.dbc").read_bytes()
     assert isinstance(dbc_package.load("motor_drive"), Database)
+    assert dbc_package.path("canfdi_monitor") == MONITOR_DBC
+    monitor = dbc_package.load("canfdi_monitor")
+    assert [m.name for m in monitor.messages] == list(MONITOR_MESSAGES)
+
+
+def test_the_monitor_config_s_default_dbc_is_the_shipped_monitor_dbc() -> None:
+    default = MonitorFramesConfig().dbc
+    assert default == MONITOR_DBC.stem and default in dbc_package.available()
+    assert load_config(DC_MOTOR_CONFIG).bus.monitor.dbc == default
+
+
+FILE_ROW = re.compile(r"^\| `(\w+)\.dbc` \| ([^|]+) \| [^|]* \| ([^|]+) \|$", flags=re.M)
+
+
+def test_readme_file_table_lists_every_file_its_kind_and_messages() -> None:
+    rows = {match[1]: (match[2].strip(), re.findall(r"`(\w+)` 0x([0-9A-F]+)", match[3]))
+            for match in FILE_ROW.finditer(README.read_text())}
+    assert sorted(rows) == [p.stem for p in ALL_DBC_FILES]
+    plants = {p.stem for p in DBC_FILES}
+    for path in ALL_DBC_FILES:
+        kind, messages = rows[path.stem]
+        want_kind = ("plant" if path.stem in plants else "monitor" if path == MONITOR_DBC
+                     else f"profile `{PROFILE_DBCS[path.stem]}`")
+        assert kind == want_kind, path.name
+        database = cantools.database.load_file(path, strict=True)
+        assert [(name, int(fid, 16)) for name, fid in messages] == [
+            (m.name, m.frame_id) for m in database.messages], path.name
 
 
 def test_package_names_what_is_available() -> None:
