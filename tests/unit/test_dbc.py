@@ -768,10 +768,12 @@ CANOPEN_IDS = {0x000, *range(0x080, 0x100), 0x100, *range(0x181, 0x580), *range(
                *range(0x701, 0x780), 0x7E4, 0x7E5}
 
 
-def _frame_id(template: str | None, dbc_id: int, node: int | None) -> int:
-    if template is None or node is None:
-        return dbc_id
-    return int(eval(template, {"__builtins__": {}}, {"id": dbc_id, "node": node}))
+def _frame_id(template: str | None, message: Message, node: int | None,
+              shared: list = ()) -> int:
+    """The message's ID on drive ``node`` (a message of bus.node.shared keeps its DBC ID)."""
+    if template is None or node is None or message.name in shared or message.frame_id in shared:
+        return message.frame_id
+    return int(eval(template, {"__builtins__": {}}, {"id": message.frame_id, "node": node}))
 
 
 @pytest.mark.parametrize("config", _configs_of_profile_dbcs(), ids=_stem)
@@ -787,12 +789,13 @@ def test_monitor_config_reads_the_emulated_bus(config: Path) -> None:
     bus = doc["bus"]
     database = cantools.database.load_file(DBC_DIR / f"{bus['dbc']}.dbc", strict=True)
     template = (bus.get("node") or {}).get("id")
+    shared = (bus.get("node") or {}).get("shared", [])
     drives = doc.get("drives") or [{"name": doc["name"], "node": None}]
     log = frame_log(load_scenario(CONFIG_SCENARIOS[config.stem]), duration=2.0)
     if drives[0]["node"] is not None:
         assert [d["node"] for d in drives] == [d.node for d in log.drives]
     on_bus = set(log.frames.id.tolist())
-    expected = {_frame_id(template, m.frame_id, d["node"]) for m in database.messages
+    expected = {_frame_id(template, m, d["node"], shared) for m in database.messages
                 for d in drives}
     assert expected == on_bus
     clock = bus["clock"]
@@ -802,7 +805,7 @@ def test_monitor_config_reads_the_emulated_bus(config: Path) -> None:
     remote = (log.frames.flags & 2) != 0
     for drive, run in zip(drives, log.drives, strict=True):
         for name, (message, sig) in mapped.items():
-            fid = _frame_id(template, message.frame_id, drive["node"])
+            fid = _frame_id(template, message, drive["node"], shared)
             rows = np.flatnonzero((log.frames.id == fid) & ~remote)
             payloads = log.frames.payloads()
             values = np.array([message.decode(payloads[r], decode_choices=False)[sig.name]
