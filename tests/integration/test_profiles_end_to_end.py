@@ -13,7 +13,6 @@ import subprocess
 import sys
 
 import can
-import cantools
 import pytest
 
 from canfdi import dbc as dbc_files

@@ -82,7 +82,7 @@ def test_the_bus_section_parses_map_e2e_clock_node_monitor_and_drives(tmp_path):
         "map": {"V": "DRIVE_CMD.V", "i_f": {"message": 0x105, "signal": "i_f"}},
         "e2e": {"default": "none", "messages": {"DRIVE_CMD": "canfdi"}},
         "clock": {"kind": "trigger", "message": "SYNC", "max_age": 0.02},
-        "node": {"id": "(id & ~0x7F) | node"},
+        "node": {"id": "(id & ~0x7F) | node", "shared": ["SYNC", 0x80]},
         "monitor": {"base": 0x6E0, "e2e": "none"},
         "transmit": False, "canopen": True,
     }, drives=[{"name": "left", "node": 1}, {"name": "right", "node": 2}])
@@ -91,6 +91,7 @@ def test_the_bus_section_parses_map_e2e_clock_node_monitor_and_drives(tmp_path):
     assert bus.e2e.default == "none" and bus.e2e.messages == {"DRIVE_CMD": "canfdi"}
     assert (bus.clock.kind, bus.clock.message, bus.clock.max_age) == ("trigger", "SYNC", 0.02)
     assert bus.node_id == "(id & ~0x7F) | node" and bus.monitor.base == 0x6E0
+    assert bus.node_shared == ("SYNC", 0x80)
     assert (bus.transmit, bus.canopen) == (False, True)
     assert [(d.name, d.node) for d in config.drive_list] == [("left", 1), ("right", 2)]
 
@@ -112,6 +113,10 @@ def test_without_drives_the_config_is_one_drive_named_after_it(tmp_path):
      "only a trigger clock"),
     ({"node": {"id": "__import__('os')"}}, None, "bus.node.id", "not a node-id template"),
     ({"node": {"id": "id + "}}, None, "bus.node.id", "not a node-id template"),
+    ({"node": {"id": "id + node", "shared": "SYNC"}}, None, "bus.node.shared",
+     "expected a list"),
+    ({"node": {"shared": [True]}}, None, "bus.node.shared[0]", "message name or ID"),
+    ({"node": {"sharde": []}}, None, "bus.node.sharde", "did you mean shared"),
     ({"monitor": {"base": 0x80, "ids": {"FDI_FAULT": 0x90}}}, None, "bus.monitor.ids",
      "not both"),
     ({"transmit": "no"}, None, "bus.transmit", "true or false"),

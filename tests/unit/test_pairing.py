@@ -44,5 +44,5 @@ def test_the_scenario_of_a_config_plays_its_bus(config, nominal, faulty):
 def test_no_config_for_a_bus_none_reads_says_so():
     scenario = parse_scenario({"plant": "dc_motor", "duration": 1.0, "bus": {"profile": "cia402"},
                                "drives": [{"name": f"d{i}", "node": i} for i in (1, 2, 3)]})
-    with pytest.raises(NoPairing, match="reads dc_motor_cia402.dbc with 3 drives.*--config"):
+    with pytest.raises(NoPairing, match=r"reads dc_motor_cia402\.dbc with 3 drives.*--config"):
         config_for(scenario, CONFIGS)
