@@ -1,17 +1,20 @@
 """canfdi's CAN databases, installed as the package ``canfdi.dbc``.
 
-The ``dbc/`` directory of the repository holds one DBC file per emulated plant (the drive's
-messages plus the monitor's four ``FDI_*`` messages); ``pyproject.toml`` maps it to
-``canfdi.dbc`` so that the files ship inside the wheel and resolve the same way from a checkout,
-an editable install and a regular install. The conventions every file follows (E2E header,
-signal naming, scaling, monitor messages) are in ``README.md`` next to this module.
+The ``dbc/`` directory of the repository holds the drive's DBC of each emulated plant on
+canfdi's own bus, the monitor's own frames (``canfdi_monitor.dbc``: the four ``FDI_*``
+messages, at IDs a config may move) and the vendor-style DBCs of the emulator's other bus
+profiles (CiA 402, node-id float); ``pyproject.toml`` maps it to ``canfdi.dbc`` so that the
+files ship inside the wheel and resolve the same way from a checkout, an editable install and a
+regular install. The conventions are in ``README.md`` next to this module.
 
 Examples
 --------
 >>> import canfdi.dbc
 >>> db = canfdi.dbc.load("motor_drive")
 >>> hex(db.get_message_by_name("DRIVE_CMD").frame_id)
-'0x100'
+'0x104'
+>>> [hex(m.frame_id) for m in canfdi.dbc.load("canfdi_monitor").messages]
+['0x80', '0x81', '0x82', '0x83']
 """
 
 from __future__ import annotations

@@ -24,7 +24,8 @@ with a ``from_config`` classmethod and one line in `PROFILES`.
 
 canfdi's own header
 -------------------
-Every message of canfdi's DBC files (``dbc/README.md``) carries the same two-byte header:
+Every message of canfdi's own bus (the plant DBCs and canfdi_monitor.dbc, ``dbc/README.md``;
+not the vendor-style profile DBCs) carries the same two-byte header:
 
 * byte 0: ``CRC``, the CRC-8 SAE J1850 (polynomial 0x1D, initial value 0xFF, final XOR 0xFF)
   over the **Data ID** (the 11-bit arbitration ID as two bytes, low byte first) followed by

@@ -16,7 +16,7 @@ import numpy as np
 
 from canfdi.bus.codec import MessageLayout, compile_layout
 from canfdi.bus.dbc import Known, MessageKey, find_message, load_dbc, message_key
-from canfdi.bus.e2e import E2EProfile, make_profile
+from canfdi.bus.e2e import E2EProfile, confusable_ids, make_profile
 from canfdi.core.settings import ConfigError, MonitorConfig
 
 __all__ = ["CANOPEN_FUNCTION_CODES", "MONITOR_MESSAGES", "MonitorFrames"]
@@ -85,6 +85,10 @@ class MonitorFrames:
             profiles[name] = make_profile(mon.e2e, key[0], key[1], message.length, places,
                                           "bus.monitor.e2e")
         _check_collisions(keys, set(bus_keys), config.bus.canopen)
+        e2e = config.bus.e2e
+        if _names_canfdi(mon.e2e) and (_names_canfdi(e2e.default) or any(
+                _names_canfdi(spec) for spec in e2e.messages.values())):
+            _check_confusable(keys, set(bus_keys))
         return cls(layouts, keys, profiles, config.bus.transmit)
 
     def known(self) -> dict[MessageKey, Known]:
@@ -104,6 +108,26 @@ class MonitorFrames:
         self._counters[name] = counter + 1
         protected = self._profiles[name].protect_batch(payload, np.array([counter]))
         return self.keys[name], protected[0].tobytes()
+
+
+def _names_canfdi(spec: object) -> bool:
+    """Whether an E2E spec (a name or ``{profile: ...}``) is canfdi's CRC-8 + counter."""
+    return (spec.get("profile") if isinstance(spec, Mapping) else spec) == "canfdi"
+
+
+def _check_confusable(keys: Mapping[str, MessageKey], bus_keys: set[MessageKey]) -> None:
+    """canfdi's 8-bit CRC cannot tell some pairs of 11-bit IDs apart (dbc/README.md, Blind
+    spots): a monitor ID must not pair so with an ID of the bus when both carry it."""
+    ours = {key[0]: name for name, key in keys.items() if not key[1]}
+    theirs = {key[0] for key in bus_keys if not key[1]}
+    pairs = [(a, b) for a, b in confusable_ids(sorted(set(ours) | theirs))
+             if (a in ours) != (b in ours)]
+    if pairs:
+        listed = ", ".join(f"{ours.get(a) or ours.get(b)} 0x{a if a in ours else b:X} with "
+                           f"0x{b if a in ours else a:X}" for a, b in pairs)
+        raise ConfigError("bus.monitor", f"under canfdi's CRC-8 the monitor's IDs cannot be "
+                                         f"told apart from the bus's: {listed}; choose others "
+                                         "(bus.monitor.base or bus.monitor.ids)")
 
 
 def _check_collisions(keys: Mapping[str, MessageKey], bus_keys: set[MessageKey],

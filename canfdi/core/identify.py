@@ -335,7 +335,7 @@ class RecursiveLeastSquares:
     >>> est = RecursiveLeastSquares(1)
     >>> for x in (1.0, 2.0, 3.0):
     ...     _ = est.update(np.array([[x]]), np.array([2.0 * x]))
-    >>> round(float(est.theta[0]), 9)
+    >>> round(float(est.theta[0]), 6)  # the prior precision pulls it by ~1e-9 towards 0
     2.0
     """
 

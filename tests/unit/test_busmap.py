@@ -273,6 +273,20 @@ def test_monitor_ids_that_collide_are_refused_naming_them(tmp_path):
         0x6E0, 0x6E1, 0x6E2, 0x6E3}
 
 
+def test_monitor_ids_the_crc_confuses_with_the_drives_are_refused_when_both_carry_it():
+    # 0x087 ^ 0x104 = 0x183, one of the ID differences canfdi's CRC-8 cannot see.
+    base = dc_motor_config()
+    moved = dataclasses.replace(base, bus=dataclasses.replace(
+        base.bus, monitor=MonitorFramesConfig(ids={"FDI_FAULT": 0x087})))
+    with pytest.raises(ConfigError, match="FDI_FAULT 0x87 with 0x104") as info:
+        Monitor(moved, diagnose=False)
+    assert info.value.field == "bus.monitor"
+    # Without the CRC on the monitor's frames there is nothing to confuse.
+    plain = dataclasses.replace(base, bus=dataclasses.replace(
+        base.bus, monitor=MonitorFramesConfig(ids={"FDI_FAULT": 0x087}, e2e="none")))
+    assert Monitor(plain, diagnose=False).frames.keys["FDI_FAULT"] == (0x087, False)
+
+
 # -- decoding -----------------------------------------------------------------------------------
 
 
