@@ -195,9 +195,10 @@ class FrameBlock:
         return (self.flags & FLAG_EXTENDED) != 0
 
     def payloads(self) -> list[bytes]:
-        """Every frame's payload bytes, in order."""
+        """Every frame's payload bytes, in order (empty for a remote frame, whose DLC is the
+        length it requests, not data it carries)."""
         flat = np.ascontiguousarray(self.data).tobytes()
-        lengths = np.minimum(self.dlc, MAX_DATA).tolist()
+        lengths = np.where(self.flags & FLAG_REMOTE, 0, np.minimum(self.dlc, MAX_DATA)).tolist()
         out = [flat[MAX_DATA * i: MAX_DATA * i + n] for i, n in enumerate(lengths)]
         for row, data in self.long.items():
             out[row] = data
@@ -238,7 +239,7 @@ class FrameBlock:
         n = self.size if count is None else min(count, self.size)
         payloads = self.payloads()
         return [can.Message(timestamp=int(self.t_ns[i]) / 1e9, arbitration_id=int(self.id[i]),
-                            data=b"" if self.flags[i] & FLAG_REMOTE else payloads[i],
+                            data=payloads[i],
                             is_extended_id=bool(self.flags[i] & FLAG_EXTENDED),
                             is_remote_frame=bool(self.flags[i] & FLAG_REMOTE),
                             is_error_frame=bool(self.flags[i] & FLAG_ERROR),

@@ -326,20 +326,21 @@ def test_frames_outside_the_drive_contract_are_counted_by_reason():
         (t + 2, CMD, data, FLAG_EXTENDED),  # a drive ID, but 29-bit
         (t + 3, 0x1ABCDEF, data, FLAG_EXTENDED),
         (t + 4, 0, b"", FLAG_ERROR),
-        (t + 5, CURRENTS, b"", FLAG_REMOTE),
-        (t + 6, CURRENTS, data + bytes(8), FLAG_FD),
+        (t + 5, CURRENTS, b"", FLAG_REMOTE),  # a master polling a drive message: known
+        (t + 6, 0x7E0, b"", FLAG_REMOTE),  # a request for an ID no message has
+        (t + 7, CURRENTS, data + bytes(8), FLAG_FD),
     ]
     frames[i + 1: i + 1] = strangers
     statuses, samples, stats = run(frames)
-    assert statuses[i + 1: i + 7] == ["unknown_id", "extended", "extended", "error_frame",
-                                      "remote", "fd"]
+    assert statuses[i + 1: i + 8] == ["unknown_id", "extended", "extended", "error_frame",
+                                      "unused", "remote", "fd"]
     assert [s.k for s in samples] == list(range(6))
     assert_values_are_the_drives(samples, 6)
     reasons = stats["invalid_by_reason"]
     assert (reasons["unknown_id"], reasons["extended"], reasons["error_frame"],
             reasons["remote"], reasons["fd"]) == (1, 2, 1, 1, 1)
     assert stats["frames_invalid"] == 6
-    assert stats["frames_valid"] == 18
+    assert stats["frames_valid"] == 19  # 18 drive frames + the poll of a known message
 
 
 def test_an_extended_frame_cannot_stand_in_for_a_drive_frame():

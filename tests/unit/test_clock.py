@@ -128,11 +128,11 @@ def test_a_sync_trigger_closes_the_previous_period_with_its_values(tmp_path):
                        ClockConfig("trigger", message="SYNC"))
     block, truth = _traffic(50)
     log = clock.push_batch(block)
-    # SYNC k+1 closes period k: its sample holds period k's values (at the DBC resolution);
-    # the first SYNC has nothing before it.
-    assert np.isnan(log.u[0]).all() and log.k.tolist() == list(range(50))
-    np.testing.assert_allclose(np.hstack([log.u, log.z])[1:], truth[:-1], atol=0.006)
-    assert log.stats["samples_complete"] == 49 and log.stats["samples_broken"] == 1
+    # SYNC k+1 closes period k: sample k holds period k's values (at the DBC resolution);
+    # the first SYNC only starts the clock, so 50 periods make 49 samples, all whole.
+    assert log.k.tolist() == list(range(49))
+    np.testing.assert_allclose(np.hstack([log.u, log.z]), truth[:49], atol=0.006)
+    assert log.stats["samples_complete"] == 49 and log.stats["samples_broken"] == 0
 
 
 def test_a_lost_trigger_is_a_gap_and_an_old_value_is_missing(tmp_path):
@@ -141,13 +141,13 @@ def test_a_lost_trigger_is_a_gap_and_an_old_value_is_missing(tmp_path):
     block, _ = _traffic(20)
     sync = np.flatnonzero(block.id == 128)
     keep = np.ones(block.size, dtype=bool)
-    keep[sync[5]] = False  # a lost SYNC: the next sample is k = 5 + 1, gap 1
+    keep[sync[5]] = False  # SYNC 5 lost: it would close period 4; the next is k = 5, gap 1
     feedback2 = np.flatnonzero(block.id == 641)
     keep[feedback2[8]] = False  # FEEDBACK2 of period 8 lost: its values are missing at SYNC 9
     log = clock.push_batch(block.select(keep))
-    assert log.k.tolist() == [k for k in range(20) if k != 5]
-    assert log.gap.tolist() == [0] * 5 + [1] + [0] * 13
-    row = log.k.tolist().index(9)
+    assert log.k.tolist() == [k for k in range(19) if k != 4]
+    assert log.gap.tolist() == [0] * 4 + [1] + [0] * 13
+    row = log.k.tolist().index(8)
     assert np.isnan(log.z[row, [0, 2]]).all() and not np.isnan(log.z[row, [1, 3]]).any()
 
 
