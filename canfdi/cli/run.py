@@ -25,6 +25,9 @@ HELP = """\
 Monitor a drive's CAN bus: decode its frames with the config's DBC, diagnose faults, send
 FDI_FAULT / FDI_ESTIMATE frames when a fault is accepted and FDI_STATUS every status period,
 and record everything in MCAP logs (rotated by size and age) under the recording directory.
+With `bus.transmit: false` it is listen-only: it sends nothing at all (diagnoses are printed
+and recorded). The config's bus: section says how the drive talks (its DBC, map, E2E profiles,
+sample clock, drives); docs/bus.md has every key.
 
 The bus comes from the config's bus: section (interface, channel, bitrate), overridable here.
 A lost bus is reopened with backoff. A log that cannot be written (a full disk) never stops the
