@@ -99,22 +99,53 @@ class LatestValueClock:
     def push(self, timestamp_ns: int, frame_id: int, data: bytes | bytearray, *,
              is_extended: bool = False, is_remote: bool = False, is_error: bool = False,
              is_fd: bool = False) -> tuple[str, list[Sample]]:
-        """Take one frame: (its status, the samples it delivered). The block form on one frame,
-        so both forms agree by construction."""
-        payload = bytes(data)
+        """Take one frame: (its status, the samples it delivered). The scalar form of
+        `push_batch` (a live bus hands frames one by one; a block of one costs ~20x more),
+        tested equal to it on every cut of a stream."""
         flags = (is_extended * FLAG_EXTENDED | is_remote * FLAG_REMOTE | is_error * FLAG_ERROR
                  | is_fd * FLAG_FD)
-        head = np.zeros((1, 8), dtype=np.uint8)
-        head[0, : min(len(payload), 8)] = np.frombuffer(payload[:8], dtype=np.uint8)
-        block = FrameBlock(np.array([timestamp_ns], dtype=np.int64), np.array([frame_id]),
-                           np.array([len(payload)]), np.array([flags]), head,
-                           long={0: payload} if len(payload) > 8 else {})
-        log = self.push_batch(block)
-        samples = [Sample(k=int(k), timestamp_ns=int(t), u=log.u[i].copy(), z=log.z[i].copy(),
-                          gap=int(g))
-                   for i, (k, t, g) in enumerate(zip(log.k, log.timestamp_ns, log.gap,
-                                                     strict=True))]
-        return STATUS_NAMES[int(log.statuses[0])], samples
+        status, slot, values, counter = self.bus_map.decode_frame(frame_id, data, flags)
+        code = STATUS_CODES[status]
+        if code == _OK and counter >= 0:
+            if counter == self._last_counter[slot]:
+                code = _DUPLICATE
+            self._last_counter[slot] = counter
+        self._counts[code] += 1
+        t = int(timestamp_ns)
+        if self.kind == "trigger":
+            if code == _OK:
+                self._store(slot, values, t)  # the trigger frame's own values count
+            if code != _OK or slot != self.bus_map.trigger_slot:
+                return STATUS_NAMES[code], []
+            if self._t_last is None:  # the first trigger starts the clock
+                self._t_last = t
+                return STATUS_NAMES[code], []
+            instants = np.array([t], dtype=np.int64)
+        else:
+            if code == _OK and self._t0 is None:
+                self._t0 = t
+            instants, _ = self._grid_instants(np.array([t], dtype=np.int64))
+        samples = []
+        if len(instants):
+            ks, gaps = self._indices(instants)
+            fresh = instants[:, None] - self._time[None, :] <= self._max_age_ns
+            rows = np.where(fresh, self._value[None, :], np.nan)
+            missing = np.isnan(rows).any(axis=1)
+            self._complete += int((~missing).sum())
+            self._broken += int(missing.sum())
+            p = self.bus_map.p
+            samples = [Sample(k=int(k), timestamp_ns=int(at), u=row[:p], z=row[p:], gap=int(g))
+                       for k, at, g, row in zip(ks.tolist(), instants.tolist(), gaps.tolist(),
+                                                rows, strict=True)]
+        if self.kind == "grid" and code == _OK:
+            self._store(slot, values, t)  # after: every final instant is before this frame
+        return STATUS_NAMES[code], samples
+
+    def _store(self, slot: int, values: tuple[float, ...], t: int) -> None:
+        """Keep a valid frame's values as the newest of their signals."""
+        for dest, value in zip(self.bus_map._dests[slot], values, strict=True):
+            self._value[dest] = value
+            self._time[dest] = t
 
     def flush(self) -> list[Sample]:
         """End of stream: nothing pending (a trigger delivers at once; a grid instant later
