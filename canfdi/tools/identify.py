@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from canfdi.bus.assembler import SampleAssembler
+from canfdi.bus.clock import make_clock
 from canfdi.bus.dbc import BusMap
 from canfdi.core.settings import MonitorConfig
 from canfdi.io.logs import frame_blocks
@@ -24,8 +24,9 @@ __all__ = ["identify", "log_samples", "regular_grid"]
 
 
 def log_samples(path: Path, config: MonitorConfig) -> tuple:
-    """(k, U, Z) of a log, assembled from its frames with the config's DBC."""
-    asm = SampleAssembler(BusMap.from_config(config), config.model.dt or 1.0)
+    """(k, U, Z) of a log's first drive, assembled from its frames with the config's DBC, map
+    and sample clock."""
+    asm = make_clock(BusMap.from_config(config), config.model.dt or 1.0, config.bus.clock)
     ks, us, zs = [], [], []
     for block in frame_blocks(path):
         log = asm.push_batch(block)

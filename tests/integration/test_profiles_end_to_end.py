@@ -13,11 +13,13 @@ import subprocess
 import sys
 
 import can
+import numpy as np
 import pytest
 
 from canfdi import dbc as dbc_files
 from canfdi.cli.demo import run_demo
 from canfdi.config import load_config
+from canfdi.tools.identify import log_samples
 from firmware_sim.emitter import frame_log
 from firmware_sim.scenario import load_scenario
 from tests.conftest import REPO
@@ -70,6 +72,11 @@ def test_demo_diagnoses_each_profile_as_on_canfdis_own_bus(own_bus, scenario, tm
     replayed = json.loads(res.stdout)
     assert indices(replayed["faults"]) == indices(got)
     assert replayed["samples"] == result["samples"]
+    # The log tools assemble samples with the config's own clock too (identify, calibrate).
+    k, U, Z = log_samples(log, load_config(CONFIGS / f"{scenario.replace('consecutive_', '')}"
+                                                     ".yaml"))
+    assert len(k) == result["samples"] and (k == range(len(k))).all()
+    assert not np.isnan(Z[10:]).any() and not np.isnan(U[10:]).any()
 
 
 @pytest.mark.parametrize(("scenario", "suffix"), [("dc_motor_consecutive_float", ".asc"),
