@@ -19,12 +19,16 @@ from canfdi.cli import identify  # the output_error method's model fitting (seed
 # isort: split
 from canfdi.cli import evaluate  # issue 10: Monte Carlo evaluation of the diagnosis
 
+# isort: split
+from canfdi.cli import calibrate  # issue 16: the drive's noise from healthy logs
+
 VERBS = {
     "run": run, "demo": demo, "design": design, "sim": sim, "capture": capture, "replay": replay,
     "bench": bench, "soak": soak, "export": export,
     "report": report,
     "identify": identify,
     "evaluate": evaluate,
+    "calibrate": calibrate,
 }
 
 

@@ -78,6 +78,9 @@ class Method:
     fault_kinds : the fault kinds of its model, of `FAULT_KINDS`.
     statistic : (short, long) name of its detection statistic, for plots and pages.
     describe : config -> JSON-ready design description for the log's metadata, or None.
+    with_noise : (its section as written, sensor noise stds (q,)) -> the section for that
+        noise, for a method whose own section holds a noise level (`canfdi calibrate` writes
+        it). None: the method reads ``noise.measurement`` only.
     estimate_history : (config, log contents, accepted event) -> EstimateHistory or None:
         the estimate's trajectory for `canfdi report`, recomputed from the log (its
         ``residuals``, ``samples``, ``accepted`` events; what it cannot do goes to its
@@ -94,6 +97,7 @@ class Method:
     describe: Callable[[MonitorConfig], dict | None] | None = None
     estimate_history: Callable[[MonitorConfig, Any, FaultEvent],
                                EstimateHistory | None] | None = None
+    with_noise: Callable[[Mapping[str, Any], Any], dict] | None = None
 
     def __post_init__(self) -> None:
         unknown = set(self.fault_kinds) - set(FAULT_KINDS)

@@ -15,6 +15,7 @@ from canfdi.methods.output_error.config import (
     build,
     output_error_section,
     parse_output_error,
+    with_noise,
 )
 from canfdi.methods.output_error.diagnoser import OeSettings, OutputErrorDiagnoser
 
@@ -27,4 +28,5 @@ METHOD = Method(
     parse_options=parse_output_error,
     build=build,
     fault_kinds=("actuator_bias", "sensor_bias"),
+    with_noise=with_noise,
 )

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from canfdi.core.settings import (
     ConfigError,
@@ -203,3 +204,11 @@ def output_error_section(model: OeModel, sigma: np.ndarray, long_run: np.ndarray
     if fit:
         sec["fit"] = fit
     return sec
+
+
+def with_noise(section: Mapping[str, Any], std: ArrayLike) -> dict:
+    """The section with ``residual_std`` set to the sensors' noise stds (q,): the OE residual
+    of a well identified model is the measurement noise itself."""
+    out = dict(section or {})
+    out["residual_std"] = [float(f"{x:.6g}") for x in np.asarray(std, dtype=float)]
+    return out
