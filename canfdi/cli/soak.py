@@ -10,6 +10,7 @@ Like the demo verb, this one imports firmware_sim: it needs the emulated drive.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -52,6 +53,11 @@ false alarms per residual, so about m / interval per sample for a bank of m resi
 --threshold-scale X multiplies every calibrated threshold: a sensitivity check that the soak
 can fail (0.2 gives many alarms); the default 1 is the monitor as deployed.
 
+--noise-scale F makes the drive's measurement noise F times the scenario's: the drive a config
+describes wrongly. --calibrate first runs `canfdi calibrate` on --calibrate-seconds (default
+90) of a healthy run of that same drive (another seed) through the config's bus, and soaks the
+calibrated config: the monitor as deployed after calibration.
+
 Exit status: 0 no false alarm, 1 at least one (so it can gate CI), 2 bad config, scenario or
 arguments. Only the dc_motor plant is emulated: a config whose signals are not the DC motor's
 exits 2 naming signals. Progress on stderr; --json prints one object."""
@@ -77,6 +83,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="master noise seed (default: the scenario's)")
     p.add_argument("--threshold-scale", type=float, default=1.0, metavar="X",
                    help="multiply the calibrated thresholds by X (sensitivity check; default 1)")
+    p.add_argument("--noise-scale", type=float, default=1.0, metavar="F",
+                   help="the drive's measurement noise is F times the scenario's (default 1)")
+    p.add_argument("--calibrate", action="store_true",
+                   help="calibrate the config on a healthy run of the drive first")
+    p.add_argument("--calibrate-seconds", type=float, default=90.0, metavar="T",
+                   help="seconds of healthy data for --calibrate (default 90)")
     p.add_argument("--no-quantize", action="store_true",
                    help="feed exact values, not rounded to the DBC's signal resolution")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -119,6 +131,12 @@ def run(args: argparse.Namespace) -> int:
         return _fail("--seed: an integer >= 0")
     if not (args.threshold_scale > 0 and math.isfinite(args.threshold_scale)):
         return _fail("--threshold-scale: a number > 0")
+    if not (args.noise_scale > 0 and math.isfinite(args.noise_scale)):
+        return _fail("--noise-scale: a number > 0")
+    if not args.calibrate_seconds >= 10:
+        return _fail("--calibrate-seconds: at least 10")
+    scenario = dataclasses.replace(scenario,
+                                   measurement_std=scenario.measurement_std * args.noise_scale)
     start = time.monotonic()
 
     def progress(msg: str) -> None:
@@ -126,9 +144,23 @@ def run(args: argparse.Namespace) -> int:
             print(f"canfdi soak [{time.monotonic() - start:6.1f} s] {msg}", file=sys.stderr,
                   flush=True)
 
+    calibration = None
+    seed = scenario.seed if args.seed is None else args.seed
+    if args.calibrate:
+        from canfdi.config import read_yaml
+        from canfdi.tools.calibrate import LogFault, calibrate_records, scenario_records
+
+        progress(f"calibrating on {args.calibrate_seconds:g} s of the healthy drive")
+        try:
+            records = scenario_records(config, scenario, args.calibrate_seconds, seed + 1)
+            calibration = calibrate_records(records, config,
+                                            read_yaml(args.config, ValueError, "config"),
+                                            progress=progress)
+        except (LogFault, ValueError) as exc:
+            return _fail(f"calibration: {exc}")
+        config = calibration.config
     try:
-        result = soak(config, scenario, samples=args.samples, runs=args.runs,
-                      seed=scenario.seed if args.seed is None else args.seed,
+        result = soak(config, scenario, samples=args.samples, runs=args.runs, seed=seed,
                       threshold_scale=args.threshold_scale, quantize=not args.no_quantize,
                       progress=progress)
     except SoakArgumentError as exc:
@@ -136,6 +168,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:  # a design the config cannot build, a bad DBC: ConfigError
         return config_error(exc, "soak")
     result["wall_s"] = time.monotonic() - start
+    result["noise_scale"] = args.noise_scale
+    if calibration is not None:
+        result["calibrated_noise"] = [float(v) for v in calibration.noise.std]
     if args.json:
         print(json.dumps(result, indent=2))
     else:
@@ -152,6 +187,9 @@ def print_report(r: dict[str, Any]) -> None:
     noise = ", ".join(f"{v:g}" for v in sorted(set(r["measurement_std"])))
     print(f"soak of {r['config']} on {r['scenario']} (measurement noise {noise}"
           f"{', bus resolution' if r['quantized'] else ', exact values'}, seed {r['seed']})")
+    if "calibrated_noise" in r:
+        print("  calibrated first on a healthy run of the drive: noise "
+              + ", ".join(f"{v:.4g}" for v in r["calibrated_noise"]))
     if r["threshold_scale"] != 1.0:
         print(f"  thresholds scaled by {r['threshold_scale']:g}: a sensitivity check, "
               "not the deployed monitor")

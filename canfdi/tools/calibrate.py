@@ -29,8 +29,8 @@ from canfdi.core.noise import NoiseEstimate, estimate_measurement_noise
 from canfdi.core.settings import MonitorConfig
 from canfdi.tools.identify import log_samples, regular_grid
 
-__all__ = ["Calibration", "LogFault", "ResidualCheck", "calibrate", "calibrated_document",
-           "config_document"]
+__all__ = ["Calibration", "LogFault", "ResidualCheck", "calibrate", "calibrate_records",
+           "calibrated_document", "config_document", "scenario_records"]
 
 MIN_SAMPLES = 1000
 """Fewer healthy samples than this (10 s at 100 Hz) say too little about the noise."""
@@ -138,7 +138,17 @@ def calibrate(paths: Sequence[Path], config: MonitorConfig, doc: Mapping[str, An
     ValueError : a log without samples, or too few samples in all.
     LogFault : the calibrated monitor detects something in a log (where, in the message).
     """
-    records = _records(paths, config, progress)
+    return calibrate_records(_records(paths, config, progress), config, doc, window=window,
+                             full=full, progress=progress)
+
+
+def calibrate_records(records: list[tuple[Path, np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
+                      config: MonitorConfig, doc: Mapping[str, Any], *,
+                      window: int | None = None, full: bool = False,
+                      progress: Callable[[str], None] = lambda _: None) -> Calibration:
+    """`calibrate` on records already assembled: per log (name, k (N,) consecutive sample
+    indices, unused, U (N, p), Z (N, q) with NaN where lost)."""
+    paths = [r[0] for r in records]
     total = sum(len(r[1]) for r in records)
     if total < MIN_SAMPLES:
         raise ValueError(f"{total} samples in the logs: calibration needs at least "
@@ -258,3 +268,20 @@ def config_document(calibration: Calibration, source: Path, output: Path, when: 
         lines.append("# Read by no parity relation (the prior times the others' scale): "
                      + ", ".join(unseen) + ".")
     return "\n".join(lines) + "\n", doc
+
+
+def scenario_records(config: MonitorConfig, scenario: Any, seconds: float, seed: int
+                     ) -> list[tuple[Path, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """The healthy record `calibrate_records` takes from ``seconds`` of a fault-free emulated
+    run of the scenario's drive (seed ``seed``), through the config's bus as a log would be:
+    its DBC's resolution, its clock."""
+    from canfdi.bus.clock import make_clock
+    from canfdi.bus.dbc import BusMap
+    from firmware_sim.emitter import frame_log
+
+    run = dataclasses.replace(scenario, faults=(), drives=(), seed=seed, duration=seconds)
+    clock = make_clock(BusMap.from_config(config), config.model.dt or 1.0, config.bus.clock)
+    log = clock.push_batch(frame_log(run).frames)
+    Ug, Zg = regular_grid(log.k, log.u, log.z)
+    grid = np.arange(int(log.k[0]), int(log.k[-1]) + 1)
+    return [(Path(f"{scenario.name}-seed{seed}-{seconds:g}s"), grid, log.u, Ug, Zg)]

@@ -77,6 +77,24 @@ def test_the_soak_can_fail_with_too_low_thresholds(capsys):
     assert sum(q["alarms"] for q in r["per_residual"]) >= x
 
 
+def test_a_twice_as_noisy_drive_alarms_until_calibrated(capsys):
+    """Issue 16: the drive's noise 2x the config's. As configured the soak fails; calibrated on
+    90 s of the same healthy drive (another seed), it passes, with the noise found."""
+    rc, r = _soak(capsys, "--samples", "50000", "--runs", "25", "--noise-scale", "2")
+    assert rc == 1 and r["detections"] > 0 and r["noise_scale"] == 2.0
+    np.testing.assert_allclose(r["measurement_std"], 0.02)
+    rc, r = _soak(capsys, "--samples", "50000", "--runs", "25", "--noise-scale", "2",
+                  "--calibrate")
+    assert rc == 0 and r["detections"] == 0, r["detection_list"]
+    np.testing.assert_allclose(r["calibrated_noise"], 0.02, rtol=0.05)
+
+
+def test_bad_noise_options_exit_2(capsys):
+    assert main(["soak", "--noise-scale", "0", "--no-progress"]) == 2
+    assert main(["soak", "--calibrate", "--calibrate-seconds", "1", "--no-progress"]) == 2
+    assert "--calibrate-seconds" in capsys.readouterr().err
+
+
 def test_rate_upper_bound():
     assert rate_upper_bound(0, 10**7) == pytest.approx(2.9957e-7, rel=1e-4)
     assert rate_upper_bound(3, 1000) == pytest.approx(chi2.ppf(0.95, 8) / 2000)
