@@ -132,3 +132,22 @@ def test_bad_input_exits_2_with_one_line(tmp_path):
     res = cli("calibrate", short, "--config", CONFIGS / "dc_motor.yaml")
     assert res.returncode == 2 and "needs at least 1000" in res.stderr
     assert "Traceback" not in res.stderr
+
+
+def test_calibrated_at_twice_the_noise_the_consecutive_faults_are_still_diagnosed(
+        twice_as_noisy):
+    healthy, _, tmp = twice_as_noisy
+    out = tmp / "for_faults.yaml"
+    assert cli("calibrate", healthy, "--config", CONFIGS / "dc_motor.yaml", "-o",
+               out).returncode == 0
+    faulty = healthy_log(tmp / "consecutive.mcap", "dc_motor_consecutive", 2.0, faults=True,
+                         duration=40.0)
+    res = cli("replay", faulty, "--config", out, "--json", "--no-progress")
+    assert res.returncode == 0, res.stderr
+    faults = json.loads(res.stdout)["faults"]
+    assert [(f["kind"], f["index"], f["onset_sample"]) for f in faults] == [
+        ("actuator", 0, 1000), ("sensor", 0, 2000), ("sensor", 1, 3000)]
+    assert faults[0]["estimate"]["eta"] == pytest.approx(2.0, rel=0.02)
+    assert faults[0]["estimate"]["lambda"] == pytest.approx(10.0, rel=0.05)
+    assert faults[1]["estimate"]["bias"] == pytest.approx(0.5, rel=0.05)
+    assert faults[2]["estimate"]["bias"] == pytest.approx(1.0, rel=0.05)
