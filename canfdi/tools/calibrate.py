@@ -18,7 +18,7 @@ import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -27,9 +27,9 @@ from canfdi.config import parse_config
 from canfdi.core.calibrate import threshold_for_long_run_variance
 from canfdi.core.noise import NoiseEstimate, estimate_measurement_noise
 from canfdi.core.settings import MonitorConfig
-from canfdi.tools.identify import log_samples, regular_grid
+from canfdi.tools.identify import assembled_samples, log_samples, regular_grid
 
-__all__ = ["Calibration", "LogFault", "ResidualCheck", "calibrate", "calibrate_records",
+__all__ = ["Calibration", "LogFault", "Record", "ResidualCheck", "calibrate", "calibrate_records",
            "calibrated_document", "config_document", "scenario_records"]
 
 MIN_SAMPLES = 1000
@@ -112,19 +112,32 @@ def calibrated_document(doc: Mapping[str, Any], config: MonitorConfig, std: np.n
     return out
 
 
+class Record(NamedTuple):
+    """One healthy record on a regular sample grid: its name (a log's path), k (N,)
+    consecutive sample indices, U (N, p) commands (lost ones held), Z (N, q) measurements
+    (NaN where lost)."""
+
+    name: Path
+    k: np.ndarray
+    U: np.ndarray
+    Z: np.ndarray
+
+
+def _record(name: Path, k: np.ndarray, U: np.ndarray | None, Z: np.ndarray | None) -> Record:
+    """The record of assembled samples (k, U, Z), put on a regular grid."""
+    if len(k) == 0:
+        raise ValueError(f"{name}: no sample formed (no frame matched the config's bus map)")
+    Ug, Zg = regular_grid(k, U, Z)
+    return Record(name, np.arange(int(k[0]), int(k[-1]) + 1), Ug, Zg)
+
+
 def _records(paths: Sequence[Path], config: MonitorConfig, progress: Callable[[str], None]
-             ) -> list[tuple[Path, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-    """Per log: (path, k, t_ns-like index, U, Z) on a regular grid (lost samples NaN)."""
+             ) -> list[Record]:
+    """Each log's record, assembled with the config's bus."""
     out = []
     for path in paths:
         progress(f"reading {path}")
-        k, U, Z = log_samples(path, config)
-        if len(k) == 0:
-            raise ValueError(f"{path}: no sample formed (no frame matched the config's bus "
-                             "map)")
-        Ug, Zg = regular_grid(k, U, Z)
-        grid = np.arange(int(k[0]), int(k[-1]) + 1)
-        out.append((path, grid, U, Ug, Zg))
+        out.append(_record(path, *log_samples(path, config)))
     return out
 
 
@@ -142,14 +155,12 @@ def calibrate(paths: Sequence[Path], config: MonitorConfig, doc: Mapping[str, An
                              full=full, progress=progress)
 
 
-def calibrate_records(records: list[tuple[Path, np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
-                      config: MonitorConfig, doc: Mapping[str, Any], *,
-                      window: int | None = None, full: bool = False,
+def calibrate_records(records: Sequence[Record], config: MonitorConfig,
+                      doc: Mapping[str, Any], *, window: int | None = None, full: bool = False,
                       progress: Callable[[str], None] = lambda _: None) -> Calibration:
-    """`calibrate` on records already assembled: per log (name, k (N,) consecutive sample
-    indices, unused, U (N, p), Z (N, q) with NaN where lost)."""
-    paths = [r[0] for r in records]
-    total = sum(len(r[1]) for r in records)
+    """`calibrate` on records already assembled."""
+    paths = [r.name for r in records]
+    total = sum(len(r.k) for r in records)
     if total < MIN_SAMPLES:
         raise ValueError(f"{total} samples in the logs: calibration needs at least "
                          f"{MIN_SAMPLES} healthy samples")
@@ -158,8 +169,8 @@ def calibrate_records(records: list[tuple[Path, np.ndarray, np.ndarray, np.ndarr
     # The logs end to end, s+1 lost samples between two, so that no window straddles them.
     gap_u = np.full((s + 1, model.p), np.nan)
     gap_z = np.full((s + 1, model.q), np.nan)
-    U = np.vstack([x for _, _, _, Ug, Zg in records for x in (Ug, gap_u)][:-1])
-    Z = np.vstack([x for _, _, _, Ug, Zg in records for x in (Zg, gap_z)][:-1])
+    U = np.vstack([x for r in records for x in (r.U, gap_u)][:-1])
+    Z = np.vstack([x for r in records for x in (r.Z, gap_z)][:-1])
     U = np.where(np.isnan(U), 0.0, U)  # only gap rows, whose windows Z makes missing
     prior = config.design.measurement_std
     prior = np.ones(model.q) if prior is None else np.broadcast_to(prior, (model.q,)).copy()
@@ -178,14 +189,15 @@ def calibrate_records(records: list[tuple[Path, np.ndarray, np.ndarray, np.ndarr
                        config=new, document=document)
 
 
-def _check_residuals(records, config: MonitorConfig) -> list[ResidualCheck]:
+def _check_residuals(records: Sequence[Record], config: MonitorConfig
+                     ) -> list[ResidualCheck]:
     """Run the calibrated method over each log; refuse one it detects anything in."""
     diagnoser = methods.build_diagnoser(config)
     names = list(diagnoser.residual_names)
     thresholds = np.asarray(diagnoser.thresholds, dtype=float)
     normalized, inputs = [], []
     dt_ns = round((config.model.dt or 1.0) * 1e9)
-    for path, grid, _, Ug, Zg in records:
+    for path, grid, Ug, Zg in records:
         diagnoser.reset()
         result = diagnoser.update_block(grid, grid * dt_ns, Ug, Zg)
         detected = [e for e in result.events if e.kind == "detected"]
@@ -271,17 +283,12 @@ def config_document(calibration: Calibration, source: Path, output: Path, when: 
 
 
 def scenario_records(config: MonitorConfig, scenario: Any, seconds: float, seed: int
-                     ) -> list[tuple[Path, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+                     ) -> list[Record]:
     """The healthy record `calibrate_records` takes from ``seconds`` of a fault-free emulated
     run of the scenario's drive (seed ``seed``), through the config's bus as a log would be:
     its DBC's resolution, its clock."""
-    from canfdi.bus.clock import make_clock
-    from canfdi.bus.dbc import BusMap
     from firmware_sim.emitter import frame_log
 
     run = dataclasses.replace(scenario, faults=(), drives=(), seed=seed, duration=seconds)
-    clock = make_clock(BusMap.from_config(config), config.model.dt or 1.0, config.bus.clock)
-    log = clock.push_batch(frame_log(run).frames)
-    Ug, Zg = regular_grid(log.k, log.u, log.z)
-    grid = np.arange(int(log.k[0]), int(log.k[-1]) + 1)
-    return [(Path(f"{scenario.name}-seed{seed}-{seconds:g}s"), grid, log.u, Ug, Zg)]
+    name = Path(f"{scenario.name}-seed{seed}-{seconds:g}s")
+    return [_record(name, *assembled_samples([frame_log(run).frames], config))]

@@ -10,25 +10,33 @@ and raises an order where the information criterion asks for it.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 
 from canfdi.bus.clock import make_clock
 from canfdi.bus.dbc import BusMap
+from canfdi.bus.frames import FrameBlock
 from canfdi.core.settings import MonitorConfig
 from canfdi.io.logs import frame_blocks
 from canfdi.methods.output_error.model import OeModel, fit_miso, long_run_ratio
 
-__all__ = ["identify", "log_samples", "regular_grid"]
+__all__ = ["assembled_samples", "identify", "log_samples", "regular_grid"]
 
 
 def log_samples(path: Path, config: MonitorConfig) -> tuple:
     """(k, U, Z) of a log's first drive, assembled from its frames with the config's DBC, map
     and sample clock."""
+    return assembled_samples(frame_blocks(path), config)
+
+
+def assembled_samples(blocks: Iterable[FrameBlock], config: MonitorConfig) -> tuple:
+    """(k (N,), U (N, p), Z (N, q)) of the config's first drive from blocks of frames, in
+    order (U, Z None when no sample formed)."""
     asm = make_clock(BusMap.from_config(config), config.model.dt or 1.0, config.bus.clock)
     ks, us, zs = [], [], []
-    for block in frame_blocks(path):
+    for block in blocks:
         log = asm.push_batch(block)
         ks.append(log.k)
         us.append(log.u)
