@@ -15,6 +15,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from canfdi.io.reader import read_frames, read_log
@@ -81,21 +82,7 @@ def test_consecutive_faults_across_processes_seen_by_candump(tmp_path):
     """Emulator and monitor as separate processes; candump hears the fault frames and
     `cantools decode` decodes them; SIGTERM stops the daemon within a second with a complete,
     readable MCAP."""
-    dump = tmp_path / "candump.log"
-    with dump.open("w") as out:
-        candump = subprocess.Popen(["candump", "-L", "vcan0"], stdout=out,
-                                   stderr=subprocess.DEVNULL)
-    monitor = Monitor(tmp_path / "run.mcap")
-    try:
-        res = sim("dc_motor_consecutive", truth=tmp_path / "truth.json")
-        assert res.returncode == 0, res.stderr
-        time.sleep(2.0)  # the monitor drains its socket
-        took = monitor.stop()
-    finally:
-        candump.terminate()
-        candump.wait(timeout=10)
-        if monitor.proc.poll() is None:
-            monitor.proc.kill()
+    monitor, res, dump, took = run_with_candump(tmp_path, CONFIG, "dc_motor_consecutive")
     assert took < 1.0, f"SIGTERM took {took:.2f} s"
     truth = json.loads((tmp_path / "truth.json").read_text())["faults"]
     faults = accepted(monitor.events())
@@ -249,23 +236,29 @@ def candump_frames(path: Path) -> list[tuple[int, str]]:
     return out
 
 
-def run_with_candump(tmp_path: Path, config: Path, scenario: str):
-    dump = tmp_path / "candump.log"
-    with dump.open("w") as out:
-        candump = subprocess.Popen(["candump", "-L", "vcan0"], stdout=out,
-                                   stderr=subprocess.DEVNULL)
+def run_with_candump(tmp_path: Path, config: Path, scenario: str, *, witness: bool = True):
+    """`canfdi run` on the config and `canfdi sim` of the scenario, candump -L as witness
+    (``witness``); returns (the stopped Monitor, sim's result, candump's log or None, seconds
+    SIGTERM took)."""
+    dump = tmp_path / "candump.log" if witness else None
+    candump = None
+    if dump is not None:
+        with dump.open("w") as out:
+            candump = subprocess.Popen(["candump", "-L", "vcan0"], stdout=out,
+                                       stderr=subprocess.DEVNULL)
     monitor = Monitor(tmp_path / "run.mcap", config=config)
     try:
         res = sim(scenario, truth=tmp_path / "truth.json")
         assert res.returncode == 0, res.stderr
         time.sleep(2.0)  # the monitor drains its socket
-        monitor.stop()
+        took = monitor.stop()
     finally:
-        candump.terminate()
-        candump.wait(timeout=10)
+        if candump is not None:
+            candump.terminate()
+            candump.wait(timeout=10)
         if monitor.proc.poll() is None:
             monitor.proc.kill()
-    return monitor, json.loads(res.stdout), candump_frames(dump)
+    return monitor, res, dump, took
 
 
 def missed_triggers(log: Path, config: Path) -> dict[str, int]:
@@ -299,7 +292,8 @@ def test_listen_only_on_a_cia402_bus_diagnoses_and_sends_nothing(tmp_path):
     text = CIA402.read_text()
     assert "  canopen: true" in text
     config.write_text(text.replace("  canopen: true", "  canopen: true\n  transmit: false"))
-    monitor, sent, heard = run_with_candump(tmp_path, config, "dc_motor_consecutive_cia402")
+    monitor, res, dump, _ = run_with_candump(tmp_path, config, "dc_motor_consecutive_cia402")
+    sent, heard = json.loads(res.stdout), candump_frames(dump)
     missed = missed_triggers(monitor.log, config)[""]
     assert_onsets(accepted(monitor.events()), [
         ("dc_motor_cia402", "actuator", 0, 1000), ("dc_motor_cia402", "sensor", 0, 2000),
@@ -313,23 +307,33 @@ def test_listen_only_on_a_cia402_bus_diagnoses_and_sends_nothing(tmp_path):
 
 def test_two_cia402_drives_on_vcan_are_diagnosed_apart(tmp_path):
     """Two drives, nodes 1 and 2, one SYNC: the left drive's faults are diagnosed and
-    announced at the config's monitor IDs (0x680..), Drive = 0; the right drive has none."""
-    monitor, sent, heard = run_with_candump(tmp_path, TWO_DRIVES, "dc_motor_two_drives_cia402")
+    announced at the config's monitor IDs (0x680..), Drive = 0; the right drive has none.
+
+    Two drives are ~720 frames/s, most of what the harness's kernel moves (~1,200/s): a
+    candump reading them too delayed SYNCs by periods (820 periods counted lost in one run,
+    and no diagnosis). Here the monitor's own log says what it received and sent; the
+    listen-only test keeps candump as the outside witness."""
+    monitor, res, _, _ = run_with_candump(tmp_path, TWO_DRIVES, "dc_motor_two_drives_cia402",
+                                          witness=False)
+    sent = json.loads(res.stdout)
     missed = missed_triggers(monitor.log, TWO_DRIVES)
     assert_onsets(accepted(monitor.events()), [
         ("left", "actuator", 0, 1000), ("left", "sensor", 0, 2000), ("left", "sensor", 1, 3000)],
         missed["left"])
-    ours = [(i, d) for i, d in heard if 0x680 <= i <= 0x683]
-    assert len(heard) - len(ours) == sent["frames_sent"]
-    assert not [i for i, _ in heard if 0x081 <= i <= 0x0FF]  # nothing on CANopen's EMCY IDs
+    frames = read_frames(monitor.log)
+    mine = frames.status == "sent"
+    assert (~mine).sum() == sent["frames_sent"]
+    ours = list(zip(frames.id[mine].tolist(), [frames.payloads()[i].hex().upper()
+                                               for i in np.flatnonzero(mine)], strict=True))
+    assert ours and all(0x680 <= i <= 0x683 for i, _ in ours)  # nothing on CANopen's EMCY IDs
     # canfdi_monitor.dbc holds FDI_FAULT at its default ID 0x080, which bus.monitor moved to
-    # 0x680 here: cantools reads the heard frames at the DBC's ID.
-    faults_heard = [d for i, d in ours if i == 0x680]
+    # 0x680 here: cantools reads the sent frames at the DBC's ID.
+    faults_sent = [d for i, d in ours if i == 0x680]
     decoded = subprocess.run(
         [sys.executable, "-m", "cantools", "decode", "--single-line", "--no-strict",
          str(REPO / "dbc" / "canfdi_monitor.dbc")],
-        input="".join(f"(0.0) vcan0 080#{d}\n" for d in faults_heard),
+        input="".join(f"(0.0) vcan0 080#{d}\n" for d in faults_sent),
         capture_output=True, text=True, timeout=60)
     assert decoded.returncode == 0, decoded.stderr
-    assert decoded.stdout.count("FDI_FAULT(") == len(faults_heard) >= 6
+    assert decoded.stdout.count("FDI_FAULT(") == len(faults_sent) >= 6
     assert "Drive: 1" not in decoded.stdout and "Drive: 0" in decoded.stdout
