@@ -232,6 +232,8 @@ def print_report(r: dict[str, Any]) -> None:
                          f"{_f(r['false_alarms_per_hour'])} per hour "
                          f"({r['false_alarms_before_fault']} before a fault, "
                          f"{r['false_alarms_after_accepted']} after an accepted diagnosis)"),
+        ("refinements", f"{r['refinements']} re-detections of an accepted fault refined its "
+                        "estimate (not counted as false alarms)"),
         ("estimate error", f"median {_pct(r['estimate_error_median'])}, p95 "
                            f"{_pct(r['estimate_error_p95'])} over {r['estimate_errors']} faults"),
     ]

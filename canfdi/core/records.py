@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["BlockResult", "Compensation", "FaultEvent", "Sample", "compensate"]
+__all__ = ["BlockResult", "Compensation", "FaultEvent", "Sample", "compensate",
+           "compensated", "fold"]
 
 
 @dataclass(frozen=True)
@@ -33,7 +34,13 @@ class FaultEvent:
     """Something the diagnoser concluded at sample ``sample``.
 
     kind : "detected" (a residual changed), "accepted" (a fault isolated and identified, folded
-        into the compensation), or "unexplained" (no hypothesis fitted within max_samples).
+        into the compensation), "refined" (a re-detection explained by a channel already
+        compensated: its estimates are the channel's updated total, see `fold`), or
+        "unexplained" (no hypothesis fitted within max_samples). The monitor adds "mismatch"
+        and "matched" (canfdi.core.watchdog: a residual's noise left its calibrated value,
+        or came back; estimates then hold each residual's std ratio), "taught" (teach-in
+        learned the noise: estimates hold each sensor's std) and "teach_failed" (it could
+        not: the reason in candidates).
     target : "actuator" or "sensor" for accepted faults, None otherwise.
     index, name : 0-based channel and its name (accepted faults).
     estimates : {"eta", "lambda"} for actuators, {"bias"} for sensors.
@@ -146,3 +153,40 @@ def compensate(entries: tuple[Compensation, ...] | list[Compensation], k: np.nda
         else:
             out[on, c.index] = c.eta * out[on, c.index] + c.lam
     return Z, U
+
+
+def compensated(entries: list[Compensation] | tuple[Compensation, ...], target: str,
+                index: int) -> dict[str, float]:
+    """The total fault already compensated on one channel ({} when none), composed in the
+    order `compensate` applies the entries: sensor biases add; an actuator's
+    ``eta2 (eta1 u + lam1) + lam2`` is eta = eta1 eta2, lambda = eta2 lam1 + lam2. Keys as
+    `Compensation.as_dict` (eta only for a method that estimates it). A refinement's precision
+    is judged against it: what matters is the total's accuracy, not the small increment's."""
+    same = [c for c in entries if c.target == target and c.index == index]
+    if not same:
+        return {}
+    eta, lam, bias = 1.0, 0.0, 0.0
+    for c in same:
+        bias += c.bias
+        eta, lam = c.eta * eta, c.eta * lam + c.lam
+    out = Compensation(target, index, same[0].onset, eta=eta, lam=lam, bias=bias,
+                       scale=any(c.scale for c in same)).as_dict()
+    return {key: float(v) for key, v in out.items() if key not in ("target", "index", "onset")}
+
+
+def fold(entries: list[Compensation], new: Compensation) -> tuple[str, dict[str, float]]:
+    """Append an accepted fault to the compensation; ("accepted", its estimates) for a channel
+    not compensated yet, ("refined", the channel's new total: `compensated`) when it is (seed
+    003 Section 3.3: a later residual of the same fault refines it).
+
+    Examples
+    --------
+    >>> comp = [Compensation("sensor", 1, onset=100, bias=0.9)]
+    >>> fold(comp, Compensation("sensor", 1, onset=900, bias=0.1))
+    ('refined', {'bias': 1.0})
+    >>> len(comp)
+    2
+    """
+    kind = "refined" if compensated(entries, new.target, new.index) else "accepted"
+    entries.append(new)
+    return kind, compensated(entries, new.target, new.index)

@@ -349,7 +349,9 @@ class FaultOutcome:
 @dataclass(frozen=True)
 class RunOutcome:
     """One run matched: per-fault outcomes, false alarms ({"sample", "context"}: context
-    "before_fault" or "after_accepted"), and the fault-free samples they were counted over."""
+    "before_fault" or "after_accepted"), refinements ({"sample", "channel"}: re-detections of a
+    fault already accepted that refined its estimate), and the fault-free samples they were
+    counted over."""
 
     faults: tuple[FaultOutcome, ...]
     false_alarms: tuple[dict, ...]
@@ -357,6 +359,7 @@ class RunOutcome:
     samples: int
     run: int = 0
     noise_scale: float = 1.0
+    refinements: tuple[dict, ...] = ()
 
 
 def relative_errors(fault: InjectedFault, estimates: dict[str, float]) -> dict[str, float]:
@@ -398,6 +401,13 @@ def _isolate(fault: InjectedFault, accepted: list[FaultEvent],
     return "wrong", lab(first), {}, extra
 
 
+def _explains(fault: InjectedFault, decided: list[FaultEvent]) -> bool:
+    """Whether a decision names the fault's channel, itself or among its candidates."""
+    return any((e.target, e.index) == (fault.target, fault.index)
+               or any((c.get("target"), c.get("index")) == (fault.target, fault.index)
+                      for c in e.candidates) for e in decided)
+
+
 def match_run(faults: Sequence[InjectedFault], events: Sequence[FaultEvent], samples: int,
               first_monitored: int = 0, twins: dict[str, frozenset[str]] | None = None,
               names: dict | None = None, run: int = 0, noise_scale: float = 1.0
@@ -409,6 +419,12 @@ def match_run(faults: Sequence[InjectedFault], events: Sequence[FaultEvent], sam
 
     - a detection in fault i's segment before fault i is accepted belongs to fault i (the first
       one gives its detection sample; re-detections after an "unexplained" end stay its own);
+    - a detection whose diagnosis refined a fault already accepted (a "refined" event: the
+      re-detection of what an inexact estimate left) is a refinement, neither a false alarm nor
+      a detection of a new fault; except in a segment whose fault is not accepted yet and which
+      the refined channel or one of its candidates is (a second fault on a twin of a channel
+      already compensated: the bus cannot tell it from more of the same), where it is that
+      fault's detection and decision;
     - a detection before the first onset, or in a segment after that segment's fault was
       accepted, is a false alarm ("before_fault" / "after_accepted");
     - fault i is missed when no detection falls in its segment;
@@ -431,20 +447,28 @@ def match_run(faults: Sequence[InjectedFault], events: Sequence[FaultEvent], sam
     detections = sorted((e for e in events if e.kind == "detected"), key=lambda e: e.sample)
     accepted_by: dict[int, list[FaultEvent]] = {}
     unexplained = set()
+    refined: dict[int, str] = {}
     for e in events:
-        if e.kind == "accepted":
+        if e.kind == "refined":
+            refined[e.detected_sample] = label(e.target, e.index, names)
+        if e.kind in ("accepted", "refined"):
             accepted_by.setdefault(e.detected_sample, []).append(e)
         elif e.kind == "unexplained":
             unexplained.add(e.detected_sample)
     own: list[list[FaultEvent]] = [[] for _ in faults]
     accepted_at: list[int | None] = [None] * len(faults)
-    false_alarms = []
+    false_alarms, refinements = [], []
     for d in detections:
         seg = next((i for i in range(len(faults)) if onsets[i] <= d.sample < ends[i]), None)
+        after = seg is not None and accepted_at[seg] is not None and d.sample >= accepted_at[seg]
+        if d.sample in refined and (seg is None or after or not _explains(
+                faults[seg], accepted_by[d.sample])):
+            refinements.append({"sample": d.sample, "channel": refined[d.sample]})
+            continue
         if seg is None:
             false_alarms.append({"sample": d.sample, "context": "before_fault"})
             continue
-        if accepted_at[seg] is not None and d.sample >= accepted_at[seg]:
+        if after:
             false_alarms.append({"sample": d.sample, "context": "after_accepted"})
             continue
         own[seg].append(d)
@@ -477,7 +501,8 @@ def match_run(faults: Sequence[InjectedFault], events: Sequence[FaultEvent], sam
                 free += max(0, ends[i] - max(accepted_at[i], first_monitored))
     else:
         free = max(0, samples - first_monitored)
-    return RunOutcome(tuple(outcomes), tuple(false_alarms), free, samples, run, noise_scale)
+    return RunOutcome(tuple(outcomes), tuple(false_alarms), free, samples, run, noise_scale,
+                      tuple(refinements))
 
 
 # -- metrics -------------------------------------------------------------------------------------
@@ -559,6 +584,7 @@ def aggregate(runs: Sequence[RunOutcome], dt: float,
         false_alarms_after_accepted=sum(a["context"] == "after_accepted" for a in fa),
         fault_free_samples=free, fault_free_hours=hours,
         false_alarms_per_hour=(len(fa) / hours) if hours > 0 else None,
+        refinements=sum(len(r.refinements) for r in runs),
         samples=sum(r.samples for r in runs),
     )
     edges = list(bins)

@@ -84,7 +84,15 @@ from canfdi.core.calibrate import threshold_for_long_run_variance
 from canfdi.core.detect import ChangePointDetector, DetectorBacked, onset_candidates
 from canfdi.core.identify import least_squares
 from canfdi.core.protocol import DIAGNOSE, MONITOR
-from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample, compensate
+from canfdi.core.records import (
+    BlockResult,
+    Compensation,
+    FaultEvent,
+    Sample,
+    compensate,
+    compensated,
+    fold,
+)
 from canfdi.methods.output_error.model import OeModel, fit_step, pair_initial_state, simulate
 
 __all__ = ["HypothesisTest", "OeDiagnosis", "OeSettings", "OutputErrorDiagnoser",
@@ -209,6 +217,7 @@ class OutputErrorDiagnoser(DetectorBacked):
         self.sigma = np.asarray(sigma, dtype=float).reshape(self.q)
         if np.any(~np.isfinite(self.sigma)) or np.any(self.sigma <= 0):
             raise ValueError("sigma: residual standard deviations must be finite and > 0")
+        self._sigma0 = self.sigma.copy()
         thresholds = np.asarray(thresholds, dtype=float).reshape(self.q)
         self.settings = settings
         self.input_names, self.output_names = list(input_names), list(output_names)
@@ -237,6 +246,7 @@ class OutputErrorDiagnoser(DetectorBacked):
     def reset(self) -> None:
         """Back to the state after construction: monitoring, no compensation, no events; the
         models restart on the next sample."""
+        self.noise_scale = 1.0
         self.mode = MONITOR
         self.events = []
         self.compensation = []
@@ -252,6 +262,17 @@ class OutputErrorDiagnoser(DetectorBacked):
     def _restart_detector(self, k: int = -1) -> None:
         self.detector.restart(k)
         self._diag = None
+
+    @property
+    def noise_scale(self) -> np.ndarray:
+        """(q,) each residual's noise over the calibrated sigma (settable: the noise watchdog
+        widens the noise of a residual in mismatch, canfdi.core.watchdog; 1 by default)."""
+        return self.sigma / self._sigma0
+
+    @noise_scale.setter
+    def noise_scale(self, value: np.ndarray) -> None:
+        self.sigma = self._sigma0 * np.broadcast_to(np.asarray(value, dtype=float),
+                                                    self._sigma0.shape)
 
     @property
     def residual_names(self) -> list[str]:
@@ -457,8 +478,10 @@ class OutputErrorDiagnoser(DetectorBacked):
             tried.append(best_h)
             if best_h.passes:
                 passing.append(best_h)
-        if passing:
-            return min(passing, key=lambda h: h.distance), tried
+        found = min(passing, key=lambda h: h.distance) if passing else None
+        refines = found is not None and self._refines(found)
+        if found is not None and not refines:
+            return found, tried
         sensors = []
         for j in range(self.q):
             best_h = None
@@ -469,9 +492,16 @@ class OutputErrorDiagnoser(DetectorBacked):
             tried.append(best_h)
             if best_h.passes:
                 sensors.append(best_h)
-        if sensors:
-            return min(sensors, key=lambda h: h.cost), tried
+        # A refinement of an actuator (shape not retested) competes with the sensors on cost.
+        found = min([*sensors, *([found] if refines else [])], key=lambda h: h.cost,
+                    default=None)
+        if found is not None:
+            return found, tried
         return None, sorted(tried, key=lambda h: h.cost)
+
+    def _refines(self, h: HypothesisTest) -> bool:
+        """Whether h's channel is compensated already (its diagnosis would refine it)."""
+        return bool(compensated(self.compensation, h.target, h.index))
 
     def _actuator_test(self, i, outs, kf, kk, Rn, Rv, valid, zero_cost, n_eq) -> HypothesisTest:
         s = self.settings
@@ -511,6 +541,11 @@ class OutputErrorDiagnoser(DetectorBacked):
                 g = fit.static_gain
                 gamma_ok &= bool(np.sqrt(np.sum(fit.var_b)) <= s.gamma * abs(g))
         passes = bool(fits and gamma_ok and distance <= s.kappa)
+        total = compensated(self.compensation, "actuator", i)
+        if total:
+            # A refinement: the path's shape was established when the fault was accepted; what
+            # is left is an amplitude, judged against the channel's whole fault.
+            passes = bool(fits and np.sqrt(var) <= s.gamma * max(abs(lam), abs(total["lambda"])))
         return HypothesisTest("actuator", i, self.input_names[i], int(kf), {"lambda": lam},
                               {"lambda": float(var)}, cost, distance, gamma_ok, fits, passes)
 
@@ -526,8 +561,10 @@ class OutputErrorDiagnoser(DetectorBacked):
         scale = cost / max(n_eq - 1, 1)
         var = scale / n_after if n_after else np.inf
         fits = scale <= s.max_fit_variance
-        gamma_ok = bool(np.sqrt(var) <= s.gamma * abs(b))
         sig = self.sigma[j]
+        # A refinement is judged against the channel's whole fault (normalised units).
+        total = compensated(self.compensation, "sensor", j).get("bias", 0.0) / sig
+        gamma_ok = bool(np.sqrt(var) <= s.gamma * max(abs(b), abs(total)))
         return HypothesisTest("sensor", j, self.output_names[j], int(kf),
                               {"bias": float(b * sig)}, {"bias": float(var * sig**2)}, cost, 0.0,
                               gamma_ok, fits, bool(fits and gamma_ok))
@@ -546,13 +583,14 @@ class OutputErrorDiagnoser(DetectorBacked):
     def _accept(self, k: int, t: int, h: HypothesisTest) -> list[FaultEvent]:
         d = self._diag
         onset = h.onset
-        event = FaultEvent(kind="accepted", sample=k, timestamp_ns=t, target=h.target,
-                           index=h.index, name=h.name, estimates=dict(h.estimates),
+        kind, total = fold(self.compensation, Compensation(
+            h.target, h.index, onset, lam=h.estimates.get("lambda", 0.0),
+            bias=h.estimates.get("bias", 0.0)))
+        event = FaultEvent(kind=kind, sample=k, timestamp_ns=t, target=h.target,
+                           index=h.index, name=h.name,
+                           estimates=dict(h.estimates) if kind == "accepted" else total,
                            variances=dict(h.variances), onset_sample=onset,
                            detected_sample=d.k_d, accepted_sample=k)
-        self.compensation.append(Compensation(h.target, h.index, onset,
-                                              lam=h.estimates.get("lambda", 0.0),
-                                              bias=h.estimates.get("bias", 0.0)))
         if h.target == "actuator" and self._states is not None:
             # Section 3.3 by superposition: the models' state after sample k moves by lambda
             # times the state a unit step applied from the onset leaves in each path.

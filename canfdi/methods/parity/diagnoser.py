@@ -24,7 +24,9 @@ No acceptance by ``max_samples``: an "unexplained" event and the detector restar
 ACCEPT. The estimate is folded into a compensation applied from k_f on (z_j - b, or
 u_j = eta u_cj + lambda), the residual window is rebuilt from compensated samples and the
 detector restarts (seed 003 Section 3.3), so a later fault on any channel is diagnosed on top of
-the ones already found, repaired or not.
+the ones already found, repaired or not. A later diagnosis on a channel already compensated
+(what a not quite exact estimate leaves of a large fault) refines it: a "refined" event with the
+channel's updated total (canfdi.core.records.fold), not a new fault.
 """
 
 from __future__ import annotations
@@ -39,7 +41,14 @@ from canfdi.core.design import Design
 from canfdi.core.detect import ChangePointDetector, DetectorBacked, onset_candidates
 from canfdi.core.identify import RlsState, rls_init, rls_solve, rls_update
 from canfdi.core.protocol import DIAGNOSE, MONITOR
-from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample, compensate
+from canfdi.core.records import (
+    BlockResult,
+    Compensation,
+    FaultEvent,
+    Sample,
+    compensate,
+    fold,
+)
 from canfdi.core.residuals import ResidualBank
 from canfdi.methods.parity.hypotheses import (
     Hypothesis,
@@ -112,6 +121,7 @@ class ParityDiagnoser(DetectorBacked):
         self.design = design
         self.settings = settings
         self.bank = ResidualBank(design)
+        self._sigma0 = self.bank.sigma.copy()
         thresholds = np.asarray(thresholds, dtype=float).reshape(self.bank.m)
         model = design.model
         self.q, self.p = model.q, model.p
@@ -162,6 +172,7 @@ class ParityDiagnoser(DetectorBacked):
     def reset(self) -> None:
         """Back to the state after construction: monitoring, no compensation, no events, empty
         windows."""
+        self.noise_scale = 1.0
         self.mode = MONITOR
         self.events = []
         self.bank.restart()
@@ -181,6 +192,17 @@ class ParityDiagnoser(DetectorBacked):
     @property
     def residual_names(self) -> list[str]:
         return self.bank.names
+
+    @property
+    def noise_scale(self) -> np.ndarray:
+        """(m,) each residual's noise over the design's (settable: the noise watchdog widens
+        the noise of a residual in mismatch, canfdi.core.watchdog; 1 by default)."""
+        return self.bank.sigma / self._sigma0
+
+    @noise_scale.setter
+    def noise_scale(self, value: np.ndarray) -> None:
+        self.bank.sigma = self._sigma0 * np.broadcast_to(np.asarray(value, dtype=float),
+                                                         self._sigma0.shape)
 
     # -- compensation ----------------------------------------------------------------------
     def _compensate(self, k: int, z: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -431,16 +453,14 @@ class ParityDiagnoser(DetectorBacked):
         events = []
         for target, index, est, variances, candidates in faults:
             names = self.design.input_names if target == "actuator" else self.design.output_names
-            event = FaultEvent(
-                kind="accepted", sample=k, timestamp_ns=t, target=target, index=index,
-                name=names[index], estimates=est, variances=variances, onset_sample=onset,
-                detected_sample=d.k_d, accepted_sample=k, candidates=candidates,
-            )
-            self.compensation.append(
-                Compensation(target, index, onset, eta=est.get("eta", 1.0),
-                             lam=est.get("lambda", 0.0), bias=est.get("bias", 0.0),
-                             scale=target == "actuator"))
-            events.append(event)
+            kind, total = fold(self.compensation, Compensation(
+                target, index, onset, eta=est.get("eta", 1.0), lam=est.get("lambda", 0.0),
+                bias=est.get("bias", 0.0), scale=target == "actuator"))
+            events.append(FaultEvent(
+                kind=kind, sample=k, timestamp_ns=t, target=target, index=index,
+                name=names[index], estimates=est if kind == "accepted" else total,
+                variances=variances, onset_sample=onset, detected_sample=d.k_d,
+                accepted_sample=k, candidates=candidates))
         # Seed 003 Section 3.3: rebuild the window from compensated samples and restart.
         tail = []
         for kk, z, u in self._history:

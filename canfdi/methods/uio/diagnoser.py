@@ -29,7 +29,7 @@ samples counts as NaN rows; a longer one (or k going back) restarts the window.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.stats import norm
@@ -37,7 +37,15 @@ from scipy.stats import norm
 from canfdi.core.blockrun import run_block
 from canfdi.core.identify import least_squares
 from canfdi.core.protocol import DIAGNOSE, MONITOR
-from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample, compensate
+from canfdi.core.records import (
+    BlockResult,
+    Compensation,
+    FaultEvent,
+    Sample,
+    compensate,
+    compensated,
+    fold,
+)
 from canfdi.methods.uio.design import UioDesign, fault_angles, flag_function
 
 __all__ = ["Isolation", "StepMeans", "UioDiagnoser", "UioDiagnosis", "UioSettings",
@@ -124,7 +132,7 @@ class UioDiagnoser:
 
     def __init__(self, design: UioDesign, settings: UioSettings, thresholds: np.ndarray,
                  input_names: list[str], output_names: list[str]) -> None:
-        self.design = design
+        self.design = self._design0 = design
         self.settings = settings
         self.p, self.q = design.p, design.m
         self.thresholds = np.asarray(thresholds, dtype=float).reshape(self.p + self.q)
@@ -149,6 +157,7 @@ class UioDiagnoser:
     def reset(self) -> None:
         """Back to the state after construction: monitoring, no compensation, no events,
         empty window, filters at rest."""
+        self.noise_scale = 1.0
         self.mode = MONITOR
         self.events = []
         self.isolations = []
@@ -167,6 +176,19 @@ class UioDiagnoser:
         self._stat = np.zeros(n)
         self._last_quiet = np.full(n, k, dtype=np.int64)
         self._diag = None
+
+    @property
+    def noise_scale(self) -> np.ndarray:
+        """(p+m,) each residual's noise over the design's (settable: the noise watchdog widens
+        the noise of a residual in mismatch, canfdi.core.watchdog; 1 by default)."""
+        return self.design.noise_std / self._design0.noise_std
+
+    @noise_scale.setter
+    def noise_scale(self, value: np.ndarray) -> None:
+        d0 = self._design0
+        f = np.broadcast_to(np.asarray(value, dtype=float), d0.noise_std.shape)
+        self.design = replace(d0, noise_std=d0.noise_std * f, front_std=d0.front_std * f,
+                              long_run_std=d0.long_run_std * f)
 
     @property
     def residual_names(self) -> list[str]:
@@ -327,7 +349,12 @@ class UioDiagnoser:
             best = int(order[0])
             est, se = self._estimate(best, fit)
             unique = angles[best] <= s.angle_threshold and angles[order[1]] > s.angle_threshold
-            settled = se <= s.settle_rel_std * abs(est)
+            target, index, _ = self.hypotheses[best]
+            total = compensated(self.compensation, target, index)
+            # A refinement settles against the channel's whole fault, not the small rest.
+            size = max(abs(est), abs(total.get("lambda" if target == "actuator" else "bias",
+                                               0.0)))
+            settled = se <= s.settle_rel_std * size
             if unique and settled:
                 return self._accept(k, t, best, fit, angles, order)
         if since >= s.max_samples:
@@ -395,16 +422,17 @@ class UioDiagnoser:
         # a sensor fault at once.
         onset = fit.onset - (1 if target == "actuator" else 0)
         key = "lambda" if target == "actuator" else "bias"
-        event = FaultEvent(kind="accepted", sample=k, timestamp_ns=t, target=target,
-                           index=index, name=name, estimates={key: est},
+        kind, total = fold(self.compensation, Compensation(
+            target, index, onset, lam=est if target == "actuator" else 0.0,
+            bias=est if target == "sensor" else 0.0))
+        event = FaultEvent(kind=kind, sample=k, timestamp_ns=t, target=target,
+                           index=index, name=name,
+                           estimates={key: est} if kind == "accepted" else total,
                            variances={key: se**2}, onset_sample=onset,
                            detected_sample=self._diag.k_d, accepted_sample=k)
         # The angles are no candidates in the FaultEvent sense (channels explaining the data
         # equally well: the monitor prints them as such); they go with the event here.
         self.isolations.append(Isolation(event, self._candidates(fit, angles, order)))
-        self.compensation.append(Compensation(target, index, onset,
-                                              lam=est if target == "actuator" else 0.0,
-                                              bias=est if target == "sensor" else 0.0))
         self._rerun(onset)
         self.mode = MONITOR
         self._restart_detector(k)
