@@ -43,6 +43,11 @@ Layout::
       directory: logs
       rotate_mib: 256
       rotate_minutes: 60
+    watchdog:                      # optional; the noise watchdog (canfdi.core.watchdog)
+      enabled: true
+      factor: 1.5                  # noise std over its calibrated value that is a mismatch
+      block: 250                   # samples per block (variance about the block's mean)
+      blocks: 2                    # consecutive blocks that must agree (window: 500 samples)
 
 The model's input and output names are the DBC signal names of the drive's commands and
 measurements (dbc/README.md); each must be in exactly one message sent by DRIVE.
@@ -76,6 +81,7 @@ from canfdi.core.settings import (
     Option,
     RecordingConfig,
     SignalRef,
+    WatchdogConfig,
     parse_options,
     section,
     unknown_name,
@@ -88,6 +94,7 @@ __all__ = [
     "IdentificationConfig",
     "MonitorConfig",
     "RecordingConfig",
+    "WatchdogConfig",
     "load_config",
     "parse_config",
     "read_yaml",
@@ -95,7 +102,7 @@ __all__ = [
 
 # The sections every config may have; each method adds its own (canfdi.methods).
 _COMMON_KEYS = ("name", "description", "method", "model", "signals", "noise", "design", "bus",
-                "detection", "identification", "recording", "drives")
+                "detection", "identification", "recording", "watchdog", "drives")
 _BUS = {"interface": Option(str), "channel": Option(str), "bitrate": Option(int, 1),
         "dbc": Option(str), "status_period": Option(float, 0.01, 3600.0),
         "transmit": Option(bool), "canopen": Option(bool)}
@@ -110,6 +117,8 @@ _IDENTIFICATION = {"min_samples": Option(int, 1, 10**7), "max_samples": Option(i
                    "settle_rel_std": Option(float, 1e-9, 1.0),
                    "isolation_margin": Option(float, 0.0, 1e12),
                    "max_fit_variance": Option(float, 1.0, 1e12)}
+_WATCHDOG = {"enabled": Option(bool), "factor": Option(float, 1.01, 100.0),
+             "block": Option(int, 10, 10**6), "blocks": Option(int, 1, 1000)}
 _RECORDING = {"directory": Option(str), "rotate_mib": Option(float, 0.01, 1e7),
               "rotate_minutes": Option(float, 0.01, 1e7)}
 
@@ -194,6 +203,7 @@ def parse_config(data: Any, path: Path | None = None) -> MonitorConfig:
         raise ConfigError("identification.max_samples",
                           f"must be >= min_samples ({identification.min_samples})")
     recording = RecordingConfig(**parse_options(data.get("recording"), _RECORDING, "recording"))
+    watchdog = WatchdogConfig(**parse_options(data.get("watchdog"), _WATCHDOG, "watchdog"))
     name = data.get("name", path.stem if path else "model")
     if not isinstance(name, str) or not name:
         raise ConfigError("name", "expected a non-empty string")
@@ -205,7 +215,8 @@ def parse_config(data: Any, path: Path | None = None) -> MonitorConfig:
                            outputs=outputs, unknown_inputs=unknown_inputs,
                            unknown_outputs=unknown_outputs, design=options, bus=bus,
                            detection=detection, identification=identification,
-                           recording=recording, path=path, method=method.name, drives=drives)
+                           recording=recording, watchdog=watchdog, path=path,
+                           method=method.name, drives=drives)
     raw = data.get(method.section) if method.section else None
     return dataclasses.replace(config, method_options=method.parse_options(raw, config))
 

@@ -18,7 +18,7 @@ counts it.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -38,14 +38,16 @@ from canfdi.bus.monitorframes import MonitorFrames
 from canfdi.core.protocol import DIAGNOSE, Diagnoser
 from canfdi.core.records import FaultEvent, Sample
 from canfdi.core.settings import MonitorConfig
+from canfdi.core.watchdog import NoiseWatchdog, WatchdogChange, block_runs, monitoring_rows
 
-__all__ = ["Drive", "Monitor", "OutFrame", "RecordSink", "summary_json"]
+__all__ = ["Drive", "Monitor", "OutFrame", "RecordSink", "Teacher", "summary_json"]
 
 
 _KIND = {"actuator": 1, "sensor": 2}
 _STATE = {"detected": 1, "accepted": 3}
 _PARAM = {"eta": 0, "lambda": 1, "bias": 2}
-_STATUS = {"starting": 0, "monitoring": 1, "diagnosing": 2, "degraded": 3, "bus_error": 4}
+_STATUS = {"starting": 0, "monitoring": 1, "diagnosing": 2, "degraded": 3, "bus_error": 4,
+           "teaching": 5, "mismatch": 6}
 
 
 class RecordSink(Protocol):
@@ -67,6 +69,18 @@ class RecordSink(Protocol):
     def write_residual_rows(self, k: np.ndarray, t_ns: np.ndarray, names: list[str],
                             R: np.ndarray, Rn: np.ndarray, stat: np.ndarray,
                             drive: str | None = None) -> None: ...
+    def write_metadata(self, name: str, values: dict[str, str]) -> None: ...
+
+
+class Teacher(Protocol):
+    """Teach-in (`canfdi run --teach`): how many samples to learn from, and how
+    (canfdi.tools.calibrate.Teach fits). ``learn`` raises ValueError when the samples cannot
+    be learned from (too few, a fault in them): the drive is then monitored as configured."""
+
+    samples: int
+
+    def learn(self, k: np.ndarray, U: np.ndarray, Z: np.ndarray
+              ) -> tuple[Diagnoser, dict[str, str]]: ...
 
 
 @dataclass(frozen=True)
@@ -81,15 +95,23 @@ class OutFrame:
 @dataclass
 class Drive:
     """One drive on the bus: its name, its index in ``drives:`` (the Drive signal of the
-    monitor's frames), its bus map, its sample clock, its diagnoser (None when capturing) and
-    how many samples it has delivered."""
+    monitor's frames), its bus map, its sample clock, its diagnoser (None when capturing), its
+    noise watchdog (None when off or capturing) and how many samples it has delivered."""
 
     name: str
     index: int
     bus_map: BusMap
     clock: SampleAssembler | LatestValueClock
     diagnoser: Diagnoser | None
+    watchdog: NoiseWatchdog | None = None
     samples: int = 0
+    held: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    teaching: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+
+    @property
+    def mismatch(self) -> bool:
+        """Whether the watchdog says a residual's noise left its calibrated value."""
+        return self.watchdog is not None and bool(self.watchdog.mismatch.any())
 
 
 class Monitor:
@@ -101,6 +123,10 @@ class Monitor:
     sink : optional record sink (MCAP recorder).
     record_residuals : write every sample's residuals to the sink (the bulk of a log).
     diagnose : False for capture: decode and record, no diagnosis (and no calibration).
+    teach : teach-in: each drive's first ``teach.samples`` samples are recorded, not
+        diagnosed (FDI_STATUS "teaching"); then ``teach.learn`` gives the drive its diagnoser
+        and the learned values go to the log's metadata ("canfdi.teach.<drive>") and
+        ``self.taught``.
 
     Raises
     ------
@@ -109,7 +135,8 @@ class Monitor:
     """
 
     def __init__(self, config: MonitorConfig, sink: RecordSink | None = None,
-                 record_residuals: bool = True, diagnose: bool = True) -> None:
+                 record_residuals: bool = True, diagnose: bool = True,
+                 teach: Teacher | None = None) -> None:
         self.config = config
         self.method = methods.get(config.method)
         self.dt = config.model.dt or 1.0
@@ -127,6 +154,11 @@ class Monitor:
             self.drives.append(Drive(
                 drive.name, index, bus_map, make_clock(bus_map, self.dt, config.bus.clock),
                 self.method.build(config) if diagnose else None))
+            self.drives[-1].watchdog = self._watchdog(self.drives[-1].diagnoser)
+            if teach is not None and diagnose:
+                self.drives[-1].teaching = []
+        self.teach = teach
+        self.taught: dict[str, dict[str, str]] = {}
         # Which drives a frame goes to: (ID, extended) -> bit mask of drive indices. A message
         # several drives share (a CANopen SYNC that triggers all) goes to each; a frame of no
         # drive goes to the first, which only counts it.
@@ -144,6 +176,18 @@ class Monitor:
         self.record_residuals = record_residuals
         self.events: list[FaultEvent] = []
         self.first_timestamp_ns: int | None = None
+
+    def _watchdog(self, dg: Diagnoser | None) -> NoiseWatchdog | None:
+        w = self.config.watchdog
+        if dg is None or not w.enabled:
+            return None
+        return NoiseWatchdog(len(dg.residual_names), w.factor, w.block, w.blocks)
+
+    def replace_diagnoser(self, drive: Drive, diagnoser: Diagnoser) -> None:
+        """Give a drive a new diagnoser (teach-in: the one built on the learned noise) and a
+        fresh watchdog; its sample clock and counters go on."""
+        drive.diagnoser = diagnoser
+        drive.watchdog = self._watchdog(diagnoser)
 
     # -- the first (or only) drive, for the many callers that watch one --------------------
     @property
@@ -266,31 +310,57 @@ class Monitor:
     def on_samples(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
                    gap: np.ndarray, drive: Drive | None = None) -> list[OutFrame]:
         """Diagnose a block of one drive's assembled samples ((N,) k, t_ns, gap; (N, p) U;
-        (N, q) Z; default the first drive)."""
+        (N, q) Z; default the first drive). With the noise watchdog on, the block is cut where
+        its blocks end (the same cuts whatever blocks the samples arrive in)."""
         drive = drive or self.drives[0]
         if len(k) == 0:
             return []
         drive.samples += len(k)
-        dg = drive.diagnoser
         cfg = self.config
         if self.sink is not None:
             self.sink.write_samples(k, t_ns, U, Z, gap, cfg.inputs, cfg.outputs, drive.name)
+        if drive.teaching is not None:
+            n = self._learn(drive, k, t_ns, U, Z)
+            if n == len(k):
+                return []
+            k, t_ns, U, Z, gap = k[n:], t_ns[n:], U[n:], Z[n:], gap[n:]
+        dg = drive.diagnoser
         if dg is None:
             return []
-        result = dg.update_block(k, t_ns, U, Z, gap)
-        if self.sink is not None and self.record_residuals:
-            have = ~np.isnan(result.residuals).all(axis=1)
-            if have.any():
-                self.sink.write_residual_rows(k[have], t_ns[have], dg.residual_names,
-                                              result.residuals[have], result.normalized[have],
-                                              result.statistic[have], drive.name)
-        return self._announce(result.events, drive)
+        wd = drive.watchdog
+        pieces = block_runs(k, wd.block) if wd is not None else [(0, len(k))]
+        out: list[OutFrame] = []
+        for lo, hi in pieces:
+            out += self._watch_before(drive, int(k[lo]), int(t_ns[lo]))
+            before = dg.mode == DIAGNOSE
+            result = dg.update_block(k[lo:hi], t_ns[lo:hi], U[lo:hi], Z[lo:hi], gap[lo:hi])
+            if self.sink is not None and self.record_residuals:
+                have = ~np.isnan(result.residuals).all(axis=1)
+                if have.any():
+                    kk, tt = k[lo:hi][have], t_ns[lo:hi][have]
+                    self.sink.write_residual_rows(kk, tt, dg.residual_names,
+                                                  result.residuals[have], result.normalized[have],
+                                                  result.statistic[have], drive.name)
+            if wd is not None:
+                self._watch(drive, k[lo:hi], result.normalized * _noise_scale(dg),
+                            result.events, before)
+            out += self._announce(result.events, drive)
+        return out
 
     def on_sample(self, sample: Sample, drive: Drive | None = None) -> list[OutFrame]:
         """Diagnose one assembled sample of a drive (default the first)."""
         drive = drive or self.drives[0]
         drive.samples += 1
+        if drive.teaching is not None:
+            if self.sink is not None:
+                self.sink.write_sample(sample, self.config.inputs, self.config.outputs,
+                                       drive.name)
+            self._learn(drive, np.array([sample.k]), np.array([sample.timestamp_ns]),
+                        np.asarray(sample.u, float)[None, :], np.asarray(sample.z, float)[None, :])
+            return []
         dg = drive.diagnoser
+        out = self._watch_before(drive, sample.k, sample.timestamp_ns)
+        before = dg is not None and dg.mode == DIAGNOSE
         events = dg.update(sample) if dg is not None else []
         if self.sink is not None:
             self.sink.write_sample(sample, self.config.inputs, self.config.outputs, drive.name)
@@ -298,7 +368,91 @@ class Monitor:
                 self.sink.write_residuals(sample.timestamp_ns, sample.k, dg.residual_names,
                                           dg.last_residuals, dg.last_normalized,
                                           dg.statistics, drive.name)
-        return self._announce(events, drive)
+        if drive.watchdog is not None and dg.last_normalized is not None:
+            self._watch(drive, np.array([sample.k]),
+                        dg.last_normalized[None, :] * _noise_scale(dg), events, before)
+        return out + self._announce(events, drive)
+
+    @staticmethod
+    def _watch(drive: Drive, k: np.ndarray, raw: np.ndarray, events: list[FaultEvent],
+               before: bool) -> None:
+        """Samples k (N,), their residuals against the calibrated noise (N, m), to the drive's
+        watchdog: those the diagnoser watched at once; those of a diagnosis held until it ends,
+        then counted if it found no fault ("unexplained": the alarm was the noise), dropped if
+        it found one."""
+        wd = drive.watchdog
+        quiet = monitoring_rows(k, events, before)
+        wd.add(k[quiet], raw[quiet])
+        if not quiet.all():
+            drive.held.append((k[~quiet], raw[~quiet]))
+        for e in events:
+            if e.kind not in ("accepted", "refined", "unexplained") or not drive.held:
+                continue
+            kh = np.concatenate([h[0] for h in drive.held])
+            rh = np.concatenate([h[1] for h in drive.held])
+            mine = kh <= e.sample
+            if e.kind == "unexplained":
+                wd.add_late(kh[mine], rh[mine])
+            drive.held = [(kh[~mine], rh[~mine])] if (~mine).any() else []
+
+    def _learn(self, drive: Drive, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray,
+               Z: np.ndarray) -> int:
+        """Teach-in: keep the drive's samples until it has enough, then learn; returns how many
+        of these samples went to teaching (the rest are to be diagnosed)."""
+        have = sum(len(b[0]) for b in drive.teaching)
+        n = min(len(k), self.teach.samples - have)
+        drive.teaching.append((k[:n], U[:n], Z[:n]))
+        if have + n < self.teach.samples:
+            return n
+        kk, UU, ZZ = (np.concatenate([b[i] for b in drive.teaching]) for i in range(3))
+        drive.teaching = None
+        try:
+            diagnoser, learned = self.teach.learn(kk, UU, ZZ)
+        except ValueError as exc:
+            learned = {"status": "failed", "reason": str(exc),
+                       "samples": str(len(kk)), "first_sample": str(int(kk[0]))}
+        else:
+            self.replace_diagnoser(drive, diagnoser)
+        self.taught[drive.name] = learned
+        if self.sink is not None and hasattr(self.sink, "write_metadata"):
+            self.sink.write_metadata(f"canfdi.teach.{drive.name}", learned)
+        noise = json.loads(learned.get("noise_json", "[]"))
+        reason = ({"reason": learned["reason"]},) if "reason" in learned else ()
+        self._announce([FaultEvent(
+            kind="taught" if learned["status"] == "learned" else "teach_failed",
+            sample=int(kk[-1]), timestamp_ns=int(t_ns[n - 1]), candidates=reason,
+            estimates={row["sensor"]: row["std"] for row in noise})], drive)
+        return n
+
+    @property
+    def teaching(self) -> bool:
+        """Whether a drive is still being taught."""
+        return any(d.teaching is not None for d in self.drives)
+
+    def _watch_before(self, drive: Drive, k: int, t_ns: int) -> list[OutFrame]:
+        """Before sample k: close the watchdog's block if k ends it; a change of the residuals
+        in mismatch is an event, and sets the noise the diagnoser detects against."""
+        wd = drive.watchdog
+        if wd is None or not wd.due(k):
+            return []
+        change = wd.close(k)
+        if hasattr(drive.diagnoser, "noise_scale"):
+            drive.diagnoser.noise_scale = wd.scale
+        if change is None:
+            return []
+        return self._announce(self._watch_events(change, t_ns, drive.diagnoser), drive)
+
+    @staticmethod
+    def _watch_events(change: WatchdogChange, t_ns: int, dg: Diagnoser) -> list[FaultEvent]:
+        names = dg.residual_names
+        out = []
+        for kind, which in (("mismatch", change.entered), ("matched", change.left)):
+            if which.any():
+                idx = np.flatnonzero(which)
+                out.append(FaultEvent(kind=kind, sample=change.k, timestamp_ns=t_ns,
+                                      residuals=tuple(names[i] for i in idx),
+                                      estimates={names[i]: float(change.ratio[i]) for i in idx}))
+        return out
 
     def _announce(self, events: list[FaultEvent], drive: Drive) -> list[OutFrame]:
         out: list[OutFrame] = []
@@ -319,15 +473,17 @@ class Monitor:
         return OutFrame(frame_id, data, extended)
 
     def fault_frames(self, event: FaultEvent, drive: Drive | None = None) -> list[OutFrame]:
-        """FDI_FAULT (and FDI_ESTIMATE per estimate) frames announcing an event (none when
-        listen-only)."""
-        if event.kind not in _STATE:
+        """FDI_FAULT (and FDI_ESTIMATE per estimate) frames announcing an event; a refinement
+        sends only the channel's updated FDI_ESTIMATEs (none at all when listen-only)."""
+        if event.kind not in _STATE and event.kind != "refined":
             return []
         index = (drive or self.drives[0]).index
-        frames = [self._encode("FDI_FAULT", {
-            "Kind": _KIND.get(event.target or "", 0), "State": _STATE[event.kind],
-            "Drive": index, "Index": event.index or 0, "Sample": event.sample & 0xFFFFFFFF,
-        })]
+        frames = []
+        if event.kind in _STATE:  # a refinement updates the estimate of a fault already known
+            frames.append(self._encode("FDI_FAULT", {
+                "Kind": _KIND.get(event.target or "", 0), "State": _STATE[event.kind],
+                "Drive": index, "Index": event.index or 0, "Sample": event.sample & 0xFFFFFFFF,
+            }))
         for key, value in event.estimates.items():
             param = _PARAM.get(key)
             if param is None:
@@ -348,12 +504,17 @@ class Monitor:
         for drive in self.drives:
             dg = drive.diagnoser
             now = state
-            if now is None:
-                now = "diagnosing" if dg is not None and dg.mode == DIAGNOSE else "monitoring"
+            if now is None and drive.teaching is not None:
+                now = "teaching"
+            elif now is None and dg is not None and dg.mode == DIAGNOSE:
+                now = "diagnosing"
+            elif now is None:
+                now = "mismatch" if drive.mismatch else "monitoring"
             stats = drive.clock.stats
             frame = self._encode("FDI_STATUS", {
                 "State": _STATUS[now], "Drive": drive.index,
-                "ActiveFaults": min(len(dg.compensation), 15) if dg is not None else 0,
+                "ActiveFaults": min(len({(c.target, c.index) for c in dg.compensation}), 15)
+                if dg is not None else 0,
                 "Samples": drive.samples & 0x3FFFFF,
                 "InvalidFrames": stats["frames_invalid"] & 0xFFFF,
             })
@@ -380,9 +541,17 @@ class Monitor:
         return out
 
 
+def _noise_scale(dg: Diagnoser) -> np.ndarray | float:
+    """The noise scale a diagnoser normalises with (1 for a method without the setting): its
+    normalised residuals times this are the residuals against the calibrated noise."""
+    return getattr(dg, "noise_scale", 1.0)
+
+
 def summary_json(events: list[FaultEvent], frame_stats: dict, dt: float,
                  truth: list[dict] | None, samples: int) -> dict[str, Any]:
-    """{"faults": [...], "frames": {...}, "samples": N, "truth": [...] when known}."""
+    """{"faults": [...], "unexplained": [...], "refined": [...] (updates of a fault's estimate),
+    "mismatches": [...] (the noise watchdog's), "detections": N, "frames": {...},
+    "samples": N, "truth": [...] when known}."""
     detections = {e.sample: e for e in events if e.kind == "detected"}
     faults = []
     for e in events:
@@ -398,9 +567,16 @@ def summary_json(events: list[FaultEvent], frame_stats: dict, dt: float,
             "candidates": list(e.candidates),
         })
     unexplained = [e.as_dict() for e in events if e.kind == "unexplained"]
+    refined = [{"kind": e.target, "index": e.index, "name": e.name, "drive": e.drive,
+                "onset_sample": e.onset_sample, "detected_sample": e.detected_sample,
+                "accepted_sample": e.accepted_sample, "estimate": dict(e.estimates)}
+               for e in events if e.kind == "refined"]
+    mismatches = [e.as_dict() for e in events if e.kind == "mismatch"]
     out: dict[str, Any] = {
         "faults": faults,
         "unexplained": unexplained,
+        "refined": refined,
+        "mismatches": mismatches,
         "detections": len(detections),
         "samples": samples,
         "frames": {

@@ -105,6 +105,24 @@ def format_event(event: FaultEvent, dt: float, show_drive: bool = False) -> str:
                              for c in event.candidates)
             line += f"\n{'':33}indistinguishable from the bus: {alts}"
         return line
+    if event.kind == "refined":
+        return (f"  t={t:8.2f} s  k={event.sample:<7d} {who}REFINED    {event.target} "
+                f"{event.index} ({event.name}): now {_estimates(event.estimates)} (the fault "
+                f"already known, from k={event.onset_sample} on)")
+    if event.kind == "taught":
+        noise = ", ".join(f"{n} {v:.4g}" for n, v in event.estimates.items())
+        return (f"  t={t:8.2f} s  k={event.sample:<7d} {who}TAUGHT     the drive's noise, "
+                f"learned from its first samples: {noise}; monitoring with it")
+    if event.kind == "teach_failed":
+        reason = event.candidates[0]["reason"] if event.candidates else "?"
+        return (f"  t={t:8.2f} s  k={event.sample:<7d} {who}TEACH-IN FAILED: {reason}; "
+                "monitoring with the config's noise")
+    if event.kind in ("mismatch", "matched"):
+        ratios = ", ".join(f"{n} {v:.2f}x" for n, v in event.estimates.items())
+        what = ("MISMATCH   residual noise left its calibrated value (noise or model changed; "
+                "recalibrate: canfdi calibrate, run --teach): " if event.kind == "mismatch"
+                else "MATCHED    residual noise back at its calibrated value: ")
+        return f"  t={t:8.2f} s  k={event.sample:<7d} {who}{what}{ratios}"
     return f"  t={t:8.2f} s  k={event.sample:<7d} {who}UNEXPLAINED change detected at k=" \
            f"{event.detected_sample}: no single fault fits"
 

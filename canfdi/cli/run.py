@@ -57,6 +57,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true", help="do not print diagnoses on stdout")
     p.add_argument("--no-live", action="store_true",
                    help="no live view (it is on when stdout is a terminal, off otherwise)")
+    p.add_argument("--teach", type=float, metavar="SECONDS",
+                   help="teach-in: learn the drive's noise from its first SECONDS of samples "
+                        "(the drive must be healthy meanwhile; FDI_STATUS says 'teaching'), "
+                        "as `canfdi calibrate` does from logs, then monitor with it; the "
+                        "learned values go to the log's metadata (canfdi.teach.<drive>)")
 
 
 class _JsonFormatter(logging.Formatter):
@@ -74,6 +79,25 @@ def setup_logging(fmt: str) -> None:
     root.setLevel(logging.INFO)
 
 
+def teacher(config, seconds: float):
+    """The teach-in of ``seconds`` for the config (canfdi.tools.calibrate.Teach), or exit
+    status 2 after one error line."""
+    import math
+
+    import yaml
+
+    from canfdi.tools.calibrate import MIN_SAMPLES, Teach
+
+    dt = config.model.dt or 1.0
+    samples = round(seconds / dt) if math.isfinite(seconds) and seconds > 0 else 0
+    if samples < MIN_SAMPLES:
+        print(f"canfdi run: --teach: {seconds:g} s is {samples} samples at dt = {dt:g} s; "
+              f"teach-in needs at least {MIN_SAMPLES} ({MIN_SAMPLES * dt:g} s)", file=sys.stderr)
+        return 2
+    doc = yaml.safe_load(config.path.read_text()) if config.path is not None else {}
+    return Teach(config, doc, samples)
+
+
 def run(args: argparse.Namespace) -> int:
     from canfdi.monitor import Monitor
     from canfdi.sdnotify import Notifier
@@ -84,8 +108,13 @@ def run(args: argparse.Namespace) -> int:
     if isinstance(config, int):
         return config
     interface, channel, opener = bus_factory(args, config.bus)
+    teach = None
+    if args.teach is not None:
+        teach = teacher(config, args.teach)
+        if isinstance(teach, int):
+            return teach
     try:
-        monitor = Monitor(config)
+        monitor = Monitor(config, teach=teach)
     except ValueError as exc:
         return config_error(exc, "run")
     recorder = None

@@ -280,6 +280,19 @@ class DetectionConfig:
 
 
 @dataclass(frozen=True)
+class WatchdogConfig:
+    """The noise watchdog of `canfdi run`, replay and demo (canfdi.core.watchdog): each
+    residual's noise std in ``blocks`` consecutive blocks of ``block`` samples against its
+    calibrated value; a mismatch beyond ``factor`` (or below 1 / factor) is said, never
+    diagnosed as a fault."""
+
+    enabled: bool = True
+    factor: float = 1.5
+    block: int = 250
+    blocks: int = 2
+
+
+@dataclass(frozen=True)
 class IdentificationConfig:
     """When the parity method accepts a hypothesis (canfdi.methods.parity); its max_samples is
     also `canfdi evaluate`'s default spacing between faults, whatever the method."""
@@ -322,6 +335,7 @@ class MonitorConfig:
     detection: DetectionConfig = DetectionConfig()
     identification: IdentificationConfig = IdentificationConfig()
     recording: RecordingConfig = RecordingConfig()
+    watchdog: WatchdogConfig = WatchdogConfig()
     path: Path | None = None
     method_options: Any = None
     drives: tuple[DriveConfig, ...] = ()

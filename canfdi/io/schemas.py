@@ -291,7 +291,9 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
         _object(
             "canfdi.FaultEvent",
             {
-                "kind": {"type": "string", "enum": ["detected", "accepted", "unexplained"]},
+                "kind": {"type": "string", "enum": ["detected", "accepted", "refined",
+                                                    "unexplained", "mismatch", "matched",
+                                                    "taught", "teach_failed"]},
                 "sample": {"type": "integer"},
                 "timestamp_ns": {"type": "integer"},
                 "target": _OPT_STR,

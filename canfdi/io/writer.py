@@ -288,6 +288,7 @@ class McapRecorder:
                 raise TypeError(f"metadata keys and values must be strings: {bad}")
         self._path = Path(path)
         self._metadata = dict(metadata) if metadata is not None else None
+        self._later_metadata: dict[str, dict[str, str]] = {}
         self._flush_interval = float(flush_interval)
         # Infinite limits keep the hot-path test a plain comparison, with no None checks.
         self._byte_limit = rotate_bytes if rotate_bytes is not None else math.inf
@@ -1026,6 +1027,20 @@ class McapRecorder:
 
     # -- internals: segments ---------------------------------------------------------------
 
+    def write_metadata(self, name: str, values: dict[str, str]) -> None:
+        """A named metadata record, now (teach-in's learned values, say) and at the head of
+        every later segment."""
+        if not all(isinstance(k, str) and isinstance(v, str) for k, v in values.items()):
+            raise TypeError("metadata keys and values must be strings")
+        self._later_metadata[name] = dict(values)
+        now = self._begin_write()
+        if self._seg is None:
+            return
+        try:
+            self._seg.writer.add_metadata(name, dict(values))
+        except OSError as exc:
+            self._fail(exc, now)
+
     def _write_now(self, topic: str, timestamp_ns: int, data: bytes) -> None:
         now = self._begin_write()
         self._write(topic, timestamp_ns, data, 1, now)
@@ -1105,6 +1120,8 @@ class McapRecorder:
             writer.start(profile="", library=f"canfdi/{__version__}; {LIBRARY_IDENTIFIER}")
             if self._metadata is not None:
                 writer.add_metadata(METADATA_NAME, self._metadata)
+            for name, values in self._later_metadata.items():
+                writer.add_metadata(name, values)
             seg = _Segment(path, file, writer)
             # Up front, so that the hot path only looks a channel id up. The records wait in
             # the open chunk and reach the file with its first message.

@@ -29,7 +29,8 @@ from canfdi.core.noise import NoiseEstimate, estimate_measurement_noise
 from canfdi.core.settings import MonitorConfig
 from canfdi.tools.identify import assembled_samples, log_samples, regular_grid
 
-__all__ = ["Calibration", "LogFault", "Record", "ResidualCheck", "calibrate", "calibrate_records",
+__all__ = ["Calibration", "LogFault", "Record", "ResidualCheck", "Teach", "calibrate",
+           "calibrate_records",
            "calibrated_document", "config_document", "scenario_records"]
 
 MIN_SAMPLES = 1000
@@ -292,3 +293,36 @@ def scenario_records(config: MonitorConfig, scenario: Any, seconds: float, seed:
     run = dataclasses.replace(scenario, faults=(), drives=(), seed=seed, duration=seconds)
     name = Path(f"{scenario.name}-seed{seed}-{seconds:g}s")
     return [_record(name, *assembled_samples([frame_log(run).frames], config))]
+
+
+@dataclass(frozen=True)
+class Teach:
+    """Teach-in (`canfdi run --teach SECONDS`): the monitor's `Teacher`. ``learn`` calibrates
+    on the first ``samples`` samples of a running drive exactly as `calibrate` does on logs
+    (same noise estimate, same residual check, same refusal of data holding a fault) and
+    returns the diagnoser built on the learned noise, with the learned values as metadata
+    strings.
+
+    config : the monitor config; doc : its YAML document (what calibration rewrites).
+    """
+
+    config: MonitorConfig
+    doc: Mapping[str, Any]
+    samples: int
+
+    def learn(self, k: np.ndarray, U: np.ndarray, Z: np.ndarray
+              ) -> tuple[Any, dict[str, str]]:
+        """Samples k (N,), U (N, p), Z (N, q) -> (diagnoser, {"status": "learned",
+        "samples", "first_sample", "noise_json", "residuals_json"}); ValueError (LogFault for
+        a fault in them) when they cannot be learned from."""
+        import json
+
+        calibration = calibrate_records([_record(Path("teach-in"), k, U, Z)], self.config,
+                                        self.doc)
+        diagnoser = methods.build_diagnoser(calibration.config)
+        report = calibration.report()
+        learned = {"status": "learned", "samples": str(calibration.samples),
+                   "first_sample": str(int(k[0])), "noise_json": json.dumps(report["noise"]),
+                   "covariance_json": json.dumps(report["covariance"]),
+                   "residuals_json": json.dumps(report["residuals"])}
+        return diagnoser, learned

@@ -417,8 +417,8 @@ def _unit(contents: LogContents, name: str) -> str:
 
 def _marks(contents: LogContents, lo: float | None = None, hi: float | None = None
            ) -> list[tuple[int, str, str, str]]:
-    """(k, label, colour, linestyle) of every injected onset, detection, acceptance and
-    unexplained change in [lo, hi]."""
+    """(k, label, colour, linestyle) of every injected onset, detection, acceptance,
+    refinement, unexplained change and noise mismatch in [lo, hi]."""
     out = []
     for t in contents.truth or []:
         if t.get("onset_sample") is not None:
@@ -428,8 +428,12 @@ def _marks(contents: LogContents, lo: float | None = None, hi: float | None = No
             out.append((e.sample, "detected", "tab:red", "--"))
         elif e.kind == "accepted":
             out.append((e.sample, "accepted", "tab:green", "-"))
+        elif e.kind == "refined":
+            out.append((e.sample, "refined", "tab:olive", "-"))
         elif e.kind == "unexplained":
             out.append((e.sample, "unexplained", "tab:orange", "-."))
+        elif e.kind == "mismatch":
+            out.append((e.sample, "noise mismatch", "tab:purple", "-."))
     return [m for m in out if (lo is None or m[0] >= lo) and (hi is None or m[0] <= hi)]
 
 

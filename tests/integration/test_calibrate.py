@@ -9,6 +9,7 @@ import sys
 
 import numpy as np
 import pytest
+import yaml
 
 from canfdi.config import load_config
 from canfdi.io.logs import write_frames
@@ -37,11 +38,24 @@ def healthy_log(path, scenario, scale, seed=None, duration=90.0, faults=False):
     return path
 
 
-def replay_alarms(log, config):
+def replay_json(log, config):
     res = cli("replay", log, "--config", config, "--json", "--no-progress")
     assert res.returncode == 0, res.stderr
-    out = json.loads(res.stdout)
+    return json.loads(res.stdout)
+
+
+def replay_alarms(log, config):
+    out = replay_json(log, config)
     return len(out["faults"]) + len(out["unexplained"])
+
+
+def without_watchdog(config, tmp):
+    """The config with the noise watchdog off (the monitor as it was before issue 16)."""
+    doc = yaml.safe_load(config.read_text())
+    doc["watchdog"] = {"enabled": False}
+    out = tmp / f"{config.stem}-nowatchdog.yaml"
+    out.write_text(yaml.safe_dump(doc))
+    return out
 
 
 @pytest.fixture(scope="module")
@@ -68,10 +82,16 @@ def test_a_twice_as_noisy_dc_motor_is_calibrated_and_then_silent(twice_as_noisy)
     assert "healthy.mcap" in text and "9000 healthy" in text
     config = load_config(out)
     np.testing.assert_allclose(config.design.measurement_std, stds, rtol=1e-3)
-    # The config's own noise (half the drive's) alarms on healthy data; the calibrated one,
-    # on another healthy log of the same drive (another seed, python-can's ASC), does not.
-    assert replay_alarms(healthy, CONFIGS / "dc_motor.yaml") >= 1
+    # The config's own noise (half the drive's) alarms on healthy data without the noise
+    # watchdog; with it (the default) the mismatch is said instead. The calibrated config, on
+    # another healthy log of the same drive (another seed, python-can's ASC), is silent.
+    assert replay_alarms(healthy, without_watchdog(CONFIGS / "dc_motor.yaml", tmp)) >= 1
+    watched = replay_json(healthy, CONFIGS / "dc_motor.yaml")
+    assert watched["mismatches"] and not watched["faults"]
+    assert all(v == pytest.approx(2.0, rel=0.25)
+               for m in watched["mismatches"] for v in m["estimates"].values())
     assert replay_alarms(later, out) == 0
+    assert replay_json(later, out)["mismatches"] == []
 
 
 def test_a_log_holding_a_fault_is_refused_saying_where(tmp_path):

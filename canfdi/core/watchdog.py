@@ -1,0 +1,218 @@
+"""The noise watchdog: each residual's noise against its calibrated value, online.
+
+A fault is a change of mean that a fault model explains; a change of the noise (a sensor gone
+noisy, interference) or of the model (a drive whose dynamics drifted) changes the residuals'
+spread instead. The watchdog measures that spread robustly and says "mismatch" when it leaves
+the calibrated value by more than ``factor``; it never starts a fault diagnosis.
+
+Samples are cut into blocks of ``block`` consecutive sample indices (``k // block``, so the
+cut is the same whatever blocks the data arrive in). A block's statistic is each residual's
+variance about the block's own mean: a fault's step moves the mean, not the spread, and shows in
+at most one block. The normalised residuals the watchdog sees have unit variance when the noise
+is what the config (or calibration) says, so ``sqrt(variance)`` is the noise's scale against
+its calibrated value. Samples a diagnosis is running on are held back (a fault the diagnosis
+has not yet folded into the compensation, such as a scale fault under a varying command or an
+actuator step's transient, would otherwise count as noise): dropped when it finds a fault,
+counted (`add_late`) when it ends with none, for that alarm was the noise.
+
+A residual enters mismatch when each of its last ``blocks`` blocks is out of
+[1/factor, factor] (in std; one block may hold a fault's step, several in a row are no step),
+and leaves it when each is back within [1/sqrt(factor), sqrt(factor)] (hysteresis: no flapping
+at the edge). While in mismatch its ratio is the scale by which the monitor widens (or narrows)
+that residual's noise for detection (`scale`), so the Page-Hinkley tests keep their
+false-alarm interval and a real fault, a change of mean, is still detected.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from itertools import pairwise
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canfdi.core._check import check_shape
+
+__all__ = ["NoiseWatchdog", "WatchdogChange", "block_runs", "monitoring_rows"]
+
+
+@dataclass(frozen=True)
+class WatchdogChange:
+    """The set of residuals in mismatch changed at the block that ended before sample ``k``.
+
+    entered, left : (m,) bool, the residuals that entered / left mismatch; ratio : (m,) each
+    residual's noise std over its calibrated value (recent for those in mismatch, the window's
+    median for the others; NaN while unknown).
+    """
+
+    k: int
+    entered: NDArray[np.bool_]
+    left: NDArray[np.bool_]
+    ratio: NDArray[np.float64]
+
+
+class NoiseWatchdog:
+    """Streaming noise watchdog over m normalised residuals.
+
+    Parameters
+    ----------
+    m : number of residuals.
+    factor : ratio of noise std to its calibrated value beyond which (or below 1/factor) a
+        residual is in mismatch, > 1.
+    block : sample indices per block; blocks : consecutive blocks that must agree (the window
+        is block * blocks samples).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> wd = NoiseWatchdog(2, factor=1.5, block=100, blocks=2)
+    >>> k = np.arange(1000)
+    >>> rn = rng.standard_normal((1000, 2)) * [1.0, 2.0]  # the second twice as noisy
+    >>> changes = wd.update(k, rn)
+    >>> changes[0].k, changes[0].entered.tolist()
+    (200, [False, True])
+    >>> bool(abs(wd.ratio[0] - 1) < 0.1), bool(abs(wd.ratio[1] - 2) < 0.2)
+    (True, True)
+    """
+
+    def __init__(self, m: int, factor: float = 1.5, block: int = 250, blocks: int = 2) -> None:
+        if not factor > 1.0:
+            raise ValueError(f"factor must be > 1, got {factor}")
+        if block < 2 or blocks < 1:
+            raise ValueError("need block >= 2 and blocks >= 1")
+        self.m, self.factor, self.block, self.blocks = m, float(factor), int(block), int(blocks)
+        self.reset()
+
+    def reset(self) -> None:
+        """Nothing seen: no block, no mismatch."""
+        self._open: int | None = None  # the block index being accumulated
+        self._n = np.zeros(self.m)
+        self._s1 = np.zeros(self.m)
+        self._s2 = np.zeros(self.m)
+        self._variances: deque[NDArray[np.float64]] = deque(maxlen=self.blocks)
+        self.ratio = np.full(self.m, np.nan)
+        self.mismatch = np.zeros(self.m, dtype=bool)
+
+    @property
+    def scale(self) -> NDArray[np.float64]:
+        """(m,) the noise scale detection should use: the ratio of a residual in mismatch, 1
+        otherwise."""
+        return np.where(self.mismatch, self.ratio, 1.0)
+
+    def due(self, k: int) -> bool:
+        """Whether sample k closes the open block (call `close` before diagnosing it)."""
+        return self._open is not None and k // self.block != self._open
+
+    def close(self, k: int) -> WatchdogChange | None:
+        """End the open block (sample k is in a later one): judge the window; the change, if
+        the set of residuals in mismatch moved."""
+        var = _variance(self._n, self._s1, self._s2, self.block)
+        # Sample k's block is open now, whether or not samples reach it (a diagnosis holds
+        # them back).
+        self._open, self._n[:], self._s1[:], self._s2[:] = k // self.block, 0.0, 0.0, 0.0
+        self._variances.append(var)
+        recent = np.array(self._variances)
+        seen = (~np.isnan(recent)).sum(axis=0)
+        total = np.nansum(recent, axis=0)
+        self.ratio = np.where(seen > 0, np.sqrt(total / np.maximum(seen, 1)), np.nan)
+        if len(recent) < self.blocks:
+            return None
+        f2 = self.factor**2
+        # In: each of the last blocks out of the band (one block can hold a fault's step);
+        # back: each inside the narrower band (no flapping at the edge).
+        out = np.all(recent > f2, axis=0) | np.all(recent < 1.0 / f2, axis=0)
+        inside = np.all((recent <= self.factor) & (recent >= 1.0 / self.factor), axis=0)
+        new = (self.mismatch | out) & ~inside
+        entered, left = new & ~self.mismatch, self.mismatch & ~new
+        self.mismatch = new
+        if entered.any() or left.any():
+            return WatchdogChange(k, entered, left, self.ratio.copy())
+        return None
+
+    def add(self, k: NDArray[np.int64], rn: NDArray[np.float64]) -> None:
+        """Accumulate samples k (N,) of one block, normalised residuals rn (N, m) (NaN:
+        missing); the caller has closed the previous block (`due`, `close`)."""
+        rn = np.asarray(rn, dtype=float)
+        check_shape("rn", rn, (len(k), self.m))
+        if not len(k):
+            return
+        self._open = int(k[-1]) // self.block
+        have = ~np.isnan(rn)
+        x = np.where(have, rn, 0.0)
+        self._n += have.sum(axis=0)
+        self._s1 += x.sum(axis=0)
+        self._s2 += (x * x).sum(axis=0)
+
+    def add_late(self, k: NDArray[np.int64], rn: NDArray[np.float64]) -> None:
+        """Samples k (N,), rn (N, m) held back while a diagnosis ran that ended with no fault
+        (they are noise after all): those of the open block join it, each earlier block's
+        variance joins the recent ones (as the newest: the blocks closed meanwhile had none of
+        them). The verdict waits for the next `close`, as for any sample."""
+        k = np.asarray(k, dtype=np.int64)
+        rn = np.asarray(rn, dtype=float)
+        check_shape("rn", rn, (len(k), self.m))
+        for lo, hi in block_runs(k, self.block):
+            if self._open is not None and int(k[lo]) // self.block >= self._open:
+                self.add(k[lo:hi], rn[lo:hi])
+                continue
+            have = ~np.isnan(rn[lo:hi])
+            x = np.where(have, rn[lo:hi], 0.0)
+            n = have.sum(axis=0)
+            self._variances.append(_variance(n, x.sum(axis=0), (x * x).sum(axis=0),
+                                             self.block))
+
+    def update(self, k: NDArray[np.int64], rn: NDArray[np.float64]) -> list[WatchdogChange]:
+        """Samples k (N,) increasing, rn (N, m): the changes they caused, in order (the batch
+        form of `due`/`close`/`add`; the same state whatever the chunks)."""
+        k = np.asarray(k, dtype=np.int64)
+        out = []
+        for lo, hi in block_runs(k, self.block):
+            if self.due(int(k[lo])):
+                change = self.close(int(k[lo]))
+                if change is not None:
+                    out.append(change)
+            self.add(k[lo:hi], rn[lo:hi])
+        return out
+
+
+def _variance(n: NDArray[np.float64], s1: NDArray[np.float64], s2: NDArray[np.float64],
+              block: int) -> NDArray[np.float64]:
+    """(m,) a block's variance about its mean from its count and sums; NaN for a block mostly
+    lost or diagnosed (no verdict from a few samples)."""
+    enough = n >= max(2, block // 2)
+    return np.where(enough, (s2 - s1**2 / np.maximum(n, 1)) / np.maximum(n - 1, 1), np.nan)
+
+
+def block_runs(k: NDArray[np.int64], block: int) -> list[tuple[int, int]]:
+    """[(lo, hi)] row ranges of k (N,) increasing that share ``k // block``."""
+    if not len(k):
+        return []
+    b = np.asarray(k, dtype=np.int64) // block
+    cuts = np.flatnonzero(np.diff(b)) + 1
+    edges = [0, *cuts.tolist(), len(k)]
+    return list(pairwise(edges))
+
+
+_DECISIONS = ("accepted", "refined", "unexplained")
+
+
+def monitoring_rows(k: NDArray[np.int64], events: list, diagnosing_before: bool
+                    ) -> NDArray[np.bool_]:
+    """(N,) the rows of samples k (N,) a diagnoser spent watching: not from a detection to its
+    decision (both included), not at a sample with any event. ``events`` are the block's
+    FaultEvents in order; ``diagnosing_before``: a diagnosis was open before the first row.
+    One sample at a time or all at once, the same rows."""
+    k = np.asarray(k, dtype=np.int64)
+    out = np.ones(len(k), dtype=bool)
+    start = int(k[0]) if diagnosing_before and len(k) else None
+    for e in events:
+        out[k == e.sample] = False
+        if e.kind == "detected":
+            start = e.sample
+        elif e.kind in _DECISIONS and start is not None:
+            out[(k >= start) & (k <= e.sample)] = False
+            start = None
+    if start is not None:
+        out[k >= start] = False
+    return out

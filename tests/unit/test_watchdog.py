@@ -1,0 +1,96 @@
+"""The noise watchdog (canfdi.core.watchdog): a doubled or halved noise is a mismatch within
+its window, a change of mean is not, it comes back, and the same verdicts whatever blocks the
+samples arrive in."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from canfdi.core.records import FaultEvent
+from canfdi.core.watchdog import NoiseWatchdog, monitoring_rows
+
+BLOCK, BLOCKS = 100, 2
+
+
+def _noise(n: int, m: int = 3, seed: int = 1) -> np.ndarray:
+    return np.random.default_rng(seed).standard_normal((n, m))
+
+
+def _changes(rn: np.ndarray, cuts: int = 1) -> list:
+    wd = NoiseWatchdog(rn.shape[1], 1.5, BLOCK, BLOCKS)
+    k = np.arange(len(rn))
+    out = []
+    for part in np.array_split(np.arange(len(rn)), cuts):
+        out += wd.update(k[part], rn[part])
+    return out
+
+
+def test_a_doubled_noise_is_flagged_within_the_window_a_halved_one_too():
+    rn = _noise(4000)
+    rn[1000:, 1] *= 2.0
+    rn[2000:, 2] *= 0.5
+    changes = _changes(rn)
+    up = next(c for c in changes if c.entered[1])
+    down = next(c for c in changes if c.entered[2])
+    assert 1000 < up.k <= 1000 + BLOCK * BLOCKS
+    assert 2000 < down.k <= 2000 + BLOCK * BLOCKS
+    assert up.ratio[1] == pytest.approx(2.0, rel=0.2)
+    assert down.ratio[2] == pytest.approx(0.5, rel=0.2)
+    assert not any(c.entered[0] for c in changes)
+
+
+def test_a_change_of_mean_is_no_mismatch():
+    rn = _noise(5000)
+    rn[1234:, :] += 25.0  # a fault's step, far beyond the noise, in every residual
+    rn[3050:3100, 0] += np.linspace(0.0, 10.0, 50)  # and a short ramp
+    assert _changes(rn) == []
+
+
+def test_it_comes_back_when_the_noise_does():
+    rn = _noise(5000)
+    rn[1000:2500] *= 3.0
+    changes = _changes(rn)
+    assert [bool(c.entered.any()) for c in changes] == [True, False]
+    assert 2500 < changes[-1].k <= 2500 + BLOCK * BLOCKS and changes[-1].left.all()
+
+
+def test_the_verdicts_do_not_depend_on_the_chunks():
+    rn = _noise(3000)
+    rn[700:, 0] *= 2.5
+    rn[100:130] = np.nan  # lost residuals
+    one = _changes(rn)
+    for cuts in (7, 300, 3000):
+        other = _changes(rn, cuts)
+        assert [(c.k, c.entered.tolist(), c.left.tolist()) for c in other] == \
+            [(c.k, c.entered.tolist(), c.left.tolist()) for c in one]
+
+
+def test_the_rows_of_a_diagnosis_are_held_back():
+    k = np.arange(10, 20)
+    events = [FaultEvent("detected", 12, 0), FaultEvent("unexplained", 15, 0),
+              FaultEvent("detected", 18, 0)]
+    assert monitoring_rows(k, events, False).tolist() == [
+        True, True, False, False, False, False, True, True, False, False]
+    assert monitoring_rows(k, [FaultEvent("accepted", 11, 0)], True).tolist() == [
+        False, False] + [True] * 8
+
+
+def test_noise_held_back_during_a_diagnosis_counts_when_it_found_no_fault():
+    wd = NoiseWatchdog(1, 1.5, BLOCK, BLOCKS)
+    rn = _noise(1000, 1) * 2.0
+    k = np.arange(1000)
+    wd.update(k[:50], rn[:50])
+    for held in (100, 200, 300):  # a diagnosis holds samples 50..349 back; blocks still end
+        assert wd.due(held) and wd.close(held) is None
+    wd.add_late(k[50:350], rn[50:350])  # it found nothing: they were noise
+    assert not wd.mismatch.any()  # the verdict waits for the next block's end
+    change = wd.update(k[350:450], rn[350:450])
+    assert change and change[0].entered[0] and change[0].k == 400
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ValueError, match="factor"):
+        NoiseWatchdog(2, factor=1.0)
+    with pytest.raises(ValueError, match="block"):
+        NoiseWatchdog(2, block=1)
