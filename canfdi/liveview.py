@@ -24,7 +24,8 @@ def snapshot(monitor: Any) -> dict[str, Any]:
 
     Returns
     -------
-    dict with ``state`` ("monitoring" / "diagnosing" / "capturing"), ``residuals`` (one dict per
+    dict with ``state`` ("monitoring" / "diagnosing" / "teaching" / "mismatch" (the noise
+    watchdog's) / "capturing"), ``residuals`` (one dict per
     residual: name, value (latest normalised residual or None), statistic, threshold),
     ``faults`` (the accepted faults being compensated), ``frames`` (the assembler's counters),
     ``samples`` and ``events`` (the last five, newest last).
@@ -38,8 +39,15 @@ def snapshot(monitor: Any) -> dict[str, Any]:
             value = None if last is None or np.isnan(last[i]) else float(last[i])
             residuals.append({"name": name, "value": value, "statistic": float(stats[i]),
                               "threshold": float(dg.thresholds[i])})
-    state = "capturing" if dg is None else ("diagnosing" if dg.mode == "diagnose"
-                                            else "monitoring")
+    drive = monitor.drives[0]
+    if dg is None:
+        state = "capturing"
+    elif drive.teaching is not None:
+        state = "teaching"
+    elif dg.mode == "diagnose":
+        state = "diagnosing"
+    else:
+        state = "mismatch" if drive.mismatch else "monitoring"
     faults = [c.as_dict() for c in (dg.compensation if dg is not None else [])]
     events = [e.as_dict() for e in monitor.events[-5:]]
     return {"state": state, "residuals": residuals, "faults": faults,
@@ -58,7 +66,8 @@ def render(snap: dict[str, Any], title: str = "canfdi") -> Any:
     from rich.table import Table
     from rich.text import Text
 
-    style = {"monitoring": "green", "diagnosing": "yellow", "capturing": "cyan"}[snap["state"]]
+    style = {"monitoring": "green", "diagnosing": "yellow", "capturing": "cyan",
+             "teaching": "cyan", "mismatch": "magenta"}[snap["state"]]
     head = Text.assemble((f"{title}  ", "bold"), (snap["state"], f"bold {style}"),
                          f"   samples {snap['samples']:,}")
     parts: list[Any] = [head]

@@ -79,6 +79,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--noise-spread", type=float, default=1.25, metavar="X",
                    help="noise factor drawn log-uniformly in [1/X, X] (default 1.25; 1: the "
                         "config's noise)")
+    p.add_argument("--noise-scale", type=float, default=1.0, metavar="F",
+                   help="the drive's measurement noise is F times the config's (default 1); "
+                        "fault sizes follow, so each keeps its fault-to-noise ratio")
+    p.add_argument("--calibrate", type=float, default=None, metavar="SECONDS",
+                   help="first calibrate the monitor on SECONDS of the same drive, healthy (as "
+                        "`canfdi calibrate` does on a log), then evaluate that monitor")
     p.add_argument("--kinds", default=None, metavar="LIST",
                    help="fault kinds to draw, comma-separated, among actuator_bias, "
                         "actuator_scale, sensor_bias (default: the method's fault model: all "
@@ -129,6 +135,11 @@ def _check_args(args: argparse.Namespace) -> str | None:
         return "--fnr: 0 < LO <= HI"
     if not (args.noise_spread >= 1 and math.isfinite(args.noise_spread)):
         return "--noise-spread: a number >= 1"
+    if not (args.noise_scale > 0 and math.isfinite(args.noise_scale)):
+        return "--noise-scale: a number > 0"
+    if args.calibrate is not None and not (args.calibrate >= 10 and
+                                           math.isfinite(args.calibrate)):
+        return "--calibrate: at least 10 seconds of healthy drive"
     if args.kinds is not None:
         kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
         bad = [k for k in kinds if k not in FAULT_KINDS]
@@ -139,6 +150,29 @@ def _check_args(args: argparse.Namespace) -> str | None:
     if args.spacing is not None and args.spacing < 100:
         return "--spacing: at least 100 samples"
     return None
+
+
+def _calibrated(config, plant: str, noise_scale: float, seconds: float, seed: int, progress):
+    """`canfdi calibrate` on ``seconds`` of the plant, healthy, at ``noise_scale`` times the
+    config's noise (its own seed), through the config's bus: the monitor a user would deploy
+    on that drive."""
+    import numpy as np
+    import yaml
+
+    from canfdi.tools.calibrate import calibrate_records, scenario_records
+    from firmware_sim.plants import make_plant
+    from firmware_sim.scenario import parse_scenario
+
+    std = config.design.measurement_std
+    if std is None:
+        std = make_plant(plant).noise_defaults().measurement
+    progress(f"calibrating on {seconds:g} s of the healthy drive at {noise_scale:g}x noise")
+    healthy = parse_scenario({"plant": plant, "duration": seconds, "seed": seed + 10**6,
+                              "noise": {"measurement": [float(v) for v in
+                                                        np.asarray(std) * noise_scale]}})
+    doc = yaml.safe_load(config.path.read_text()) if config.path is not None else {}
+    return calibrate_records(scenario_records(config, healthy, seconds, seed + 10**6), config,
+                             doc)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -170,15 +204,26 @@ def run(args: argparse.Namespace) -> int:
 
     from canfdi.tools.evaluate import evaluate
 
+    monitor, calibration = None, None
+    if args.calibrate is not None:
+        try:
+            calibration = _calibrated(config, args.plant, args.noise_scale, args.calibrate,
+                                      args.seed, progress)
+        except ValueError as exc:
+            return _fail(f"--calibrate: {exc}")
+        monitor = calibration.config
     try:
         result = evaluate(config, args.plant, runs=args.runs, seed=args.seed,
                           max_faults=args.max_faults, fnr=tuple(args.fnr),
                           noise_spread=args.noise_spread, kinds=args.kinds,
                           spacing=args.spacing, quantize=not args.no_quantize,
-                          progress=progress)
+                          noise_scale=args.noise_scale, monitor=monitor, progress=progress)
     except (ConfigError, ValueError) as exc:
         return config_error(exc, "evaluate")
     result["config"] = str(path)
+    if calibration is not None:
+        result["calibration"] = {"seconds": args.calibrate, "samples": calibration.samples,
+                                 "measurement_std": calibration.noise.std.tolist()}
     result["wall_s"] = time.monotonic() - start
     if args.output is not None:
         args.output.mkdir(parents=True, exist_ok=True)
@@ -212,6 +257,12 @@ def print_report(r: dict[str, Any]) -> None:
           f"fault-to-noise {s['fnr_range'][0]:g}..{s['fnr_range'][1]:g}, noise x "
           f"1/{s['noise_spread']:g}..{s['noise_spread']:g}, onsets {s['spacing_samples']} "
           f"samples apart{', bus resolution' if s['quantized'] else ', exact values'}")
+    if s["noise_scale"] != 1.0:
+        print(f"  the drive's noise is {s['noise_scale']:g}x the config's")
+    if "calibration" in r:
+        c = r["calibration"]
+        print(f"  monitor calibrated first on {c['seconds']:g} s of the healthy drive: noise "
+              + ", ".join(f"{v:.4g}" for v in c["measurement_std"]))
     if r["undetectable"]:
         print(f"  not drawn (the design says undetectable): {', '.join(r['undetectable'])}")
     iso = r["isolation"]

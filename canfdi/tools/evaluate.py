@@ -240,14 +240,16 @@ def setup_from_config(config: MonitorConfig, plant: str, design: Design | None =
 
 def plan_runs(setup: EvaluationSetup, runs: int, seed: int, *, max_faults: int = 3,
               fnr_range: tuple[float, float] = (0.5, 50.0), noise_spread: float = 1.25,
-              kinds: Sequence[str] = FAULT_KINDS, max_eta_change: float = 0.9
-              ) -> list[RunSpec]:
+              kinds: Sequence[str] = FAULT_KINDS, max_eta_change: float = 0.9,
+              noise_scale: float = 1.0) -> list[RunSpec]:
     """``runs`` generated runs (module docstring).
 
     Per run: the number of faults uniform in 0..max_faults (at most the number of detectable
     channels); channels without replacement, uniform among the detectable ones; an actuator's
     kind uniform among the actuator kinds allowed; FNR log-uniform in fnr_range; noise_scale
-    log-uniform in [1/noise_spread, noise_spread]; a lead-in uniform in setup.lead, then one
+    log-uniform in [1/noise_spread, noise_spread] times ``noise_scale`` (the drive noisier than
+    its config: faults keep their FNR against the drive's noise); a lead-in uniform in
+    setup.lead, then one
     onset every setup.spacing samples (plus up to a tenth of it at random); a fault-free run
     lasts lead + spacing. An actuator scale keeps |eta - 1| <= max_eta_change when decreasing
     (eta stays positive) and takes eta = 1 + d otherwise.
@@ -264,7 +266,8 @@ def plan_runs(setup: EvaluationSetup, runs: int, seed: int, *, max_faults: int =
     for i, child in enumerate(children):
         rng = np.random.default_rng(child)
         n_faults = int(rng.integers(0, min(max_faults, len(pool)) + 1))
-        noise_scale = float(np.exp(rng.uniform(-np.log(noise_spread), np.log(noise_spread))))
+        factor = float(np.exp(rng.uniform(-np.log(noise_spread), np.log(noise_spread))))
+        run_scale = noise_scale * factor
         lead = int(rng.integers(setup.lead[0], setup.lead[1] + 1))
         chosen = rng.choice(len(pool), size=n_faults, replace=False)
         k = lead
@@ -272,7 +275,7 @@ def plan_runs(setup: EvaluationSetup, runs: int, seed: int, *, max_faults: int =
         for c_i in chosen:
             c = pool[int(c_i)]
             fnr = float(np.exp(rng.uniform(lo, hi)))
-            size = fnr * noise_scale / c.gap  # the constant fault with that FNR
+            size = fnr * run_scale / c.gap  # the constant fault with that FNR
             sign = 1.0 if rng.random() < 0.5 else -1.0
             if c.target == "sensor":
                 kind, params = "sensor_bias", {"bias": float(sign * size)}
@@ -289,7 +292,7 @@ def plan_runs(setup: EvaluationSetup, runs: int, seed: int, *, max_faults: int =
             k += setup.spacing + int(rng.integers(0, setup.spacing // 10 + 1))
         samples = k if faults else lead + setup.spacing
         out.append(RunSpec(run=i, seed=int(rng.integers(0, 2**31 - 1)), samples=samples,
-                           noise_scale=noise_scale, faults=tuple(faults)))
+                           noise_scale=run_scale, faults=tuple(faults)))
     return out
 
 
@@ -684,12 +687,16 @@ def default_config(plant: str, method: str, directory: Path) -> Path | None:
 def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_faults: int = 3,
              fnr: tuple[float, float] = (0.5, 50.0), noise_spread: float = 1.25,
              kinds: Sequence[str] | None = None, spacing: int | None = None,
-             quantize: bool = True, progress: Callable[[str], None] = lambda msg: None
-             ) -> dict[str, Any]:
+             quantize: bool = True, noise_scale: float = 1.0,
+             monitor: MonitorConfig | None = None,
+             progress: Callable[[str], None] = lambda msg: None) -> dict[str, Any]:
     """`canfdi evaluate`: plan ``runs`` scenarios for the emulated ``plant``, simulate each,
     diagnose it with a copy of the config's diagnoser and aggregate the metrics (the JSON
     object the CLI prints). kinds default to the config's method's fault model; values are
-    rounded to the DBC's resolution unless ``quantize`` is False."""
+    rounded to the DBC's resolution unless ``quantize`` is False. ``noise_scale``: the drive's
+    noise is that many times the config's (the scenarios come from ``config``); ``monitor``:
+    the config of the monitor evaluated, when it is not ``config`` (one calibrated on the
+    drive, say)."""
     from canfdi.bus.dbc import BusMap
     from canfdi.methods import build_diagnoser, get
 
@@ -697,8 +704,8 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
     kinds = list(kinds) if kinds is not None else list(get(config.method).fault_kinds)
     setup = setup_from_config(config, plant, spacing=spacing)
     specs = plan_runs(setup, runs, seed, max_faults=max_faults, fnr_range=tuple(fnr),
-                      noise_spread=noise_spread, kinds=kinds)
-    base = build_diagnoser(config)
+                      noise_spread=noise_spread, kinds=kinds, noise_scale=noise_scale)
+    base = build_diagnoser(monitor or config)
     preprocess = None
     if quantize:
         try:
@@ -714,7 +721,8 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
     result: dict[str, Any] = {
         "plant": plant, "method": config.method, "seed": seed,
         "settings": {"max_faults": max_faults, "fnr_range": list(fnr),
-                     "noise_spread": noise_spread, "kinds": kinds,
+                     "noise_spread": noise_spread, "noise_scale": noise_scale,
+                     "kinds": kinds,
                      "spacing_samples": setup.spacing, "lead_samples": list(setup.lead),
                      "quantized": preprocess is not None, "dt": setup.dt},
         "channels": [{"channel": c.label, "target": c.target, "index": c.index,

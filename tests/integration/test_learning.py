@@ -125,3 +125,26 @@ def test_the_watchdog_flags_a_doubled_noise_and_raises_no_fault(seed):
     assert not [e for e in events if e.kind == "detected"]  # nor after: no storm
     assert all(s == 6 for k, s in states.items() if k > first.sample)  # "mismatch"
     assert all(s == 1 for k, s in states.items() if k < k0)  # "monitoring"
+
+
+def test_run_refuses_a_teach_in_too_short_to_learn_from():
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "canfdi", "run", "--config", str(CONFIG),
+                          "--teach", "2", "--no-record"], capture_output=True, text=True,
+                         timeout=120, check=False)
+    assert res.returncode == 2
+    assert "--teach: 2 s is 200 samples" in res.stderr and "at least 1000" in res.stderr
+
+
+def test_the_live_view_says_mismatch_and_teaching():
+    from canfdi.liveview import snapshot
+
+    config = load_config(CONFIG)
+    teach = Teach(config, yaml.safe_load(CONFIG.read_text()), samples=1000)
+    assert snapshot(Monitor(config, teach=teach))["state"] == "teaching"
+    monitor = Monitor(config, record_residuals=False)
+    assert snapshot(monitor)["state"] == "monitoring"
+    monitor.drives[0].watchdog.mismatch[1] = True  # what the watchdog test above reaches
+    assert snapshot(monitor)["state"] == "mismatch"
