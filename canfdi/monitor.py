@@ -17,6 +17,7 @@ counts it.
 
 from __future__ import annotations
 
+import copy
 import json
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
@@ -327,25 +328,71 @@ class Monitor:
         dg = drive.diagnoser
         if dg is None:
             return []
-        wd = drive.watchdog
-        pieces = block_runs(k, wd.block) if wd is not None else [(0, len(k))]
+        if drive.watchdog is None:
+            return self._diagnose_span(drive, k, t_ns, U, Z, gap)
         out: list[OutFrame] = []
-        for lo, hi in pieces:
+        lo = 0
+        while lo < len(k):
             out += self._watch_before(drive, int(k[lo]), int(t_ns[lo]))
-            before = dg.mode == DIAGNOSE
-            result = dg.update_block(k[lo:hi], t_ns[lo:hi], U[lo:hi], Z[lo:hi], gap[lo:hi])
-            if self.sink is not None and self.record_residuals:
-                have = ~np.isnan(result.residuals).all(axis=1)
-                if have.any():
-                    kk, tt = k[lo:hi][have], t_ns[lo:hi][have]
-                    self.sink.write_residual_rows(kk, tt, dg.residual_names,
-                                                  result.residuals[have], result.normalized[have],
-                                                  result.statistic[have], drive.name)
-            if wd is not None:
-                self._watch(drive, k[lo:hi], result.normalized * _noise_scale(dg),
-                            result.events, before)
-            out += self._announce(result.events, drive)
+            pieces = block_runs(k[lo:], drive.watchdog.block)
+            if drive.mismatch or len(pieces) <= 2:
+                # The noise scale may change where each block ends: one block at a time.
+                hi = lo + pieces[0][1]
+                out += self._diagnose_span(drive, k[lo:hi], t_ns[lo:hi], U[lo:hi], Z[lo:hi],
+                                           gap[lo:hi])
+                lo = hi
+                continue
+            # Not in mismatch, the scale stays 1 until a block ends in one (rare): run the rest
+            # at once; should a block end in mismatch inside it, undo and stop there.
+            dg = drive.diagnoser
+            shared = {id(v): v for v in (getattr(dg, a, None) for a in _READ_ONLY) if v is not None}
+            saved = copy.deepcopy((dg, drive.watchdog, drive.held), shared)
+            got = self._diagnose_span(drive, k[lo:], t_ns[lo:], U[lo:], Z[lo:], gap[lo:],
+                                      stop_on_mismatch=True)
+            if isinstance(got, list):
+                out += got
+                break
+            drive.diagnoser, drive.watchdog, drive.held = saved
+            hi = lo + got
+            out += self._diagnose_span(drive, k[lo:hi], t_ns[lo:hi], U[lo:hi], Z[lo:hi],
+                                       gap[lo:hi])
+            lo = hi
         return out
+
+    def _diagnose_span(self, drive: Drive, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray,
+                       Z: np.ndarray, gap: np.ndarray, stop_on_mismatch: bool = False
+                       ) -> list[OutFrame] | int:
+        """One update_block over the samples, the watchdog fed block by block (its block ends
+        inside closed as they come); the frames to send. With ``stop_on_mismatch``, a block end
+        inside that enters mismatch stops it before anything is recorded or announced: its row
+        is returned instead (the caller undoes the diagnoser and the watchdog)."""
+        dg, wd = drive.diagnoser, drive.watchdog
+        before = dg.mode == DIAGNOSE
+        result = dg.update_block(k, t_ns, U, Z, gap)
+        if wd is not None:
+            raw = result.normalized * _noise_scale(dg)
+            diagnosing = before
+            for a, b in block_runs(k, wd.block):
+                if a > 0 and wd.due(int(k[a])):
+                    change = wd.close(int(k[a]))
+                    if change is not None and stop_on_mismatch:
+                        return a
+                    # Without it, the span ends before any block end that changes anything (the
+                    # caller cut it there, or it is one block long).
+                evs = [e for e in result.events if k[a] <= e.sample <= k[b - 1]]
+                self._watch(drive, k[a:b], raw[a:b], evs, diagnosing)
+                for e in evs:
+                    if e.kind == "detected":
+                        diagnosing = True
+                    elif e.kind in ("accepted", "refined", "unexplained"):
+                        diagnosing = False
+        if self.sink is not None and self.record_residuals:
+            have = ~np.isnan(result.residuals).all(axis=1)
+            if have.any():
+                self.sink.write_residual_rows(k[have], t_ns[have], dg.residual_names,
+                                              result.residuals[have], result.normalized[have],
+                                              result.statistic[have], drive.name)
+        return self._announce(result.events, drive)
 
     def on_sample(self, sample: Sample, drive: Drive | None = None) -> list[OutFrame]:
         """Diagnose one assembled sample of a drive (default the first)."""
@@ -539,6 +586,10 @@ class Monitor:
             out["drives"] = {d.name: {"samples": d.samples, "frames": d.clock.stats}
                              for d in self.drives}
         return out
+
+
+# A diagnoser's parts its update never changes (the design, the models): an undo shares them.
+_READ_ONLY = ("design", "_design0", "model", "bank_design")
 
 
 def _noise_scale(dg: Diagnoser) -> np.ndarray | float:
