@@ -39,15 +39,7 @@ def snapshot(monitor: Any) -> dict[str, Any]:
             value = None if last is None or np.isnan(last[i]) else float(last[i])
             residuals.append({"name": name, "value": value, "statistic": float(stats[i]),
                               "threshold": float(dg.thresholds[i])})
-    drive = monitor.drives[0]
-    if dg is None:
-        state = "capturing"
-    elif drive.teaching is not None:
-        state = "teaching"
-    elif dg.mode == "diagnose":
-        state = "diagnosing"
-    else:
-        state = "mismatch" if drive.mismatch else "monitoring"
+    state = "capturing" if dg is None else monitor.drives[0].state
     faults = [c.as_dict() for c in (dg.compensation if dg is not None else [])]
     events = [e.as_dict() for e in monitor.events[-5:]]
     return {"state": state, "residuals": residuals, "faults": faults,

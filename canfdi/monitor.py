@@ -39,7 +39,13 @@ from canfdi.bus.monitorframes import MonitorFrames
 from canfdi.core.protocol import DIAGNOSE, Diagnoser
 from canfdi.core.records import FaultEvent, Sample
 from canfdi.core.settings import MonitorConfig
-from canfdi.core.watchdog import NoiseWatchdog, WatchdogChange, block_runs, monitoring_rows
+from canfdi.core.watchdog import (
+    DECISIONS,
+    NoiseWatchdog,
+    WatchdogChange,
+    block_runs,
+    monitoring_rows,
+)
 
 __all__ = ["Drive", "Monitor", "OutFrame", "RecordSink", "Teacher", "summary_json"]
 
@@ -113,6 +119,15 @@ class Drive:
     def mismatch(self) -> bool:
         """Whether the watchdog says a residual's noise left its calibrated value."""
         return self.watchdog is not None and bool(self.watchdog.mismatch.any())
+
+    @property
+    def state(self) -> str:
+        """"teaching", "diagnosing", "mismatch" or "monitoring" (FDI_STATUS's State names)."""
+        if self.teaching is not None:
+            return "teaching"
+        if self.diagnoser is not None and self.diagnoser.mode == DIAGNOSE:
+            return "diagnosing"
+        return "mismatch" if self.mismatch else "monitoring"
 
 
 class Monitor:
@@ -371,7 +386,7 @@ class Monitor:
         result = dg.update_block(k, t_ns, U, Z, gap)
         if wd is not None:
             raw = result.normalized * _noise_scale(dg)
-            diagnosing = before
+            quiet = monitoring_rows(k, result.events, before)
             for a, b in block_runs(k, wd.block):
                 if a > 0 and wd.due(int(k[a])):
                     change = wd.close(int(k[a]))
@@ -379,13 +394,8 @@ class Monitor:
                         return a
                     # Without it, the span ends before any block end that changes anything (the
                     # caller cut it there, or it is one block long).
-                evs = [e for e in result.events if k[a] <= e.sample <= k[b - 1]]
-                self._watch(drive, k[a:b], raw[a:b], evs, diagnosing)
-                for e in evs:
-                    if e.kind == "detected":
-                        diagnosing = True
-                    elif e.kind in ("accepted", "refined", "unexplained"):
-                        diagnosing = False
+                self._watch(drive, k[a:b], raw[a:b], quiet[a:b],
+                            [e for e in result.events if k[a] <= e.sample <= k[b - 1]])
         if self.sink is not None and self.record_residuals:
             have = ~np.isnan(result.residuals).all(axis=1)
             if have.any():
@@ -416,24 +426,25 @@ class Monitor:
                                           dg.last_residuals, dg.last_normalized,
                                           dg.statistics, drive.name)
         if drive.watchdog is not None and dg.last_normalized is not None:
-            self._watch(drive, np.array([sample.k]),
-                        dg.last_normalized[None, :] * _noise_scale(dg), events, before)
+            k = np.array([sample.k])
+            self._watch(drive, k, dg.last_normalized[None, :] * _noise_scale(dg),
+                        monitoring_rows(k, events, before), events)
         return out + self._announce(events, drive)
 
     @staticmethod
-    def _watch(drive: Drive, k: np.ndarray, raw: np.ndarray, events: list[FaultEvent],
-               before: bool) -> None:
-        """Samples k (N,), their residuals against the calibrated noise (N, m), to the drive's
-        watchdog: those the diagnoser watched at once; those of a diagnosis held until it ends,
-        then counted if it found no fault ("unexplained": the alarm was the noise), dropped if
-        it found one."""
+    def _watch(drive: Drive, k: np.ndarray, raw: np.ndarray, quiet: np.ndarray,
+               events: list[FaultEvent]) -> None:
+        """Samples k (N,) of one watchdog block, their residuals against the calibrated noise
+        (N, m), to the drive's watchdog: those the diagnoser watched (quiet (N,),
+        core.watchdog.monitoring_rows) at once; those of a diagnosis held until it ends, then
+        counted if it found no fault ("unexplained": the alarm was the noise), dropped if it
+        found one. events: the events of these samples."""
         wd = drive.watchdog
-        quiet = monitoring_rows(k, events, before)
         wd.add(k[quiet], raw[quiet])
         if not quiet.all():
             drive.held.append((k[~quiet], raw[~quiet]))
         for e in events:
-            if e.kind not in ("accepted", "refined", "unexplained") or not drive.held:
+            if e.kind not in DECISIONS or not drive.held:
                 continue
             kh = np.concatenate([h[0] for h in drive.held])
             rh = np.concatenate([h[1] for h in drive.held])
@@ -550,13 +561,7 @@ class Monitor:
         out = []
         for drive in self.drives:
             dg = drive.diagnoser
-            now = state
-            if now is None and drive.teaching is not None:
-                now = "teaching"
-            elif now is None and dg is not None and dg.mode == DIAGNOSE:
-                now = "diagnosing"
-            elif now is None:
-                now = "mismatch" if drive.mismatch else "monitoring"
+            now = state or drive.state
             stats = drive.clock.stats
             frame = self._encode("FDI_STATUS", {
                 "State": _STATUS[now], "Drive": drive.index,
@@ -589,7 +594,7 @@ class Monitor:
 
 
 # A diagnoser's parts its update never changes (the design, the models): an undo shares them.
-_READ_ONLY = ("design", "_design0", "model", "bank_design")
+_READ_ONLY = ("design", "_design0", "model")
 
 
 def _noise_scale(dg: Diagnoser) -> np.ndarray | float:

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from canfdi.core._check import check_shape
 
-__all__ = ["NoiseWatchdog", "WatchdogChange", "block_runs", "monitoring_rows"]
+__all__ = ["DECISIONS", "NoiseWatchdog", "WatchdogChange", "block_runs", "monitoring_rows"]
 
 
 @dataclass(frozen=True)
@@ -194,7 +194,8 @@ def block_runs(k: NDArray[np.int64], block: int) -> list[tuple[int, int]]:
     return list(pairwise(edges))
 
 
-_DECISIONS = ("accepted", "refined", "unexplained")
+DECISIONS = ("accepted", "refined", "unexplained")
+"""The event kinds that end a diagnosis."""
 
 
 def monitoring_rows(k: NDArray[np.int64], events: list, diagnosing_before: bool
@@ -210,7 +211,7 @@ def monitoring_rows(k: NDArray[np.int64], events: list, diagnosing_before: bool
         out[k == e.sample] = False
         if e.kind == "detected":
             start = e.sample
-        elif e.kind in _DECISIONS and start is not None:
+        elif e.kind in DECISIONS and start is not None:
             out[(k >= start) & (k <= e.sample)] = False
             start = None
     if start is not None:
