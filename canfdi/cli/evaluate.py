@@ -157,8 +157,8 @@ def _calibrated(config, plant: str, noise_scale: float, seconds: float, seed: in
     config's noise (its own seed), through the config's bus: the monitor a user would deploy
     on that drive."""
     import numpy as np
-    import yaml
 
+    from canfdi.config import read_yaml
     from canfdi.tools.calibrate import calibrate_records, scenario_records
     from firmware_sim.plants import make_plant
     from firmware_sim.scenario import parse_scenario
@@ -170,9 +170,8 @@ def _calibrated(config, plant: str, noise_scale: float, seconds: float, seed: in
     healthy = parse_scenario({"plant": plant, "duration": seconds, "seed": seed + 10**6,
                               "noise": {"measurement": [float(v) for v in
                                                         np.asarray(std) * noise_scale]}})
-    doc = yaml.safe_load(config.path.read_text()) if config.path is not None else {}
     return calibrate_records(scenario_records(config, healthy, seconds, seed + 10**6), config,
-                             doc)
+                             read_yaml(config.path, ConfigError, "config"))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -84,8 +84,8 @@ def teacher(config, seconds: float):
     status 2 after one error line."""
     import math
 
-    import yaml
-
+    from canfdi.config import read_yaml
+    from canfdi.core.settings import ConfigError
     from canfdi.tools.calibrate import MIN_SAMPLES, Teach
 
     dt = config.model.dt or 1.0
@@ -94,8 +94,7 @@ def teacher(config, seconds: float):
         print(f"canfdi run: --teach: {seconds:g} s is {samples} samples at dt = {dt:g} s; "
               f"teach-in needs at least {MIN_SAMPLES} ({MIN_SAMPLES * dt:g} s)", file=sys.stderr)
         return 2
-    doc = yaml.safe_load(config.path.read_text()) if config.path is not None else {}
-    return Teach(config, doc, samples)
+    return Teach(config, read_yaml(config.path, ConfigError, "config"), samples)
 
 
 def run(args: argparse.Namespace) -> int:
