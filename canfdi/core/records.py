@@ -187,6 +187,7 @@ def fold(entries: list[Compensation], new: Compensation) -> tuple[str, dict[str,
     >>> len(comp)
     2
     """
-    kind = "refined" if compensated(entries, new.target, new.index) else "accepted"
+    known = any(c.target == new.target and c.index == new.index for c in entries)
     entries.append(new)
+    kind = "refined" if known else "accepted"
     return kind, compensated(entries, new.target, new.index)
