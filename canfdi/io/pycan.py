@@ -7,6 +7,8 @@ messages. A name ending in ``.gz`` (``run.asc.gz``) is the log of the suffix bef
 gzip-compressed: it is opened with `gzip.open` and handed to the same class, as python-can's
 `can.LogReader` and `can.Logger` do, for any name (python-can's own dispatch only takes names
 with exactly two suffixes). canfdi.io.formats registers these formats by suffix.
+`messages_block` and `block_messages` are the two conversions, messages to a block and back,
+that the python-can plugin for canfdi's MCAP (canfdi.io.pycan_mcap) uses too.
 
 Directions: python-can's ``Message.is_rx`` is kept in the blocks' status column, `RX` or `TX`
 (a frame the logging node sent). Written frames are Tx when their status is `TX` or
@@ -17,7 +19,7 @@ from __future__ import annotations
 
 import gzip
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -25,7 +27,8 @@ import numpy as np
 
 from canfdi.bus.frames import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE, SENT, FrameBlock
 
-__all__ = ["RX", "TX", "Written", "read_blocks", "write_blocks"]
+__all__ = ["RX", "TX", "Written", "block_messages", "messages_block", "read_blocks",
+           "write_blocks"]
 
 RX = "rx"
 """Status of a frame a python-can log marks received (or does not mark: python-can's default)."""
@@ -79,11 +82,56 @@ def _open_writer(path: Path, suffix: str, compressed: bool) -> Any:
     return cls(gzip.open(path, "wt" if _is_text(cls) else "wb"))
 
 
-def _block(messages: list[Any]) -> FrameBlock:
+def messages_block(messages: Sequence[Any]) -> FrameBlock:
+    """python-can Messages as one FrameBlock whose status column says their direction.
+
+    Parameters
+    ----------
+    messages : sequence of can.Message
+        The frames, in order; a message without a timestamp gets 0.
+
+    Returns
+    -------
+    FrameBlock
+        With status `RX` for ``is_rx`` messages, `TX` for the others.
+    """
     block = FrameBlock.from_messages(messages, now=0.0)
     rx = np.fromiter((m.is_rx for m in messages), dtype=bool, count=len(messages))
     return FrameBlock(block.t_ns, block.id, block.dlc, block.flags, block.data,
                       status=np.where(rx, RX, TX), long=block.long)
+
+
+def block_messages(block: FrameBlock, channel: Any = None) -> Iterator[Any]:
+    """The frames of a block as python-can Messages, in order.
+
+    Parameters
+    ----------
+    block : FrameBlock
+        The frames.
+    channel : optional
+        Every message's ``channel`` (a FrameBlock holds none).
+
+    Yields
+    ------
+    can.Message
+        With the frame's time in seconds (``t_ns / 1e9``), identifier, flags, DLC (a remote
+        frame's: the length it requests, with no data) and payload; ``is_rx`` False for the
+        statuses `TX` and ``"sent"`` (the monitor's own), True otherwise (or with no status).
+    """
+    import can
+
+    if block.status is None:
+        rx = [True] * block.size
+    else:
+        rx = ((block.status != SENT) & (block.status != TX)).tolist()
+    for t, frame_id, dlc, data, flag, is_rx in zip(
+            block.t_ns.tolist(), block.id.tolist(), block.dlc.tolist(), block.payloads(),
+            block.flags.tolist(), rx, strict=True):
+        yield can.Message(
+            timestamp=t / 1e9, arbitration_id=frame_id, is_extended_id=bool(flag & FLAG_EXTENDED),
+            is_remote_frame=bool(flag & FLAG_REMOTE), is_error_frame=bool(flag & FLAG_ERROR),
+            is_fd=bool(flag & FLAG_FD), is_rx=is_rx, dlc=dlc, data=data, channel=channel,
+            check=False)
 
 
 def read_blocks(path: Path, suffix: str, compressed: bool = False,
@@ -117,10 +165,10 @@ def read_blocks(path: Path, suffix: str, compressed: bool = False,
         for message in reader:
             pending.append(message)
             if len(pending) >= frames_per_block:
-                yield _block(pending)
+                yield messages_block(pending)
                 pending = []
         if pending:
-            yield _block(pending)
+            yield messages_block(pending)
 
 
 def write_blocks(path: Path, suffix: str, blocks: Iterable[FrameBlock], compressed: bool = False,
@@ -147,8 +195,6 @@ def write_blocks(path: Path, suffix: str, blocks: Iterable[FrameBlock], compress
     Written
         Frames written and skipped.
     """
-    import can
-
     not_held = 0
     for kind, flag in _FLAGS.items():
         if kind not in holds:
@@ -158,24 +204,14 @@ def write_blocks(path: Path, suffix: str, blocks: Iterable[FrameBlock], compress
     written = skipped = 0
     with _open_writer(path, suffix, compressed) as writer:
         for block in blocks:
-            flags = block.flags.tolist()
-            if block.status is None:
-                rx = [True] * block.size
-            else:
-                rx = ((block.status != SENT) & (block.status != TX)).tolist()
-            for t, frame_id, dlc, data, flag, is_rx in zip(
-                    block.t_ns.tolist(), block.id.tolist(), block.dlc.tolist(), block.payloads(),
-                    flags, rx, strict=True):
-                if flag & not_held:
-                    skipped += 1
-                    continue
-                writer.on_message_received(can.Message(
-                    timestamp=t / 1e9, arbitration_id=frame_id,
-                    is_extended_id=bool(flag & FLAG_EXTENDED),
-                    is_remote_frame=bool(flag & FLAG_REMOTE),
-                    is_error_frame=bool(flag & FLAG_ERROR), is_fd=bool(flag & FLAG_FD),
-                    is_rx=is_rx, dlc=dlc, data=data, channel=0, check=False))
-                written += 1
+            if not_held:
+                keep = (block.flags & not_held) == 0
+                if not keep.all():
+                    skipped += int((~keep).sum())
+                    block = block.select(keep)
+            for message in block_messages(block, channel=0):
+                writer.on_message_received(message)
+            written += block.size
         _drain(writer)
     return Written(written, skipped)
 
