@@ -353,7 +353,7 @@ _LOG = "candump -L text (can-utils canplayer, SavvyCAN)"
 _TRC = "PEAK trace (PCAN-View)"
 _CSV = "python-can CSV (timestamp, arbitration_id, extended, remote, error, dlc, data)"
 for _format in (
-    # ASC: python-can writes the time of writing in the header and reads times from the start.
+    # ASC: the header holds the measurement start, but python-can reads times relative to it.
     _python_can("asc", _ASC, absolute_time=False),
     _python_can("blf", _BLF),
     _python_can("log", _LOG),

@@ -128,3 +128,25 @@ def test_export_takes_the_format_from_the_output_name_and_any_log(log, tmp_path,
     assert "--format or -o" in capsys.readouterr().err
     assert main(["export", str(log), "-o", str(tmp_path / "x.blf.gz")]) == 2
     assert "cannot write .blf.gz" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("suffix", [".asc", ".asc.gz"])
+def test_export_asc_dates_the_measurement_start_and_keeps_absolute_times(log, tmp_path, suffix):
+    import gzip
+
+    from canfdi.io.pycan import ASC_VERSION, asc_date
+
+    out = tmp_path / f"frames{suffix}"
+    assert main(["export", str(log), "-o", str(out), "--no-progress"]) == 0
+    src = read_frames(log)
+    start = asc_date(round(src.t_ns[0] / 1000))
+    opener = gzip.open if suffix.endswith(".gz") else open
+    with opener(out, "rt") as file:
+        head = [next(file).rstrip("\n") for _ in range(5)]
+    assert head == [f"date {start}", "base hex  timestamps absolute", "internal events logged",
+                    f"// version {ASC_VERSION}", f"Begin Triggerblock {start}"]
+    with opener(out, "rt") as file, can.ASCReader(file, relative_timestamp=False) as reader:
+        back = list(reader)
+    assert len(back) == src.size
+    times = np.array([round(m.timestamp * 1e9) for m in back])
+    np.testing.assert_allclose(times, src.t_ns, rtol=0, atol=1000)  # to the microsecond
