@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from canfdi.bus.frames import FrameBlock
+from canfdi.io.damage import Damage
 from canfdi.io.pycan import Written
 from canfdi.io.segments import log_segments
 
@@ -74,7 +75,8 @@ class LogFormat:
     description : str
         What it is, for people (``"Vector ASCII (CANalyzer, SavvyCAN)"``).
     reader : callable
-        ``reader(path, frames_per_block, received) -> iterator of FrameBlock``.
+        ``reader(path, frames_per_block, received) -> iterator of FrameBlock`` (and a fourth
+        argument, a `Damage`, when `reports_damage`).
     writer : callable or None
         ``writer(path, blocks) -> Written``; None for a format read only.
     metadata_reader : callable or None
@@ -95,6 +97,9 @@ class LogFormat:
     segments : bool
         The log may go on in rotated segments (``<stem>-0001<suffix>``..., canfdi.io.segments)
         that its reader reads too.
+    reports_damage : bool
+        The reader skips damaged parts of a log and records them in a canfdi.io.damage
+        `Damage` it takes as a fourth argument (canfdi's MCAP: CRC-checked chunks).
     requires : str or None
         A module that must be importable to use the format (``"asammdf"``), and
     extra : str or None
@@ -113,6 +118,7 @@ class LogFormat:
     resolution_ns: int = 1000
     holds: frozenset[str] = field(default_factory=lambda: frozenset({"remote", "error", "fd"}))
     segments: bool = False
+    reports_damage: bool = False
     requires: str | None = None
     extra: str | None = None
 
@@ -139,7 +145,8 @@ class LogFormat:
             raise LogFormatError(f"canfdi cannot write {self.suffix} logs (it writes {names})")
 
     def frame_blocks(self, path: str | Path, frames_per_block: int = 65536, *,
-                     received: bool = True) -> Iterator[FrameBlock]:
+                     received: bool = True, damage: Damage | None = None
+                     ) -> Iterator[FrameBlock]:
         """The frames of a log of this format, in blocks of about ``frames_per_block``.
 
         Parameters
@@ -152,6 +159,9 @@ class LogFormat:
             Only the frames a monitor on that bus received: an MCAP's own transmissions
             (status ``"sent"``) are left out. A python-can log's Tx frames stay: the node that
             logged them sent them on the bus, where a monitor hears them. False: every frame.
+        damage : Damage, optional
+            Where a format that `reports_damage` records what a damaged log lost (the rest is
+            read); complete once the iteration ends.
 
         Yields
         ------
@@ -171,7 +181,11 @@ class LogFormat:
         path = Path(path)
         if not path.exists() and not (self.segments and log_segments(path)):
             raise FileNotFoundError(errno.ENOENT, "no such log", str(path))
-        return _guarded(self, path, self.reader(path, frames_per_block, received))
+        if self.reports_damage and damage is not None:
+            blocks = self.reader(path, frames_per_block, received, damage)  # type: ignore
+        else:
+            blocks = self.reader(path, frames_per_block, received)
+        return _guarded(self, path, blocks)
 
     def write_frames(self, path: str | Path, blocks: Iterable[FrameBlock]) -> Written:
         """Write frames into a new log of this format (an existing file is replaced).
@@ -291,10 +305,11 @@ def format_of(path: str | Path) -> LogFormat:
 # ------------------------------------------------------------------------------------------
 
 
-def _mcap_read(path: Path, frames_per_block: int, received: bool) -> Iterator[FrameBlock]:
+def _mcap_read(path: Path, frames_per_block: int, received: bool,
+               damage: Damage | None = None) -> Iterator[FrameBlock]:
     from canfdi.io.reader import mcap_frame_blocks
 
-    return mcap_frame_blocks(path, frames_per_block, received=received)
+    return mcap_frame_blocks(path, frames_per_block, received=received, damage=damage)
 
 
 def _mcap_write(path: Path, blocks: Iterable[FrameBlock]) -> Written:
@@ -313,18 +328,13 @@ def _mcap_write(path: Path, blocks: Iterable[FrameBlock]) -> Written:
 
 def _mcap_metadata(path: Path) -> dict[str, str]:
     from canfdi.io.reader import read_metadata
-    from canfdi.io.scan import MAGIC
 
-    with open(path, "rb") as file:
-        head = file.read(len(MAGIC))
-    if head != MAGIC:
-        raise LogReadError("not an MCAP file")
-    return read_metadata(path)
+    return read_metadata(path)  # NotMcap for a file that is not MCAP
 
 
 register(LogFormat(
     "mcap", ".mcap", "canfdi MCAP", _mcap_read, _mcap_write, _mcap_metadata, records=True,
-    directions=True, resolution_ns=1, segments=True))
+    directions=True, resolution_ns=1, segments=True, reports_damage=True))
 
 
 def _python_can(name: str, description: str, *, compressed: bool = False, write: bool = True,

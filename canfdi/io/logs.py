@@ -16,13 +16,14 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from canfdi.bus.frames import FrameBlock
+from canfdi.io.damage import Damage
 from canfdi.io.formats import LogFormatError, Written, format_named, format_of
 
 __all__ = ["frame_blocks", "metadata_of", "truth_of", "write_frames"]
 
 
 def frame_blocks(path: str | Path, frames_per_block: int = 65536, *,
-                 received: bool = True) -> Iterator[FrameBlock]:
+                 received: bool = True, damage: Damage | None = None) -> Iterator[FrameBlock]:
     """The frames of a log in blocks of about ``frames_per_block``, in log order.
 
     Parameters
@@ -34,6 +35,9 @@ def frame_blocks(path: str | Path, frames_per_block: int = 65536, *,
     received : bool
         Only the frames the monitor received (default): an MCAP's own transmissions (status
         ``"sent"``) are left out. False: every frame.
+    damage : Damage, optional
+        Where what a damaged log lost is recorded (canfdi's MCAP skips damaged chunks and
+        reads the rest); complete once the iteration ends.
 
     Returns
     -------
@@ -51,7 +55,8 @@ def frame_blocks(path: str | Path, frames_per_block: int = 65536, *,
     LogReadError
         While iterating: the file is not a readable log of its format.
     """
-    return format_of(path).frame_blocks(path, frames_per_block, received=received)
+    return format_of(path).frame_blocks(path, frames_per_block, received=received,
+                                        damage=damage)
 
 
 def write_frames(path: str | Path, blocks: Iterable[FrameBlock],

@@ -4,26 +4,26 @@
 killed writer reads up to its last complete record); `read_metadata` gives the run-level
 ``"canfdi"`` record; `read_frames` (`iter_frame_blocks` a block at a time), `read_samples`
 and `read_residuals` give a whole log (every rotated segment, canfdi.io.segments) as arrays,
-of the block layout canfdi.io.blocks decodes and of the older one-row-per-message layout.
-`mcap_frame_blocks` is the fast path replay reads frames with (canfdi.io.scan and a read-ahead
-thread).
+of the block layout canfdi.io.blocks decodes and of the one-row-per-message layout.
+`mcap_frame_blocks` is the fast path replay reads frames with (a read-ahead thread).
+
+Every one of them reads through canfdi.io.scan's `McapFile`, which checks each chunk's CRC,
+skips what is damaged and resynchronises after it: a damaged log reads what is left of it,
+never raises for the damage, and records what it lost in the canfdi.io.damage `Damage` given
+as ``damage=`` (pass one `Damage` to every read of a log, print its lines at the end).
 """
 
 from __future__ import annotations
 
 import errno
-import json
 import logging
 import queue
 import threading
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import IO, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
-from mcap.exceptions import EndOfFile
-from mcap.records import Channel, Chunk, Footer, Message, Metadata
-from mcap.stream_reader import StreamReader
 from numpy.typing import NDArray
 
 from canfdi.bus.frames import FrameBlock
@@ -36,7 +36,8 @@ from canfdi.io.blocks import (
     gathered,
     no_frames,
 )
-from canfdi.io.scan import UnsupportedLog, scan_topic
+from canfdi.io.damage import Damage
+from canfdi.io.scan import OP_CHUNK, OP_METADATA, McapFile
 from canfdi.io.schemas import METADATA_NAME, TOPIC_FRAMES, TOPIC_RESIDUALS, TOPIC_SAMPLES
 from canfdi.io.segments import log_segments
 
@@ -57,33 +58,14 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 
-class _ExactReader:
-    """A file view whose read(n) returns n bytes or raises EndOfFile.
-
-    mcap's ReadDataStream only fails on an empty read, so a record cut short by truncation
-    would be parsed from too few bytes (a garbled message, or a zstd error on a partial
-    chunk). Failing on any short read makes every incomplete record an EndOfFile.
-    """
-
-    __slots__ = ("_read",)
-
-    def __init__(self, file: IO[bytes]) -> None:
-        self._read = file.read
-
-    def read(self, n: int) -> bytes:
-        data = self._read(n)
-        if len(data) != n:
-            raise EndOfFile()
-        return data
-
-
 class LogReader:
     """Messages of one MCAP file in file order: an iterator of (topic, log_time ns, message).
 
-    Streams the file (no seeking, no sorting, no summary needed), so it reads a file cut short
-    by a killed writer as well as a complete one: it stops at the last complete record without
-    raising. After iteration, `messages_read`, `complete` and `truncated` describe what was
-    found. Use `read_log` to make one.
+    Walks the file with canfdi.io.scan's `McapFile` (no summary needed, no sorting), so it
+    reads a file cut short by a killed writer as well as a complete one, up to its last sound
+    record, and a damaged one around its damage (skipped, and recorded in ``damage``), without
+    raising for either. After iteration, `messages_read`, `complete` and `truncated` describe
+    what was found. Use `read_log` to make one.
 
     Parameters
     ----------
@@ -91,16 +73,20 @@ class LogReader:
         The MCAP file.
     topics : iterable of str, optional
         Only these topics (all when None).
+    damage : Damage, optional
+        Where what is skipped is recorded (`damage`: a private one when None).
 
     Raises
     ------
-    mcap.exceptions.InvalidMagic
+    canfdi.io.scan.NotMcap
         While iterating, if the file is not an MCAP file.
     """
 
-    def __init__(self, path: str | Path, topics: Iterable[str] | None = None) -> None:
+    def __init__(self, path: str | Path, topics: Iterable[str] | None = None,
+                 damage: Damage | None = None) -> None:
         self.path = Path(path)
         self._topics = frozenset(topics) if topics is not None else None
+        self.damage = damage if damage is not None else Damage()
         self.messages_read = 0
         self.complete = False
         self.truncated = False
@@ -117,35 +103,19 @@ class LogReader:
         self._iterator.close()
 
     def _iterate(self) -> Iterator[tuple[str, int, dict[str, Any]]]:
-        topics = self._topics
-        wanted: dict[int, str] = {}
-        loads = json.loads
-        with open(self.path, "rb") as file:
-            records = StreamReader(_ExactReader(file)).records
-            try:
-                for record in records:
-                    if isinstance(record, Message):
-                        topic = wanted.get(record.channel_id)
-                        if topic is not None:
-                            self.messages_read += 1
-                            yield topic, record.log_time, loads(record.data)
-                    elif isinstance(record, Channel):
-                        if topics is None or record.topic in topics:
-                            wanted[record.id] = record.topic
-                    elif isinstance(record, Footer):
-                        self.complete = True
-            except EndOfFile:
-                self.truncated = True
-                logger.info(
-                    "%s ends early (killed writer?): read %d messages up to the last complete "
-                    "record",
-                    self.path,
-                    self.messages_read,
-                )
+        with McapFile(self.path, self.damage) as file:
+            for item in file.messages(self._topics):
+                self.messages_read += 1
+                yield item
+            self.complete, self.truncated = file.complete, file.truncated
+        if self.truncated:
+            logger.info("%s ends early (killed writer?): read %d messages up to the last "
+                        "complete record", self.path, self.messages_read)
 
 
-def read_log(path: str | Path, topics: Iterable[str] | None = None) -> LogReader:
-    """Read back one log file's messages, tolerating a truncated end.
+def read_log(path: str | Path, topics: Iterable[str] | None = None,
+             damage: Damage | None = None) -> LogReader:
+    """Read back one log file's messages, tolerating a truncated end and damage.
 
     Parameters
     ----------
@@ -153,6 +123,8 @@ def read_log(path: str | Path, topics: Iterable[str] | None = None) -> LogReader
         One MCAP file (for a rotated log, read each of `log_segments` in turn).
     topics : iterable of str, optional
         Only these topics (all when None).
+    damage : Damage, optional
+        Where what a damaged file lost is recorded.
 
     Returns
     -------
@@ -160,39 +132,45 @@ def read_log(path: str | Path, topics: Iterable[str] | None = None) -> LogReader
         An iterator of ``(topic, log_time_ns, message)`` in file order; its ``messages_read``,
         ``complete`` and ``truncated`` attributes tell what was found once it is exhausted.
     """
-    return LogReader(path, topics)
+    return LogReader(path, topics, damage)
 
 
-def read_metadata(path: str | Path) -> dict[str, str]:
+def read_metadata(path: str | Path, damage: Damage | None = None) -> dict[str, str]:
     """The run-level metadata (records named ``"canfdi"``) of one log file.
 
-    Streams the file and stops at the first chunk after the metadata, where the recorder puts
-    it; a truncated file is fine.
+    Walks the file's records and stops at the first chunk after the metadata, where the
+    recorder puts it; a truncated or damaged file is fine (a metadata record lost to damage is
+    not there).
 
     Parameters
     ----------
     path : str or Path
         One MCAP file.
+    damage : Damage, optional
+        Where damage met on the way is recorded.
 
     Returns
     -------
     dict of str to str
         The metadata (merged in file order if there are several records); empty if none.
+
+    Raises
+    ------
+    canfdi.io.scan.NotMcap
+        The file is not an MCAP file.
     """
     found: dict[str, str] = {}
     seen = False
-    with open(path, "rb") as file:
-        # emit_chunks: the message data is not needed, so it is not decompressed.
-        records = StreamReader(_ExactReader(file), emit_chunks=True).records
-        try:
-            for record in records:
-                if isinstance(record, Metadata) and record.name == METADATA_NAME:
-                    found.update(record.metadata)
+    with McapFile(path, damage) as file:
+        # inflate=False: the message data is not needed, so chunks are not decompressed.
+        for op, start, stop, _ in file.records(inflate=False):
+            if op == OP_METADATA:
+                name, values = file.fields(op, start, stop)
+                if name == METADATA_NAME:
+                    found.update(values)
                     seen = True
-                elif seen and isinstance(record, Chunk):
-                    break
-        except EndOfFile:
-            pass
+            elif seen and op == OP_CHUNK:
+                break
     return found
 
 
@@ -248,12 +226,13 @@ def _segments(path: str | Path, segments: bool) -> list[Path]:
 _OLD_ROWS_PER_BLOCK = 4096
 
 
-def iter_frame_blocks(path: str | Path, *, segments: bool = True) -> Iterator[FrameBlock]:
+def iter_frame_blocks(path: str | Path, *, segments: bool = True,
+                      damage: Damage | None = None) -> Iterator[FrameBlock]:
     """The raw frames of a log, a block at a time: constant memory for any log length.
 
-    Reads the segments in order, tolerating a truncated end as `read_log` does (a block cut
-    short is dropped whole). Logs of the older one-frame-per-message layout
-    are read too, in blocks of up to 4096 frames.
+    Reads the segments in order, tolerating a truncated end and damage as `read_log` does (a
+    block cut short or in a damaged chunk is dropped whole). Logs of the older
+    one-frame-per-message layout are read too, in blocks of up to 4096 frames.
 
     Parameters
     ----------
@@ -262,6 +241,8 @@ def iter_frame_blocks(path: str | Path, *, segments: bool = True) -> Iterator[Fr
     segments : bool
         Also read the rotated segments that follow ``path`` (`log_segments`); False reads
         ``path`` alone.
+    damage : Damage, optional
+        Where what damaged segments lost is recorded.
 
     Yields
     ------
@@ -278,7 +259,7 @@ def iter_frame_blocks(path: str | Path, *, segments: bool = True) -> Iterator[Fr
     messages = (
         (segment, log_time, message)
         for segment in _segments(path, segments)
-        for _, log_time, message in read_log(segment, topics=[TOPIC_FRAMES])
+        for _, log_time, message in read_log(segment, [TOPIC_FRAMES], damage)
     )
     return _frame_blocks_of(messages)
 
@@ -290,11 +271,17 @@ def _frame_blocks_of(
     a block message as one block, one-frame messages gathered up to 4096 a block."""
     rows: list[tuple[int, Mapping[str, Any]]] = []
     for segment, log_time, message in messages:
+        if not isinstance(message, Mapping):
+            raise ValueError(f"unrecognised {TOPIC_FRAMES} message in {segment}")
         if "frames" in message:
             if rows:
                 yield decode_frame_rows(rows)
                 rows = []
-            yield decode_frames(message)
+            try:
+                block = decode_frames(message)
+            except (KeyError, TypeError, ValueError):  # only a chunk without a CRC lets one in
+                raise ValueError(f"a damaged {TOPIC_FRAMES} message in {segment}") from None
+            yield block
         elif "id" in message and "data" in message:
             rows.append((log_time, message))
             if len(rows) >= _OLD_ROWS_PER_BLOCK:
@@ -306,7 +293,8 @@ def _frame_blocks_of(
         yield decode_frame_rows(rows)
 
 
-def read_frames(path: str | Path, *, segments: bool = True) -> FrameBlock:
+def read_frames(path: str | Path, *, segments: bool = True,
+                damage: Damage | None = None) -> FrameBlock:
     """Every raw frame of a log, as arrays.
 
     Parameters
@@ -316,6 +304,8 @@ def read_frames(path: str | Path, *, segments: bool = True) -> FrameBlock:
     segments : bool
         Also read the rotated segments that follow ``path`` (`log_segments`); False reads
         ``path`` alone.
+    damage : Damage, optional
+        Where what damaged segments lost is recorded.
 
     Returns
     -------
@@ -329,7 +319,7 @@ def read_frames(path: str | Path, *, segments: bool = True) -> FrameBlock:
     ValueError
         For a ``/can/frames`` message of an unknown layout.
     """
-    blocks = list(iter_frame_blocks(path, segments=segments))
+    blocks = list(iter_frame_blocks(path, segments=segments, damage=damage))
     return FrameBlock.concat(blocks) if blocks else no_frames()
 
 
@@ -340,12 +330,13 @@ def _same_names(found: Any, names: Any, topic: str, path: str | Path) -> Any:
     return found
 
 
-def log_drives(path: str | Path, *, segments: bool = True) -> list[str]:
+def log_drives(path: str | Path, *, segments: bool = True,
+               damage: Damage | None = None) -> list[str]:
     """The drives whose samples a log holds, in order of appearance ([] for a log of one
-    unnamed drive: logs written before drives had names)."""
+    unnamed drive: logs written before drives had names); damage recorded in ``damage``."""
     found: list[str] = []
     for segment in _segments(path, segments):
-        for _, _, msg in read_log(segment, topics=[TOPIC_SAMPLES]):
+        for _, _, msg in read_log(segment, [TOPIC_SAMPLES], damage):
             drive = msg.get("drive")
             if drive is not None and drive not in found:
                 found.append(drive)
@@ -362,8 +353,8 @@ def _wanted(msg: Mapping[str, Any], drive: str | None, first: list) -> bool:
     return found == first[0]
 
 
-def read_samples(path: str | Path, *, segments: bool = True, drive: str | None = None
-                 ) -> SampleArrays:
+def read_samples(path: str | Path, *, segments: bool = True, drive: str | None = None,
+                 damage: Damage | None = None                 ) -> SampleArrays:
     """Every decoded sample of a log (``/canfdi/samples``), as arrays.
 
     Reads every segment in order, tolerating a truncated end as `read_log` does, and logs of
@@ -378,6 +369,8 @@ def read_samples(path: str | Path, *, segments: bool = True, drive: str | None =
         ``path`` alone.
     drive : str, optional
         Whose samples (a log of several drives, `log_drives`); default the first drive's.
+    damage : Damage, optional
+        Where what damaged segments lost is recorded (the samples in them are not read).
 
     Returns
     -------
@@ -397,7 +390,7 @@ def read_samples(path: str | Path, *, segments: bool = True, drive: str | None =
     names: tuple[list[str], list[str]] | None = None
     first: list = []
     for segment in _segments(path, segments):
-        for _, log_time, msg in read_log(segment, topics=[TOPIC_SAMPLES]):
+        for _, log_time, msg in read_log(segment, [TOPIC_SAMPLES], damage):
             if not _wanted(msg, drive, first):
                 continue
             found = (list(msg["u"]), list(msg["z"]))
@@ -419,8 +412,8 @@ def read_samples(path: str | Path, *, segments: bool = True, drive: str | None =
     )
 
 
-def read_residuals(path: str | Path, *, segments: bool = True, drive: str | None = None
-                   ) -> ResidualArrays:
+def read_residuals(path: str | Path, *, segments: bool = True, drive: str | None = None,
+                   damage: Damage | None = None                   ) -> ResidualArrays:
     """Every residual row of a log (``/canfdi/residuals``), as arrays.
 
     Reads every segment in order, tolerating a truncated end as `read_log` does, and logs of
@@ -436,6 +429,8 @@ def read_residuals(path: str | Path, *, segments: bool = True, drive: str | None
         ``path`` alone.
     drive : str, optional
         Whose residuals (a log of several drives); default the first drive's.
+    damage : Damage, optional
+        Where what damaged segments lost is recorded (the rows in them are not read).
 
     Returns
     -------
@@ -455,7 +450,7 @@ def read_residuals(path: str | Path, *, segments: bool = True, drive: str | None
     names: list[str] | None = None
     first: list = []
     for segment in _segments(path, segments):
-        for _, log_time, msg in read_log(segment, topics=[TOPIC_RESIDUALS]):
+        for _, log_time, msg in read_log(segment, [TOPIC_RESIDUALS], damage):
             if not _wanted(msg, drive, first):
                 continue
             if "count" in msg:
@@ -483,32 +478,15 @@ def read_residuals(path: str | Path, *, segments: bool = True, drive: str | None
 # ------------------------------------------------------------------------------------------
 
 
-def _scanned_messages(segment: Path) -> Iterator[tuple[Path, int, Mapping[str, Any]]]:
-    """(segment, log_time, message) of the ``/can/frames`` messages of one segment: through
-    canfdi.io.scan (fast), continued with `read_log` from where the scanner gave up if it
-    meets something it does not read (an unusual chunk compression)."""
-    done = 0
-    try:
-        for log_time, message in scan_topic(segment, TOPIC_FRAMES):
-            yield segment, log_time, message
-            done += 1
-        return
-    except UnsupportedLog as exc:
-        logger.info("%s: %s; reading it with the full reader", segment, exc)
-    for i, (_, log_time, message) in enumerate(read_log(segment, topics=[TOPIC_FRAMES])):
-        if i >= done:
-            yield segment, log_time, message
-
-
 def mcap_frame_blocks(
-    path: str | Path, frames_per_block: int = 65536, *, received: bool = True
+    path: str | Path, frames_per_block: int = 65536, *, received: bool = True,
+    damage: Damage | None = None,
 ) -> Iterator[FrameBlock]:
     """The frames of a log (every segment) in blocks of about ``frames_per_block``, fast.
 
-    The scanner (canfdi.io.scan) pulls the frame blocks out of each segment, and a thread
-    reads ahead (at most four blocks), so that inflating and decoding the log overlaps with
-    the caller's work on a second core (zstd and numpy release the GIL). Reads what
-    `iter_frame_blocks` reads, a truncated end included.
+    A thread reads ahead (at most four blocks), so that inflating and decoding the log
+    overlaps with the caller's work on a second core (zstd and numpy release the GIL). Reads
+    what `iter_frame_blocks` reads, a truncated end and damaged chunks included (skipped).
 
     Parameters
     ----------
@@ -519,6 +497,8 @@ def mcap_frame_blocks(
     received : bool
         Only the frames the monitor received: without its own transmissions (status
         ``"sent"``), which a live monitor does not hear. False: every frame.
+    damage : Damage, optional
+        Where what damaged segments lost is recorded (complete once the iteration ends).
 
     Yields
     ------
@@ -551,7 +531,8 @@ def mcap_frame_blocks(
         try:
             pending: list[FrameBlock] = []
             count = 0
-            messages = (m for segment in segments for m in _scanned_messages(segment))
+            messages = ((segment, log_time, message) for segment in segments
+                        for _, log_time, message in read_log(segment, [TOPIC_FRAMES], damage))
             for block in _frame_blocks_of(messages):
                 if received:
                     block = block.received()
