@@ -29,8 +29,11 @@ false-alarm interval, and what looks wrong.
 A log in which the calibrated monitor detects anything is refused (exit 1), naming the log,
 the sample and the residual: calibrate on fault-free data. Writes the input config with
 noise.measurement replaced and its provenance (logs, samples, date) in comments, to -o or
-stdout. Exit status: 0 done, 1 a log is not healthy, 2 bad input (config, unreadable log, too
-few samples)."""
+stdout. A damaged MCAP is read around its damage (chunks that fail their CRC are skipped, their
+samples missing as lost samples are): what was lost is said on stderr (one line per damaged
+file) and in the JSON's "damage". Progress goes to stderr unless --json (in a terminal, always).
+Exit status: 0 done (also from damaged logs, their loss said), 1 a log is not healthy, 2 bad
+input (config, unreadable log, too few samples: one line)."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -54,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     import yaml
 
     from canfdi.config import read_yaml
+    from canfdi.io.damage import Damage
     from canfdi.tools.calibrate import LogFault, calibrate, config_document
 
     config = load_config_or_exit(args.config, "calibrate")
@@ -68,23 +72,32 @@ def run(args: argparse.Namespace) -> int:
         return 2
 
     def progress(msg: str) -> None:
-        print(f"canfdi calibrate: {msg}", file=sys.stderr, flush=True)
+        if sys.stderr.isatty() or not args.json:
+            print(f"canfdi calibrate: {msg}", file=sys.stderr, flush=True)
 
     doc = read_yaml(args.config, ValueError, "config")
+    damage = Damage()
+
+    def lost() -> str:  # what damaged logs lost, for a one-line error
+        return f" ({'; '.join(damage.lines())})" if damage else ""
+
     try:
         result = calibrate(args.logs, config, doc, window=args.window,
-                           full=args.full_covariance, progress=progress)
+                           full=args.full_covariance, progress=progress, damage=damage)
     except LogFault as exc:
-        print(f"canfdi calibrate: {exc}", file=sys.stderr)
+        print(f"canfdi calibrate: {exc}{lost()}", file=sys.stderr)
         return 1
     except (OSError, ValueError) as exc:
-        print(f"canfdi calibrate: {exc}", file=sys.stderr)
+        print(f"canfdi calibrate: {exc}{lost()}", file=sys.stderr)
         return 2
+    for line in damage.lines():
+        print(f"canfdi calibrate: {line}", file=sys.stderr)
     when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     out = args.output or Path("calibrated.yaml")
     header, written = config_document(result, args.config, out, when)
     text = header + yaml.safe_dump(written, sort_keys=False, default_flow_style=None, width=100)
     report = result.report()
+    report["damage"] = damage.as_dict()
     if args.json:
         print(json.dumps(report, indent=2))
     else:

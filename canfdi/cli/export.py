@@ -21,9 +21,11 @@ Timestamps are the log's (seconds since the epoch). A frame's E2E status (crc, d
 place in these formats: `canfdi replay OUT --config FILE` re-derives it. The monitor's own
 frames are written as transmissions (Tx) where the format keeps directions; frames of a kind a
 format cannot hold (remote, error or CAN FD frames in .trc) are left out and counted. A
-truncated MCAP (a killed process) is exported up to its last complete block. The format is
---format, or the suffix of -o. Exit status: 0 written, 2 bad log or arguments, 1 the output
-could not be written."""
+truncated MCAP (a killed process) is exported up to its last complete block; a damaged one
+around its damage (chunks that fail their CRC are skipped; what was lost is said on stderr, one
+line per damaged file). The format is --format, or the suffix of -o. Exit status: 0 written
+(also from a damaged log, its loss said), 2 bad log or arguments (one line, no output left), 1
+the output could not be written."""
 
 
 def _writable() -> list[LogFormat]:
@@ -57,16 +59,18 @@ def _counted(blocks: Iterator, progress: Callable[[int], None] | None) -> Iterat
             progress(count)
 
 
-def export_frames(log: Path, out: Path, fmt: str, progress=None) -> int:
+def export_frames(log: Path, out: Path, fmt: str, progress=None, damage=None) -> int:
     """Write every frame of ``log`` to ``out`` in format ``fmt`` (a name of
-    canfdi.io.formats); returns the number of frames written."""
+    canfdi.io.formats); returns the number of frames written. What a damaged log lost is
+    recorded in ``damage`` (a canfdi.io.damage.Damage), the rest is written."""
     from canfdi.io.logs import frame_blocks, write_frames
 
-    blocks = frame_blocks(log, received=False)
+    blocks = frame_blocks(log, received=False, damage=damage)
     return write_frames(out, _counted(blocks, progress), fmt).frames
 
 
 def run(args: argparse.Namespace) -> int:
+    from canfdi.io.damage import Damage
     from canfdi.io.formats import LogFormatError, LogReadError, format_named, format_of
     from canfdi.io.logs import frame_blocks, write_frames
 
@@ -80,8 +84,9 @@ def run(args: argparse.Namespace) -> int:
     except LogFormatError as exc:
         print(f"canfdi export: {exc}", file=sys.stderr)
         return 2
+    damage = Damage()
     try:
-        blocks = frame_blocks(args.log, received=False)
+        blocks = frame_blocks(args.log, received=False, damage=damage)
     except FileNotFoundError:
         print(f"canfdi export: {args.log}: no such log", file=sys.stderr)
         return 2
@@ -102,12 +107,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         written = write_frames(out, _counted(blocks, progress), target.name)
     except LogReadError as exc:
+        out.unlink(missing_ok=True)  # begun before the input failed: worth nothing
         print(f"canfdi export: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
         print(f"canfdi export: cannot write {out}: {exc.strerror or exc}", file=sys.stderr)
         return 1
     except ValueError as exc:  # a block of an unknown layout
+        out.unlink(missing_ok=True)  # begun before the input failed: worth nothing
         print(f"canfdi export: {args.log}: {exc}", file=sys.stderr)
         return 2
     if not args.no_progress and sys.stderr.isatty():
@@ -116,4 +123,7 @@ def run(args: argparse.Namespace) -> int:
                if written.skipped else "")
     print(f"canfdi export: {written.frames:,} frames -> {out}{skipped} "
           f"({time.monotonic() - start:.1f} s)", file=sys.stderr)
+    for line in damage.lines():
+        print(f"canfdi export: {line}", file=sys.stderr)
     return 0
+

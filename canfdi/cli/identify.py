@@ -26,7 +26,10 @@ criterion improves. --orders OUTPUT:INPUT=NB,NF,D (or =none) fixes a pair; repea
 Prints the fit per output (residual std against the config's noise, static gains with their
 standard deviations, and the gains of the config's state-space model when it has one) and
 writes the config (the input config with method: output_error and the output_error section
-filled in) to -o, or prints it. Exit status: 0 done, 2 bad input (config, log, orders)."""
+filled in) to -o, or prints it. A damaged MCAP is read around its damage (chunks that fail their
+CRC are skipped, their samples missing as lost samples are): what was lost is said on stderr
+(one line per damaged file) and in the JSON's "damage". Exit status: 0 done (also from a
+damaged log, its loss said), 2 bad input (config, log, orders, too few samples: one line)."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -82,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
     import yaml
 
     from canfdi.config import read_yaml
+    from canfdi.io.damage import Damage
     from canfdi.methods.output_error import METHOD as OUTPUT_ERROR
     from canfdi.methods.output_error import output_error_section
     from canfdi.tools.identify import identify, log_samples
@@ -115,15 +119,19 @@ def run(args: argparse.Namespace) -> int:
             print(f"canfdi identify: {msg}", file=sys.stderr, flush=True)
 
     progress(f"reading {args.log}")
+    damage = Damage()
     try:
-        k, U, Z = log_samples(args.log, config)
+        k, U, Z = log_samples(args.log, config, damage)
     except (OSError, ValueError) as exc:
         print(f"canfdi identify: cannot read {args.log}: {exc}", file=sys.stderr)
         return 2
     if len(k) < args.skip + 500:
+        lost = f" ({'; '.join(damage.lines())})" if damage else ""
         print(f"canfdi identify: {len(k)} samples in {args.log}: need at least "
-              f"{args.skip + 500} (--skip {args.skip} + 500)", file=sys.stderr)
+              f"{args.skip + 500} (--skip {args.skip} + 500){lost}", file=sys.stderr)
         return 2
+    for line in damage.lines():
+        print(f"canfdi identify: {line}", file=sys.stderr)
     result = identify(k, U, Z, config.inputs, config.outputs, fixed, args.delay,
                       args.min_gain_snr, args.skip, progress)
     reference = None
@@ -134,7 +142,8 @@ def run(args: argparse.Namespace) -> int:
         except np.linalg.LinAlgError:
             reference = None
     noise = config.design.measurement_std
-    report = {"log": str(args.log), "samples": result["samples"], "outputs": result["fits"]}
+    report = {"log": str(args.log), "samples": result["samples"], "outputs": result["fits"],
+              "damage": damage.as_dict()}
     if args.json:
         print(json.dumps(report, indent=2))
     else:

@@ -15,14 +15,18 @@ Run the monitor offline over a log: an MCAP written by canfdi (run, demo, captur
 frames are replayed with their timestamps, or any log python-can reads (candump .log, .asc,
 .blf, .trc, .csv, .db, .mf4, and gzip-compressed ones such as .asc.gz); the suffix says which.
 Replaying a live run's MCAP gives the live run's diagnoses. A truncated MCAP (a killed process)
-is read up to its last complete record.
+is read up to its last complete record; a damaged one around its damage: chunks that fail their
+CRC are skipped and what was lost (bytes, log time, messages per topic) is said on stderr, one
+line per damaged file, and in the JSON's "damage".
 
-Exit status: 0 replayed; 1 the log could not be read (damaged) or no frame of it made a
-sample (the summary says why: "0 samples: no frame matched ..."); 2 bad config, no such log or
-a suffix canfdi does not know.
+Exit status: 0 replayed (also a damaged log, with its loss said); 1 no frame of an intact log
+made a sample (the summary says why: "0 samples: no frame matched ...") or the log cannot be
+read from the disk; 2 bad config, no such log, a suffix canfdi does not know, a file that is
+not a log of its suffix, or a damaged log of which nothing made a sample (one line).
 
 Prints each diagnosis and a summary table, or with --json one object: {"faults": [...],
-"frames": {...}, "samples": N, "truth": [...] when the log holds it}."""
+"frames": {...}, "samples": N, "truth": [...] when the log holds it, "damage": [...] (one
+entry per damaged file, [] when none)}."""
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="diagnose a recorded log offline", description=HELP,
@@ -35,7 +39,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from canfdi.io.formats import LogFormatError, LogReadError
+    from canfdi.io.damage import Damage
+    from canfdi.io.formats import LogFormatError
     from canfdi.io.logs import frame_blocks, truth_of
     from canfdi.monitor import Monitor
 
@@ -49,8 +54,9 @@ def run(args: argparse.Namespace) -> int:
         monitor = Monitor(config, record_residuals=False)
     except ValueError as exc:
         return config_error(exc, "replay")
+    damage = Damage()
     try:
-        blocks = frame_blocks(args.log)
+        blocks = frame_blocks(args.log, damage=damage)
     except LogFormatError as exc:
         print(f"canfdi replay: {exc}", file=sys.stderr)
         return 2
@@ -71,19 +77,30 @@ def run(args: argparse.Namespace) -> int:
                 rate = monitor.samples / max(time.monotonic() - start, 1e-9)
                 print(f"\rcanfdi replay: {count:,} frames, {monitor.samples:,} samples, "
                       f"{rate:,.0f} samples/s", end="", file=sys.stderr)
-    except (OSError, ValueError) as exc:
+    except OSError as exc:
         lead = "\n" if progress and count else ""  # end the progress line first
-        what = exc if isinstance(exc, LogReadError) else f"cannot read {args.log}: {exc}"
-        print(f"{lead}canfdi replay: {what}", file=sys.stderr)
+        print(f"{lead}canfdi replay: cannot read {args.log}: {exc.strerror or exc}",
+              file=sys.stderr)
         return 1
+    except ValueError as exc:  # LogReadError (not a log of its suffix), an unknown layout
+        lead = "\n" if progress and count else ""
+        print(f"{lead}canfdi replay: {exc}", file=sys.stderr)
+        return 2
     monitor.finish()
     if progress:
         print(file=sys.stderr)
     result = monitor.summary(truth)
+    if "no_samples" in result and damage:
+        print(f"canfdi replay: {'; '.join(damage.lines())}; no sample left to replay "
+              f"({result['no_samples']})", file=sys.stderr)
+        return 2
+    result["damage"] = damage.as_dict()
     if args.json:
         print(json.dumps(result, indent=2))
     else:
         print_comparison(result, truth)
+    for line in damage.lines():
+        print(f"canfdi replay: {line}", file=sys.stderr)
     if "no_samples" in result:
         if args.json:  # the table printed it already
             print(f"canfdi replay: {result['no_samples']}", file=sys.stderr)

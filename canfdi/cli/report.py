@@ -21,8 +21,11 @@ index.html that shows them with the diagnosis table:
 
 Estimate trajectories are recomputed from the log's residuals with the log's embedded config
 (--config overrides it). What the log lacks (residuals, config, thresholds) is said on stderr
-and in the page; the rest is made anyway.
-Exit status: 0 report written, 2 bad input (no such file, not an MCAP, bad --config)."""
+and in the page; the rest is made anyway. A damaged log is read around its damage (chunks that
+fail their CRC are skipped): what was lost is said on stderr (one line per damaged file), in
+the page and in the JSON's "damage".
+Exit status: 0 report written (also of a damaged log, its loss said), 2 bad input (no such
+file, not an MCAP, bad --config: one line)."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -34,7 +37,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", type=Path, metavar="FILE",
                    help="monitor config (default: the one embedded in the log)")
     p.add_argument("--json", action="store_true",
-                   help="print one JSON object: html, figures, faults, missing")
+                   help="print one JSON object: html, figures, faults, missing, damage")
     p.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
 
 
@@ -54,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     for note in report.notes:
         print(f"canfdi report: missing: {note}", file=sys.stderr)
+    for line in report.damage.lines() if report.damage is not None else []:
+        print(f"canfdi report: {line}", file=sys.stderr)
     if args.json:
         print(json.dumps(report.as_dict(), indent=2))
         return 0

@@ -27,6 +27,7 @@ from canfdi.config import parse_config
 from canfdi.core.calibrate import threshold_for_long_run_variance
 from canfdi.core.noise import NoiseEstimate, estimate_measurement_noise
 from canfdi.core.settings import MonitorConfig
+from canfdi.io.damage import Damage
 from canfdi.tools.identify import assembled_samples, log_samples, regular_grid
 
 __all__ = ["Calibration", "LogFault", "Record", "ResidualCheck", "Teach", "calibrate",
@@ -132,28 +133,32 @@ def _record(name: Path, k: np.ndarray, U: np.ndarray | None, Z: np.ndarray | Non
     return Record(name, np.arange(int(k[0]), int(k[-1]) + 1), Ug, Zg)
 
 
-def _records(paths: Sequence[Path], config: MonitorConfig, progress: Callable[[str], None]
-             ) -> list[Record]:
-    """Each log's record, assembled with the config's bus."""
+def _records(paths: Sequence[Path], config: MonitorConfig, progress: Callable[[str], None],
+             damage: Damage | None = None) -> list[Record]:
+    """Each log's record, assembled with the config's bus (damaged logs around their damage,
+    recorded in ``damage``)."""
     out = []
     for path in paths:
         progress(f"reading {path}")
-        out.append(_record(path, *log_samples(path, config)))
+        out.append(_record(path, *log_samples(path, config, damage)))
     return out
 
 
 def calibrate(paths: Sequence[Path], config: MonitorConfig, doc: Mapping[str, Any], *,
               window: int | None = None, full: bool = False,
-              progress: Callable[[str], None] = lambda _: None) -> Calibration:
-    """Calibrate a config (``doc``: its YAML document, as read) from healthy logs.
+              progress: Callable[[str], None] = lambda _: None,
+              damage: Damage | None = None) -> Calibration:
+    """Calibrate a config (``doc``: its YAML document, as read) from healthy logs; what
+    damaged logs lost (their samples there are missing, as lost samples are) is recorded in
+    ``damage``.
 
     Raises
     ------
     ValueError : a log without samples, or too few samples in all.
     LogFault : the calibrated monitor detects something in a log (where, in the message).
     """
-    return calibrate_records(_records(paths, config, progress), config, doc, window=window,
-                             full=full, progress=progress)
+    return calibrate_records(_records(paths, config, progress, damage), config, doc,
+                             window=window, full=full, progress=progress)
 
 
 def calibrate_records(records: Sequence[Record], config: MonitorConfig,

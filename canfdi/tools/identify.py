@@ -1,7 +1,8 @@
 """The library behind `canfdi identify`: the output_error method's OE models (seed 003) fitted
 from a fault-free log.
 
-`log_samples` assembles a log's samples with the config's DBC (any format canfdi.io reads);
+`log_samples` assembles a log's samples with the config's DBC (any format canfdi.io reads; a
+damaged MCAP around its damage, recorded in the `Damage` given);
 `identify` fits y = y0 + sum_i B_i(q)/F_i(q) q^-d (u_c,i - u0) for every output by the OE
 prediction-error method (canfdi.methods.output_error.model: Steiglitz-McBride start, then
 Levenberg-Marquardt on the simulation error), drops the paths the data cannot tell from none,
@@ -19,16 +20,17 @@ from canfdi.bus.clock import make_clock
 from canfdi.bus.dbc import BusMap
 from canfdi.bus.frames import FrameBlock
 from canfdi.core.settings import MonitorConfig
+from canfdi.io.damage import Damage
 from canfdi.io.logs import frame_blocks
 from canfdi.methods.output_error.model import OeModel, fit_miso, long_run_ratio
 
 __all__ = ["assembled_samples", "identify", "log_samples", "regular_grid"]
 
 
-def log_samples(path: Path, config: MonitorConfig) -> tuple:
+def log_samples(path: Path, config: MonitorConfig, damage: Damage | None = None) -> tuple:
     """(k, U, Z) of a log's first drive, assembled from its frames with the config's DBC, map
-    and sample clock."""
-    return assembled_samples(frame_blocks(path), config)
+    and sample clock; what a damaged log lost is recorded in ``damage``."""
+    return assembled_samples(frame_blocks(path, damage=damage), config)
 
 
 def assembled_samples(blocks: Iterable[FrameBlock], config: MonitorConfig) -> tuple:

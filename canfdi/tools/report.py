@@ -29,6 +29,10 @@ estimate (checked: `Trajectory.mismatch`). Nothing is re-diagnosed, so this is f
 length. Methods without a history (output_error, uio), or logs without residuals or config, get
 the accepted estimates as points.
 
+A damaged log is read around its damage (canfdi.io.scan skips the chunks that fail their CRC);
+what it lost is in `LogContents.damage` (a canfdi.io.damage `Damage`), `Report.damage` and
+the page.
+
 Large logs are decimated for plotting (min and max per bucket, at most `MAX_POINTS` points per
 line), so spikes stay visible. matplotlib is imported here only (Agg, no display, no pyplot
 global state), never on the monitor's path. Nothing here prints: progress goes to an optional
@@ -80,6 +84,7 @@ class LogContents:
     truth : the injected faults (demo logs) or None.
     notes : what is missing, one sentence each.
     units : signal name -> unit (from the config's DBC, when it can be loaded).
+    damage : canfdi.io.damage.Damage, what a damaged log lost (false when nothing).
     """
 
     path: Path
@@ -93,6 +98,7 @@ class LogContents:
     truth: list[dict] | None
     notes: list[str] = field(default_factory=list)
     units: dict[str, str] = field(default_factory=dict)
+    damage: Any = None
 
     @property
     def accepted(self) -> list[FaultEvent]:
@@ -189,6 +195,7 @@ def read_log_contents(path: str | Path, config_path: Path | None = None,
     ReportError
         No such file, not an MCAP file, an unreadable --config, or a log the readers reject.
     """
+    from canfdi.io.damage import Damage
     from canfdi.io.reader import read_log, read_residuals, read_samples
     from canfdi.io.schemas import TOPIC_EVENTS
     from canfdi.io.segments import log_segments
@@ -197,17 +204,18 @@ def read_log_contents(path: str | Path, config_path: Path | None = None,
     path = Path(path)
     metadata = _check_mcap(path)
     notes: list[str] = []
+    damage = Damage()
     try:
         if not metadata:
             notes.append("the log has no canfdi metadata (config, thresholds, truth)")
         config = _config(metadata, config_path, notes)
         say("reading samples")
-        samples = read_samples(path)
+        samples = read_samples(path, damage=damage)
         say(f"{len(samples.k):,} samples; reading residuals")
-        residuals = read_residuals(path)
+        residuals = read_residuals(path, damage=damage)
         say(f"{len(residuals.k):,} residual rows; reading events")
         events = [_event(msg) for segment in log_segments(path)
-                  for _, _, msg in read_log(segment, topics=[TOPIC_EVENTS])]
+                  for _, _, msg in read_log(segment, [TOPIC_EVENTS], damage)]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         if isinstance(exc, ReportError):
             raise
@@ -246,7 +254,8 @@ def read_log_contents(path: str | Path, config_path: Path | None = None,
             dt = float(np.median(np.diff(samples.t_ns)[ok] / dk[ok]) / 1e9)
     return LogContents(path=path, metadata=metadata, config=config, dt=dt or 1.0,
                        samples=samples, residuals=residuals, thresholds=thresholds,
-                       events=events, truth=truth, notes=notes, units=_units(config))
+                       events=events, truth=truth, notes=notes, units=_units(config),
+                       damage=damage)
 
 
 # ------------------------------------------------------------------------------------------
@@ -809,6 +818,10 @@ def write_html(contents: LogContents, rows: list[dict], figures: list[tuple[str,
            f"<style>{_CSS}</style></head><body>",
            f"<h1>canfdi report: <code>{e(contents.path.name)}</code></h1>",
            f"<p>{e(_run_label(contents))}; canfdi {e(meta.get('version', '?'))}.</p>"]
+    if contents.damage:
+        out.append("<h2>Damaged: what was lost</h2><ul>")
+        out += [f'<li class="note">{e(line)}</li>' for line in contents.damage.lines()]
+        out.append("</ul>")
     if contents.notes:
         out.append("<h2>Missing from this log</h2><ul>")
         out += [f'<li class="note">{e(n)}</li>' for n in contents.notes]
@@ -873,16 +886,19 @@ def write_html(contents: LogContents, rows: list[dict], figures: list[tuple[str,
 @dataclass
 class Report:
     """What `make_report` wrote: ``html``, ``figures`` (paths, overview first), ``rows`` (the
-    diagnosis table, `diagnosis_rows` plus ``figure``), ``notes`` (what the log lacked)."""
+    diagnosis table, `diagnosis_rows` plus ``figure``), ``notes`` (what the log lacked),
+    ``damage`` (what a damaged log lost: canfdi.io.damage.Damage, false when nothing)."""
 
     html: Path
     figures: list[Path]
     rows: list[dict]
     notes: list[str]
+    damage: Any = None
 
     def as_dict(self) -> dict:
         return {"html": str(self.html), "figures": [str(p) for p in self.figures],
-                "faults": self.rows, "missing": self.notes}
+                "faults": self.rows, "missing": self.notes,
+                "damage": self.damage.as_dict() if self.damage is not None else []}
 
 
 def _safe(text: str) -> str:
@@ -931,4 +947,4 @@ def make_report(log: str | Path, out_dir: str | Path, config_path: Path | None =
     say("index.html")
     page = write_html(contents, rows, figures, out / "index.html")
     return Report(html=page, figures=[out / f for f, _ in figures], rows=rows,
-                  notes=list(contents.notes))
+                  notes=list(contents.notes), damage=contents.damage)

@@ -213,7 +213,7 @@ def test_a_damaged_log_is_one_line_and_no_traceback(tmp_path, suffix):
     log = tmp_path / f"damaged{suffix}"
     log.write_bytes(os.urandom(4000))
     res = run_cli("replay", log, "--config", CONFIG, "--json", "--no-progress")
-    assert res.returncode == 1 and res.stdout == ""
+    assert res.returncode == 2 and res.stdout == ""  # issue 17: not a log of its suffix
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
     assert f"damaged{suffix}" in lines[0] and "not a readable" in lines[0]
