@@ -36,6 +36,7 @@ from canfdi.bus.frames import (
     frame_counters,
 )
 from canfdi.bus.monitorframes import MonitorFrames
+from canfdi.core.eventtext import event_level, event_line
 from canfdi.core.protocol import DIAGNOSE, Diagnoser
 from canfdi.core.records import FaultEvent, Sample
 from canfdi.core.settings import MonitorConfig
@@ -77,6 +78,7 @@ class RecordSink(Protocol):
                             R: np.ndarray, Rn: np.ndarray, stat: np.ndarray,
                             drive: str | None = None) -> None: ...
     def write_metadata(self, name: str, values: dict[str, str]) -> None: ...
+    def write_log(self, timestamp_ns: int, level: str, message: str, name: str) -> None: ...
 
 
 class Teacher(Protocol):
@@ -192,6 +194,9 @@ class Monitor:
         self.record_residuals = record_residuals
         self.events: list[FaultEvent] = []
         self.first_timestamp_ns: int | None = None
+        # The drive's time now: the time the latest frame carries (the bus's receive time
+        # live, the emulated time in a demo). What the monitor's own records are stamped with.
+        self.last_timestamp_ns: int | None = None
 
     def _watchdog(self, dg: Diagnoser | None) -> NoiseWatchdog | None:
         w = self.config.watchdog
@@ -264,6 +269,7 @@ class Monitor:
         """Process one received frame; returns the frames to send in reply (fault frames)."""
         if self.first_timestamp_ns is None:
             self.first_timestamp_ns = timestamp_ns
+        self.last_timestamp_ns = timestamp_ns
         mask = self._owners_of.get(message_key(frame_id, is_extended), 1)
         delivered: list[tuple[Drive, list[Sample]]] = []
         first_status = None
@@ -290,6 +296,7 @@ class Monitor:
             return []
         if self.first_timestamp_ns is None:
             self.first_timestamp_ns = int(block.t_ns[0])
+        self.last_timestamp_ns = int(block.t_ns[-1])
         if len(self.drives) == 1:
             log = self.drives[0].clock.push_batch(block)
             if self.sink is not None:
@@ -519,6 +526,10 @@ class Monitor:
             self.events.append(event)
             if self.sink is not None:
                 self.sink.write_event(event)
+                if hasattr(self.sink, "write_log"):
+                    self.sink.write_log(event.timestamp_ns, event_level(event),
+                                        event_line(event, self.dt, len(self.drives) > 1).strip(),
+                                        f"canfdi.{drive.name}")
             out.extend(self.fault_frames(event, drive))
         return out
 

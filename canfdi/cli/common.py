@@ -6,14 +6,28 @@ import argparse
 import asyncio
 import signal
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from canfdi.config import ConfigError, MonitorConfig, load_config
-from canfdi.core.records import FaultEvent
+from canfdi.core.eventtext import estimates_text
+from canfdi.core.eventtext import event_line as format_event
 
-__all__ = ["DEFAULT_CONFIG_DIR", "add_bus_overrides", "bus_factory", "config_error",
-           "format_event", "load_config_or_exit", "open_recorder", "print_comparison",
-           "recording_counts", "stop_event"]
+__all__ = [
+    "DEFAULT_CONFIG_DIR",
+    "add_bus_overrides",
+    "add_foxglove_option",
+    "bus_factory",
+    "close_recorder",
+    "config_error",
+    "format_event",
+    "load_config_or_exit",
+    "open_foxglove",
+    "open_recorder",
+    "print_comparison",
+    "recording_counts",
+    "stop_event",
+]
 
 DEFAULT_CONFIG_DIR = Path(__file__).resolve().parents[2] / "deploy" / "config"
 
@@ -60,14 +74,60 @@ def config_error(exc: Exception, verb: str) -> int:
     return 2
 
 
-def open_recorder(path: Path, metadata: dict[str, str] | None = None, **kwargs):
-    """An MCAP recorder for ``path`` (parent directories created)."""
-    from canfdi.io.writer import McapRecorder
+def open_recorder(path: Path | None, metadata: dict[str, str] | None = None, *,
+                  drive_clock: Callable[[], int] | None = None, **kwargs):
+    """An MCAP recorder for ``path`` (parent directories created; None: no file, for a live
+    view's ``tap`` alone). With ``drive_clock`` (the drive's time now, ns), the canfdi loggers'
+    warnings are recorded on its ``/canfdi/log`` too, until `close_recorder`."""
+    import logging
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # base64 float columns: exact, and ten times cheaper to write than JSON number lists.
-    kwargs.setdefault("float_encoding", "base64")
-    return McapRecorder(path, metadata=metadata, **kwargs)
+    from canfdi.io.writer import McapLogHandler, McapRecorder
+
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    recorder = McapRecorder(path, metadata=metadata, **kwargs)
+    if drive_clock is not None:
+        logging.getLogger("canfdi").addHandler(McapLogHandler(recorder, drive_clock))
+    return recorder
+
+
+def close_recorder(recorder) -> None:
+    """Close a recorder of `open_recorder`, and stop recording log lines into it."""
+    import logging
+
+    from canfdi.io.writer import McapLogHandler
+
+    logger = logging.getLogger("canfdi")
+    for handler in list(logger.handlers):
+        if isinstance(handler, McapLogHandler) and handler.recorder is recorder:
+            logger.removeHandler(handler)
+    recorder.close()
+
+
+def add_foxglove_option(p: argparse.ArgumentParser) -> None:
+    """``--foxglove [HOST:]PORT``: serve the run live to Foxglove."""
+    p.add_argument("--foxglove", metavar="[HOST:]PORT",
+                   help="serve the log's channels live over Foxglove's WebSocket protocol on "
+                        "PORT (host 127.0.0.1 unless given; 0.0.0.0 serves other machines); "
+                        "needs pip install 'canfdi[foxglove]'")
+
+
+def open_foxglove(address: str | None, verb: str):
+    """The live Foxglove server ``--foxglove`` asks for (None when it does not), or the exit
+    status 2 after one line on stderr (a bad address, no foxglove-sdk, a port in use)."""
+    if address is None:
+        return None
+    from canfdi.liveserver import FoxgloveServer, FoxgloveUnavailable, parse_address
+
+    try:
+        host, port = parse_address(address)
+        server = FoxgloveServer(host, port, name=f"canfdi {verb}")
+    except (ValueError, OSError, FoxgloveUnavailable) as exc:
+        print(f"canfdi {verb}: --foxglove: {exc}", file=sys.stderr)
+        return 2
+    print(f"canfdi {verb}: Foxglove live on ws://{host}:{server.port} (open it in Foxglove: "
+          "Open connection, Foxglove WebSocket)", file=sys.stderr)
+    return server
 
 
 def recording_counts(recorder) -> dict:
@@ -82,49 +142,6 @@ def recording_counts(recorder) -> dict:
         "write_errors": recorder.write_errors,
         "last_error": None if error is None else (error.strerror or str(error)),
     }
-
-
-def _estimates(estimates: dict) -> str:
-    return ", ".join(f"{k}={v:.4g}" for k, v in estimates.items())
-
-
-def format_event(event: FaultEvent, dt: float, show_drive: bool = False) -> str:
-    """One line per diagnosis, as it happens (with the drive's name when ``show_drive``: a
-    monitor of several drives)."""
-    t = event.sample * dt
-    who = f"[{event.drive}] " if show_drive and event.drive else ""
-    if event.kind == "detected":
-        return (f"  t={t:8.2f} s  k={event.sample:<7d} {who}DETECTED   change near k="
-                f"{event.onset_sample} in {', '.join(event.residuals)}")
-    if event.kind == "accepted":
-        line = (f"  t={t:8.2f} s  k={event.sample:<7d} {who}FAULT      {event.target} "
-                f"{event.index} ({event.name}): {_estimates(event.estimates)}, "
-                f"onset k={event.onset_sample}")
-        if event.candidates:
-            alts = "; ".join(f"{c['name']} {_estimates(c['estimates'])}"
-                             for c in event.candidates)
-            line += f"\n{'':33}indistinguishable from the bus: {alts}"
-        return line
-    if event.kind == "refined":
-        return (f"  t={t:8.2f} s  k={event.sample:<7d} {who}REFINED    {event.target} "
-                f"{event.index} ({event.name}): now {_estimates(event.estimates)} (the fault "
-                f"already known, from k={event.onset_sample} on)")
-    if event.kind == "taught":
-        noise = ", ".join(f"{n} {v:.4g}" for n, v in event.estimates.items())
-        return (f"  t={t:8.2f} s  k={event.sample:<7d} {who}TAUGHT     the drive's noise, "
-                f"learned from its first samples: {noise}; monitoring with it")
-    if event.kind == "teach_failed":
-        reason = event.candidates[0]["reason"] if event.candidates else "?"
-        return (f"  t={t:8.2f} s  k={event.sample:<7d} {who}TEACH-IN FAILED: {reason}; "
-                "monitoring with the config's noise")
-    if event.kind in ("mismatch", "matched"):
-        ratios = ", ".join(f"{n} {v:.2f}x" for n, v in event.estimates.items())
-        what = ("MISMATCH   residual noise left its calibrated value (noise or model changed; "
-                "recalibrate: canfdi calibrate, run --teach): " if event.kind == "mismatch"
-                else "MATCHED    residual noise back at its calibrated value: ")
-        return f"  t={t:8.2f} s  k={event.sample:<7d} {who}{what}{ratios}"
-    return f"  t={t:8.2f} s  k={event.sample:<7d} {who}UNEXPLAINED change detected at k=" \
-           f"{event.detected_sample}: no single fault fits"
 
 
 def print_comparison(result: dict, truth: list[dict] | None) -> None:
@@ -144,7 +161,7 @@ def print_comparison(result: dict, truth: list[dict] | None) -> None:
             params = {k: f[k] for k in ("eta", "lambda", "bias", "rate", "scale", "value", "std")
                       if k in f}
             print(f"  {who(f)}{f['target']:<8} {f['index']} {f['name']:<14} {f['kind']:<10} "
-                  f"onset k={f['onset_sample']:<7d} {_estimates(params)}")
+                  f"onset k={f['onset_sample']:<7d} {estimates_text(params)}")
     print("diagnosed:")
     if not result["faults"]:
         print("  (none)")
@@ -155,7 +172,7 @@ def print_comparison(result: dict, truth: list[dict] | None) -> None:
         print(f"  {who(f)}{f['kind']:<8} {f['index']} {f['name']:<14} "
               f"onset k={f['onset_sample']:<7d}"
               f"detected k={f['detected_sample']:<7d} accepted k={f['accepted_sample']:<7d} "
-              f"{_estimates(f['estimate'])}{twins}")
+              f"{estimates_text(f['estimate'])}{twins}")
     for u in result.get("unexplained", []):
         print(f"  unexplained change detected at k={u['detected_sample']}")
     fr = result["frames"]

@@ -317,7 +317,7 @@ def _mcap_write(path: Path, blocks: Iterable[FrameBlock]) -> Written:
     from canfdi.io.writer import McapRecorder
 
     count = 0
-    with McapRecorder(path, float_encoding="base64") as recorder:
+    with McapRecorder(path) as recorder:
         for block in blocks:
             recorder.write_frames(block, RX if block.status is None else None)
             count += block.size

@@ -5,17 +5,19 @@ zstd-compressed chunks, JSON-encoded messages described by JSON schemas (schema 
 ``"jsonschema"``, message encoding ``"json"``), so that Foxglove can open the log directly.
 Every message carries a ``"timestamp": {"sec": int, "nsec": int}`` field (Foxglove's time
 type); the MCAP log_time and publish_time of the message are the same instant in integer
-nanoseconds since the epoch. canfdi.io.writer writes this contract, canfdi.io.reader and
-canfdi.io.scan read it, canfdi.io.blocks packs and unpacks the block messages.
+nanoseconds since the epoch: the drive's time (the time the frames carry: the bus's receive
+time live, the emulated time in a demo), so that a 40 s drive spans 40 s of log time.
+canfdi.io.writer writes this contract, canfdi.io.reader and canfdi.io.scan read it,
+canfdi.io.blocks packs and unpacks the messages.
 
 Topics
 ------
 The topic names and message shapes are a contract other code (replay, dashboards) relies on.
-The three busy topics are *block* topics: one MCAP message holds many rows (an MCAP message
-costs the pure-Python writer about 20 us, a row of a block well under one), and its
-``timestamp`` and log_time are those of its first row. Read them back with canfdi.io.reader's
-`read_frames`, `read_samples` and `read_residuals`, which also read logs of the older
-one-row-per-message layout.
+The busiest topic, the raw frames, is a *block* topic: one MCAP message holds many frames (an
+MCAP message costs the writer a few microseconds, a row of a block well under one), and its
+``timestamp`` and log_time are those of its first frame. Samples and residuals are one message
+per row, so that Foxglove plots every one. Read them back with canfdi.io.reader's
+`read_frames`, `read_samples` and `read_residuals`, which also read the older layouts.
 
 ``/can/frames`` (`TOPIC_FRAMES`), ``"encoding": "canfdi.frames.v1"`` (`FRAMES_ENCODING`)
     Every raw frame, valid or not: ``{"timestamp", "encoding", "count": N, "statuses": [str],
@@ -30,35 +32,42 @@ one-row-per-message layout.
     ``"ok"``, ``"crc"``, ``"dlc"``, ``"unknown_id"``... (`FRAME_STATUSES`, the assembler's
     ``STATUS_NAMES``), or ``"sent"`` (``SENT``) for frames the monitor itself sent; other
     strings are recorded as given.
-``/canfdi/samples`` (`TOPIC_SAMPLES`), ``"encoding": "canfdi.samples.v1"``
-    Decoded samples: ``{"timestamp", "encoding", "count": N, "k": [int], "t_ns": [int],
-    "gap": [int], "u": {input: [number]}, "z": {output: [number]}}``, every list N long, the
-    maps in the model's input and output order.
-``/canfdi/residuals`` (`TOPIC_RESIDUALS`), ``"encoding": "canfdi.residuals.v1"``
-    ``{"timestamp", "encoding", "count": N, "k": [int], "t_ns": [int], "names": [residual],
-    "r": {residual: [number]}, "normalized": {..}, "statistic": {..}}``: columns by residual
-    name, ``names`` giving their order; the statistic is Page-Hinkley's max(g+, g-).
+``/canfdi/samples`` (`TOPIC_SAMPLES`)
+    One message per decoded sample, at the sample's time: ``{"timestamp", "k", "gap",
+    "u": {input: number}, "z": {output: number}, "drive"}`` (``"drive"`` on a bus of several
+    drives), the maps in the model's input and output order, null for a value that is not
+    finite. Foxglove plots every sample by message path (``/canfdi/samples.z.speed``); its
+    schema (`sample_schema`) names every input and output, so each path is offered.
+``/canfdi/residuals`` (`TOPIC_RESIDUALS`)
+    One message per diagnosed sample: ``{"timestamp", "k", "r": {residual: number},
+    "normalized": {..}, "statistic": {..}, "drive"}``: raw and normalized residuals and the
+    detection statistic (Page-Hinkley's max(g+, g-)), schema `residual_schema`.
 
-    The float columns of both are JSON lists by default. With ``float_encoding="base64"``
-    (`McapRecorder`) each is instead a base64 string of N little-endian float64: exact, NaN
-    and inf kept, and about 30 times cheaper to write (formatting a float as JSON text costs
-    about 0.5 us). The readers take either.
-``/canfdi/residuals_plot`` (`TOPIC_RESIDUALS_PLOT`)
-    A decimated per-row copy of the residuals for plotting (Foxglove plots one value per
-    message): ``{"timestamp", "k", "r": {residual: value}, "normalized": {..},
-    "statistic": {..}}``, the first row of every ``1 / plot_rate`` s slot of log time.
+    Older logs hold blocks of rows on these two topics
+    instead (``"encoding": "canfdi.samples.v1"`` / ``"canfdi.residuals.v1"``, columns as JSON
+    lists or base64 float64, canfdi.io.blocks decodes them) and a decimated
+    ``/canfdi/residuals_plot``; the readers take both layouts.
 ``/canfdi/estimates`` (`TOPIC_ESTIMATES`)
     ``{"timestamp", "k", "hypothesis": str, "estimates": {..}, "variances": {..}}``.
 ``/canfdi/events`` (`TOPIC_EVENTS`)
-    `FaultEvent.as_dict` plus ``"timestamp"``.
+    `FaultEvent.as_dict` plus ``"timestamp"``, without the fields that are None (so that every
+    field has one JSON type).
+``/canfdi/log`` (`TOPIC_LOG`)
+    ``foxglove.Log`` (Foxglove's own schema, `FOXGLOVE_LOG_SCHEMA`): one line per diagnosis,
+    as the CLI prints it, and the monitor's warnings; Foxglove's Log panel shows it.
 ``/canfdi/status`` (`TOPIC_STATUS`)
     ``{"timestamp", "state": str, "samples": int, "frames": {counter: int},
     "active_faults": int}``.
 
-Estimates, events and status are one message each (they are rare). Other topics may be written
-with canfdi.io.writer's `McapRecorder.write`; they get a permissive object schema
-(`GENERIC_SCHEMA`). Non-finite floats (NaN, inf),
+Estimates, events, status and log lines are one message each (they are rare). Other topics
+may be written with canfdi.io.writer's `McapRecorder.write`; they get a permissive object
+schema (`GENERIC_SCHEMA`). Non-finite floats (NaN, inf),
 which JSON cannot express, are written as ``null`` (read back as NaN).
+
+Every schema is one that JSON-schema readers of Foxglove's lineage accept (Lichtblick's
+``parseJsonSchema``, tested under node): an object's fields each have one ``"type"`` (no
+unions such as ``["string", "null"]``), and maps keyed by names known only at run time have
+``"properties"``.
 
 Run-level information (configuration YAML, design JSON, ground truth, version: strings chosen by
 the caller) goes into an MCAP metadata record named ``"canfdi"`` (`METADATA_NAME`) at the head of
@@ -75,13 +84,16 @@ import numpy as np
 from canfdi.bus.frames import SENT, STATUS_NAMES
 
 __all__ = [
+    "FOXGLOVE_LOG_SCHEMA",
     "FRAMES_ENCODING",
     "FRAME_DTYPE",
     "FRAME_STATUSES",
     "GENERIC_SCHEMA",
+    "LOG_LEVELS",
     "MESSAGE_ENCODING",
     "METADATA_NAME",
     "RESIDUALS_ENCODING",
+    "ROW_TOPICS",
     "SAMPLES_ENCODING",
     "SCHEMAS",
     "SCHEMA_ENCODING",
@@ -89,28 +101,33 @@ __all__ = [
     "TOPIC_ESTIMATES",
     "TOPIC_EVENTS",
     "TOPIC_FRAMES",
+    "TOPIC_LOG",
     "TOPIC_RESIDUALS",
-    "TOPIC_RESIDUALS_PLOT",
     "TOPIC_SAMPLES",
     "TOPIC_STATUS",
+    "residual_schema",
+    "sample_schema",
 ]
 
 TOPIC_FRAMES = "/can/frames"
 TOPIC_SAMPLES = "/canfdi/samples"
 TOPIC_RESIDUALS = "/canfdi/residuals"
-TOPIC_RESIDUALS_PLOT = "/canfdi/residuals_plot"
 TOPIC_ESTIMATES = "/canfdi/estimates"
 TOPIC_EVENTS = "/canfdi/events"
 TOPIC_STATUS = "/canfdi/status"
+TOPIC_LOG = "/canfdi/log"
 TOPICS = (
     TOPIC_FRAMES,
     TOPIC_SAMPLES,
     TOPIC_RESIDUALS,
-    TOPIC_RESIDUALS_PLOT,
     TOPIC_ESTIMATES,
     TOPIC_EVENTS,
     TOPIC_STATUS,
+    TOPIC_LOG,
 )
+ROW_TOPICS = (TOPIC_SAMPLES, TOPIC_RESIDUALS)
+"""Topics whose schema names the run's signals (`sample_schema`, `residual_schema`): the
+recorder registers them when it first writes a row."""
 FRAMES_ENCODING = "canfdi.frames.v1"
 SAMPLES_ENCODING = "canfdi.samples.v1"
 RESIDUALS_ENCODING = "canfdi.residuals.v1"
@@ -131,6 +148,8 @@ FRAME_DTYPE = np.dtype(
 METADATA_NAME = "canfdi"
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "json"
+LOG_LEVELS = {"debug": 1, "info": 2, "warning": 3, "error": 4, "fatal": 5}
+"""foxglove.Log's levels by name (0 is UNKNOWN)."""
 
 # ------------------------------------------------------------------------------------------
 # JSON schemas
@@ -145,31 +164,22 @@ _TIME = {
     },
     "required": ["sec", "nsec"],
 }
-# Maps keyed by names known only at run time. The empty "properties" keeps schema readers that
-# only walk "properties" (Foxglove's JSON schema parser) from failing on them.
+# Maps keyed by names known only when the log is read (estimates by parameter, frame counters
+# by status). The empty "properties" keeps readers that walk only "properties" (Foxglove's JSON
+# schema parser) from failing on them.
 _NUMBER_MAP = {
     "type": "object",
     "properties": {},
-    "additionalProperties": {"type": ["number", "null"]},
+    "additionalProperties": {"type": "number"},
 }
-_OPT_INT = {"type": ["integer", "null"]}
-_OPT_STR = {"type": ["string", "null"]}
-_INT_LIST = {"type": "array", "items": {"type": "integer"}}
-_COLUMNS = {
-    "type": "object",
-    "properties": {},
-    "description": (
-        "one column of count values per name: a list of numbers (null for NaN and inf), or "
-        "with float_encoding base64 a base64 string of count little-endian float64"
-    ),
-    "additionalProperties": {
-        "oneOf": [
-            {"type": "array", "items": {"type": ["number", "null"]}},
-            {"type": "string", "contentEncoding": "base64"},
-        ]
-    },
+_INT = {"type": "integer"}
+_STR = {"type": "string"}
+_DRIVE = {
+    "type": "string",
+    "description": "the drive (the monitor config's drives:) it concerns; absent for a "
+                   "monitor of one drive",
 }
-_COUNT = {"type": "integer", "minimum": 0, "description": "rows in this block"}
+_NOT_FINITE = "null where the value is not finite (NaN, inf)"
 
 
 def _object(title: str, properties: dict[str, Any], optional: Sequence[str] = ()) -> dict[str, Any]:
@@ -187,19 +197,148 @@ def _encoding(name: str) -> dict[str, Any]:
     return {"type": "string", "const": name, "description": "block layout and version"}
 
 
-_DRIVE = {"type": "string", "description": "the drive (the monitor config's drives:) whose "
-                                           "rows these are"}
-_RESIDUAL_ROW = _object(
-    "canfdi.Residuals",
-    {
-        "k": {"type": "integer"},
-        "r": _NUMBER_MAP,
-        "normalized": _NUMBER_MAP,
-        "statistic": _NUMBER_MAP,
-        "drive": _DRIVE,
+def _numbers(names: Sequence[str], what: str) -> dict[str, Any]:
+    """An object of one number per name (``what`` says what they are)."""
+    return {
+        "type": "object",
+        "description": f"{what}, by name; {_NOT_FINITE}",
+        "properties": {name: {"type": "number"} for name in names},
+        "required": list(names),
+    }
+
+
+def sample_schema(inputs: Sequence[str], outputs: Sequence[str]) -> dict[str, Any]:
+    """The JSON schema of ``/canfdi/samples`` rows of a model with these inputs and outputs
+    (names in column order; a monitor of several drives gives the union)."""
+    return _object(
+        "canfdi.Sample",
+        {
+            "k": {"type": "integer", "minimum": 0, "description": "sample index"},
+            "gap": {"type": "integer", "minimum": 0,
+                    "description": "samples lost just before this one"},
+            "u": _numbers(inputs, "the inputs u (commands)"),
+            "z": _numbers(outputs, "the measured outputs z"),
+            "drive": _DRIVE,
+        },
+        optional=("drive",),
+    )
+
+
+def residual_schema(names: Sequence[str]) -> dict[str, Any]:
+    """The JSON schema of ``/canfdi/residuals`` rows with these residuals (in order)."""
+    return _object(
+        "canfdi.Residuals",
+        {
+            "k": {"type": "integer", "minimum": 0, "description": "sample index"},
+            "r": _numbers(names, "the residuals"),
+            "normalized": _numbers(names, "each residual over its noise standard deviation"),
+            "statistic": _numbers(names, "each residual's detection statistic "
+                                         "(Page-Hinkley max(g+, g-))"),
+            "drive": _DRIVE,
+        },
+        optional=("drive",),
+    )
+
+
+_CANDIDATE = {
+    "type": "object",
+    "description": "a channel that explains the data as well (its target, index, name and "
+                   "estimates), or why teach-in failed (reason)",
+    "properties": {
+        "target": _STR,
+        "index": _INT,
+        "name": _STR,
+        "estimates": _NUMBER_MAP,
+        "reason": _STR,
     },
-    optional=("drive",),
-)
+}
+
+FOXGLOVE_LOG_SCHEMA: dict[str, Any] = {
+    "title": "foxglove.Log",
+    "description": "A log message",
+    "$comment": "Generated by https://github.com/foxglove/foxglove-sdk",
+    "type": "object",
+    "properties": {
+        "timestamp": {
+            "type": "object",
+            "title": "time",
+            "properties": {
+                "sec": {
+                    "type": "integer",
+                    "minimum": 0
+                },
+                "nsec": {
+                    "type": "integer",
+                    "minimum": 0,
+                    "maximum": 999999999
+                }
+            },
+            "description": "Timestamp of log message"
+        },
+        "level": {
+            "title": "foxglove.LogLevel",
+            "description": "Log level",
+            "oneOf": [
+                {
+                    "title": "UNKNOWN",
+                    "const": 0,
+                    "description": "Unknown log level"
+                },
+                {
+                    "title": "DEBUG",
+                    "const": 1,
+                    "description": "Debug log level"
+                },
+                {
+                    "title": "INFO",
+                    "const": 2,
+                    "description": "Info log level"
+                },
+                {
+                    "title": "WARNING",
+                    "const": 3,
+                    "description": "Warning log level"
+                },
+                {
+                    "title": "ERROR",
+                    "const": 4,
+                    "description": "Error log level"
+                },
+                {
+                    "title": "FATAL",
+                    "const": 5,
+                    "description": "Fatal log level"
+                }
+            ]
+        },
+        "message": {
+            "type": "string",
+            "description": "Log message"
+        },
+        "name": {
+            "type": "string",
+            "description": "Process or node name"
+        },
+        "file": {
+            "type": "string",
+            "description": "Filename"
+        },
+        "line": {
+            "type": "integer",
+            "minimum": 0,
+            "description": "Line number in the file"
+        }
+    },
+    "required": [
+        "timestamp",
+        "level",
+        "message",
+        "name",
+        "file",
+        "line"
+    ]
+}
+"""Foxglove's ``foxglove.Log`` JSON schema: the Log panel's own message type."""
 
 SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     TOPIC_FRAMES: (
@@ -208,7 +347,7 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
             "canfdi.CanFrameBlock",
             {
                 "encoding": _encoding(FRAMES_ENCODING),
-                "count": _COUNT,
+                "count": {"type": "integer", "minimum": 0, "description": "frames in this block"},
                 "statuses": {
                     "type": "array",
                     "items": {"type": "string"},
@@ -238,49 +377,13 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
             optional=("long",),
         ),
     ),
-    TOPIC_SAMPLES: (
-        "canfdi.SampleBlock",
-        _object(
-            "canfdi.SampleBlock",
-            {
-                "encoding": _encoding(SAMPLES_ENCODING),
-                "count": _COUNT,
-                "k": _INT_LIST,
-                "t_ns": _INT_LIST,
-                "gap": _INT_LIST,
-                "u": _COLUMNS,
-                "z": _COLUMNS,
-                "drive": _DRIVE,
-            },
-            optional=("drive",),
-        ),
-    ),
-    TOPIC_RESIDUALS: (
-        "canfdi.ResidualBlock",
-        _object(
-            "canfdi.ResidualBlock",
-            {
-                "encoding": _encoding(RESIDUALS_ENCODING),
-                "count": _COUNT,
-                "k": _INT_LIST,
-                "t_ns": _INT_LIST,
-                "names": {"type": "array", "items": {"type": "string"}},
-                "r": _COLUMNS,
-                "normalized": _COLUMNS,
-                "statistic": _COLUMNS,
-                "drive": _DRIVE,
-            },
-            optional=("drive",),
-        ),
-    ),
-    TOPIC_RESIDUALS_PLOT: ("canfdi.Residuals", _RESIDUAL_ROW),
     TOPIC_ESTIMATES: (
         "canfdi.Estimates",
         _object(
             "canfdi.Estimates",
             {
-                "k": {"type": "integer"},
-                "hypothesis": {"type": "string"},
+                "k": _INT,
+                "hypothesis": _STR,
                 "estimates": _NUMBER_MAP,
                 "variances": _NUMBER_MAP,
             },
@@ -294,20 +397,22 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
                 "kind": {"type": "string", "enum": ["detected", "accepted", "refined",
                                                     "unexplained", "mismatch", "matched",
                                                     "taught", "teach_failed"]},
-                "sample": {"type": "integer"},
-                "timestamp_ns": {"type": "integer"},
-                "target": _OPT_STR,
-                "index": _OPT_INT,
-                "name": _OPT_STR,
+                "sample": _INT,
+                "timestamp_ns": _INT,
+                "target": {"type": "string", "enum": ["actuator", "sensor"]},
+                "index": _INT,
+                "name": _STR,
                 "estimates": _NUMBER_MAP,
                 "variances": _NUMBER_MAP,
-                "onset_sample": _OPT_INT,
-                "detected_sample": _OPT_INT,
-                "accepted_sample": _OPT_INT,
-                "candidates": {"type": "array", "items": {"type": "object"}},
-                "residuals": {"type": "array", "items": {"type": "string"}},
-                "drive": _OPT_STR,
+                "onset_sample": _INT,
+                "detected_sample": _INT,
+                "accepted_sample": _INT,
+                "candidates": {"type": "array", "items": _CANDIDATE},
+                "residuals": {"type": "array", "items": _STR},
+                "drive": _DRIVE,
             },
+            optional=("target", "index", "name", "onset_sample", "detected_sample",
+                      "accepted_sample", "drive"),
         ),
     ),
     TOPIC_STATUS: (
@@ -315,7 +420,7 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
         _object(
             "canfdi.Status",
             {
-                "state": {"type": "string"},
+                "state": _STR,
                 "samples": {"type": "integer", "minimum": 0},
                 "frames": {
                     "type": "object",
@@ -326,9 +431,11 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
             },
         ),
     ),
+    TOPIC_LOG: ("foxglove.Log", FOXGLOVE_LOG_SCHEMA),
 }
-"""Schema name and JSON schema of every known topic."""
+"""Schema name and JSON schema of every topic whose schema does not depend on the run (the
+row topics' come from `sample_schema` and `residual_schema`)."""
 
-GENERIC_SCHEMA = ("canfdi.Json", {"title": "canfdi.Json", "type": "object"})
+GENERIC_SCHEMA = ("canfdi.Json", {"title": "canfdi.Json", "type": "object", "properties": {}})
 """Schema name and JSON schema of a topic written with `McapRecorder.write` that is not one of
 `TOPICS`."""

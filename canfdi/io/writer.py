@@ -62,24 +62,21 @@ from types import TracebackType
 from typing import IO, TYPE_CHECKING, Any, Self
 
 import numpy as np
-from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType, Writer
 from numpy.typing import ArrayLike, NDArray
 
 from canfdi import __version__
 from canfdi.bus.frames import MAX_DATA, FrameBlock
 from canfdi.io.blocks import (
     FRAME_SIZE,
-    NS_PER_S,
+    RowEncoder,
     Rows,
     check_column,
     check_matrix,
     encode_frame_block,
     encode_message,
-    encode_residual_block,
-    encode_sample_block,
     first_time,
     float_row,
-    named,
     pack_frame,
     stamp,
     unique_names,
@@ -88,6 +85,7 @@ from canfdi.io.schemas import (
     FRAME_DTYPE,
     FRAME_STATUSES,
     GENERIC_SCHEMA,
+    LOG_LEVELS,
     MESSAGE_ENCODING,
     METADATA_NAME,
     SCHEMA_ENCODING,
@@ -95,17 +93,19 @@ from canfdi.io.schemas import (
     TOPIC_ESTIMATES,
     TOPIC_EVENTS,
     TOPIC_FRAMES,
+    TOPIC_LOG,
     TOPIC_RESIDUALS,
-    TOPIC_RESIDUALS_PLOT,
     TOPIC_SAMPLES,
     TOPIC_STATUS,
+    residual_schema,
+    sample_schema,
 )
 from canfdi.io.segments import numbered_segments, segment_path
 
 if TYPE_CHECKING:
     from canfdi.core.records import FaultEvent, Sample
 
-__all__ = ["RETRY_INTERVAL", "McapRecorder"]
+__all__ = ["RETRY_INTERVAL", "McapLogHandler", "McapRecorder", "Tap"]
 
 logger = logging.getLogger(__name__)
 
@@ -127,6 +127,13 @@ _SCHEMA_BYTES = {
     topic: (name, json.dumps(schema).encode()) for topic, (name, schema) in SCHEMAS.items()
 }
 _GENERIC_SCHEMA_BYTES = (GENERIC_SCHEMA[0], json.dumps(GENERIC_SCHEMA[1]).encode())
+# Every index but attachments' (canfdi writes none): mcap writes a summary group per index
+# type even when it is empty, which MCAP checkers (pymcap-cli doctor) report as an error.
+_INDEX_TYPES = IndexType.CHUNK | IndexType.MESSAGE | IndexType.METADATA
+
+Tap = Callable[[str, tuple[str, bytes], int, bytes], None]
+"""Sees every message the recorder writes: ``(topic, (schema name, JSON schema bytes),
+log_time_ns, message bytes)`` (a live Foxglove server, say)."""
 
 # ------------------------------------------------------------------------------------------
 # files
@@ -167,19 +174,31 @@ class _CountingFile:
 class _Segment:
     """One open MCAP file: its writer and the channel id of every topic registered in it."""
 
-    __slots__ = ("channels", "file", "generic_schema", "path", "writer")
+    __slots__ = ("channels", "chunks", "file", "generic_schema", "metadata", "path",
+                 "row_schemas", "writer")
 
     def __init__(self, path: Path, file: _CountingFile, writer: Writer) -> None:
         self.path = path
         self.file = file
         self.writer = writer
         self.channels: dict[str, int] = {}
+        # The schema each row topic's channel was registered with (its names may widen).
+        self.row_schemas: dict[str, tuple[str, bytes]] = {}
         self.generic_schema = 0
+        self.metadata = False
+        self.chunks = False
 
     def register_known(self) -> None:
         for topic, (name, data) in _SCHEMA_BYTES.items():
             schema_id = self.writer.register_schema(name, SCHEMA_ENCODING, data)
             self.channels[topic] = self.writer.register_channel(topic, MESSAGE_ENCODING, schema_id)
+
+    def register_rows(self, topic: str, schema: tuple[str, bytes]) -> int:
+        schema_id = self.writer.register_schema(schema[0], SCHEMA_ENCODING, schema[1])
+        channel_id = self.writer.register_channel(topic, MESSAGE_ENCODING, schema_id)
+        self.channels[topic] = channel_id
+        self.row_schemas[topic] = schema
+        return channel_id
 
     def register(self, topic: str) -> int:
         if not self.generic_schema:
@@ -206,8 +225,9 @@ class McapRecorder:
 
     Parameters
     ----------
-    path : str or Path
-        The log file (the first segment); its directory must exist.
+    path : str or Path or None
+        The log file (the first segment); its directory must exist. None: no file, the
+        messages go to ``tap`` only (a live view without a log).
     metadata : dict of str to str, optional
         Run-level information stored in a metadata record named ``"canfdi"`` at the head of
         every segment (e.g. ``config_yaml``, ``design_json``, ``truth_json``, ``version``).
@@ -224,16 +244,14 @@ class McapRecorder:
         Opens a segment file for binary writing; injected by tests to simulate a full disk.
     chunk_size : int
         Uncompressed bytes after which the writer ends a chunk on its own.
-    block_frames, block_samples, block_residuals : int
-        Rows of a full ``/can/frames``, ``/canfdi/samples`` or ``/canfdi/residuals`` block:
-        a buffer holding that many rows is written as one message at once.
-    plot_rate : float
-        Most ``/canfdi/residuals_plot`` messages per second of log time; 0 disables the topic.
-    float_encoding : {"json", "base64"}
-        How the float columns of sample and residual blocks are written: JSON lists of numbers
-        (readable; formatting costs about 0.5 us per value), or base64 strings of
-        little-endian float64 (exact, NaN kept, about 30 times cheaper). The readers take
-        both.
+    block_frames : int
+        Frames of a full ``/can/frames`` block: a buffer holding that many is written as one
+        message at once.
+    block_samples, block_residuals : int
+        Samples or residual rows buffered before they are written (one message per row: the
+        buffer lets them be formatted together).
+    tap : callable, optional
+        Called with every message written (`Tap`), whether or not a file takes it.
 
     Raises
     ------
@@ -260,8 +278,7 @@ class McapRecorder:
         block_frames: int = 4096,
         block_samples: int = 1024,
         block_residuals: int = 1024,
-        plot_rate: float = 20.0,
-        float_encoding: str = "json",
+        tap: Tap | None = None,
     ) -> None:
         if flush_interval <= 0:
             raise ValueError(f"flush_interval must be > 0, got {flush_interval}")
@@ -276,17 +293,14 @@ class McapRecorder:
         ):
             if value < 1:
                 raise ValueError(f"{name} must be >= 1, got {value}")
-        if not plot_rate >= 0:
-            raise ValueError(f"plot_rate must be >= 0, got {plot_rate}")
-        if float_encoding not in ("json", "base64"):
-            raise ValueError(f"float_encoding must be 'json' or 'base64', got {float_encoding!r}")
         if metadata is not None:
             bad = [
                 k for k, v in metadata.items() if not isinstance(k, str) or not isinstance(v, str)
             ]
             if bad:
                 raise TypeError(f"metadata keys and values must be strings: {bad}")
-        self._path = Path(path)
+        self._path = Path(path) if path is not None else None
+        self._tap = tap
         self._metadata = dict(metadata) if metadata is not None else None
         self._later_metadata: dict[str, dict[str, str]] = {}
         self._flush_interval = float(flush_interval)
@@ -319,9 +333,13 @@ class McapRecorder:
         self._sample_drive: str | None = None
         self._residual_drive: str | None = None
         self._residual_names_given: Any = None
-        self._binary_floats = float_encoding == "base64"
-        self._plot_ns = round(NS_PER_S / plot_rate) if plot_rate > 0 else 0
-        self._plot_slot: int | None = None
+        self._sample_encoder: RowEncoder | None = None
+        self._residual_encoder: RowEncoder | None = None
+        # Every name each row topic has held so far, and the schema naming them.
+        self._row_names: dict[str, list[list[str]]] = {
+            TOPIC_SAMPLES: [[], []], TOPIC_RESIDUALS: [[]]}
+        self._row_schema: dict[str, tuple[str, bytes]] = {}
+        self._sequence: dict[str, int] = {}
 
         self._seg: _Segment | None = None
         self._next_index = 0
@@ -341,11 +359,15 @@ class McapRecorder:
         # flush and the rotation while a segment is open, the next retry while failing.
         self._deadline = math.inf
 
+        now = clock()
+        if self._path is None:
+            # No file: the buffers still go out on time, to the tap.
+            self._next_flush = self._deadline = now + self._flush_interval
+            return
         for _, stale in numbered_segments(self._path):
             logger.info("removing %s, a segment of an earlier recording under this name", stale)
             stale.unlink()
 
-        now = clock()
         try:
             self._open_segment(now, raise_errors=True)
         except OSError as exc:
@@ -377,7 +399,7 @@ class McapRecorder:
     def messages_written(self) -> int:
         """Rows (frames, samples, residual rows) and single messages (estimates, events, status,
         `write`) handed to a segment and not known to be lost. Rows still buffered in the
-        recorder are not counted yet (`buffered`); ``/canfdi/residuals_plot`` copies never."""
+        recorder are not counted yet (`buffered`)."""
         return self._messages_written
 
     @property
@@ -583,6 +605,7 @@ class McapRecorder:
         if drive != self._sample_drive:
             self._emit_samples(now, full_only=False)
             self._sample_drive = drive
+            self._sample_encoder = None
         if input_names is not self._inputs_given or output_names is not self._outputs_given:
             self._sample_names(input_names, output_names)
         u, z = sample.u, sample.z
@@ -641,6 +664,7 @@ class McapRecorder:
         if drive != self._sample_drive:
             self._emit_samples(now, full_only=False)
             self._sample_drive = drive
+            self._sample_encoder = None
         if input_names is not self._inputs_given or output_names is not self._outputs_given:
             self._sample_names(input_names, output_names)
         n = len(np.asarray(k))
@@ -669,8 +693,6 @@ class McapRecorder:
     ) -> None:
         """Buffer one sample's residuals for `TOPIC_RESIDUALS` (a cheap append, copied).
 
-        Also writes the row to `TOPIC_RESIDUALS_PLOT` when it is the first of its plot slot.
-
         Parameters
         ----------
         timestamp_ns : int
@@ -698,6 +720,7 @@ class McapRecorder:
         if drive != self._residual_drive:
             self._emit_residuals(now, full_only=False)
             self._residual_drive = drive
+            self._residual_encoder = None
         if names is not self._residual_names_given:
             self._set_residual_names(names)
         r, normalized, statistic = float_row(r), float_row(normalized), float_row(statistic)
@@ -712,11 +735,6 @@ class McapRecorder:
         n_col.append(normalized)
         s_col.append(statistic)
         rows.count += 1
-        if self._plot_ns:
-            slot = timestamp_ns // self._plot_ns
-            if slot != self._plot_slot:
-                self._plot_slot = slot
-                self._write_plot(timestamp_ns, k, r, normalized, statistic, now)
         if rows.count >= self._block_residuals:
             self._emit_residuals(now, full_only=True)
 
@@ -731,8 +749,6 @@ class McapRecorder:
         drive: str | None = None,
     ) -> None:
         """Buffer many samples' residuals for `TOPIC_RESIDUALS`, vectorised (copied).
-
-        Also writes the first row of every plot slot to `TOPIC_RESIDUALS_PLOT`.
 
         Parameters
         ----------
@@ -756,6 +772,7 @@ class McapRecorder:
         if drive != self._residual_drive:
             self._emit_residuals(now, full_only=False)
             self._residual_drive = drive
+            self._residual_encoder = None
         if names is not self._residual_names_given:
             self._set_residual_names(names)
         n = len(np.asarray(k))
@@ -770,16 +787,6 @@ class McapRecorder:
         if not n:
             return
         self._residuals.add(arrays)
-        if self._plot_ns:
-            slots = arrays[1] // self._plot_ns
-            previous = np.empty(n, dtype=np.int64)
-            previous[1:] = slots[:-1]
-            keep = slots != previous
-            keep[0] = self._plot_slot is None or int(slots[0]) != self._plot_slot
-            self._plot_slot = int(slots[-1])
-            ks, ts = arrays[0].tolist(), arrays[1].tolist()
-            for i in np.flatnonzero(keep).tolist():
-                self._write_plot(ts[i], ks[i], arrays[2][i], arrays[3][i], arrays[4][i], now)
         if self._residuals.count >= self._block_residuals:
             self._emit_residuals(now, full_only=True)
 
@@ -814,9 +821,34 @@ class McapRecorder:
         self._write_now(TOPIC_ESTIMATES, timestamp_ns, encode_message(message))
 
     def write_event(self, event: FaultEvent) -> None:
-        """Record a diagnoser conclusion on `TOPIC_EVENTS` (at ``event.timestamp_ns``)."""
-        message = {"timestamp": stamp(event.timestamp_ns), **event.as_dict()}
+        """Record a diagnoser conclusion on `TOPIC_EVENTS` (at ``event.timestamp_ns``; fields
+        that are None are left out, so that each has one JSON type)."""
+        message = {"timestamp": stamp(event.timestamp_ns),
+                   **{k: v for k, v in event.as_dict().items() if v is not None}}
         self._write_now(TOPIC_EVENTS, event.timestamp_ns, encode_message(message))
+
+    def write_log(self, timestamp_ns: int, level: str, message: str, name: str = "canfdi",
+                  file: str = "", line: int = 0) -> None:
+        """Record a log line on `TOPIC_LOG` (``foxglove.Log``: Foxglove's Log panel).
+
+        Parameters
+        ----------
+        timestamp_ns : int
+            Its time (the drive's).
+        level : {"debug", "info", "warning", "error", "fatal"}
+            Its level.
+        message : str
+            The line.
+        name : str
+            Who says it (``"canfdi.left"``: the monitor of drive left).
+        file, line : str, int
+            Where in the source, for log records that know.
+        """
+        if level not in LOG_LEVELS:
+            raise ValueError(f"log level must be one of {', '.join(LOG_LEVELS)}, got {level!r}")
+        record = {"timestamp": stamp(timestamp_ns), "level": LOG_LEVELS[level],
+                  "message": message, "name": name, "file": file, "line": int(line)}
+        self._write_now(TOPIC_LOG, timestamp_ns, encode_message(record))
 
     def write_status(
         self,
@@ -944,6 +976,7 @@ class McapRecorder:
         if inputs != self._inputs or outputs != self._outputs:
             self._emit_samples(self._clock(), full_only=False)
             self._inputs, self._outputs = inputs, outputs
+            self._sample_encoder = None
         self._inputs_given, self._outputs_given = input_names, output_names
 
     def _set_residual_names(self, names: Sequence[str]) -> None:
@@ -951,7 +984,19 @@ class McapRecorder:
         if listed != self._residual_names:
             self._emit_residuals(self._clock(), full_only=False)
             self._residual_names = listed
+            self._residual_encoder = None
         self._residual_names_given = names
+
+    def _widen(self, topic: str, groups: Sequence[Sequence[str]]) -> None:
+        """Add names to a row topic's schema (a drive with other signals: the union)."""
+        known = self._row_names[topic]
+        if all(name in have for names, have in zip(groups, known, strict=True)
+               for name in names) and topic in self._row_schema:
+            return
+        for names, have in zip(groups, known, strict=True):
+            have.extend(name for name in names if name not in have)
+        schema = (sample_schema(*known) if topic == TOPIC_SAMPLES else residual_schema(*known))
+        self._row_schema[topic] = (schema["title"], json.dumps(schema).encode())
 
     def _emit_all(self, now: float) -> None:
         self._emit_frames(now, full_only=False)
@@ -988,42 +1033,32 @@ class McapRecorder:
         rows, limit = self._samples, self._block_samples
         while rows.count >= limit or (not full_only and rows.count):
             k, t, gap, u, z = rows.take(min(limit, rows.count))
-            data = encode_sample_block(
-                k, t, gap, u, z, self._inputs, self._outputs, self._binary_floats,
-                self._sample_drive,
-            )
-            self._write(TOPIC_SAMPLES, int(t[0]), data, len(k), now)
+            encoder = self._sample_encoder
+            if encoder is None:
+                drive = {} if self._sample_drive is None else {"drive": self._sample_drive}
+                encoder = self._sample_encoder = RowEncoder(
+                    ("k", "gap"), (("u", self._inputs), ("z", self._outputs)), drive)
+                self._widen(TOPIC_SAMPLES, (self._inputs, self._outputs))
+            n = len(k)
+            data = encoder.encode(t, np.column_stack([k, gap]),
+                                  np.hstack([u.reshape(n, -1), z.reshape(n, -1)]))
+            self._write_rows(TOPIC_SAMPLES, t, data, now)
 
     def _emit_residuals(self, now: float, full_only: bool) -> None:
         rows, limit = self._residuals, self._block_residuals
         while rows.count >= limit or (not full_only and rows.count):
             k, t, r, normalized, statistic = rows.take(min(limit, rows.count))
-            data = encode_residual_block(
-                k, t, self._residual_names, r, normalized, statistic, self._binary_floats,
-                self._residual_drive,
-            )
-            self._write(TOPIC_RESIDUALS, int(t[0]), data, len(k), now)
-
-    def _write_plot(
-        self,
-        timestamp_ns: int,
-        k: int,
-        r: np.ndarray,
-        normalized: np.ndarray,
-        statistic: np.ndarray,
-        now: float,
-    ) -> None:
-        names = self._residual_names
-        message = {
-            "timestamp": stamp(timestamp_ns),
-            "k": k,
-            "r": named(names, r),
-            "normalized": named(names, normalized),
-            "statistic": named(names, statistic),
-        }
-        if self._residual_drive is not None:
-            message["drive"] = self._residual_drive
-        self._write(TOPIC_RESIDUALS_PLOT, timestamp_ns, encode_message(message), 0, now)
+            names = self._residual_names
+            encoder = self._residual_encoder
+            if encoder is None:
+                drive = {} if self._residual_drive is None else {"drive": self._residual_drive}
+                encoder = self._residual_encoder = RowEncoder(
+                    ("k",), (("r", names), ("normalized", names), ("statistic", names)), drive)
+                self._widen(TOPIC_RESIDUALS, (names,))
+            n, m = len(k), len(names)
+            data = encoder.encode(t, k.reshape(n, 1), np.hstack(
+                [r.reshape(n, m), normalized.reshape(n, m), statistic.reshape(n, m)]))
+            self._write_rows(TOPIC_RESIDUALS, t, data, now)
 
     # -- internals: segments ---------------------------------------------------------------
 
@@ -1038,6 +1073,7 @@ class McapRecorder:
             return
         try:
             self._seg.writer.add_metadata(name, dict(values))
+            self._seg.metadata = True
         except OSError as exc:
             self._fail(exc, now)
 
@@ -1049,7 +1085,10 @@ class McapRecorder:
         """The deadline passed: retry while failing, else write the buffers and end the chunk
         (timed flush) or the segment (rotation)."""
         if self._seg is None:
-            if not self._closed and now >= self._next_retry:
+            if self._path is None:  # no file: the buffers go to the tap on time
+                self._emit_all(now)
+                self._next_flush = self._deadline = now + self._flush_interval
+            elif not self._closed and now >= self._next_retry:
                 self._open_segment(now)
             return
         self._emit_all(now)
@@ -1063,24 +1102,65 @@ class McapRecorder:
 
     def _write(self, topic: str, timestamp_ns: int, data: bytes, rows: int, now: float) -> None:
         """Add one message of ``rows`` rows to the open segment (or count them dropped)."""
+        sequence = self._sequence.get(topic, 0)
+        self._sequence[topic] = sequence + 1
+        if self._tap is not None:
+            self._tap(topic, _SCHEMA_BYTES.get(topic, _GENERIC_SCHEMA_BYTES), timestamp_ns, data)
         seg = self._seg
         if seg is not None and seg.file.count >= self._byte_limit:
             self._rotate(seg, now)
             seg = self._seg
         if seg is None:
-            self._messages_dropped += rows
+            if self._path is not None:
+                self._messages_dropped += rows
             return
         try:
             channel_id = seg.channels.get(topic)
             if channel_id is None:
                 channel_id = seg.register(topic)
-            seg.writer.add_message(channel_id, timestamp_ns, data, timestamp_ns)
+            seg.writer.add_message(channel_id, timestamp_ns, data, timestamp_ns, sequence)
         except OSError as exc:
             self._messages_dropped += rows
             self._fail(exc, now)
             return
+        seg.chunks = True
         self._messages_written += rows
         self._pending += rows
+
+    def _write_rows(self, topic: str, t_ns: np.ndarray, data: list[bytes], now: float) -> None:
+        """Add one message per row of a row topic (its channel registered with the schema
+        naming every signal so far)."""
+        n = len(data)
+        times = t_ns.tolist()
+        first = self._sequence.get(topic, 0)
+        self._sequence[topic] = first + n
+        schema = self._row_schema[topic]
+        if self._tap is not None:
+            tap = self._tap
+            for t, d in zip(times, data, strict=True):
+                tap(topic, schema, t, d)
+        seg = self._seg
+        if seg is not None and seg.file.count >= self._byte_limit:
+            self._rotate(seg, now)
+            seg = self._seg
+        if seg is None:
+            if self._path is not None:
+                self._messages_dropped += n
+            return
+        try:
+            channel_id = seg.channels.get(topic)
+            if channel_id is None or seg.row_schemas[topic] is not schema:
+                channel_id = seg.register_rows(topic, schema)
+            add = seg.writer.add_message
+            for i, (t, d) in enumerate(zip(times, data, strict=True), start=first):
+                add(channel_id, t, d, t, i)
+        except OSError as exc:
+            self._messages_dropped += n
+            self._fail(exc, now)
+            return
+        seg.chunks = True
+        self._messages_written += n
+        self._pending += n
 
     def _rotate(self, seg: _Segment, now: float) -> None:
         try:
@@ -1103,6 +1183,16 @@ class McapRecorder:
         self._deadline = min(self._next_flush, self._rotate_at)
 
     def _finish_segment(self, seg: _Segment) -> None:
+        # No summary group may be empty: leave out the chunk and metadata indexes of a segment
+        # without chunks or metadata. (mcap's Writer fixes its index types when it is made;
+        # this is its one attribute for them.)
+        kinds = IndexType.MESSAGE
+        if seg.chunks:
+            kinds |= IndexType.CHUNK
+        if seg.metadata:
+            kinds |= IndexType.METADATA
+        if hasattr(seg.writer, "_Writer__index_types"):
+            seg.writer._Writer__index_types = kinds
         seg.writer.finish()
         seg.file.flush()
         seg.file.close()
@@ -1116,13 +1206,15 @@ class McapRecorder:
         file: _CountingFile | None = None
         try:
             file = _CountingFile(self._opener(path))
-            writer = Writer(file, chunk_size=self._chunk_size, compression=CompressionType.ZSTD)
+            writer = Writer(file, chunk_size=self._chunk_size, compression=CompressionType.ZSTD,
+                            index_types=_INDEX_TYPES, enable_crcs=True, enable_data_crcs=True)
             writer.start(profile="", library=f"canfdi/{__version__}; {LIBRARY_IDENTIFIER}")
             if self._metadata is not None:
                 writer.add_metadata(METADATA_NAME, self._metadata)
             for name, values in self._later_metadata.items():
                 writer.add_metadata(name, values)
             seg = _Segment(path, file, writer)
+            seg.metadata = self._metadata is not None or bool(self._later_metadata)
             # Up front, so that the hot path only looks a channel id up. The records wait in
             # the open chunk and reach the file with its first message.
             seg.register_known()
@@ -1177,3 +1269,39 @@ class McapRecorder:
             self._seg = None
         self._next_retry = now + RETRY_INTERVAL
         self._deadline = self._next_retry if not self._closed else math.inf
+
+
+class McapLogHandler(logging.Handler):
+    """A logging handler that records log lines on the recorder's `TOPIC_LOG` (Foxglove's Log
+    panel), at the drive's time.
+
+    Parameters
+    ----------
+    recorder : McapRecorder
+        Where the lines go (nothing once it is closed).
+    clock : callable
+        The drive's time now, integer ns (the time of the last frame the monitor saw).
+    level : int
+        The least level recorded (default WARNING).
+
+    The recorder's own warnings (a full disk) are not recorded through it: they are about the
+    recording itself, and writing them would re-enter the recorder while it fails.
+    """
+
+    def __init__(self, recorder: McapRecorder, clock: Callable[[], int],
+                 level: int = logging.WARNING) -> None:
+        super().__init__(level)
+        self.recorder = recorder
+        self._clock = clock
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.name == __name__ or self.recorder.closed:
+            return
+        level = {logging.DEBUG: "debug", logging.INFO: "info", logging.WARNING: "warning",
+                 logging.ERROR: "error"}.get(record.levelno,
+                                             "fatal" if record.levelno > logging.ERROR else "info")
+        try:
+            self.recorder.write_log(self._clock(), level, record.getMessage(), record.name,
+                                     record.pathname, record.lineno)
+        except Exception:  # a log line must never break what logged it
+            self.handleError(record)

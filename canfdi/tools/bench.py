@@ -119,7 +119,7 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     say("throughput from memory (decode, assemble, diagnose, record)")
     monitor = Monitor(config)  # calibration happens here, outside the timing
     log_path = tmp / "bench.mcap"
-    recorder = McapRecorder(log_path, metadata=monitor.metadata(), float_encoding="base64")
+    recorder = McapRecorder(log_path, metadata=monitor.metadata())
     monitor.sink = recorder
     warm = min(n // 10, 100_000)
     rss = {}
@@ -146,8 +146,7 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     say("replay (block path) over a capture log and over the monitor log")
     capture_path = tmp / "long-capture.mcap"
     capturer = Monitor(config, diagnose=False)
-    cap_recorder = McapRecorder(capture_path, metadata=capturer.metadata(),
-                                float_encoding="base64")
+    cap_recorder = McapRecorder(capture_path, metadata=capturer.metadata())
     capturer.sink = cap_recorder
     _feed(capturer, traffic)
     cap_recorder.close()
@@ -183,8 +182,7 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
 
     messages = traffic.to_messages(sub)
     cap = Monitor(config, diagnose=False)
-    cap_rec = McapRecorder(tmp / "capture.mcap", metadata=cap.metadata(),
-                           float_encoding="base64")
+    cap_rec = McapRecorder(tmp / "capture.mcap", metadata=cap.metadata())
     cap.sink = cap_rec
     from canfdi.service import MonitorService
 

@@ -1,6 +1,6 @@
 """Tests of canfdi's MCAP log (canfdi.io.writer's McapRecorder, canfdi.io.reader, .blocks,
-.segments): round trip of the block topics, truncation, kill -9, rotation, disk full, and
-reading the older one-row-per-message layout."""
+.segments): round trip of every topic, truncation, kill -9, rotation, disk full, and reading
+the older layouts (one frame per message; blocks of samples and residual rows)."""
 
 from __future__ import annotations
 
@@ -17,6 +17,8 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap.records import Footer
 from mcap.stream_reader import StreamReader
@@ -44,8 +46,8 @@ from canfdi.io.schemas import (
     TOPIC_ESTIMATES,
     TOPIC_EVENTS,
     TOPIC_FRAMES,
+    TOPIC_LOG,
     TOPIC_RESIDUALS,
-    TOPIC_RESIDUALS_PLOT,
     TOPIC_SAMPLES,
     TOPIC_STATUS,
     TOPICS,
@@ -192,11 +194,12 @@ def test_round_trip_every_topic(tmp_path: Path) -> None:
         rec.write_event(event())
         rec.write_status(T0 + 10, "running", 311, {"ok": 1000, "crc": 2}, np.int64(1))
         rec.write("/custom/thing", T0 + 11, {"value": np.int64(7), "list": np.arange(3)})
+        rec.write_log(T0 + 12, "warning", "bus error: reopening", "canfdi.service",
+                      "service.py", 7)
         assert rec.buffered == 15 + 3 + 3
-        # 5 single messages (plot, estimates, event, status, custom) but the plot copy of the
-        # first residual row (the other rows share its 50 ms slot) is not counted.
-        assert rec.messages_written == 4
-    assert rec.messages_written == 4 + 15 + 3 + 3 and rec.buffered == 0
+        # 5 single messages (estimates, event, status, custom, log line)
+        assert rec.messages_written == 5
+    assert rec.messages_written == 5 + 15 + 3 + 3 and rec.buffered == 0
 
     frames = read_frames(path)
     assert frames.t_ns.tolist() == [T0 + i for i in range(6)] + (
@@ -261,7 +264,8 @@ def test_round_trip_every_topic(tmp_path: Path) -> None:
     np.testing.assert_array_equal(rn, [[1.5, 2.0], [5.0, 6.0], [7.0, 8.0]])
     np.testing.assert_array_equal(stat, [[0.0, np.nan], [0.0, 0.1], [0.2, np.nan]])
 
-    # The block messages themselves: one per topic, stamped with their first row.
+    # The frame block, stamped with its first frame; one message per sample and residual row,
+    # at its own time, every value plottable by message path (null for NaN and inf).
     (frame_block,) = [(t, m) for t, m in topic_messages(path, TOPIC_FRAMES)]
     log_time, block = frame_block
     assert log_time == T0 and block["timestamp"] == stamp(T0)
@@ -269,53 +273,46 @@ def test_round_trip_every_topic(tmp_path: Path) -> None:
     assert block["statuses"][frames_code(block, "sent")] == "sent"
     assert block["long"] == {"5": fd_payload.hex()}
     assert len(block["frames"]) == (15 * FRAME_DTYPE.itemsize + 2) // 3 * 4
-    ((log_time, block),) = topic_messages(path, TOPIC_SAMPLES)
-    assert log_time == T0 + 5
-    assert block == {
-        "timestamp": stamp(T0 + 5),
-        "encoding": SAMPLES_ENCODING,
-        "count": 3,
-        "k": [300, 301, 302],
-        "t_ns": [T0 + 5, T0 + 6, T0 + 7],
-        "gap": [2, 0, 1],
-        "u": {"voltage": [12.0, 1.0, None], "load": [0.5, 2.0, 4.0]},
-        "z": {"speed": [3.25, 5.0, 7.0], "current": [-1.0, 6.0, None]},
-    }
-    ((log_time, block),) = topic_messages(path, TOPIC_RESIDUALS)
-    assert log_time == T0 + 6
-    assert block == {
-        "timestamp": stamp(T0 + 6),
-        "encoding": RESIDUALS_ENCODING,
-        "count": 3,
-        "k": [300, 301, 302],
-        "t_ns": [T0 + 6, T0 + 7, T0 + 8],
-        "names": RESIDUALS,
-        "r": {"r0": [0.5, 1.0, 3.0], "r1": [None, 2.0, 4.0]},
-        "normalized": {"r0": [1.5, 5.0, 7.0], "r1": [2.0, 6.0, 8.0]},
-        "statistic": {"r0": [0.0, 0.0, 0.2], "r1": [None, 0.1, None]},
-    }
+    assert topic_messages(path, TOPIC_SAMPLES) == [
+        (T0 + 5, {"timestamp": stamp(T0 + 5), "k": 300, "gap": 2,
+                  "u": {"voltage": 12.0, "load": 0.5}, "z": {"speed": 3.25, "current": -1.0}}),
+        (T0 + 6, {"timestamp": stamp(T0 + 6), "k": 301, "gap": 0,
+                  "u": {"voltage": 1.0, "load": 2.0}, "z": {"speed": 5.0, "current": 6.0}}),
+        (T0 + 7, {"timestamp": stamp(T0 + 7), "k": 302, "gap": 1,
+                  "u": {"voltage": None, "load": 4.0}, "z": {"speed": 7.0, "current": None}}),
+    ]  # fmt: skip
+    assert topic_messages(path, TOPIC_RESIDUALS) == [
+        (T0 + 6, {"timestamp": stamp(T0 + 6), "k": 300, "r": {"r0": 0.5, "r1": None},
+                  "normalized": {"r0": 1.5, "r1": 2.0}, "statistic": {"r0": 0.0, "r1": None}}),
+        (T0 + 7, {"timestamp": stamp(T0 + 7), "k": 301, "r": {"r0": 1.0, "r1": 2.0},
+                  "normalized": {"r0": 5.0, "r1": 6.0}, "statistic": {"r0": 0.0, "r1": 0.1}}),
+        (T0 + 8, {"timestamp": stamp(T0 + 8), "k": 302, "r": {"r0": 3.0, "r1": 4.0},
+                  "normalized": {"r0": 7.0, "r1": 8.0}, "statistic": {"r0": 0.2, "r1": None}}),
+    ]  # fmt: skip
 
+    event_fields = {k: v for k, v in event().as_dict().items() if v is not None}
     singles = [
-        (TOPIC_RESIDUALS_PLOT, T0 + 6, {"timestamp": stamp(T0 + 6), "k": 300,
-                                        "r": {"r0": 0.5, "r1": None},
-                                        "normalized": {"r0": 1.5, "r1": 2.0},
-                                        "statistic": {"r0": 0.0, "r1": None}}),
         (TOPIC_ESTIMATES, T0 + 7, {"timestamp": stamp(T0 + 7), "k": 301,
                                    "hypothesis": "actuator:voltage",
                                    "estimates": {"eta": 0.9}, "variances": {"eta": 0.1}}),
-        (TOPIC_EVENTS, T0 + 9, {"timestamp": stamp(T0 + 9), **event().as_dict()}),
+        (TOPIC_EVENTS, T0 + 9, {"timestamp": stamp(T0 + 9), **event_fields}),
         (TOPIC_STATUS, T0 + 10, {"timestamp": stamp(T0 + 10), "state": "running",
                                  "samples": 311, "frames": {"ok": 1000, "crc": 2},
                                  "active_faults": 1}),
         ("/custom/thing", T0 + 11, {"timestamp": stamp(T0 + 11), "value": 7, "list": [0, 1, 2]}),
+        (TOPIC_LOG, T0 + 12, {"timestamp": stamp(T0 + 12), "level": 3,
+                              "message": "bus error: reopening", "name": "canfdi.service",
+                              "file": "service.py", "line": 7}),
     ]  # fmt: skip
-    block_topics = {TOPIC_FRAMES, TOPIC_SAMPLES, TOPIC_RESIDUALS}
+    assert event_fields["kind"] == "accepted" and "drive" not in event_fields
+    bulk_topics = {TOPIC_FRAMES, TOPIC_SAMPLES, TOPIC_RESIDUALS}
     reader = read_log(path)
     got = list(reader)
-    assert [m for m in got if m[0] not in block_topics] == singles
-    assert reader.complete and not reader.truncated and reader.messages_read == len(singles) + 3
+    assert [m for m in got if m[0] not in bulk_topics] == singles
+    assert reader.complete and not reader.truncated
+    assert reader.messages_read == len(singles) + 1 + 3 + 3
     assert stamp(T0) == {"sec": 1_700_000_000, "nsec": 123_456_789}
-    assert list(read_log(path, topics=[TOPIC_STATUS])) == [singles[3]]
+    assert list(read_log(path, topics=[TOPIC_STATUS])) == [singles[2]]
     assert read_metadata(path) == METADATA
 
     with open(path, "rb") as f:
@@ -337,7 +334,14 @@ def test_round_trip_every_topic(tmp_path: Path) -> None:
         assert summary.chunk_indexes
         assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
         assert summary.statistics is not None
-        assert summary.statistics.message_count == len(singles) + 3
+        assert summary.statistics.message_count == len(singles) + 7
+        sample_schema = json.loads(summary.schemas[topics[TOPIC_SAMPLES].schema_id].data)
+        assert list(sample_schema["properties"]["u"]["properties"]) == INPUTS
+        assert list(sample_schema["properties"]["z"]["properties"]) == OUTPUTS
+        residual_schema = json.loads(summary.schemas[topics[TOPIC_RESIDUALS].schema_id].data)
+        assert list(residual_schema["properties"]["statistic"]["properties"]) == RESIDUALS
+        log_schema = summary.schemas[topics[TOPIC_LOG].schema_id]
+        assert log_schema.name == "foxglove.Log"
     with open(path, "rb") as f:
         (meta,) = make_reader(f).iter_metadata()
         assert meta.name == METADATA_NAME and meta.metadata == METADATA
@@ -380,8 +384,7 @@ def test_blocks_fill_to_block_size_and_carry_their_first_time(tmp_path: Path) ->
     assert [b.size for b in iter_frame_blocks(path)] == [4, 4, 4, 2]
     assert read_frames(path).id.tolist() == list(range(14))
     samples = topic_messages(path, TOPIC_SAMPLES)
-    assert [m["count"] for _, m in samples] == [3, 3, 1]
-    assert [t for t, _ in samples] == [T0, T0 + 3, T0 + 6]
+    assert [t for t, _ in samples] == [T0 + i for i in range(7)]
     assert read_samples(path).U[:, 0].tolist() == list(range(7))
 
 
@@ -399,77 +402,77 @@ def test_a_row_after_the_flush_deadline_starts_the_next_interval(tmp_path: Path)
     rec.close()
 
 
-def test_base64_float_columns_round_trip_exactly(tmp_path: Path) -> None:
+def test_float_rows_round_trip_exactly(tmp_path: Path) -> None:
     rng = np.random.default_rng(3)
-    U, Z = rng.standard_normal((50, 2)), rng.standard_normal((50, 2))
+    U, Z = rng.standard_normal((50, 2)), rng.standard_normal((50, 2)) * 10.0 ** rng.integers(
+        -300, 300, (50, 2))
     Z[3, 1] = np.nan
     R = rng.standard_normal((50, 3, 2))
     R[7, 2, 0] = -np.inf
+    R[8, 0, 1] = -0.0
     k, t = np.arange(50), T0 + np.arange(50) * 1000
-    logs = {}
-    for encoding in ("json", "base64"):
-        path = logs[encoding] = tmp_path / f"{encoding}.mcap"
-        with McapRecorder(path, float_encoding=encoding, block_samples=16) as rec:
-            rec.write_samples(k, t, U, Z, np.zeros(50, int), INPUTS, OUTPUTS)
-            rec.write_residual_rows(k, t, RESIDUALS, R[:, 0], R[:, 1], R[:, 2])
-    ((_, block),) = topic_messages(logs["base64"], TOPIC_RESIDUALS)
-    assert isinstance(block["r"]["r0"], str) and block["k"] == k.tolist()
-    for encoding, path in logs.items():
-        samples = read_samples(path)
-        np.testing.assert_array_equal(samples.U, U)
-        np.testing.assert_array_equal(samples.Z, Z)
-        _, _, names, r, rn, stat = read_residuals(path)
-        assert names == RESIDUALS
-        np.testing.assert_array_equal(r, R[:, 0])
-        np.testing.assert_array_equal(rn, R[:, 1])
-        expected = R[:, 2].copy()
-        if encoding == "json":
-            expected[7, 0] = np.nan  # JSON: null; base64 keeps -inf
-        np.testing.assert_array_equal(stat, expected)
-    with pytest.raises(ValueError, match="float_encoding"):
-        McapRecorder(tmp_path / "x.mcap", float_encoding="hex")
+    path = tmp_path / "rows.mcap"
+    with McapRecorder(path, block_samples=16) as rec:
+        rec.write_samples(k, t, U, Z, np.zeros(50, int), INPUTS, OUTPUTS)
+        rec.write_residual_rows(k, t, RESIDUALS, R[:, 0], R[:, 1], R[:, 2])
+    samples = read_samples(path)
+    np.testing.assert_array_equal(samples.U, U)
+    np.testing.assert_array_equal(samples.Z, Z)
+    _, _, names, r, rn, stat = read_residuals(path)
+    assert names == RESIDUALS
+    np.testing.assert_array_equal(r, R[:, 0])
+    assert np.signbit(r[8, 1])
+    np.testing.assert_array_equal(rn, R[:, 1])
+    expected = R[:, 2].copy()
+    expected[7, 0] = np.nan  # JSON has no inf: null
+    np.testing.assert_array_equal(stat, expected)
 
 
-def test_residuals_plot_keeps_the_first_row_of_every_slot(tmp_path: Path) -> None:
-    n = 1000
-    k = np.arange(n)
-    t = T0 + k * 1_000_000  # one row per ms: 1 s of log time
-    rows = np.column_stack([k, -k]).astype(float)
-    plots = {}
-    for name, plot_rate, vectorised in [
-        ("rows", 20.0, True),
-        ("single", 20.0, False),
-        ("off", 0.0, True),
-        ("fast", 400.0, True),
-    ]:
-        path = tmp_path / f"{name}.mcap"
-        with McapRecorder(path, plot_rate=plot_rate) as rec:
-            if vectorised:
-                for a in range(0, n, 128):  # slots straddle the calls
-                    s = slice(a, a + 128)
-                    rec.write_residual_rows(k[s], t[s], RESIDUALS, rows[s], rows[s], rows[s])
-            else:
-                for i in range(n):
-                    rec.write_residuals(int(t[i]), int(k[i]), RESIDUALS, rows[i], rows[i], rows[i])
-        plots[name] = topic_messages(path, TOPIC_RESIDUALS_PLOT)
-        assert len(read_residuals(path).k) == n
-    slot = 50_000_000  # 1 / 20 Hz
-    expected = [i for i in range(n) if i == 0 or (t[i] // slot) != (t[i - 1] // slot)]
-    assert 20 <= len(expected) <= 21
-    assert [m["k"] for _, m in plots["rows"]] == expected
-    assert plots["single"] == plots["rows"]
-    assert [lt for lt, _ in plots["rows"]] == [int(t[i]) for i in expected]
-    _, first = plots["rows"][1]
-    i = expected[1]
-    assert first == {
-        "timestamp": stamp(int(t[i])),
-        "k": i,
-        "r": {"r0": float(i), "r1": float(-i)},
-        "normalized": {"r0": float(i), "r1": float(-i)},
-        "statistic": {"r0": float(i), "r1": float(-i)},
-    }
-    assert plots["off"] == []
-    assert 400 <= len(plots["fast"]) <= 401
+def _legacy_log(path: Path, binary: bool) -> None:
+    """A log of the older layout: blocks of samples and of residual rows (canfdi.*.v1)."""
+    import base64
+
+    def column(values: np.ndarray) -> object:
+        if binary:
+            return base64.b64encode(np.asarray(values, "<f8").tobytes()).decode()
+        return [None if not np.isfinite(v) else float(v) for v in values]
+
+    k = [5, 6, 7]
+    t = [T0 + 5, T0 + 6, T0 + 7]
+    U, Z = np.array([[1.0, 2.0], [3.0, np.nan], [5.0, 6.0]]), np.array([[7.0, 8.0]] * 3)
+    R = np.array([[0.5, -np.inf], [1.5, 2.5], [3.5, 4.5]])
+    samples = {"timestamp": stamp(T0 + 5), "encoding": SAMPLES_ENCODING, "count": 3, "k": k,
+               "t_ns": t, "gap": [0, 0, 1],
+               "u": {n: column(U[:, i]) for i, n in enumerate(INPUTS)},
+               "z": {n: column(Z[:, i]) for i, n in enumerate(OUTPUTS)}}
+    residuals = {"timestamp": stamp(T0 + 5), "encoding": RESIDUALS_ENCODING, "count": 3, "k": k,
+                 "t_ns": t, "names": RESIDUALS,
+                 **{key: {n: column(R[:, i] * f) for i, n in enumerate(RESIDUALS)}
+                    for key, f in (("r", 1.0), ("normalized", 2.0), ("statistic", 3.0))}}
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        schema = writer.register_schema("canfdi.Json", "jsonschema", b'{"type":"object"}')
+        for topic, message in ((TOPIC_SAMPLES, samples), (TOPIC_RESIDUALS, residuals)):
+            channel = writer.register_channel(topic, "json", schema)
+            writer.add_message(channel, T0 + 5, json.dumps(message).encode(), T0 + 5)
+        writer.finish()
+
+
+@pytest.mark.parametrize("binary", [False, True], ids=["json-lists", "base64"])
+def test_reads_the_block_layout_of_older_logs(tmp_path: Path, binary: bool) -> None:
+    path = tmp_path / "old.mcap"
+    _legacy_log(path, binary)
+    samples = read_samples(path)
+    assert samples.k.tolist() == [5, 6, 7] and samples.gap.tolist() == [0, 0, 1]
+    assert samples.t_ns.tolist() == [T0 + 5, T0 + 6, T0 + 7]
+    np.testing.assert_array_equal(samples.U, [[1.0, 2.0], [3.0, np.nan], [5.0, 6.0]])
+    _, _, names, r, rn, stat = read_residuals(path)
+    assert names == RESIDUALS
+    np.testing.assert_array_equal(rn[1:], [[3.0, 5.0], [7.0, 9.0]])
+    inf = -np.inf if binary else np.nan  # base64 kept -inf, JSON lists could not
+    np.testing.assert_array_equal(r, [[0.5, inf], [1.5, 2.5], [3.5, 4.5]])
+    np.testing.assert_array_equal(stat, [[1.5, inf], [4.5, 7.5], [10.5, 13.5]])
 
 
 def test_many_statuses_and_name_changes(tmp_path: Path) -> None:
@@ -1032,3 +1035,28 @@ def test_rows_buffered_at_close_while_failing_are_dropped(tmp_path: Path) -> Non
     assert rec.messages_dropped == 8 and rec.buffered == 2
     rec.close()
     assert rec.messages_dropped == 10 and rec.messages_written == 0
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    names=st.lists(st.text(min_size=1, max_size=6), min_size=1, max_size=4, unique=True),
+    values=st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=8, max_size=8),
+    drive=st.one_of(st.none(), st.text(max_size=5)),
+)
+def test_row_template_writes_what_json_would(names, values, drive) -> None:
+    """The fast %-template gives the same JSON as encoding the row's dict, whatever the names
+    (quotes, percent signs, unicode) and values (NaN, inf, -0.0, extremes)."""
+    from canfdi.io.blocks import RowEncoder, encode_message
+
+    m = len(names)
+    encoder = RowEncoder(("k", "gap"), (("u", names), ("z", names)),
+                         None if drive is None else {"drive": drive})
+    floats = np.resize(np.array(values), (2, 2 * m))
+    t = np.array([T0, T0 + 1])
+    ints = np.array([[3, 0], [4, 2]])
+    got = encoder.encode(t, ints, floats)
+    for i in range(2):
+        expected = json.loads(encode_message(encoder.message(int(t[i]), ints[i].tolist(),
+                                                             floats[i].tolist())))
+        assert json.loads(got[i]) == expected
+        assert list(json.loads(got[i])["z"]) == names
