@@ -124,6 +124,9 @@ class MonitorService:
         latency); more through the block path (throughput).
     latencies : when given, gets one entry (ns) per handled block that completed samples:
         from the arrival of its last frame to the end of its handling (fault frames sent).
+    clock : the drive's time now, integer ns, which the frames the monitor sends are recorded
+        at: the wall clock live (the bus stamps received frames with it too); a demo passes
+        the emulated time, so that the log's time is the drive's throughout.
     """
 
     def __init__(self, monitor: Monitor, bus_factory: Callable[[], can.BusABC], *,
@@ -131,8 +134,10 @@ class MonitorService:
                  on_ready: Callable[[], None] | None = None,
                  on_tick: Callable[[], None] | None = None, max_backoff: float = 10.0,
                  block: int = 4096, small_block: int = 16,
-                 latencies: list[int] | None = None) -> None:
+                 latencies: list[int] | None = None,
+                 clock: Callable[[], int] = time.time_ns) -> None:
         self.monitor = monitor
+        self.clock = clock
         self.bus_factory = bus_factory
         self.status_period = status_period
         self.on_event = on_event
@@ -196,7 +201,7 @@ class MonitorService:
                 self.bus.send(msg, timeout=0.05)
                 self.stats.sent += 1
                 if sink is not None:
-                    sink.write_frame(time.time_ns(), f.frame_id, f.data, "sent", f.extended)
+                    sink.write_frame(self.clock(), f.frame_id, f.data, "sent", f.extended)
             except (can.CanError, OSError) as exc:
                 self.stats.send_errors += 1
                 log.warning("could not send frame 0x%X: %s", f.frame_id, exc)

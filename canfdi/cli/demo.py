@@ -7,13 +7,17 @@ import asyncio
 import json
 import signal
 import sys
+import time
 from pathlib import Path
 
 from canfdi.cli.common import (
     DEFAULT_CONFIG_DIR,
+    add_foxglove_option,
+    close_recorder,
     config_error,
     format_event,
     load_config_or_exit,
+    open_foxglove,
     open_recorder,
     print_comparison,
 )
@@ -50,6 +54,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", type=Path, metavar="OUT.mcap",
                    help="record the run in an MCAP log")
     p.add_argument("--channel", default="canfdi-demo", help="virtual bus channel name")
+    add_foxglove_option(p)
     p.add_argument("--no-live", action="store_true",
                    help="no live view (it is on when stdout is a terminal, off otherwise)")
 
@@ -72,13 +77,17 @@ async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canf
              for d in scenario.drives for f in d.faults]
     monitor = Monitor(config)
     if recorder is not None:
-        monitor.sink = recorder(monitor.metadata(truth))
+        monitor.sink = recorder(monitor.metadata(truth),
+                                lambda: monitor.last_timestamp_ns or time.time_ns())
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    # The drive's time is the emulator's (the frames carry it): what the monitor's own frames
+    # are recorded at too, so that the log's time is the drive's throughout.
     service = MonitorService(monitor, lambda: can.Bus(interface="virtual", channel=channel),
-                             status_period=config.bus.status_period, on_event=on_event)
+                             status_period=config.bus.status_period, on_event=on_event,
+                             clock=lambda: monitor.last_timestamp_ns or time.time_ns())
     monitor_task = asyncio.create_task(service.run(stop))
     view = live(monitor) if live is not None else None
     view_task = None
@@ -138,6 +147,9 @@ def run(args: argparse.Namespace) -> int:
     if isinstance(config, int):
         return config
     quiet = args.json
+    live = open_foxglove(args.foxglove, "demo")
+    if isinstance(live, int):
+        return live
     recorders = []
     views = []
 
@@ -153,8 +165,8 @@ def run(args: argparse.Namespace) -> int:
         else:
             print(line, flush=True)
 
-    def make_recorder(metadata):
-        recorders.append(open_recorder(args.output, metadata))
+    def make_recorder(metadata, drive_time):
+        recorders.append(open_recorder(args.output, metadata, drive_clock=drive_time, tap=live))
         return recorders[-1]
 
     def on_event(event) -> None:
@@ -164,14 +176,16 @@ def run(args: argparse.Namespace) -> int:
     try:
         monitor, stats, truth = asyncio.run(run_demo(
             scenario, config, speed=args.speed, channel=args.channel,
-            recorder=make_recorder if args.output else None, on_event=on_event,
+            recorder=make_recorder if args.output or live else None, on_event=on_event,
             announce=None if quiet else say,
             live=make_view if not quiet and not args.no_live and sys.stdout.isatty() else None))
     except ValueError as exc:
         return config_error(exc, "demo")
     finally:
         for r in recorders:
-            r.close()
+            close_recorder(r)
+        if live is not None:
+            live.close()
     result = monitor.summary(truth)
     result["emitter"] = stats.as_dict()
     if args.json:

@@ -12,10 +12,13 @@ from pathlib import Path
 
 from canfdi.cli.common import (
     add_bus_overrides,
+    add_foxglove_option,
     bus_factory,
+    close_recorder,
     config_error,
     format_event,
     load_config_or_exit,
+    open_foxglove,
     open_recorder,
     recording_counts,
     stop_event,
@@ -51,6 +54,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", type=Path, metavar="FILE.mcap",
                    help="log to this file (rotated segments get -0001, -0002, ...)")
     p.add_argument("--no-record", action="store_true", help="do not write MCAP logs")
+    add_foxglove_option(p)
     p.add_argument("--duration", type=float, metavar="T", help="stop after T seconds")
     p.add_argument("--log-format", choices=("text", "json"), default="text",
                    help="format of the service's log lines on stderr (default: text)")
@@ -116,19 +120,27 @@ def run(args: argparse.Namespace) -> int:
         monitor = Monitor(config, teach=teach)
     except ValueError as exc:
         return config_error(exc, "run")
+    live = open_foxglove(args.foxglove, "run")
+    if isinstance(live, int):
+        return live
     recorder = None
+    drive_time = lambda: monitor.last_timestamp_ns or time.time_ns()  # noqa: E731
     if not args.no_record:
         rec = config.recording
         path = args.output or (args.log_dir or Path(rec.directory)) / (
             f"{config.name}-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
         try:
-            recorder = open_recorder(path, monitor.metadata(),
+            recorder = open_recorder(path, monitor.metadata(), drive_clock=drive_time, tap=live,
                                      rotate_bytes=int(rec.rotate_mib * 2**20),
                                      rotate_seconds=rec.rotate_minutes * 60.0)
         except OSError as exc:
             print(f"canfdi run: cannot write logs to {path}: {exc}", file=sys.stderr)
+            if live is not None:
+                live.close()
             return 1
-        monitor.sink = recorder
+    elif live is not None:
+        recorder = open_recorder(None, monitor.metadata(), drive_clock=drive_time, tap=live)
+    monitor.sink = recorder
     log = logging.getLogger("canfdi.run")
     systemd = Notifier()
 
@@ -177,11 +189,13 @@ def run(args: argparse.Namespace) -> int:
         stats = asyncio.run(main())
     finally:
         if recorder is not None:
-            recorder.close()
+            close_recorder(recorder)
+        if live is not None:
+            live.close()
     summary = monitor.summary()
     stopped = {"frames": stats.frames, "sent": stats.sent, "bus_errors": stats.bus_errors,
                "faults": len(summary["faults"])}
-    if recorder is not None:
+    if recorder is not None and not args.no_record:
         stopped["recording"] = recording_counts(recorder)
     log.info("stopped: %s", json.dumps(stopped))
     return 0
