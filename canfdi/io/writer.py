@@ -188,11 +188,6 @@ class _Segment:
         self.metadata = False
         self.chunks = False
 
-    def register_known(self) -> None:
-        for topic, (name, data) in _SCHEMA_BYTES.items():
-            schema_id = self.writer.register_schema(name, SCHEMA_ENCODING, data)
-            self.channels[topic] = self.writer.register_channel(topic, MESSAGE_ENCODING, schema_id)
-
     def register_rows(self, topic: str, schema: tuple[str, bytes]) -> int:
         schema_id = self.writer.register_schema(schema[0], SCHEMA_ENCODING, schema[1])
         channel_id = self.writer.register_channel(topic, MESSAGE_ENCODING, schema_id)
@@ -201,6 +196,15 @@ class _Segment:
         return channel_id
 
     def register(self, topic: str) -> int:
+        """A channel for ``topic``, registered with its first message (so that the schema and
+        channel records reach the file in the chunk that holds it: a segment without messages
+        lists none in its summary either)."""
+        known = _SCHEMA_BYTES.get(topic)
+        if known is not None:
+            schema_id = self.writer.register_schema(known[0], SCHEMA_ENCODING, known[1])
+            channel_id = self.writer.register_channel(topic, MESSAGE_ENCODING, schema_id)
+            self.channels[topic] = channel_id
+            return channel_id
         if not self.generic_schema:
             name, data = _GENERIC_SCHEMA_BYTES
             self.generic_schema = self.writer.register_schema(name, SCHEMA_ENCODING, data)
@@ -1184,8 +1188,10 @@ class McapRecorder:
 
     def _finish_segment(self, seg: _Segment) -> None:
         # No summary group may be empty: leave out the chunk and metadata indexes of a segment
-        # without chunks or metadata. (mcap's Writer fixes its index types when it is made;
-        # this is its one attribute for them.)
+        # without chunks or metadata, and the repeated schemas and channels of one without
+        # channels. (mcap's Writer fixes these when it is made; these are its attributes for
+        # them. tests/integration/test_third_party_readers.py checks the result with
+        # pymcap-cli doctor.)
         kinds = IndexType.MESSAGE
         if seg.chunks:
             kinds |= IndexType.CHUNK
@@ -1193,6 +1199,8 @@ class McapRecorder:
             kinds |= IndexType.METADATA
         if hasattr(seg.writer, "_Writer__index_types"):
             seg.writer._Writer__index_types = kinds
+            seg.writer._Writer__repeat_schemas = bool(seg.channels)
+            seg.writer._Writer__repeat_channels = bool(seg.channels)
         seg.writer.finish()
         seg.file.flush()
         seg.file.close()
@@ -1215,9 +1223,6 @@ class McapRecorder:
                 writer.add_metadata(name, values)
             seg = _Segment(path, file, writer)
             seg.metadata = self._metadata is not None or bool(self._later_metadata)
-            # Up front, so that the hot path only looks a channel id up. The records wait in
-            # the open chunk and reach the file with its first message.
-            seg.register_known()
             writer.flush()
         except OSError as exc:
             if file is not None:
