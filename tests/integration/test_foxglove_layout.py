@@ -1,0 +1,59 @@
+"""docs/foxglove-layout.json: every message path of its panels names a field of the demo log's
+channels (by their JSON schemas), in the message path syntax of Foxglove's lineage (a topic,
+then ``.name`` or ``."quoted name"`` parts)."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+from mcap.reader import make_reader
+
+from canfdi.cli import main
+
+LAYOUT = Path(__file__).resolve().parents[2] / "docs" / "foxglove-layout.json"
+# Lichtblick's message-path grammar: id -> [a-zA-Z0-9_-]+, or a double-quoted string.
+_PART = re.compile(r'\.(?:([A-Za-z0-9_-]+)|"((?:[^"\\]|\\.)*)")')
+
+
+def split_path(path: str) -> tuple[str, list[str]]:
+    topic, _, rest = path.partition(".")
+    fields, pos = [], 0
+    rest = "." + rest if rest else ""
+    while pos < len(rest):
+        match = _PART.match(rest, pos)
+        assert match, f"not a message path: {path!r} at {rest[pos:]!r}"
+        fields.append(match.group(1) if match.group(1) is not None else
+                      json.loads(f'"{match.group(2)}"'))
+        pos = match.end()
+    return topic, fields
+
+
+def test_every_panel_path_is_a_field_of_the_demo_log(tmp_path: Path) -> None:
+    log = tmp_path / "demo.mcap"
+    assert main(["demo", "--no-live", "--json", "-o", str(log)]) == 0
+    with open(log, "rb") as f:
+        summary = make_reader(f).get_summary()
+    schemas = {c.topic: json.loads(summary.schemas[c.schema_id].data)
+               for c in summary.channels.values()}
+    layout = json.loads(LAYOUT.read_text())
+    panels = layout["configById"]
+    paths = [p["value"] for config in panels.values() for p in config.get("paths", [])]
+    assert len(paths) >= 10
+    for path in paths:
+        topic, fields = split_path(path)
+        node = schemas[topic]
+        for field in fields:
+            assert field in node["properties"], f"{path}: no {field!r}"
+            node = node["properties"][field]
+        assert node["type"] == "number", path
+    topics = {c.get("topicPath") or c.get("topicToRender") for c in panels.values()} - {None}
+    assert topics == {"/canfdi/events", "/canfdi/log"} and topics <= set(schemas)
+    assert schemas["/canfdi/log"]["title"] == "foxglove.Log"
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(
+            node["second"])
+
+    assert sorted(leaves(layout["layout"])) == sorted(panels)
