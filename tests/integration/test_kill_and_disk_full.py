@@ -139,8 +139,7 @@ def test_full_disk_under_the_service_degrades_then_resumes(tmp_path, caplog):
     # The recorder's clock is the monitor's sample time: its 1 s flushes and retries fall on
     # the same samples on a fast or a slow machine.
     recorder = McapRecorder(path, metadata=monitor.metadata(), opener=disk.open,
-                            clock=lambda: monitor.samples * monitor.dt,
-                            float_encoding="base64")
+                            clock=lambda: monitor.samples * monitor.dt)
     monitor.sink = recorder
     channel = "canfdi-disk-full-test"
     observer = can.Bus(interface="virtual", channel=channel)

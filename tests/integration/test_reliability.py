@@ -53,8 +53,7 @@ def _fuzzed_stream(n_valid: int, n_garbage: int, seed: int = 0):
 def test_fuzz_1e6_frames_no_exception_every_frame_logged_no_fault(tmp_path):
     frames = _fuzzed_stream(500_000, 500_000)
     monitor = Monitor(load_config(CONFIG))
-    recorder = McapRecorder(tmp_path / "fuzz.mcap", metadata=monitor.metadata(),
-                            float_encoding="base64")
+    recorder = McapRecorder(tmp_path / "fuzz.mcap", metadata=monitor.metadata())
     monitor.sink = recorder
     for i in range(0, frames.size, 4096):
         monitor.on_frames(frames.slice(i, i + 4096))
