@@ -19,6 +19,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
+import orjson
 from numpy.typing import ArrayLike, NDArray
 
 from canfdi.bus.frames import MAX_DATA, FrameBlock
@@ -257,13 +258,26 @@ def encode_frame_block(
     return text + b"}"
 
 
+def _cells(values: NDArray) -> NDArray[np.object_]:
+    """The JSON text of every cell of an (N, W) numeric array, as an (N, W) array of str
+    (orjson's: the shortest text that reads back the same float, null for NaN and inf)."""
+    n, w = values.shape
+    out = np.empty((n, w), dtype=object)
+    if n and w:
+        text = orjson.dumps(np.ascontiguousarray(values), option=orjson.OPT_SERIALIZE_NUMPY)
+        out[:] = np.array(text[2:-2].decode().replace("],[", ",").split(","),
+                          dtype=object).reshape(n, w)
+    return out
+
+
 class RowEncoder:
     """One JSON message per row, for the row topics (``/canfdi/samples``,
     ``/canfdi/residuals``): a %-template made once per layout, filled per row.
 
-    Rows of finite values are formatted by the template (``repr`` of each float: exact, the
-    shortest text that reads back the same float); a row holding NaN or inf goes through
-    `encode_message` (null). About 5 us for a row of 12 values, most of it float formatting.
+    The numbers are formatted by orjson in C for a whole block at once (exact: the shortest
+    text that reads back the same float; null for NaN and inf), then placed into the block's
+    templates by one %-operation: well under 1 us for a row of 9 values, where Python's own
+    float formatting takes 3 us.
 
     Parameters
     ----------
@@ -287,10 +301,10 @@ class RowEncoder:
         def quoted(name: str) -> str:  # a JSON string, safe inside a %-template
             return json.dumps(name).replace("%", "%%")
 
-        parts = ['{"timestamp":{"sec":%d,"nsec":%d}']
-        parts += [f",{quoted(key)}:%d" for key in self._ints]
+        parts = ['{"timestamp":{"sec":%s,"nsec":%s}']
+        parts += [f",{quoted(key)}:%s" for key in self._ints]
         for key, names in self._groups:
-            fields = ",".join(f"{quoted(name)}:%r" for name in names)
+            fields = ",".join(f"{quoted(name)}:%s" for name in names)
             parts.append(f",{quoted(key)}:{{{fields}}}")
         parts += [f",{quoted(key)}:{encode_json(v).replace('%', '%%')}"
                   for key, v in self.extra.items()]
@@ -301,17 +315,16 @@ class RowEncoder:
         """The messages of N rows: times (N,), integer fields (N, len(ints)), floats (N, W)
         with the groups' columns side by side."""
         n = len(t_ns)
+        if not n:
+            return []
         floats = np.asarray(floats, dtype=np.float64).reshape(n, self._width)
         sec, nsec = np.divmod(np.asarray(t_ns, dtype=np.int64), NS_PER_S)
         heads = np.column_stack([sec, nsec, np.asarray(ints, dtype=np.int64).reshape(n, -1)])
-        template = self._template
-        out = [(template % (*h, *f)).encode()
-               for h, f in zip(heads.tolist(), floats.tolist(), strict=True)]
-        bad = np.flatnonzero(~np.isfinite(floats).all(axis=1))
-        for i in bad.tolist():
-            out[i] = encode_message(self.message(int(t_ns[i]), heads[i, 2:].tolist(),
-                                                 floats[i].tolist()))
-        return out
+        # One %-operation for the whole block: the row templates joined by newlines (a JSON
+        # message has none: names are escaped), filled with every cell, split again.
+        cells = np.concatenate([_cells(heads), _cells(floats)], axis=1)
+        text = (self._template + "\n") * n % tuple(cells.ravel().tolist())
+        return text.encode().split(b"\n")[:-1]
 
     def message(self, t_ns: int, ints: Sequence[int], floats: Sequence[float]) -> dict[str, Any]:
         """One row as a dict (the slow path, and the reference the template is tested

@@ -1060,3 +1060,38 @@ def test_row_template_writes_what_json_would(names, values, drive) -> None:
                                                              floats[i].tolist())))
         assert json.loads(got[i]) == expected
         assert list(json.loads(got[i])["z"]) == names
+
+
+def test_batched_messages_are_the_bytes_add_message_writes() -> None:
+    """The row topics' batch path writes the file mcap's own add_message would, record for
+    record: chunks, message indexes, statistics, summary."""
+    import io
+
+    from mcap.writer import CompressionType
+
+    from canfdi.io.writer import _add_messages
+
+    rng = np.random.default_rng(5)
+    times = T0 + np.cumsum(rng.integers(0, 10**7, 3000))
+    data = [bytes(rng.integers(0, 256, rng.integers(0, 300)).astype(np.uint8)) for _ in times]
+    files = []
+    for batched in (False, True):
+        out = io.BytesIO()
+        # Chunks end where the recorder ends them (flush), not where a size is crossed.
+        writer = Writer(out, chunk_size=10**9, compression=CompressionType.ZSTD,
+                        enable_data_crcs=True)
+        writer.start()
+        schema = writer.register_schema("s", "jsonschema", b"{}")
+        channels = [writer.register_channel(f"/t{i}", "json", schema) for i in range(2)]
+        for part in range(0, len(times), 700):
+            for channel in channels:
+                t, d = times[part : part + 700], data[part : part + 700]
+                if batched:
+                    _add_messages(writer, channel, t, d, part)
+                else:
+                    for i, (ti, di) in enumerate(zip(t.tolist(), d, strict=True)):
+                        writer.add_message(channel, ti, di, ti, part + i)
+            writer.flush()
+        writer.finish()
+        files.append(out.getvalue())
+    assert files[0] == files[1]
