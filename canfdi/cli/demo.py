@@ -63,6 +63,9 @@ async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canf
                    recorder=None, on_event=None, announce=None, live=None):
     """Emulator and monitor on one virtual bus; returns (monitor, emitter stats, truth).
 
+    ``recorder``: a callable (metadata, drive_time) -> record sink, where drive_time() is the
+    drive's time now (ns), for the sink's log lines.
+
     ``live``: a callable monitor -> canfdi.liveview.LiveView, shown while the demo runs."""
     import can
 

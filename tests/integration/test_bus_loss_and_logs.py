@@ -56,7 +56,7 @@ def test_lost_bus_is_reopened_and_diagnosis_goes_on(tmp_path):
     recs = []
     asyncio.run(run_demo(load_scenario("dc_motor_actuator"), load_config(CONFIG),
                          channel="canfdi-flaky-src",
-                         recorder=lambda md: recs.append(McapRecorder(log, metadata=md))
+                         recorder=lambda md, drive_time: recs.append(McapRecorder(log, metadata=md))
                          or recs[-1]))
     recs[0].close()
     logged = read_frames(log)

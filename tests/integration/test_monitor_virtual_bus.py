@@ -29,7 +29,7 @@ def _run(scenario, tmp_path=None, channel="canfdi-it"):
     listener = can.Bus(interface="virtual", channel=channel)
     recorders = []
 
-    def recorder(metadata):
+    def recorder(metadata, drive_time):
         recorders.append(McapRecorder(tmp_path / "run.mcap", metadata=metadata))
         return recorders[-1]
 
