@@ -57,3 +57,26 @@ def test_every_panel_path_is_a_field_of_the_demo_log(tmp_path: Path) -> None:
             node["second"])
 
     assert sorted(leaves(layout["layout"])) == sorted(panels)
+
+
+def test_demo_log_time_is_the_drive_time(tmp_path: Path) -> None:
+    """A 40 s drive spans 40 s of log time on every topic, the monitor's own frames (sent at
+    full speed, in well under 40 s of wall time) and log lines included."""
+    from canfdi.io.reader import read_frames, read_log
+
+    log = tmp_path / "demo.mcap"
+    assert main(["demo", "--no-live", "--json", "-o", str(log)]) == 0
+    frames = read_frames(log)
+    start, end = int(frames.t_ns.min()), int(frames.t_ns.max())
+    assert 39.9e9 < end - start < 40.1e9
+    sent = frames.t_ns[frames.status == "sent"]
+    assert len(sent) > 5 and start <= sent.min() and sent.max() <= end
+    times: dict[str, list[int]] = {}
+    for topic, t, message in read_log(log):
+        times.setdefault(topic, []).append(t)
+        assert message["timestamp"]["sec"] * 10**9 + message["timestamp"]["nsec"] == t
+    for topic, ts in times.items():
+        assert start <= min(ts) and max(ts) <= end, topic
+    samples = times["/canfdi/samples"]
+    assert len(samples) == 4000 and 39.9e9 < samples[-1] - samples[0] < 40.1e9
+    assert len(times["/canfdi/log"]) == len(times["/canfdi/events"]) == 6
