@@ -167,10 +167,14 @@ class LatestValueClock:
                 at = at[1:]
             instants, upto = self._trigger_instants(t, at)
         else:
-            mapped = ok
-            if self._t0 is None and mapped.size:
-                self._t0 = int(t[mapped[0]])
-            instants, upto = self._grid_instants(t)
+            start = 0
+            if self._t0 is None and ok.size:
+                # The first valid frame starts the grid: frames before it close no instant
+                # (a jittered stray stamped later than it would, the scalar path shows).
+                start = int(ok[0])
+                self._t0 = int(t[start])
+            instants, upto = self._grid_instants(t[start:])
+            upto = upto + start
         ks, gaps = self._indices(instants)
         flat = self._values_at(ok, slot, values, t, instants, upto)
         for code, count in enumerate(np.bincount(status, minlength=len(STATUS_NAMES))):
