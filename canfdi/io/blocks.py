@@ -258,16 +258,14 @@ def encode_frame_block(
     return text + b"}"
 
 
-def _cells(values: NDArray) -> NDArray[np.object_]:
-    """The JSON text of every cell of an (N, W) numeric array, as an (N, W) array of str
+def _cells(values: NDArray) -> list[bytes]:
+    """The JSON text of every cell of an (N, W) numeric array, row by row, as N*W bytes
     (orjson's: the shortest text that reads back the same float, null for NaN and inf)."""
     n, w = values.shape
-    out = np.empty((n, w), dtype=object)
-    if n and w:
-        text = orjson.dumps(np.ascontiguousarray(values), option=orjson.OPT_SERIALIZE_NUMPY)
-        out[:] = np.array(text[2:-2].decode().replace("],[", ",").split(","),
-                          dtype=object).reshape(n, w)
-    return out
+    if not (n and w):
+        return []
+    text = orjson.dumps(np.ascontiguousarray(values), option=orjson.OPT_SERIALIZE_NUMPY)
+    return text[2:-2].replace(b"],[", b",").split(b",")
 
 
 class RowEncoder:
@@ -289,7 +287,7 @@ class RowEncoder:
         Constant fields appended to every row (``{"drive": "left"}``).
     """
 
-    __slots__ = ("_groups", "_ints", "_template", "_width", "extra")
+    __slots__ = ("_groups", "_ints", "_row", "_template", "_width", "extra")
 
     def __init__(self, ints: Sequence[str], groups: Sequence[tuple[str, Sequence[str]]],
                  extra: Mapping[str, Any] | None = None) -> None:
@@ -309,6 +307,7 @@ class RowEncoder:
         parts += [f",{quoted(key)}:{encode_json(v).replace('%', '%%')}"
                   for key, v in self.extra.items()]
         self._template = "".join(parts) + "}"
+        self._row = (self._template + "\n").encode()  # bytes %-formatting: no str round trip
 
     def encode(self, t_ns: NDArray[np.int64], ints: NDArray[np.int64],
                floats: NDArray[np.float64]) -> list[bytes]:
@@ -322,9 +321,13 @@ class RowEncoder:
         heads = np.column_stack([sec, nsec, np.asarray(ints, dtype=np.int64).reshape(n, -1)])
         # One %-operation for the whole block: the row templates joined by newlines (a JSON
         # message has none: names are escaped), filled with every cell, split again.
-        cells = np.concatenate([_cells(heads), _cells(floats)], axis=1)
-        text = (self._template + "\n") * n % tuple(cells.ravel().tolist())
-        return text.encode().split(b"\n")[:-1]
+        width = heads.shape[1] + self._width
+        cells: list[bytes | None] = [None] * (n * width)
+        for offset, part in ((0, heads), (heads.shape[1], floats)):
+            text_cells, w = _cells(part), part.shape[1]
+            for j in range(w):  # strided list copies, C speed: a column at a time
+                cells[offset + j :: width] = text_cells[j::w]
+        return (self._row * n % tuple(cells)).split(b"\n")[:-1]
 
     def message(self, t_ns: int, ints: Sequence[int], floats: Sequence[float]) -> dict[str, Any]:
         """One row as a dict (the slow path, and the reference the template is tested
