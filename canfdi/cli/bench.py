@@ -19,7 +19,7 @@ Measure, on this machine and in one run, side by side:
                    and frames/s the service consumes from python-can's virtual bus
   decode           the precompiled vectorised decoder against cantools Message.decode
   capture          canfdi capture's path (arrays, assembly, MCAP) against python-can's
-                   can.Logger writing BLF, on the same frames
+                   can.Logger writing BLF, on the same frames (best of three, interleaved)
   replay           samples/s of canfdi replay's block path over a long capture log (frames
                    and samples), and over the monitor log of the throughput run
   latency          p50/p99 from a frame's arrival to the end of its handling (fault frames
