@@ -53,6 +53,9 @@ from typing import Any
 import numpy as np
 
 from canfdi.core.records import FaultEvent
+from canfdi.tools.figures import CSS as _CSS
+from canfdi.tools.figures import LEGEND_OUTSIDE as _OUTSIDE
+from canfdi.tools.figures import new_figure as _figure
 
 __all__ = ["MAX_POINTS", "LogContents", "Report", "ReportError", "Trajectory", "decimate",
            "diagnosis_rows", "estimate_trajectory", "make_report", "read_log_contents"]
@@ -398,17 +401,6 @@ def decimate(x: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS
     return xs, ys
 
 
-def _figure(rows: int, cols: int = 1, height: float = 1.9, width: float = 11.0,
-            sharex: bool = True):
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width, max(3.0, 0.9 + height * rows)), layout="constrained", dpi=100)
-    axes = fig.subplots(rows, cols, sharex=sharex, squeeze=False)
-    for ax in axes.ravel():
-        ax.grid(True, alpha=0.3)
-    return fig, axes
-
-
 def _time_axis(ax, dt: float) -> None:
     """Time in seconds along the top of ax (the bottom shows the sample index k, written in
     full: 300,000 rather than 0.3 with an offset of 1e6)."""
@@ -493,10 +485,6 @@ def _diagnosing(ax, contents: LogContents, label: bool) -> None:
 
 def _residual_colour(i: int) -> str:
     return f"C{i % 10}"
-
-
-_OUTSIDE = {"loc": "upper left", "bbox_to_anchor": (1.005, 1.0), "fontsize": 8,
-            "framealpha": 0.85}
 
 
 def _save(fig, path: Path) -> Path:
@@ -793,19 +781,6 @@ def _fmt_error(error: dict | None, truth: dict | None) -> str:
             text += f" ({100.0 * v / abs(t):+.2g} %)"
         parts.append(text)
     return ", ".join(parts)
-
-
-_CSS = """
-body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1250px; color: #222; }
-table { border-collapse: collapse; margin: 1em 0; font-size: 0.92em; }
-th, td { border: 1px solid #bbb; padding: 0.3em 0.6em; text-align: left; vertical-align: top; }
-th { background: #eee; }
-td.num { text-align: right; font-variant-numeric: tabular-nums; }
-figure { margin: 1.5em 0; }
-figure img { max-width: 100%; border: 1px solid #ddd; }
-.note { color: #8a4b00; }
-code { background: #f4f4f4; padding: 0 0.2em; }
-"""
 
 
 def write_html(contents: LogContents, rows: list[dict], figures: list[tuple[str, str]],
