@@ -468,6 +468,13 @@ def _date_axis(ax) -> None:
     ax.xaxis.set_major_formatter(ConciseDateFormatter(locator))
 
 
+def _plain(text: str, legend: bool = False) -> str:
+    """``text`` as matplotlib shows it literally: a ``$`` would start mathtext (and a name
+    like ``a$^{$b`` fail to draw); a legend hides labels that start with ``_``."""
+    text = text.replace("$", r"\$")
+    return "\u200b" + text if legend and text.startswith("_") else text
+
+
 def _style(kind: str) -> tuple[str, str]:
     return _KIND_STYLE.get(kind, _OTHER_STYLE)
 
@@ -489,14 +496,14 @@ def _timeline(rows: list[tuple[str, int, str]], title: str) -> str:
         sel = [(t, y_of[c]) for c, t, k in rows if k == kind]
         ax.plot(_dates([t for t, _ in sel]), [y for _, y in sel], linestyle="none",
                 marker=marker, color=colour, ms=6, alpha=0.8)
-    ax.set_yticks(range(len(cats)), list(reversed(cats)), fontsize=8)
+    ax.set_yticks(range(len(cats)), [_plain(c) for c in reversed(cats)], fontsize=8)
     ax.set_ylim(-0.7, len(cats) - 0.3)
     _date_axis(ax)
     ax.set_xlabel("fault onset (UTC)")
     handles = [Line2D([], [], linestyle="none", marker=_style(k)[0], color=_style(k)[1],
-                      label=k) for k in kinds]
+                      label=_plain(k, legend=True)) for k in kinds]
     ax.legend(handles=handles, **LEGEND_OUTSIDE)
-    ax.set_title(title, fontsize=10)
+    ax.set_title(_plain(title), fontsize=10)
     return _png(fig)
 
 
@@ -515,8 +522,8 @@ def _estimates_figure(drive: DriveSummary) -> str:
             state = "significant" if t.significant else "not significant"
             ax.plot(_dates(ends), line, color="k", lw=1.4,
                     label=f"trend {t.slope:+.3g} /day ± {t.slope_std:.2g} ({state})")
-        ax.set_ylabel(t.parameter)
-        ax.set_title(f"{t.kind}: {t.sentence()}", fontsize=9)
+        ax.set_ylabel(_plain(t.parameter))
+        ax.set_title(_plain(f"{t.kind}: {t.sentence()}"), fontsize=9)
         ax.legend(**LEGEND_OUTSIDE)
         _date_axis(ax)
     axes[-1, 0].set_xlabel("fault onset (UTC)")
@@ -538,11 +545,13 @@ def _variances_figure(drive: DriveSummary) -> str | None:
         return None
     fig, axes = new_figure(1, height=2.6, width=11.0)
     ax = axes[0, 0]
-    positive = all(v > 0 for pts in series.values() for _, v in pts)
+    values = [v for pts in series.values() for _, v in pts]
+    # log scale only where it helps: residuals of different sizes, or one that grew 10-fold
+    spread = min(values) > 0 and max(values) > 10 * min(values)
     for i, (name, pts) in enumerate(sorted(series.items())):
         ax.plot(_dates([t for t, _ in pts]), [v for _, v in pts], marker="o", ms=4, lw=1.0,
-                color=f"C{i % 10}", label=name)
-    if positive:
+                color=f"C{i % 10}", label=_plain(name, legend=True))
+    if spread:
         ax.set_yscale("log")
     _date_axis(ax)
     ax.set_xlabel("log start (UTC)")

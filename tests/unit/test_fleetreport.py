@@ -305,9 +305,12 @@ def test_data_is_escaped_and_odd_drive_names_stay_inside_out_dir(tmp_path):
     faults = [fault_row(evil, d, 0.1 * d, channel="<b>ch</b>") for d in range(3)]
     logs = [log_row(evil, 0, error="bad </td></tr> & <i>"), log_row(evil, 1),
             log_row("../../up", 0), log_row("a/b", 0)]
+    # a $ would start matplotlib's mathtext: these names must draw as they are
+    faults += [fault_row("x$^{$y", d, 0.1 * d, channel="$\\frac$") for d in range(3)]
+    logs += [{**log_row("x$^{$y", d), "residual_names": ["_r0", "$r1"]} for d in range(3)]
     out = tmp_path / "out"
     paths = fr.write_fleet_report(*tables(faults, logs), out)
-    assert len(paths) == 4 and all(p.parent == out for p in paths)
+    assert len(paths) == 5 and all(p.parent == out for p in paths)
     assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in paths)
     assert not (tmp_path / "up.html").exists()
     for p in paths:
