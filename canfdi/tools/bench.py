@@ -331,3 +331,205 @@ def _latency(config, bus_fps: float, faulty: Scenario | str, seconds: float) -> 
         "latency_faults_diagnosed": sum(e.kind == "accepted" for e in monitor.events),
         "latency_fault_frames_sent": sent_before.get("sent", 0),
     }
+
+
+# ------------------------------------------------------------------------------------------
+# the daemon soak: `canfdi run`'s path fed for a long time, its memory watched
+# ------------------------------------------------------------------------------------------
+
+LOOP_SAMPLES = 102_400
+"""Control periods of the traffic a soak plays over and over: a multiple of 256 (the alive
+counter, k mod 256, and with it the E2E CRC repeat) and of 800 (the DC motor's speed reference,
+a square wave of 8 s at 100 Hz), so that every frame of a repeat is the one the drive sends at
+that time; 1024 s of the drive."""
+
+SOAK_WARMUP_FRAMES = 2_000_000
+"""Frames a soak runs before its reference RSS is taken (caches, arenas, the first segments)."""
+
+
+def loop_traffic(scenario: Scenario | str, samples: int = LOOP_SAMPLES,
+                 search: int = 6400) -> tuple[FrameBlock, int]:
+    """``samples`` control periods of a scenario's bus that play seamlessly over and over.
+
+    Repeat r of the stretch is sent ``r * samples * dt`` later: its counters and CRCs are those
+    of the drive at that time when ``samples`` is a multiple of their period. The plant's state
+    does not come back exactly (noise, the controller's dither), so the stretch starts where it
+    comes back closest: among the first ``search`` periods, the start a whose state x(a) is
+    nearest x(a + samples) (each state scaled by its spread), so that at the seam the frames
+    jump by as little as possible from what the drive would send next.
+
+    Returns
+    -------
+    (FrameBlock, int)
+        The frames of periods a .. a + samples - 1, stamped as generated, and the time in ns
+        to add to them per repeat (``samples * dt``).
+    """
+    from firmware_sim.emitter import frame_log
+    from firmware_sim.scenario import load_scenario
+
+    sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
+    probe = frame_log(sc, duration=1.0)
+    dt = float(probe.chunk.t[1] - probe.chunk.t[0])
+    log = frame_log(sc, duration=(samples + search) * dt)
+    # (periods, states of every drive) and how far each state is from its value one stretch on
+    x = np.hstack([d.chunk.x for d in log.drives])
+    scale = np.maximum(x.std(axis=0), 1e-12)
+    miss = np.linalg.norm((x[samples:samples + search] - x[:search]) / scale, axis=1)
+    start = int(np.argmin(miss))
+    period_ns = round(samples * dt * 1e9)
+    t0 = log.chunk.k[0] * dt  # 0: a stretch's periods are k = start ..
+    lo, hi = np.searchsorted(log.frames.t_ns, [round((t0 + start * dt) * 1e9),
+                                               round((t0 + start * dt) * 1e9) + period_ns])
+    return log.frames.slice(int(lo), int(hi)), period_ns
+
+
+def _verify_segment(path: str, delete: bool) -> tuple[str, int, str | None]:
+    """(file name, frames in it, None or what is wrong with it) for one closed segment of a
+    soak's log, read alone with canfdi's reader (every chunk's CRC checked); the file is
+    deleted afterwards when ``delete``. Runs in a worker process, whose memory is not the
+    monitor's."""
+    from canfdi.io.damage import Damage
+    from canfdi.io.reader import iter_frame_blocks
+    from canfdi.io.scan import MAGIC
+
+    damage = Damage()
+    problem = None
+    frames = 0
+    try:
+        for block in iter_frame_blocks(path, segments=False, damage=damage):
+            frames += block.size
+        with open(path, "rb") as f:
+            f.seek(-len(MAGIC), os.SEEK_END)
+            if f.read() != MAGIC:
+                problem = "no footer (not closed cleanly)"
+    except (OSError, ValueError) as exc:
+        problem = str(exc)
+    if damage:
+        problem = "; ".join(damage.lines())
+    if delete:
+        Path(path).unlink(missing_ok=True)
+    return Path(path).name, frames, problem
+
+
+def run_daemon_soak(config, frames: int, rotate_bytes: int,
+                    scenario: Scenario | str = "dc_motor_nominal",
+                    progress: Callable[[str], None] | None = None,
+                    workdir: Path | None = None, warmup: int = SOAK_WARMUP_FRAMES,
+                    keep_segments: bool = False, loop_samples: int = LOOP_SAMPLES) -> dict:
+    """`canfdi run`'s path fed ``frames`` frames as fast as it takes them; its RSS and its log.
+
+    The service's own handling: python-can Messages, made fresh for every block of
+    ``MonitorService.block`` frames as a bus would deliver them, through
+    ``MonitorService._process`` (FrameBlock.from_messages, the monitor, the recorder), with
+    the recorder `canfdi run` opens (the config's rotation by time, by size ``rotate_bytes``).
+    The traffic is `loop_traffic` (``loop_samples`` periods) played over and over. RSS is
+    read after every block from ``warmup`` frames on (the reference), and each segment, once
+    closed, is read back whole by a worker process (frames counted, every chunk's CRC
+    checked, the footer present) and deleted unless ``keep_segments``: the disk holds about
+    two segments at a time.
+
+    Returns the JSON-ready result (keys ``daemon_*``).
+    """
+    import concurrent.futures
+    import multiprocessing
+
+    from canfdi.io.writer import McapRecorder
+    from canfdi.monitor import Monitor
+    from canfdi.service import MonitorService
+
+    say = progress or (lambda msg: None)
+    tmp = Path(workdir or tempfile.mkdtemp(prefix="canfdi-soak-"))
+    warmup = min(warmup, frames // 5)
+    say(f"generating {loop_samples:,} control periods to play over and over")
+    loop, period_ns = loop_traffic(scenario, loop_samples)
+    monitor = Monitor(config)
+    recorder = McapRecorder(tmp / f"{config.name}-soak.mcap", metadata=monitor.metadata(),
+                            rotate_bytes=rotate_bytes,
+                            rotate_seconds=config.recording.rotate_minutes * 60.0)
+    monitor.sink = recorder
+    service = MonitorService(monitor, lambda: None, status_period=0)
+    block = service.block
+    # One worker reads the closed segments back while the monitor runs.
+    pool = concurrent.futures.ProcessPoolExecutor(
+        max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+    checks: list[concurrent.futures.Future] = []
+    rss: list[tuple[int, float]] = []  # (frames fed, MiB) every 1 % of the run after warm-up
+    every = max(frames // 100, 1)
+    rss_start = rss_max = rss_now = math.nan
+    fed = in_service = 0
+    say(f"feeding {frames:,} frames through the service, segments of "
+        f"{rotate_bytes / 2**20:g} MiB")
+    start = time.perf_counter()
+    repeat = 0
+    while fed < frames:
+        shift = repeat * period_ns
+        for i in range(0, loop.size, block):
+            j = min(loop.size, i + block, i + frames - fed)
+            part = loop.slice(i, j)
+            messages = FrameBlock(part.t_ns + shift, part.id, part.dlc, part.flags,
+                                  part.data).to_messages()
+            t0 = time.perf_counter()
+            service._process(messages)
+            in_service += time.perf_counter() - t0
+            del messages
+            before = fed
+            fed += j - i
+            if fed >= warmup:
+                rss_now = _rss_mib()
+                if math.isnan(rss_start):
+                    rss_start = rss_max = rss_now
+                    rss.append((fed, rss_now))
+                rss_max = max(rss_max, rss_now)
+                if fed // every != before // every or fed >= frames:
+                    rss.append((fed, rss_now))
+                if fed // (10 * every) != before // (10 * every):
+                    say(f"{fed:,} frames, RSS {rss_now:.2f} MiB "
+                        f"({rss_now - rss_start:+.2f} since warm-up)")
+            closed = len(recorder.paths) - 1
+            while len(checks) < closed:
+                checks.append(pool.submit(_verify_segment, str(recorder.paths[len(checks)]),
+                                          not keep_segments))
+            if fed >= frames:
+                break
+        repeat += 1
+    wall = time.perf_counter() - start
+    monitor.finish()
+    recorder.close()
+    paths = recorder.paths
+    while len(checks) < len(paths):
+        checks.append(pool.submit(_verify_segment, str(paths[len(checks)]),
+                                  not keep_segments))
+    say(f"verifying the last of {len(paths)} segments")
+    results = [c.result() for c in checks]
+    pool.shutdown()
+    if workdir is None and not keep_segments:
+        tmp.rmdir()  # every segment was deleted once read back
+    stats = monitor.frame_stats
+    return {
+        "daemon_frames": fed,
+        "daemon_scenario": getattr(scenario, "name", scenario),
+        "daemon_loop_samples": loop_samples,
+        "daemon_loop_frames": loop.size,
+        "daemon_fps": fed / wall,
+        "daemon_service_fps": fed / in_service,
+        "daemon_seconds": wall,
+        "daemon_samples": monitor.samples,
+        "daemon_false_alarms": len(monitor.events),
+        "daemon_frame_stats": stats,
+        "daemon_rss_warmup_frames": warmup,
+        "daemon_rss_start_mib": rss_start,
+        "daemon_rss_max_mib": rss_max,
+        "daemon_rss_end_mib": rss_now,
+        "daemon_rss_max_growth_mib": rss_max - rss_start,
+        "daemon_rss_end_growth_mib": rss_now - rss_start,
+        "daemon_rss_series": [[f, round(m, 3)] for f, m in rss],
+        "daemon_rotate_mib": rotate_bytes / 2**20,
+        "daemon_segments": len(paths),
+        "daemon_log_bytes": recorder.bytes_written,
+        "daemon_segment_frames": [f for _, f, _ in results],
+        "daemon_frames_in_segments": sum(f for _, f, _ in results),
+        "daemon_messages_dropped": recorder.messages_dropped,
+        "daemon_unreadable_segments": {name: why for name, _, why in results if why},
+        "daemon_segments_kept": keep_segments,
+        "daemon_log_dir": str(tmp) if keep_segments or workdir is not None else None,
+    }
