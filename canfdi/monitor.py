@@ -46,6 +46,7 @@ from canfdi.core.watchdog import (
     WatchdogChange,
     block_runs,
     monitoring_rows,
+    watch_runs,
 )
 
 __all__ = ["Drive", "Monitor", "OutFrame", "RecordSink", "Teacher", "summary_json"]
@@ -394,7 +395,14 @@ class Monitor:
         if wd is not None:
             raw = result.normalized * _noise_scale(dg)
             quiet = monitoring_rows(k, result.events, before)
-            for a, b in block_runs(k, wd.block):
+            for a, b, plain in watch_runs(k, wd.block, quiet):
+                if plain:
+                    # Blocks the diagnoser only watched (no event, no row held back): the
+                    # watchdog takes them at once.
+                    changes = wd.update(k[a:b], raw[a:b], stop_on_change=stop_on_mismatch)
+                    if changes and stop_on_mismatch:
+                        return int(np.searchsorted(k, changes[0].k))
+                    continue
                 if a > 0 and wd.due(int(k[a])):
                     change = wd.close(int(k[a]))
                     if change is not None and stop_on_mismatch:

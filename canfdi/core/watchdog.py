@@ -34,7 +34,8 @@ from numpy.typing import NDArray
 
 from canfdi.core._check import check_shape
 
-__all__ = ["DECISIONS", "NoiseWatchdog", "WatchdogChange", "block_runs", "monitoring_rows"]
+__all__ = ["DECISIONS", "NoiseWatchdog", "WatchdogChange", "block_runs", "monitoring_rows",
+           "watch_runs"]
 
 
 @dataclass(frozen=True)
@@ -113,22 +114,26 @@ class NoiseWatchdog:
         self._open, self._n[:], self._s1[:], self._s2[:] = k // self.block, 0.0, 0.0, 0.0
         self._variances.append(var)
         recent = np.array(self._variances)
-        seen = (~np.isnan(recent)).sum(axis=0)
-        total = np.nansum(recent, axis=0)
-        self.ratio = np.where(seen > 0, np.sqrt(total / np.maximum(seen, 1)), np.nan)
+        self.ratio = _ratio(recent)
         if len(recent) < self.blocks:
             return None
-        f2 = self.factor**2
-        # In: each of the last blocks out of the band (one block can hold a fault's step);
-        # back: each inside the narrower band (no flapping at the edge).
-        out = np.all(recent > f2, axis=0) | np.all(recent < 1.0 / f2, axis=0)
-        inside = np.all((recent <= self.factor) & (recent >= 1.0 / self.factor), axis=0)
+        out, inside = self._verdicts(recent)
         new = (self.mismatch | out) & ~inside
         entered, left = new & ~self.mismatch, self.mismatch & ~new
         self.mismatch = new
         if entered.any() or left.any():
             return WatchdogChange(k, entered, left, self.ratio.copy())
         return None
+
+    def _verdicts(self, recent: NDArray[np.float64]
+                  ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+        """(out, inside), each recent.shape[1:], of windows of block variances ``recent``
+        (blocks, ..., m): out of the band in each block (in: one block can hold a fault's step),
+        each inside the narrower band (back: no flapping at the edge). A NaN is neither."""
+        f2 = self.factor**2
+        out = np.all(recent > f2, axis=0) | np.all(recent < 1.0 / f2, axis=0)
+        inside = np.all((recent <= self.factor) & (recent >= 1.0 / self.factor), axis=0)
+        return out, inside
 
     def add(self, k: NDArray[np.int64], rn: NDArray[np.float64]) -> None:
         """Accumulate samples k (N,) of one block, normalised residuals rn (N, m) (NaN:
@@ -162,18 +167,101 @@ class NoiseWatchdog:
             self._variances.append(_variance(n, x.sum(axis=0), (x * x).sum(axis=0),
                                              self.block))
 
-    def update(self, k: NDArray[np.int64], rn: NDArray[np.float64]) -> list[WatchdogChange]:
+    def update(self, k: NDArray[np.int64], rn: NDArray[np.float64],
+               stop_on_change: bool = False) -> list[WatchdogChange]:
         """Samples k (N,) increasing, rn (N, m): the changes they caused, in order (the batch
-        form of `due`/`close`/`add`; the same state whatever the chunks)."""
+        form of `due`/`close`/`add`: the same state and changes whatever the chunks). With
+        ``stop_on_change`` it stops at the first change, in the state `close` left: the samples
+        from that change's ``k`` on are not taken.
+
+        Vectorised over the blocks: their sums, variances, windows and verdicts are whole-array
+        operations (the same arithmetic as `close` and `add`, so the same bits), and the set of
+        residuals in mismatch is a latch each verdict sets or resets.
+        """
         k = np.asarray(k, dtype=np.int64)
-        out = []
-        for lo, hi in block_runs(k, self.block):
-            if self.due(int(k[lo])):
-                change = self.close(int(k[lo]))
-                if change is not None:
-                    out.append(change)
-            self.add(k[lo:hi], rn[lo:hi])
+        rn = np.asarray(rn, dtype=float)
+        check_shape("rn", rn, (len(k), self.m))
+        runs = block_runs(k, self.block)
+        if not runs:
+            return []
+        out: list[WatchdogChange] = []
+        lo, hi = runs[0]
+        if self.due(int(k[lo])):
+            change = self.close(int(k[lo]))
+            if change is not None:
+                out.append(change)
+                if stop_on_change:
+                    return out
+        self.add(k[lo:hi], rn[lo:hi])
+        if len(runs) == 1:
+            return out
+        # Each later run closes the block before it: the first closed holds what was open
+        # before these samples, the others are runs 1..R-2 whole.
+        starts = np.array([a for a, _ in runs[1:]])
+        var = np.empty((len(starts), self.m))
+        var[0] = _variance(self._n, self._s1, self._s2, self.block)
+        if len(runs) > 2:
+            n, s1, s2 = _run_sums(rn, runs[1:-1], self.block)
+            var[1:] = _variance(n, s1, s2, self.block)
+        # Window c (the recent blocks at close c, var[c] the newest) is rows c+1 .. c+B of the
+        # earlier variances NaN-padded to B in front, then these: a missing block is unseen,
+        # as in `close`.
+        B, before = self.blocks, list(self._variances)
+        seq = np.concatenate([np.full((B - len(before), self.m), np.nan),
+                              np.array(before).reshape(-1, self.m), var])
+        C = len(var)
+        windows = np.stack([seq[j + 1: j + 1 + C] for j in range(B)])  # (B, C, m)
+        ratio = _ratio(windows)  # (C, m)
+        up, inside = self._verdicts(windows)
+        # The latch: out sets, inside resets, neither keeps the state before.
+        row = np.arange(C)[:, None]
+        last = np.maximum.accumulate(np.where(up | inside, row, -1), axis=0)
+        state = np.where(last >= 0, up[np.maximum(last, 0), np.arange(self.m)],
+                         self.mismatch[None, :])
+        prev = np.vstack([self.mismatch[None, :], state[:-1]])
+        moved = np.flatnonzero((state != prev).any(axis=1))
+        stop = stop_on_change and len(moved) > 0
+        end = int(moved[0]) + 1 if stop else C
+        for c in moved[moved < end].tolist():
+            out.append(WatchdogChange(int(k[starts[c]]), state[c] & ~prev[c],
+                                      prev[c] & ~state[c], ratio[c].copy()))
+        # The state the closes leave (the last one, or the change it stopped at).
+        self._variances.extend(var[max(0, end - B): end].copy())
+        self.ratio = ratio[end - 1].copy()
+        self.mismatch = state[end - 1].copy()
+        self._open = int(k[starts[end - 1]]) // self.block
+        self._n[:], self._s1[:], self._s2[:] = 0.0, 0.0, 0.0
+        if not stop:
+            self.add(k[runs[-1][0]:], rn[runs[-1][0]:])
         return out
+
+
+def _ratio(recent: NDArray[np.float64]) -> NDArray[np.float64]:
+    """recent.shape[1:]: each residual's noise std over its calibrated value from windows of
+    block variances ``recent`` (blocks, ..., m), NaN (unknown) blocks left out; NaN when all
+    are. The sum runs block after block (one order for `close` and `update`)."""
+    seen = (~np.isnan(recent)).sum(axis=0)
+    total = np.zeros(recent.shape[1:])
+    for v in recent:
+        total += np.where(np.isnan(v), 0.0, v)
+    return np.where(seen > 0, np.sqrt(total / np.maximum(seen, 1)), np.nan)
+
+
+def _run_sums(rn: NDArray[np.float64], runs: list[tuple[int, int]], block: int
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """(R, m) count, sum and sum of squares of the non-NaN values of each run of rows of rn,
+    as `NoiseWatchdog.add` sums them (row after row: the same bits)."""
+    a, b = runs[0][0], runs[-1][1]
+    have = ~np.isnan(rn[a:b])
+    x = np.where(have, rn[a:b], 0.0)
+    if b - a == block * len(runs):  # whole blocks: one reshape
+        shape = (len(runs), block, rn.shape[1])
+        return (have.reshape(shape).sum(axis=1).astype(float), x.reshape(shape).sum(axis=1),
+                (x * x).reshape(shape).sum(axis=1))
+    sums = [(have[lo - a: hi - a].sum(axis=0), x[lo - a: hi - a].sum(axis=0),
+             (x[lo - a: hi - a] * x[lo - a: hi - a]).sum(axis=0)) for lo, hi in runs]
+    n, s1, s2 = (np.array(v, dtype=float) for v in zip(*sums, strict=True))
+    return n, s1, s2
 
 
 def _variance(n: NDArray[np.float64], s1: NDArray[np.float64], s2: NDArray[np.float64],
@@ -192,6 +280,25 @@ def block_runs(k: NDArray[np.int64], block: int) -> list[tuple[int, int]]:
     cuts = np.flatnonzero(np.diff(b)) + 1
     edges = [0, *cuts.tolist(), len(k)]
     return list(pairwise(edges))
+
+
+def watch_runs(k: NDArray[np.int64], block: int, quiet: NDArray[np.bool_]
+               ) -> list[tuple[int, int, bool]]:
+    """[(lo, hi, plain)] the `block_runs` of k (N,) increasing, consecutive runs whose rows
+    are all ``quiet`` (N,) (`monitoring_rows`) merged into one ``plain`` range (what
+    `NoiseWatchdog.update` takes at once), each other run on its own."""
+    runs = block_runs(k, block)
+    if not runs:
+        return []
+    starts = np.array([a for a, _ in runs])
+    plain = np.logical_and.reduceat(np.asarray(quiet, dtype=bool), starts).tolist()
+    out: list[tuple[int, int, bool]] = []
+    for (a, b), p in zip(runs, plain, strict=True):
+        if p and out and out[-1][2]:
+            out[-1] = (out[-1][0], b, True)
+        else:
+            out.append((a, b, p))
+    return out
 
 
 DECISIONS = ("accepted", "refined", "unexplained")

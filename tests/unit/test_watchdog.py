@@ -94,3 +94,37 @@ def test_bad_settings_are_refused():
         NoiseWatchdog(2, factor=1.0)
     with pytest.raises(ValueError, match="block"):
         NoiseWatchdog(2, block=1)
+
+
+def _state(wd: NoiseWatchdog) -> tuple:
+    return (wd._open, wd._n.tobytes(), wd._s1.tobytes(), wd._s2.tobytes(),
+            [v.tobytes() for v in wd._variances], wd.ratio.tobytes(), wd.mismatch.tobytes())
+
+
+@pytest.mark.parametrize("m", [1, 4])
+def test_the_batch_update_leaves_the_bits_of_one_sample_at_a_time(m):
+    rng = np.random.default_rng(m)
+    # Gaps (partial blocks, whole blocks missing), lost values, noise that leaves and returns.
+    k = np.cumsum(rng.choice([1] * 60 + [2, 150], size=6000))
+    rn = rng.standard_normal((len(k), m))
+    rn[1500:3500] *= 3.0
+    rn[rng.random(rn.shape) < 0.03] = np.nan
+    whole, single = NoiseWatchdog(m, 1.5, BLOCK, 3), NoiseWatchdog(m, 1.5, BLOCK, 3)
+    got = whole.update(k, rn)
+    want = []
+    for i in range(len(k)):
+        want += single.update(k[i:i + 1], rn[i:i + 1])
+    assert [(c.k, c.entered.tolist(), c.left.tolist(), c.ratio.tobytes()) for c in got] == \
+        [(c.k, c.entered.tolist(), c.left.tolist(), c.ratio.tobytes()) for c in want]
+    assert len(got) >= 2 and _state(whole) == _state(single)
+
+
+def test_the_batch_update_can_stop_at_the_first_change():
+    rn = _noise(3000)
+    rn[1000:, 1] *= 3.0
+    k = np.arange(3000)
+    wd, ref = NoiseWatchdog(3, 1.5, BLOCK, BLOCKS), NoiseWatchdog(3, 1.5, BLOCK, BLOCKS)
+    (change,) = wd.update(k, rn, stop_on_change=True)
+    first = ref.update(k[:change.k], rn[:change.k])  # up to the sample whose block end moved
+    assert not first and ref.due(change.k)
+    assert ref.close(change.k).k == change.k and _state(wd) == _state(ref)
