@@ -22,6 +22,9 @@ from canfdi.cli import evaluate  # issue 10: Monte Carlo evaluation of the diagn
 # isort: split
 from canfdi.cli import calibrate  # issue 16: the drive's noise from healthy logs
 
+# isort: split
+from canfdi.cli import fleet  # issue 18: many logs on Dask into Parquet
+
 VERBS = {
     "run": run, "demo": demo, "design": design, "sim": sim, "capture": capture, "replay": replay,
     "bench": bench, "soak": soak, "export": export,
@@ -29,6 +32,7 @@ VERBS = {
     "identify": identify,
     "evaluate": evaluate,
     "calibrate": calibrate,
+    "fleet": fleet,
 }
 
 

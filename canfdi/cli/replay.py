@@ -39,10 +39,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from canfdi.io.damage import Damage
     from canfdi.io.formats import LogFormatError
-    from canfdi.io.logs import frame_blocks, truth_of
     from canfdi.monitor import Monitor
+    from canfdi.tools.replay import replay_log
 
     config = load_config_or_exit(args.config, "replay")
     if isinstance(config, int):
@@ -54,41 +53,39 @@ def run(args: argparse.Namespace) -> int:
         monitor = Monitor(config, record_residuals=False)
     except ValueError as exc:
         return config_error(exc, "replay")
-    damage = Damage()
+    progress = not args.no_progress and sys.stderr.isatty()
+    start = time.monotonic()
+    seen = {"frames": 0, "events": 0}
+
+    def on_block(count: int) -> None:
+        seen["frames"] = count
+        if len(monitor.events) != seen["events"]:
+            if not args.json:
+                for event in monitor.events[seen["events"]:]:
+                    print(format_event(event, monitor.dt, len(monitor.drives) > 1), flush=True)
+            seen["events"] = len(monitor.events)
+        if progress:
+            rate = monitor.samples / max(time.monotonic() - start, 1e-9)
+            print(f"\rcanfdi replay: {count:,} frames, {monitor.samples:,} samples, "
+                  f"{rate:,.0f} samples/s", end="", file=sys.stderr)
+
     try:
-        blocks = frame_blocks(args.log, damage=damage)
+        replayed = replay_log(monitor, args.log, on_block)
     except LogFormatError as exc:
         print(f"canfdi replay: {exc}", file=sys.stderr)
         return 2
-    truth = truth_of(args.log)
-    progress = not args.no_progress and sys.stderr.isatty()
-    start = time.monotonic()
-    count = n_events = 0
-    try:
-        for block in blocks:
-            monitor.on_frames(block)
-            count += block.size
-            if len(monitor.events) != n_events:
-                if not args.json:
-                    for event in monitor.events[n_events:]:
-                        print(format_event(event, monitor.dt, len(monitor.drives) > 1), flush=True)
-                n_events = len(monitor.events)
-            if progress:
-                rate = monitor.samples / max(time.monotonic() - start, 1e-9)
-                print(f"\rcanfdi replay: {count:,} frames, {monitor.samples:,} samples, "
-                      f"{rate:,.0f} samples/s", end="", file=sys.stderr)
     except OSError as exc:
-        lead = "\n" if progress and count else ""  # end the progress line first
+        lead = "\n" if progress and seen["frames"] else ""  # end the progress line first
         print(f"{lead}canfdi replay: cannot read {args.log}: {exc.strerror or exc}",
               file=sys.stderr)
         return 1
     except ValueError as exc:  # LogReadError (not a log of its suffix), an unknown layout
-        lead = "\n" if progress and count else ""
+        lead = "\n" if progress and seen["frames"] else ""
         print(f"{lead}canfdi replay: {exc}", file=sys.stderr)
         return 2
-    monitor.finish()
     if progress:
         print(file=sys.stderr)
+    damage, truth = replayed.damage, replayed.truth
     result = monitor.summary(truth)
     if "no_samples" in result and damage:
         print(f"canfdi replay: {'; '.join(damage.lines())}; no sample left to replay "
