@@ -7,6 +7,8 @@ module parses arguments, prints and plots. Like soak and demo, it needs the plan
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import json
 import math
 import sys
@@ -55,7 +57,12 @@ onset (the whole run without faults) and from each acceptance to the next onset.
 (output_error) or <plant>_uio.yaml (uio); --config gives any. -o DIR writes
 <plant>_<method>.png (detection delay and isolation accuracy against FNR) and
 <plant>_<method>.json. Progress on stderr; --json prints one object. Exit status 0, or 2 on bad
-arguments or config."""
+arguments or config.
+
+--jobs N runs the runs on a local Dask cluster of N worker processes, --scheduler ADDRESS on
+the workers of a running Dask scheduler (pip install 'canfdi[fleet]'); the results are those
+of the serial run for the same --seed (each run is seeded on its own, the outcomes are put
+back in run order)."""
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from firmware_sim.plants import PLANTS
@@ -98,6 +105,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", type=Path, default=None, metavar="DIR",
                    help="write <plant>_<method>.png and .json into DIR")
     p.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--jobs", type=int, metavar="N",
+                       help="run on a local Dask cluster of N worker processes")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run on a running Dask scheduler's workers (tcp://host:8786)")
 
 
 def _fail(message: str) -> int:
@@ -149,7 +161,32 @@ def _check_args(args: argparse.Namespace) -> str | None:
         args.kinds = kinds
     if args.spacing is not None and args.spacing < 100:
         return "--spacing: at least 100 samples"
+    if args.jobs is not None and args.jobs < 1:
+        return "--jobs: at least 1 worker"
     return None
+
+
+class _NoEngine(Exception):
+    """--jobs / --scheduler cannot be served (no Dask, no scheduler there)."""
+
+
+@contextlib.contextmanager
+def _engine(args: argparse.Namespace):
+    """The runs' mapper of canfdi.tools.fleet on a Dask client for --jobs / --scheduler (None:
+    here, one by one)."""
+    if args.jobs is None and args.scheduler is None:
+        yield None
+        return
+    from canfdi.tools.fleet import FleetError, dask_client, map_tasks, need_fleet_extra
+
+    missing = need_fleet_extra(arrow=False)
+    if missing:
+        raise _NoEngine(f"--jobs/--scheduler {missing}")
+    try:
+        with dask_client(args.jobs, args.scheduler) as client:
+            yield functools.partial(map_tasks, client)
+    except FleetError as exc:  # only opening the client raises it
+        raise _NoEngine(str(exc)) from None
 
 
 def _calibrated(config, plant: str, noise_scale: float, seconds: float, seed: int, progress):
@@ -212,11 +249,15 @@ def run(args: argparse.Namespace) -> int:
             return _fail(f"--calibrate: {exc}")
         monitor = calibration.config
     try:
-        result = evaluate(config, args.plant, runs=args.runs, seed=args.seed,
-                          max_faults=args.max_faults, fnr=tuple(args.fnr),
-                          noise_spread=args.noise_spread, kinds=args.kinds,
-                          spacing=args.spacing, quantize=not args.no_quantize,
-                          noise_scale=args.noise_scale, monitor=monitor, progress=progress)
+        with _engine(args) as mapper:
+            result = evaluate(config, args.plant, runs=args.runs, seed=args.seed,
+                              max_faults=args.max_faults, fnr=tuple(args.fnr),
+                              noise_spread=args.noise_spread, kinds=args.kinds,
+                              spacing=args.spacing, quantize=not args.no_quantize,
+                              noise_scale=args.noise_scale, monitor=monitor,
+                              progress=progress, mapper=mapper)
+    except _NoEngine as exc:
+        return _fail(str(exc))
     except (ConfigError, ValueError) as exc:
         return config_error(exc, "evaluate")
     result["config"] = str(path)

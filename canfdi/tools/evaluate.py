@@ -33,7 +33,7 @@ from __future__ import annotations
 import copy
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -55,6 +55,7 @@ __all__ = [
     "EvaluationSetup",
     "FaultOutcome",
     "InjectedFault",
+    "Mapper",
     "RunOutcome",
     "RunSpec",
     "aggregate",
@@ -65,6 +66,7 @@ __all__ = [
     "plan_runs",
     "relative_errors",
     "run_evaluation",
+    "run_one",
     "setup_from_config",
 ]
 
@@ -609,59 +611,86 @@ def aggregate(runs: Sequence[RunOutcome], dt: float,
 
 # -- running -------------------------------------------------------------------------------------
 
+Mapper = Callable[[Callable[..., Any], Sequence[Any], Sequence[Any]], Iterable[tuple[int, Any]]]
+"""How the runs are spread: ``mapper(fn, items, shared)`` yields ``(index, fn(item,
+*shared))`` for every item, in any order (canfdi.tools.fleet.map_tasks on a Dask client: a
+local cluster or a scheduler's workers). The default runs them here, in order."""
+
+
+def _serial(fn: Callable[..., Any], items: Sequence[Any], shared: Sequence[Any]
+            ) -> Iterator[tuple[int, Any]]:
+    for i, item in enumerate(items):
+        yield i, fn(item, *shared)
+
+
+def run_one(spec: RunSpec, setup: EvaluationSetup, base, names: dict[str, list[str]],
+            preprocess: Callable[[np.ndarray, np.ndarray], tuple] | None = None,
+            block: int = 2000) -> RunOutcome:
+    """One run: simulate the spec's scenario, diagnose it with a fresh copy of ``base`` (the
+    config's diagnoser, built and calibrated once; its design shared, not copied) through
+    ``update_block`` in blocks of ``block`` samples, match the events to the injected faults.
+    A pure function of its arguments (the scenario is seeded): the same outcome in any
+    process."""
+    from firmware_sim.scenario import parse_scenario
+    from firmware_sim.simulate import simulate
+
+    design = getattr(base, "design", None)
+    memo = {id(design): design} if design is not None else {}
+    dt_ns = round(setup.dt * 1e9)
+    scenario = parse_scenario(spec.scenario_dict(setup.plant, setup.dt, setup.measurement_std))
+    chunk = simulate(scenario)
+    U, Z = chunk.u_c, chunk.z
+    if preprocess is not None:
+        U, Z = preprocess(U, Z)
+    dg = copy.deepcopy(base, memo)
+    events: list[FaultEvent] = []
+    first_monitored = None
+    for i in range(0, len(chunk.k), block):
+        k = chunk.k[i: i + block]
+        res = dg.update_block(k, k * dt_ns, U[i: i + block], Z[i: i + block])
+        events.extend(res.events)
+        if first_monitored is None:
+            have = np.flatnonzero(~np.isnan(res.residuals).all(axis=1))
+            if len(have):
+                first_monitored = int(k[have[0]])
+    return match_run(spec.faults, events, len(chunk.k),
+                     first_monitored if first_monitored is not None else len(chunk.k),
+                     setup.twins, names, spec.run, spec.noise_scale)
+
+
 def run_evaluation(config: MonitorConfig, setup: EvaluationSetup, specs: Sequence[RunSpec], *,
                    block: int = 2000,
                    preprocess: Callable[[np.ndarray, np.ndarray], tuple] | None = None,
                    progress: Callable[[str], None] = lambda msg: None,
-                   diagnoser=None) -> list[RunOutcome]:
+                   diagnoser=None, mapper: Mapper | None = None) -> list[RunOutcome]:
     """Simulate each run and diagnose it with a fresh copy of the config's diagnoser (built
-    and calibrated once) through ``update_block`` in blocks of ``block`` samples.
+    and calibrated once) through ``update_block`` in blocks of ``block`` samples (`run_one`),
+    here or spread by ``mapper`` (`Mapper`); the outcomes in the specs' order, the same
+    either way.
 
     preprocess(U, Z) -> (U, Z) is applied to the simulated commands and measurements first
     (the CLI rounds them to the DBC's resolution, as the bus does)."""
     from canfdi.methods import build_diagnoser
-    from firmware_sim.scenario import parse_scenario
-    from firmware_sim.simulate import simulate
 
     base = diagnoser if diagnoser is not None else build_diagnoser(config)
-    design = getattr(base, "design", None)
-    memo = {id(design): design} if design is not None else {}
     names = {"actuator": list(config.inputs), "sensor": list(config.outputs)}
-    dt_ns = round(setup.dt * 1e9)
-    outcomes = []
+    found: list[RunOutcome | None] = [None] * len(specs)
+    done: list[RunOutcome] = []
     last = time.monotonic()
-    for n, spec in enumerate(specs):
-        scenario = parse_scenario(spec.scenario_dict(setup.plant, setup.dt,
-                                                     setup.measurement_std))
-        chunk = simulate(scenario)
-        U, Z = chunk.u_c, chunk.z
-        if preprocess is not None:
-            U, Z = preprocess(U, Z)
-        dg = copy.deepcopy(base, dict(memo))
-        events: list[FaultEvent] = []
-        first_monitored = None
-        for i in range(0, len(chunk.k), block):
-            k = chunk.k[i: i + block]
-            res = dg.update_block(k, k * dt_ns, U[i: i + block], Z[i: i + block])
-            events.extend(res.events)
-            if first_monitored is None:
-                have = np.flatnonzero(~np.isnan(res.residuals).all(axis=1))
-                if len(have):
-                    first_monitored = int(k[have[0]])
-        outcome = match_run(spec.faults, events, len(chunk.k),
-                            first_monitored if first_monitored is not None else len(chunk.k),
-                            setup.twins, names, spec.run, spec.noise_scale)
-        outcomes.append(outcome)
+    for n, (i, outcome) in enumerate((mapper or _serial)(
+            run_one, specs, (setup, base, names, preprocess, block))):
+        found[i] = outcome
+        done.append(outcome)
         now = time.monotonic()
         if now - last >= 2.0 or n == len(specs) - 1:
             last = now
-            faults = sum(len(o.faults) for o in outcomes)
-            det = sum(f.detected for o in outcomes for f in o.faults)
-            ok = sum(f.correct for o in outcomes for f in o.faults)
-            fa = sum(len(o.false_alarms) for o in outcomes)
+            faults = sum(len(o.faults) for o in done)
+            det = sum(f.detected for o in done for f in o.faults)
+            ok = sum(f.correct for o in done for f in o.faults)
+            fa = sum(len(o.false_alarms) for o in done)
             progress(f"run {n + 1}/{len(specs)}: {faults} faults, {det} detected, "
                      f"{ok} isolated, {fa} false alarms")
-    return outcomes
+    return found  # type: ignore[return-value]
 
 
 def default_config(plant: str, method: str, directory: Path) -> Path | None:
@@ -689,14 +718,15 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
              kinds: Sequence[str] | None = None, spacing: int | None = None,
              quantize: bool = True, noise_scale: float = 1.0,
              monitor: MonitorConfig | None = None,
-             progress: Callable[[str], None] = lambda msg: None) -> dict[str, Any]:
+             progress: Callable[[str], None] = lambda msg: None,
+             mapper: Mapper | None = None) -> dict[str, Any]:
     """`canfdi evaluate`: plan ``runs`` scenarios for the emulated ``plant``, simulate each,
     diagnose it with a copy of the config's diagnoser and aggregate the metrics (the JSON
     object the CLI prints). kinds default to the config's method's fault model; values are
     rounded to the DBC's resolution unless ``quantize`` is False. ``noise_scale``: the drive's
     noise is that many times the config's (the scenarios come from ``config``); ``monitor``:
     the config of the monitor evaluated, when it is not ``config`` (one calibrated on the
-    drive, say)."""
+    drive, say); ``mapper``: how the runs are spread (`Mapper`; default here, one by one)."""
     from canfdi.bus.dbc import BusMap
     from canfdi.methods import build_diagnoser, get
 
@@ -716,7 +746,7 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
     progress(f"{len(specs)} runs, {sum(len(s.faults) for s in specs)} faults, "
              f"{total:,} samples")
     outcomes = run_evaluation(config, setup, specs, preprocess=preprocess, progress=progress,
-                              diagnoser=base)
+                              diagnoser=base, mapper=mapper)
     metrics = aggregate(outcomes, setup.dt)
     result: dict[str, Any] = {
         "plant": plant, "method": config.method, "seed": seed,
