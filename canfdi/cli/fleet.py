@@ -209,6 +209,10 @@ class _Progress:
             self.bar.stop()
 
 
+_ERRORS_SHOWN = 10
+"""Errors listed in the summary; the logs table has every one."""
+
+
 def _print_summary(s: dict, results: list, written: list[Path]) -> None:
     lost = (f"{s['damaged_logs']} damaged log{'s' if s['damaged_logs'] != 1 else ''}: "
             f"{s['lost_bytes']:,} bytes, {s['lost_messages']:,} messages, "
@@ -220,8 +224,11 @@ def _print_summary(s: dict, results: list, written: list[Path]) -> None:
     print(f"samples   {s['samples']:,} in {s['wall_s']:.1f} s wall on {s['workers']} "
           f"worker{'s' if s['workers'] != 1 else ''} = {s['samples_per_s']:,.0f} samples/s "
           f"({s['samples_per_core_s']:,.0f} per core-second of diagnosis)")
-    for r in results:
-        if r.log["error"] is not None:
-            print(f"error     {r.log['log']}: {r.log['error']}")
+    errors = [r.log for r in results if r.log["error"] is not None]
+    for log in errors[:_ERRORS_SHOWN]:
+        print(f"error     {log['log']}: {log['error']}")
+    if len(errors) > _ERRORS_SHOWN:
+        print(f"error     ... and {len(errors) - _ERRORS_SHOWN} more (the logs table's error "
+              "column)")
     for path in written:
         print(f"wrote     {path}")
