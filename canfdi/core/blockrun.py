@@ -18,7 +18,7 @@ import numpy as np
 from canfdi.core.protocol import DIAGNOSE, Diagnoser
 from canfdi.core.records import BlockResult, FaultEvent, Sample
 
-__all__ = ["BlockRows", "Stretch", "continuity_breaks", "run_block"]
+__all__ = ["BlockRows", "Stretch", "continuity_breaks", "has_values", "run_block"]
 
 
 class BlockRows:
@@ -44,6 +44,18 @@ def continuity_breaks(k: np.ndarray, last_k: int | None, first_breaks: bool) -> 
     if last_k is None:
         breaks[0] = first_breaks
     return breaks
+
+
+def has_values(x: np.ndarray) -> np.ndarray:
+    """(N,) bool: the rows of x (N, m) not all NaN (those ``update`` gives residuals for).
+    Column by column: a reduction along a short row costs a pass per row."""
+    nan = np.isnan(x)
+    if not nan.any():
+        return np.ones(len(x), dtype=bool)
+    out = ~nan[:, 0]
+    for j in range(1, x.shape[1]):
+        out |= ~nan[:, j]
+    return out
 
 
 def run_block(dg: Diagnoser, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,

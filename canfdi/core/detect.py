@@ -281,16 +281,21 @@ class ThresholdDetector:
 # --------------------------------------------------------------------------------------
 
 
-def _lindley(z: NDArray[np.float64], g0: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Closed form of g_k = max(0, g_{k-1} + z_k) from g_0 = g0, for z of shape (n, m).
+def _lindley(z: NDArray[np.float64], g0: NDArray[np.float64],
+             out: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    """Closed form of g_k = max(0, g_{k-1} + z_k) from g_0 = g0, for z of shape (n, m)
+    (written into ``out`` when given).
 
     Unrolling the recursion, g_k = max(g0 + S_k, max_{0<=j<=k} (S_k - S_j)) with
     S_k = z_1 + ... + z_k and S_0 = 0: either the statistic never hit zero (first term) or
     it last restarted from zero after sample j (second term).
     """
-    s = np.cumsum(z, axis=0)
-    running_min = np.minimum(np.minimum.accumulate(s, axis=0), 0.0)
-    return np.maximum(g0 + s, s - running_min)
+    s = np.cumsum(z, axis=0, out=out)
+    lift = np.minimum.accumulate(s, axis=0)
+    np.minimum(lift, 0.0, out=lift)
+    np.subtract(s, lift, out=lift)  # S_k - min(0, min_j S_j)
+    np.add(s, g0, out=s)
+    return np.maximum(s, lift, out=s)
 
 
 def _increments(u: NDArray[np.float64], delta: NDArray[np.float64]
@@ -316,10 +321,10 @@ def _direction(
     g_up: NDArray[np.float64], g_down: NDArray[np.float64], h: NDArray[np.float64]
 ) -> NDArray[np.int8]:
     # Both statistics can exceed h together (a large jump reversing a long drift); the
-    # larger one names the change, ties go upward.
-    in_alarm = (g_up >= h) | (g_down >= h)
-    sign = np.where(g_up >= g_down, 1, -1).astype(np.int8)
-    return np.where(in_alarm, sign, np.int8(0)).astype(np.int8)
+    # larger one names the change, ties go upward. (In int8 arithmetic: no wider temporary.)
+    in_alarm = (np.maximum(g_up, g_down) >= h).view(np.int8)
+    sign = (g_up >= g_down).view(np.int8) * np.int8(2) - np.int8(1)
+    return in_alarm * sign
 
 
 def page_hinkley_step(
@@ -387,10 +392,10 @@ def _run_plain(
     state = g0
     for start in range(0, n, _MAX_BLOCK):
         stop = min(start + _MAX_BLOCK, n)
-        gp, gm = _ph_block(u[start:stop], delta, state)
-        g_up[start:stop] = gp
-        g_down[start:stop] = gm
-        state = np.stack([gp[-1], gm[-1]], axis=1)
+        up, down = _increments(u[start:stop], delta)
+        _lindley(up, state[:, 0], out=g_up[start:stop])
+        _lindley(down, state[:, 1], out=g_down[start:stop])
+        state = np.stack([g_up[stop - 1], g_down[stop - 1]], axis=1)
     return PageHinkleyResult(g_up, g_down, _direction(g_up, g_down, h), state.copy())
 
 
@@ -508,7 +513,8 @@ def page_hinkley_batch(
     mu = _per_residual(mu0, m, "mu0")
     sg = _per_residual(sigma, m, "sigma", positive=True)
     g0 = _check_state(state, m)
-    u = (xx - mu) / sg
+    # (x - 0) / 1 is x, bit for bit: skip two passes over the record for the usual call.
+    u = xx if not mu.any() and (sg == 1.0).all() else (xx - mu) / sg
     if restart_on_alarm:
         result, _ = _run_restarts(u, d, hh, g0)
         assert result is not None
@@ -555,15 +561,19 @@ class ChangePointDetector:
         before the first alarm row (N without one). The state advances over those rows only:
         the alarm row is left for ``step``."""
         ph = page_hinkley_batch(rn, self.delta, self.h, state=self.state)
-        hit = np.flatnonzero(ph.alarms.any(axis=1))
-        done = int(hit[0]) if len(hit) else len(rn)
+        # The first alarm row: the first nonzero of the flat (row-major) alarms (argmax stops
+        # there; a reduction along the short axis costs a pass per row).
+        flat = ph.alarms.reshape(-1) != 0
+        first = int(flat.argmax())
+        done = first // self.m if flat[first] else len(rn)
         if done > 0:
             valid = ~np.isnan(rn[:done])
+            cols = np.arange(self.m)
             for d, traj in enumerate((ph.g_up[:done], ph.g_down[:done])):
-                zero = (traj == 0.0) & valid
-                any_zero = zero.any(axis=0)
-                idx = done - 1 - np.argmax(zero[::-1], axis=0)
-                self.last_zero[any_zero, d] = k[idx[any_zero]]
+                zero = ((traj == 0.0) & valid)[::-1]
+                back = np.argmax(zero, axis=0)  # rows from the end to each one's last zero
+                any_zero = zero[back, cols]
+                self.last_zero[any_zero, d] = k[done - 1 - back[any_zero]]
             self.state = np.stack([ph.g_up[done - 1], ph.g_down[done - 1]], axis=1)
         return ph, done
 

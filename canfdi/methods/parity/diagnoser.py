@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from canfdi.core.blockrun import BlockRows, continuity_breaks, run_block
+from canfdi.core.blockrun import BlockRows, continuity_breaks, has_values, run_block
 from canfdi.core.design import Design
 from canfdi.core.detect import ChangePointDetector, DetectorBacked, onset_candidates
 from canfdi.core.identify import RlsState, rls_init, rls_solve, rls_update
@@ -245,7 +245,7 @@ class ParityDiagnoser(DetectorBacked):
         E = np.vstack([self.bank.tail, X])
         res = self.bank.batch(E)  # row r: the residuals at X row r, as update would give them
         rn = res / self.bank.sigma
-        have = ~np.isnan(rn).all(axis=1)  # rows where update returns residuals
+        have = has_values(rn)  # rows where update returns residuals
         ph, done = self.detector.run(k[i:j], rn)
         if done > 0:
             rows.stat[i: i + done] = np.maximum(ph.g_up[:done], ph.g_down[:done])
