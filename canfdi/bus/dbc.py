@@ -455,8 +455,9 @@ class BusMap:
         known = entry >= 0
         e = np.maximum(entry, 0)
         is_fd = (flags & FLAG_FD) != 0
+        # int8 throughout: Python ints in np.where would make an int64 temporary.
         status = np.where(known, self._kind[e],
-                          np.where(extended, _EXTENDED, _UNKNOWN_ID)).astype(np.int8)
+                          np.where(extended, np.int8(_EXTENDED), np.int8(_UNKNOWN_ID)))
         status[is_fd & (~known | (is_fd != self._is_fd[e]))] = _FD
         status[known & ~is_fd & self._is_fd[e]] = _FD
         status[known & (status != _FD) & (dlc != self._length[e])] = _DLC
@@ -469,16 +470,16 @@ class BusMap:
         values = np.full((n, self.n_signals_max), np.nan)
         counters = np.full(n, -1, dtype=np.int64)
         checked = known & ~blocked & (status != _FD) & (status != _DLC)
-        for ent in np.unique(entry[checked]).tolist():
+        present = np.bincount(entry[checked], minlength=len(self._entries))
+        for ent in np.flatnonzero(present).tolist():
             rows = np.flatnonzero(checked & (entry == ent))
             item = self._entries[ent]
             payloads = block.payload_matrix(rows, item.length)
             ok = item.e2e.check_batch(payloads, dlc[rows].astype(np.int64))
-            status[rows[~ok]] = _CRC
-            if ent >= len(self._slots):
-                continue
-            rows, payloads = rows[ok], payloads[ok]
-            if not rows.size:
+            if not ok.all():  # (all pass, the usual case: no copy of the rows)
+                status[rows[~ok]] = _CRC
+                rows, payloads = rows[ok], payloads[ok]
+            if ent >= len(self._slots) or not rows.size:
                 continue
             s = self._slots[ent]
             decoded = s.layout.decode(payloads)

@@ -238,6 +238,10 @@ class FrameBlock:
         ``length`` bytes; rows longer than 8 bytes come from ``long``."""
         rows = np.asarray(rows, dtype=np.intp)
         if length <= MAX_DATA:
+            if self.data.flags.c_contiguous and self.data.shape[1:] == (MAX_DATA,) == (8,):
+                # A row is one 8-byte word: one gather of words, not of rows of bytes.
+                got = self.data.view(np.uint64)[rows, 0].view(np.uint8).reshape(-1, 8)
+                return got if length == 8 else np.ascontiguousarray(got[:, :length])
             return self.data[rows, :length]
         out = np.zeros((len(rows), length), dtype=np.uint8)
         out[:, :MAX_DATA] = self.data[rows]

@@ -57,3 +57,23 @@ def test_a_message_without_timestamp_gets_now():
     assert block.t_ns.tolist() == [5_000_000_000, 2_000_000_000]
     assert FrameBlock.from_messages([]).size == 0
     assert np.array_equal(FrameBlock.from_messages([msg], now=1.0).data[0, :2], [1, 0])
+
+
+def test_payload_matrix_gives_the_rows_bytes_cut_or_padded():
+    rng = np.random.default_rng(3)
+    n = 50
+    data = rng.integers(0, 256, (n, MAX_DATA), dtype=np.uint8)
+    block = FrameBlock(np.arange(n, dtype=np.int64), np.arange(n), np.full(n, 8),
+                       np.zeros(n, dtype=np.int64), data, long={7: bytes(range(12))})
+    rows = np.array([7, 3, 3, 40, 0])
+    for view in (block, block.select(np.arange(n)[::-1]).select(np.arange(n)[::-1])):
+        for length in (2, 5, 8):
+            got = view.payload_matrix(rows, length)
+            assert got.shape == (5, length) and got.flags.c_contiguous
+            assert np.array_equal(got, data[rows, :length])
+    wide = block.payload_matrix(rows, 12)
+    assert bytes(wide[0]) == bytes(range(12)) and np.array_equal(wide[1, :8], data[3])
+    assert not wide[1, 8:].any()
+    strided = FrameBlock(block.t_ns, block.id, block.dlc, block.flags,
+                         np.zeros((n, 16), dtype=np.uint8)[:, ::2])
+    assert np.array_equal(strided.payload_matrix(rows, 8), np.zeros((5, 8)))
