@@ -425,8 +425,9 @@ class McapRecorder:
         self._sequence: dict[str, int] = {}
 
         self._seg: _Segment | None = None
+        # Segments 0 .. _next_index - 1 have been started (their names follow from the index:
+        # no list of them grows with a run of months).
         self._next_index = 0
-        self._paths: list[Path] = []
         self._closed = False
         self._messages_written = 0
         self._messages_dropped = 0
@@ -476,7 +477,15 @@ class McapRecorder:
     @property
     def paths(self) -> list[Path]:
         """Segment files started so far, in order (an abandoned segment stays listed)."""
-        return list(self._paths)
+        if self._path is None:
+            return []
+        return [segment_path(self._path, i) for i in range(self._next_index)]
+
+    @property
+    def segments(self) -> int:
+        """The number of segment files started so far (``len(paths)``, without building
+        them)."""
+        return self._next_index
 
     @property
     def messages_written(self) -> int:
@@ -1313,7 +1322,6 @@ class McapRecorder:
             self._fail(exc, now)
             return False
         self._seg = seg
-        self._paths.append(path)
         self._next_index = index + 1
         self._next_flush = now + self._flush_interval
         self._rotate_at = now + self._rotate_seconds

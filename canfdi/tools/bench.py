@@ -433,6 +433,7 @@ def run_daemon_soak(config, frames: int, rotate_bytes: int,
     import concurrent.futures
     import multiprocessing
 
+    from canfdi.io.segments import segment_path
     from canfdi.io.writer import McapRecorder
     from canfdi.monitor import Monitor
     from canfdi.service import MonitorService
@@ -443,7 +444,8 @@ def run_daemon_soak(config, frames: int, rotate_bytes: int,
     say(f"generating {loop_samples:,} control periods to play over and over")
     loop, period_ns = loop_traffic(scenario, loop_samples)
     monitor = Monitor(config)
-    recorder = McapRecorder(tmp / f"{config.name}-soak.mcap", metadata=monitor.metadata(),
+    log = tmp / f"{config.name}-soak.mcap"
+    recorder = McapRecorder(log, metadata=monitor.metadata(),
                             rotate_bytes=rotate_bytes,
                             rotate_seconds=config.recording.rotate_minutes * 60.0)
     monitor.sink = recorder
@@ -485,9 +487,9 @@ def run_daemon_soak(config, frames: int, rotate_bytes: int,
                 if fed // (10 * every) != before // (10 * every):
                     say(f"{fed:,} frames, RSS {rss_now:.2f} MiB "
                         f"({rss_now - rss_start:+.2f} since warm-up)")
-            closed = len(recorder.paths) - 1
-            while len(checks) < closed:
-                checks.append(pool.submit(_verify_segment, str(recorder.paths[len(checks)]),
+            while len(checks) < recorder.segments - 1:  # every segment but the open one
+                checks.append(pool.submit(_verify_segment,
+                                          str(segment_path(log, len(checks))),
                                           not keep_segments))
             if fed >= frames:
                 break
@@ -495,11 +497,10 @@ def run_daemon_soak(config, frames: int, rotate_bytes: int,
     wall = time.perf_counter() - start
     monitor.finish()
     recorder.close()
-    paths = recorder.paths
-    while len(checks) < len(paths):
-        checks.append(pool.submit(_verify_segment, str(paths[len(checks)]),
+    while len(checks) < recorder.segments:
+        checks.append(pool.submit(_verify_segment, str(segment_path(log, len(checks))),
                                   not keep_segments))
-    say(f"verifying the last of {len(paths)} segments")
+    say(f"verifying the last of {recorder.segments} segments")
     results = [c.result() for c in checks]
     pool.shutdown()
     if workdir is None and not keep_segments:
@@ -524,7 +525,7 @@ def run_daemon_soak(config, frames: int, rotate_bytes: int,
         "daemon_rss_end_growth_mib": rss_now - rss_start,
         "daemon_rss_series": [[f, round(m, 3)] for f, m in rss],
         "daemon_rotate_mib": rotate_bytes / 2**20,
-        "daemon_segments": len(paths),
+        "daemon_segments": recorder.segments,
         "daemon_log_bytes": recorder.bytes_written,
         "daemon_segment_frames": [f for _, f, _ in results],
         "daemon_frames_in_segments": sum(f for _, f, _ in results),

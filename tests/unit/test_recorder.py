@@ -858,6 +858,7 @@ def test_rotation_by_bytes(tmp_path: Path) -> None:
 
     names = [p.name for p in rec.paths]
     assert len(names) >= 4
+    assert rec.segments == len(names)
     assert names == ["run.mcap"] + [f"run-{i:04d}.mcap" for i in range(1, len(names))]
     assert log_segments(path) == rec.paths
     assert rec.bytes_written == sum(p.stat().st_size for p in rec.paths)
@@ -997,6 +998,7 @@ def test_disk_full_drops_then_resumes(
 
     assert rec.paths == [path, tmp_path / "run-0001.mcap"]
     assert log_segments(path) == rec.paths  # failed retries left no files behind
+    assert rec.segments == 2  # the abandoned segment and the one recording resumed in
     got = frame_indices(path)
     assert got[:100] == list(range(100))  # flushed before the disk filled
     assert got == sorted(got) and set(got) <= set(range(300))
@@ -1016,6 +1018,7 @@ def test_disk_full_at_start_does_not_raise(tmp_path: Path) -> None:
     disk = Disk(full=True)
     rec = McapRecorder(path, metadata=METADATA, clock=clock, opener=disk.open)
     assert rec.failing and rec.write_errors == 1 and rec.paths == []
+    assert rec.segments == 0
     write_frames(rec, 0, 5)
     assert rec.buffered == 5 and rec.messages_dropped == 0  # buffered, not yet lost
     disk.full = False
