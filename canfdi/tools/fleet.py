@@ -7,11 +7,11 @@ The pieces, each usable alone:
    DIR argument, else its file name up to the first ``_``), `ConfigMap` (glob patterns of log
    paths to config files, first match wins) and `plan_tasks` (one `LogTask` per log).
 2. One log (`diagnose_log`, what a Dask task runs): the log replayed through a fresh Monitor of
-   its config exactly as `canfdi replay` does (canfdi.tools.replay.replay_log), with a record
-   sink (`LogStats`) that counts the frames by status and keeps each residual's running
-   variance (streaming: the residuals are never held); the result is one row of the logs table
-   and the rows of the faults table (`LogResult`). A log that cannot be read is a row with its
-   error, never an exception.
+   its config (a copy of one the worker built) exactly as `canfdi replay` does
+   (canfdi.tools.replay.replay_log), with a record sink (`LogStats`) that counts the frames by
+   status and keeps each residual's running variance (streaming: the residuals are never
+   held); the result is one row of the logs table and the rows of the faults table
+   (`LogResult`). A log that cannot be read is a row with its error, never an exception.
 3. The tables (`fleet_tables`, `write_tables`): pyarrow, with the column contract of
    `schemas` (canfdi.tools.fleetreport reads them).
 4. The engine (`dask_client`, `map_tasks`): a distributed LocalCluster of N single-threaded
@@ -31,6 +31,7 @@ the functions that need them (`need_fleet_extra` says what is missing).
 from __future__ import annotations
 
 import contextlib
+import copy
 import dataclasses
 import fnmatch
 import functools
@@ -51,6 +52,7 @@ if TYPE_CHECKING:
 
     from canfdi.config import MonitorConfig
     from canfdi.core.records import FaultEvent, Sample
+    from canfdi.monitor import Monitor
 
 __all__ = [
     "FLEET_EXTRA",
@@ -422,6 +424,17 @@ def _config(path: str) -> MonitorConfig:
     return load_config(path)
 
 
+@functools.lru_cache(maxsize=16)
+def _pristine(path: str) -> Monitor:
+    """A Monitor of a config as built, never fed: a worker builds one per config (the DBC
+    parsed, the design and its thresholds computed: 36 ms for the DC motor, a third of a
+    5-minute log's diagnosis) and gives each log a deep copy of it (2 ms), which is the state
+    of a Monitor built afresh, as `canfdi replay` builds it."""
+    from canfdi.monitor import Monitor
+
+    return Monitor(_config(path), record_residuals=False)
+
+
 def fault_rows(events: Iterable[FaultEvent], *, drive: str, log: str, log_start: int | None,
                dt: float, method: str, several: bool) -> list[dict[str, Any]]:
     """The faults table's rows of a log's events: one per accepted fault and estimated
@@ -473,8 +486,9 @@ def _log_row(task: LogTask, **values: Any) -> dict[str, Any]:
 
 
 def diagnose_log(task: LogTask) -> LogResult:
-    """Replay one log through a fresh Monitor of its config, as `canfdi replay` does (same
-    monitor, same reading, the same diagnoses), and tabulate it.
+    """Replay one log through a fresh Monitor of its config (a copy of the worker's pristine
+    one, `_pristine`), as `canfdi replay` does (same monitor, same reading, the same
+    diagnoses), and tabulate it.
 
     The log's row: log_start / log_end (its first and last frame's time, ns), samples, frames
     by status, what damage lost, each residual's variance over the log's samples (a bus of
@@ -486,14 +500,14 @@ def diagnose_log(task: LogTask) -> LogResult:
     of thousands of logs must not lose every other diagnosis to one bad file), with the
     exception's type for one that is not a read error.
     """
-    from canfdi.monitor import Monitor
     from canfdi.tools.replay import replay_log
 
     start = time.perf_counter()
     stats = LogStats()
     try:
-        config = _config(task.config)
-        monitor = Monitor(config, sink=stats, record_residuals=True)
+        monitor = copy.deepcopy(_pristine(task.config))
+        monitor.sink, monitor.record_residuals = stats, True
+        config = monitor.config
         replayed = replay_log(monitor, task.path)
     except OSError as exc:
         error = f"cannot read it: {exc.strerror or exc}"
@@ -713,14 +727,12 @@ def map_tasks(client: Any | None, fn: Callable[..., Any], items: Sequence[Any],
 
 
 def warm_up(configs: Sequence[str]) -> None:
-    """Build a Monitor of each config once in this process: its design and detection
-    thresholds (seconds of calibration for some methods) are then cached for every log of
-    the config this process diagnoses, and no log's ``seconds`` pays for them."""
-    from canfdi.monitor import Monitor
-
+    """Build the Monitor of each config once in this process (`_pristine`: its design and
+    detection thresholds take seconds of calibration for some methods), which every log of
+    the config this process diagnoses then copies: no log's ``seconds`` pays for it."""
     for path in configs:
         with contextlib.suppress(ValueError, OSError):  # a bad one is its logs' error
-            Monitor(_config(path), record_residuals=False)
+            _pristine(path)
 
 
 def run_fleet(tasks: Sequence[LogTask], client: Any | None,
