@@ -437,14 +437,15 @@ class SampleAssembler:
         (k, timestamp_ns, gap, [u, z] rows) of the g samples: (g,), (g,), (g,), (g, p + q).
         """
         m = len(self._dests)
-        period_values = values[rows].reshape(g, m, -1)
         # Positions no field writes keep the pending buffer's value, as in the machine; the
-        # loop keeps its write order (slot by slot) should two fields share a position.
+        # loop keeps its write order (slot by slot) should two fields share a position. Each
+        # value is one gather of its slot's frames (rows s, s + M, ...) from its column.
         flat = np.empty((g, len(self._buffer)))
         flat[:] = self._buffer
         for s, dests in enumerate(self._dests):
+            frames = rows[s::m]
             for col, dest in enumerate(dests):
-                flat[:, dest] = period_values[:, s, col]
+                flat[:, dest] = values[frames, col]
         k0 = self._k + 1
         ks = np.arange(k0, k0 + g, dtype=np.int64)
         # Each sample is completed by its period's last frame (slot M-1).

@@ -253,11 +253,18 @@ def _run_sums(rn: NDArray[np.float64], runs: list[tuple[int, int]], block: int
     as `NoiseWatchdog.add` sums them (row after row: the same bits)."""
     a, b = runs[0][0], runs[-1][1]
     have = ~np.isnan(rn[a:b])
-    x = np.where(have, rn[a:b], 0.0)
-    if b - a == block * len(runs):  # whole blocks: one reshape
+    full = bool(have.all())
+    x = rn[a:b] if full else np.where(have, rn[a:b], 0.0)
+    if b - a == block * len(runs):  # whole blocks
         shape = (len(runs), block, rn.shape[1])
-        return (have.reshape(shape).sum(axis=1).astype(float), x.reshape(shape).sum(axis=1),
-                (x * x).reshape(shape).sum(axis=1))
+        n = (np.full((len(runs), rn.shape[1]), float(block)) if full
+             else have.reshape(shape).sum(axis=1).astype(float))
+        if rn.shape[1] == 1:  # numpy sums one column pairwise: each block's as add's
+            return n, x.reshape(shape).sum(axis=1), (x * x).reshape(shape).sum(axis=1)
+        # Several columns numpy sums row after row. The blocks side by side, (block, R, m):
+        # the same order along rows R m long (a sum along a short row costs a pass per row).
+        side = np.ascontiguousarray(x.reshape(shape).transpose(1, 0, 2))
+        return n, side.sum(axis=0), (side * side).sum(axis=0)
     sums = [(have[lo - a: hi - a].sum(axis=0), x[lo - a: hi - a].sum(axis=0),
              (x[lo - a: hi - a] * x[lo - a: hi - a]).sum(axis=0)) for lo, hi in runs]
     n, s1, s2 = (np.array(v, dtype=float) for v in zip(*sums, strict=True))
