@@ -234,7 +234,8 @@ def _fleet(args: argparse.Namespace) -> int:
         print(f"  {run['workers']} worker(s) {run['wall_s']:7.1f} s = "
               f"{run['samples_per_s']:>11,.0f} samples/s, "
               f"{run['samples_per_s_per_worker']:>11,.0f} per worker (cluster start "
-              f"{run['cluster_start_s']:.1f} s, warm-up {run['warm_up_s']:.1f} s){differ}")
-    print(f"  scaling {r['scaling']:.2f} x; per core {r['samples_per_core_s']:,.0f} samples/s "
-          f"of diagnosis; load average {r['load_average'][0]:.2f}")
+              f"{run['cluster_start_s']:.1f} s, warm-up {run['warm_up_s']:.1f} s), "
+              f"{run['workers_cpu_s']:.1f} CPU s in the workers{differ}")
+    print(f"  scaling {r['scaling']:.2f} x; per core {r['samples_per_core_s']:,.0f} samples per "
+          f"CPU second; load average {r['load_average'][0]:.2f}")
     return 0 if all(run["identical"] for run in r["runs"]) else 1

@@ -879,9 +879,11 @@ def bench_fleet(config: Path, logs: int, directory: Path, *, jobs: Sequence[int]
     ``directory`` (on a cluster of max(jobs) workers), then diagnose them all on a LocalCluster
     of each number of ``jobs``: per run the cluster's start-up, the workers' warm-up
     (`warm_up`: each builds a Monitor of the config once, its design and thresholds), the wall
-    time from the first task to the last result, samples/s overall and per worker, and the
-    per-core rate (samples per second of diagnosis, summed over the logs); the scaling ratio is
-    the first run's wall time over the last's. The tables of every run are checked equal
+    time from the first task to the last result, samples/s overall and per worker, the CPU
+    seconds the workers spent on it (and this process: the client and the scheduler), and
+    the per-core rate: samples per CPU second of the workers (best run), which the machine's
+    other load does not change as it changes the wall time. The scaling ratio is the first
+    run's wall time over the last's. The tables of every run are checked equal
     (``identical``)."""
     specs = plan_fleet(logs, seed=seed)
     progress(f"generating {logs} drive logs under {directory}")
@@ -898,14 +900,21 @@ def bench_fleet(config: Path, logs: int, directory: Path, *, jobs: Sequence[int]
         with dask_client(n) as client:
             started = time.perf_counter()
             client.run(warm_up, sorted({t.config for t in tasks}))
+            cpu0, here0 = client.run(time.process_time), time.process_time()
             warm = time.perf_counter()
             results = run_fleet(tasks, client)
             wall = time.perf_counter() - warm
+            cpu1, here1 = client.run(time.process_time), time.process_time()
         faults, table = fleet_tables(results)
         rows = table.to_pylist()
         summary = fleet_summary(rows, wall, n)
         summary["cluster_start_s"] = started - t0
         summary["warm_up_s"] = warm - started
+        # CPU seconds, not wall: what the run costs whatever else the machine is doing.
+        summary["workers_cpu_s"] = sum(cpu1[w] - cpu0[w] for w in cpu1 if w in cpu0)
+        summary["client_cpu_s"] = here1 - here0  # this process: the client and scheduler
+        summary["samples_per_cpu_s"] = summary["samples"] / max(summary["workers_cpu_s"],
+                                                                1e-9)
         this = (faults.to_pylist(),
                 [{k: v for k, v in r.items() if k != "seconds"} for r in rows])
         summary["identical"] = reference is None or this == reference
@@ -914,7 +923,7 @@ def bench_fleet(config: Path, logs: int, directory: Path, *, jobs: Sequence[int]
         progress(f"{n} worker{'s' if n != 1 else ''}: {wall:.1f} s, "
                  f"{summary['samples_per_s']:,.0f} samples/s")
     samples = runs[0]["samples"]
-    per_core = max(r["samples_per_core_s"] for r in runs)
+    per_core = max(r["samples_per_cpu_s"] for r in runs)
     return {
         "logs": logs, "drives": runs[0]["drives"], "samples": samples,
         "drive_hours": samples * _config(str(Path(config).resolve())).model.dt / 3600,
