@@ -21,7 +21,10 @@ given (directories are searched recursively for files of those suffixes), each t
 fresh monitor of its config exactly as `canfdi replay` does, in parallel on Dask: a local
 cluster of --jobs worker processes (default: one per CPU), or the workers of a running Dask
 scheduler (--scheduler ADDRESS; its workers must see the logs and configs at the same
-absolute paths, e.g. on a shared file system, and have canfdi installed).
+absolute paths, e.g. on a shared file system, and have canfdi installed; start them without
+the malloc trim threshold Dask sets by default, which halves the monitor's speed: `dask
+worker --no-nanny`, or distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_: null in
+their Dask config; the local cluster does so itself).
 
 Configs: --config FILE for every log, or --config-map FILE.yaml, a mapping of glob patterns
 of log paths to config files (relative to the mapping file), the first pattern that matches
