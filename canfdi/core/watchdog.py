@@ -295,8 +295,8 @@ def watch_runs(k: NDArray[np.int64], block: int, quiet: NDArray[np.bool_]
     are all ``quiet`` (N,) (`monitoring_rows`) merged into one ``plain`` range (what
     `NoiseWatchdog.update` takes at once), each other run on its own."""
     runs = block_runs(k, block)
-    if not runs:
-        return []
+    if len(runs) < 2:  # (a live block of a few samples: no array work)
+        return [(a, b, bool(np.all(quiet[a:b]))) for a, b in runs]
     starts = np.array([a for a, _ in runs])
     plain = np.logical_and.reduceat(np.asarray(quiet, dtype=bool), starts).tolist()
     out: list[tuple[int, int, bool]] = []
