@@ -430,6 +430,7 @@ def run_daemon_soak(config, frames: int, rotate_bytes: int,
 
     Returns the JSON-ready result (keys ``daemon_*``).
     """
+    import collections
     import concurrent.futures
     import multiprocessing
 
@@ -454,8 +455,31 @@ def run_daemon_soak(config, frames: int, rotate_bytes: int,
     # One worker reads the closed segments back while the monitor runs.
     pool = concurrent.futures.ProcessPoolExecutor(
         max_workers=1, mp_context=multiprocessing.get_context("spawn"))
-    checks: list[concurrent.futures.Future] = []
-    rss: list[tuple[int, float]] = []  # (frames fed, MiB) every 1 % of the run after warm-up
+    # The harness's own memory stays constant too: results are folded in as they arrive, and
+    # the RSS series (frames fed, MiB: at warm-up, every 1 % of the run, at the end) is
+    # allocated up front.
+    pending: collections.deque[concurrent.futures.Future] = collections.deque()
+    submitted = verified = in_segments = 0
+    unreadable: dict[str, str] = {}
+
+    def check(upto: int) -> None:
+        nonlocal submitted
+        while submitted < upto:
+            pending.append(pool.submit(_verify_segment, str(segment_path(log, submitted)),
+                                       not keep_segments))
+            submitted += 1
+
+    def fold(wait: bool) -> None:
+        nonlocal verified, in_segments
+        while pending and (wait or pending[0].done()):
+            name, count, problem = pending.popleft().result()
+            verified += 1
+            in_segments += count
+            if problem:
+                unreadable[name] = problem
+
+    series = np.zeros((102, 2))
+    points = 0
     every = max(frames // 100, 1)
     rss_start = rss_max = rss_now = math.nan
     fed = in_service = 0
@@ -480,28 +504,26 @@ def run_daemon_soak(config, frames: int, rotate_bytes: int,
                 rss_now = _rss_mib()
                 if math.isnan(rss_start):
                     rss_start = rss_max = rss_now
-                    rss.append((fed, rss_now))
+                    series[points] = fed, rss_now
+                    points += 1
                 rss_max = max(rss_max, rss_now)
-                if fed // every != before // every or fed >= frames:
-                    rss.append((fed, rss_now))
+                if (fed // every != before // every or fed >= frames) and points < len(series):
+                    series[points] = fed, rss_now
+                    points += 1
                 if fed // (10 * every) != before // (10 * every):
                     say(f"{fed:,} frames, RSS {rss_now:.2f} MiB "
                         f"({rss_now - rss_start:+.2f} since warm-up)")
-            while len(checks) < recorder.segments - 1:  # every segment but the open one
-                checks.append(pool.submit(_verify_segment,
-                                          str(segment_path(log, len(checks))),
-                                          not keep_segments))
+            check(recorder.segments - 1)  # every segment but the open one
+            fold(wait=False)
             if fed >= frames:
                 break
         repeat += 1
     wall = time.perf_counter() - start
     monitor.finish()
     recorder.close()
-    while len(checks) < recorder.segments:
-        checks.append(pool.submit(_verify_segment, str(segment_path(log, len(checks))),
-                                  not keep_segments))
+    check(recorder.segments)
     say(f"verifying the last of {recorder.segments} segments")
-    results = [c.result() for c in checks]
+    fold(wait=True)
     pool.shutdown()
     if workdir is None and not keep_segments:
         tmp.rmdir()  # every segment was deleted once read back
@@ -523,14 +545,14 @@ def run_daemon_soak(config, frames: int, rotate_bytes: int,
         "daemon_rss_end_mib": rss_now,
         "daemon_rss_max_growth_mib": rss_max - rss_start,
         "daemon_rss_end_growth_mib": rss_now - rss_start,
-        "daemon_rss_series": [[f, round(m, 3)] for f, m in rss],
+        "daemon_rss_series": [[int(f), round(float(m), 3)] for f, m in series[:points]],
         "daemon_rotate_mib": rotate_bytes / 2**20,
         "daemon_segments": recorder.segments,
         "daemon_log_bytes": recorder.bytes_written,
-        "daemon_segment_frames": [f for _, f, _ in results],
-        "daemon_frames_in_segments": sum(f for _, f, _ in results),
+        "daemon_segments_verified": verified,
+        "daemon_frames_in_segments": in_segments,
         "daemon_messages_dropped": recorder.messages_dropped,
-        "daemon_unreadable_segments": {name: why for name, _, why in results if why},
+        "daemon_unreadable_segments": unreadable,
         "daemon_segments_kept": keep_segments,
         "daemon_log_dir": str(tmp) if keep_segments or workdir is not None else None,
     }

@@ -44,8 +44,7 @@ def test_soak_feeds_and_records_every_frame(soak):
     # 3 frames a period: the run wraps round the stretch several times.
     assert r["daemon_loop_frames"] == 3 * LOOP
     assert r["daemon_segments"] > 10  # 256 KiB segments
-    assert len(r["daemon_segment_frames"]) == r["daemon_segments"]
-    # (a small segment may hold only sample and residual rows: frames go a block at a time)
+    assert r["daemon_segments_verified"] == r["daemon_segments"]
     assert r["daemon_frames_in_segments"] == FRAMES
     assert r["daemon_messages_dropped"] == 0
     assert r["daemon_unreadable_segments"] == {}
@@ -72,7 +71,7 @@ def test_soak_reports_rss_from_warmup_on(soak):
     series = r["daemon_rss_series"]
     assert series[0][0] >= 40_000 and series[-1][0] == FRAMES
     assert [f for f, _ in series] == sorted(f for f, _ in series)
-    assert r["daemon_rss_start_mib"] == series[0][1]
+    assert r["daemon_rss_start_mib"] == pytest.approx(series[0][1], abs=1e-3)
     assert r["daemon_rss_end_mib"] == pytest.approx(series[-1][1], abs=1e-3)
     assert r["daemon_rss_max_mib"] >= max(m for _, m in series) - 1e-3
     assert r["daemon_rss_max_growth_mib"] == pytest.approx(
