@@ -346,3 +346,21 @@ def test_empty_fleet_and_fleet_without_faults_still_give_a_valid_report(tmp_path
     page = " ".join(parse(paths[1]).text)
     assert "The logs table has no row for this drive." in page
     assert "The logs table is empty" in " ".join(parse(paths[0]).text)
+
+
+def test_three_unrelated_faults_are_no_trend_but_ten_on_a_line_are():
+    """|slope| = 5.2 sigma from three points is what one degree of freedom gives by chance
+    (Student's t at 5 %: 12.7 sigma); a fixed 2 sigma called it a trend."""
+    def trend(days, values):
+        slope, std, intercept, weighted = fr.fit_trend(np.array(days, float), np.array(values))
+        onset = (np.array(days) * 86_400e9).astype(np.int64)
+        return fr.Trend("sensor", "omega", "bias", onset, np.array(values, float),
+                        np.full(len(days), np.nan), slope, std, intercept, weighted)
+
+    three = trend([0, 1, 2], [0.0, 1.0, 1.5])
+    assert 2.0 < abs(three.slope) / three.slope_std < 12.7
+    assert not three.significant and three.threshold == pytest.approx(12.706, abs=1e-3)
+    rng = np.random.default_rng(3)
+    days = np.arange(10.0)
+    ten = trend(days, 0.05 + 0.01 * days + rng.normal(0, 0.002, 10))
+    assert ten.significant and ten.threshold == pytest.approx(2.306, abs=1e-3)
