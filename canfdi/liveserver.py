@@ -15,7 +15,12 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["FoxgloveServer", "FoxgloveUnavailable", "parse_address"]
+__all__ = ["BACKLOG_MESSAGES", "FoxgloveServer", "FoxgloveUnavailable", "parse_address"]
+
+BACKLOG_MESSAGES = 1 << 16
+"""Messages the server queues per client before it drops the oldest (the SDK's default is
+1,024): 65,536 is ten seconds of a sample row, a residual row and a frame block per period at
+1 kHz, with room for a diagnosis's events and log lines."""
 
 
 class FoxgloveUnavailable(RuntimeError):
@@ -67,8 +72,13 @@ class FoxgloveServer:
         # A context of its own: channels reach this server only, not the SDK's global sinks.
         self._context = foxglove.Context()
         try:
+            # The SDK keeps a bounded queue per client and drops its oldest messages when a
+            # burst outruns the client: the default lost rows in the test's Python client when
+            # a diagnosis burst (events, log lines, sample rows) met a busy machine. A few
+            # seconds of every topic at a saturated bus's rate fit in this one.
             self._server = foxglove.start_server(name=name, host=host, port=port,
-                                                 context=self._context)
+                                                 context=self._context,
+                                                 message_backlog_size=BACKLOG_MESSAGES)
         except RuntimeError as exc:  # the SDK reports a failed bind as a RuntimeError
             raise OSError(f"cannot serve Foxglove on {host}:{port}: {exc}") from None
         self.host = host
