@@ -1198,13 +1198,8 @@ class McapRecorder:
         self._sequence[topic] = sequence + 1
         if self._tap is not None:
             self._tap(topic, _SCHEMA_BYTES.get(topic, _GENERIC_SCHEMA_BYTES), timestamp_ns, data)
-        seg = self._seg
-        if seg is not None and seg.file.count >= self._byte_limit:
-            self._rotate(seg, now)
-            seg = self._seg
+        seg = self._segment_for(rows, now)
         if seg is None:
-            if self._path is not None:
-                self._messages_dropped += rows
             return
         try:
             channel_id = seg.channels.get(topic)
@@ -1215,9 +1210,7 @@ class McapRecorder:
             self._messages_dropped += rows
             self._fail(exc, now)
             return
-        seg.chunks = True
-        self._messages_written += rows
-        self._pending += rows
+        self._added(seg, rows)
 
     def _write_rows(self, topic: str, t_ns: np.ndarray, data: list[bytes], now: float) -> None:
         """Add one message per row of a row topic (its channel registered with the schema
@@ -1231,13 +1224,8 @@ class McapRecorder:
             tap = self._tap
             for t, d in zip(times, data, strict=True):
                 tap(topic, schema, t, d)
-        seg = self._seg
-        if seg is not None and seg.file.count >= self._byte_limit:
-            self._rotate(seg, now)
-            seg = self._seg
+        seg = self._segment_for(n, now)
         if seg is None:
-            if self._path is not None:
-                self._messages_dropped += n
             return
         try:
             channel_id = seg.channels.get(topic)
@@ -1248,9 +1236,24 @@ class McapRecorder:
             self._messages_dropped += n
             self._fail(exc, now)
             return
+        self._added(seg, n)
+
+    def _segment_for(self, rows: int, now: float) -> _Segment | None:
+        """The segment to add ``rows`` rows to, rotated first when it is full; None when no
+        segment is open (the rows count as dropped when there is a file to miss them)."""
+        seg = self._seg
+        if seg is not None and seg.file.count >= self._byte_limit:
+            self._rotate(seg, now)
+            seg = self._seg
+        if seg is None and self._path is not None:
+            self._messages_dropped += rows
+        return seg
+
+    def _added(self, seg: _Segment, rows: int) -> None:
+        """Count ``rows`` rows added to the open chunk of ``seg``."""
         seg.chunks = True
-        self._messages_written += n
-        self._pending += n
+        self._messages_written += rows
+        self._pending += rows
 
     def _rotate(self, seg: _Segment, now: float) -> None:
         try:
