@@ -7,6 +7,7 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from canfdi.cli.common import DEFAULT_CONFIG_DIR, config_error, load_config_or_exit
@@ -112,10 +113,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"canfdi bench: {exc}", file=sys.stderr)
         return 2
     start = time.monotonic()
-
-    def progress(msg: str) -> None:
-        print(f"canfdi bench [{time.monotonic() - start:6.1f} s] {msg}", file=sys.stderr,
-              flush=True)
+    progress = _progress_line(start)
 
     if args.daemon_frames is not None:
         return _soak(config, args, scenario, progress, start)
@@ -212,10 +210,7 @@ def _fleet(args: argparse.Namespace) -> int:
         print(f"canfdi bench: --fleet: {missing or 'at least 2 logs'}", file=sys.stderr)
         return 2
     start = time.monotonic()
-
-    def progress(msg: str) -> None:
-        print(f"canfdi bench [{time.monotonic() - start:6.1f} s] {msg}", file=sys.stderr,
-              flush=True)
+    progress = _progress_line(start)
 
     with tempfile.TemporaryDirectory(prefix="canfdi-fleet-") as tmp:
         where = args.fleet_dir or Path(tmp)
@@ -239,3 +234,13 @@ def _fleet(args: argparse.Namespace) -> int:
     print(f"  scaling {r['scaling']:.2f} x; per core {r['samples_per_core_s']:,.0f} samples per "
           f"CPU second; load average {r['load_average'][0]:.2f}")
     return 0 if all(run["identical"] for run in r["runs"]) else 1
+
+
+def _progress_line(start: float) -> Callable[[str], None]:
+    """A progress printer for stderr, each line stamped with the seconds since ``start``
+    (time.monotonic())."""
+
+    def progress(msg: str) -> None:
+        print(f"canfdi bench [{time.monotonic() - start:6.1f} s] {msg}", file=sys.stderr,
+              flush=True)
+    return progress
