@@ -11,7 +11,6 @@ and canfdi.io.reader do.
 
 from __future__ import annotations
 
-import binascii
 import json
 import math
 import struct
@@ -20,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import orjson
+import pybase64
 from numpy.typing import ArrayLike, NDArray
 
 from canfdi.bus.frames import MAX_DATA, FrameBlock
@@ -251,7 +251,7 @@ def encode_frame_block(
         nsec,
         count,
         statuses_json,
-        binascii.b2a_base64(records, newline=False),
+        pybase64.b64encode(records),
     )
     if long:
         text += b',"long":' + encode_json({str(row): d.hex() for row, d in long.items()}).encode()
@@ -358,7 +358,8 @@ def check_block(message: Mapping[str, Any], encoding: str, topic: str) -> int:
 def decode_frames(message: Mapping[str, Any]) -> FrameBlock:
     """The frames of one ``/can/frames`` block message, with their statuses."""
     count = check_block(message, FRAMES_ENCODING, TOPIC_FRAMES)
-    records = np.frombuffer(binascii.a2b_base64(message["frames"]), dtype=FRAME_DTYPE)
+    records = np.frombuffer(pybase64.b64decode(message["frames"], validate=True),
+                            dtype=FRAME_DTYPE)
     if len(records) != count:
         raise ValueError(f"a {TOPIC_FRAMES} block holds {len(records)} frames, says {count}")
     names = np.array(message["statuses"], dtype=str)
@@ -410,7 +411,7 @@ def decode_floats(columns: Mapping[str, Any], names: list[str], n: int) -> np.nd
     for name in names:
         column = columns[name]
         if isinstance(column, str):
-            parts.append(np.frombuffer(binascii.a2b_base64(column), dtype="<f8"))
+            parts.append(np.frombuffer(pybase64.b64decode(column, validate=True), dtype="<f8"))
         else:
             parts.append(np.array(column, dtype=np.float64))
         if parts[-1].shape != (n,):
