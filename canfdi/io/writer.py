@@ -13,6 +13,9 @@ row, no JSON) and written as one block message when a buffer holds
 `McapRecorder.flush` and on `McapRecorder.close`. The mcap writer in turn keeps the open chunk in
 memory and writes it only when it exceeds ``chunk_size`` or on ``Writer.flush()``, which
 finishes the open chunk (if it holds a message), writes it and flushes the output stream.
+Frame blocks go into chunks of their own (two chunks are open: the frames' and the other
+topics'), so that a replay, which reads frames only, inflates none of the per-sample messages
+(two thirds of a capture's bytes); both end together.
 Whenever ``flush_interval`` seconds (on the injected clock) have passed since the last flush,
 the recorder writes every buffer out and calls ``Writer.flush()``: the check is a single
 comparison inside every write or append (no thread, no lock), and `McapRecorder.flush` forces
@@ -62,6 +65,7 @@ from types import TracebackType
 from typing import IO, TYPE_CHECKING, Any, Self
 
 import numpy as np
+from mcap._chunk_builder import ChunkBuilder
 from mcap.opcode import Opcode
 from mcap.records import MessageIndex
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType, Writer
@@ -253,8 +257,8 @@ class _CountingFile:
 class _Segment:
     """One open MCAP file: its writer and the channel id of every topic registered in it."""
 
-    __slots__ = ("channels", "chunks", "file", "generic_schema", "metadata", "path",
-                 "row_schemas", "writer")
+    __slots__ = ("channels", "chunks", "file", "frames_open", "generic_schema", "metadata",
+                 "other_chunk", "path", "row_schemas", "writer")
 
     def __init__(self, path: Path, file: _CountingFile, writer: Writer) -> None:
         self.path = path
@@ -266,6 +270,26 @@ class _Segment:
         self.generic_schema = 0
         self.metadata = False
         self.chunks = False
+        # The open chunk the writer is not filling (mcap 1.x's Writer holds one, in this
+        # attribute; without it frames share the chunks).
+        self.other_chunk: ChunkBuilder | None = (
+            ChunkBuilder() if hasattr(writer, "_Writer__chunk_builder") else None)
+        self.frames_open = False  # the writer is filling the frames' chunk
+
+    def use(self, frames: bool) -> None:
+        """Make the writer fill the frames' open chunk (or the other topics')."""
+        if frames != self.frames_open and self.other_chunk is not None:
+            writer = self.writer
+            writer._Writer__chunk_builder, self.other_chunk = (  # type: ignore[attr-defined]
+                self.other_chunk, writer._Writer__chunk_builder)  # type: ignore[attr-defined]
+            self.frames_open = frames
+
+    def end_chunks(self) -> None:
+        """Write both open chunks (those holding a message) and flush the stream."""
+        self.use(not self.frames_open)
+        self.writer.flush()
+        self.use(not self.frames_open)
+        self.writer.flush()
 
     def register_rows(self, topic: str, schema: tuple[str, bytes]) -> int:
         schema_id = self.writer.register_schema(schema[0], SCHEMA_ENCODING, schema[1])
@@ -1202,6 +1226,7 @@ class McapRecorder:
         if seg is None:
             return
         try:
+            seg.use(topic == TOPIC_FRAMES)
             channel_id = seg.channels.get(topic)
             if channel_id is None:
                 channel_id = seg.register(topic)
@@ -1228,6 +1253,7 @@ class McapRecorder:
         if seg is None:
             return
         try:
+            seg.use(False)
             channel_id = seg.channels.get(topic)
             if channel_id is None or seg.row_schemas[topic] is not schema:
                 channel_id = seg.register_rows(topic, schema)
@@ -1267,7 +1293,7 @@ class McapRecorder:
         seg = self._seg
         assert seg is not None
         try:
-            seg.writer.flush()
+            seg.end_chunks()
         except OSError as exc:
             self._fail(exc, now)
             return
@@ -1290,6 +1316,7 @@ class McapRecorder:
             seg.writer._Writer__index_types = kinds
             seg.writer._Writer__repeat_schemas = bool(seg.channels)
             seg.writer._Writer__repeat_channels = bool(seg.channels)
+        seg.end_chunks()
         seg.writer.finish()
         seg.file.flush()
         seg.file.close()

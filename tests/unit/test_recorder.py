@@ -7,6 +7,7 @@ from __future__ import annotations
 import errno
 import json
 import logging
+import math
 import os
 import signal
 import subprocess
@@ -35,6 +36,7 @@ from canfdi.io.reader import (
     read_residuals,
     read_samples,
 )
+from canfdi.io.scan import McapFile
 from canfdi.io.schemas import (
     FRAME_DTYPE,
     FRAMES_ENCODING,
@@ -1098,3 +1100,56 @@ def test_batched_messages_are_the_bytes_add_message_writes() -> None:
         writer.finish()
         files.append(out.getvalue())
     assert files[0] == files[1]
+
+
+def test_frames_have_chunks_of_their_own_and_reading_frames_inflates_no_other(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / "capture.mcap"
+    rec = McapRecorder(path, clock=FakeClock(), chunk_size=32 * 1024, block_frames=256,
+                       block_samples=64)
+    for i in range(0, 6000, 300):
+        write_frames(rec, i, i + 300)
+        for k in range(i // 3, (i + 300) // 3):
+            rec.write_sample(Sample(k=k, timestamp_ns=T0 + k * 3000, u=np.zeros(2),
+                                    z=np.ones(2)), INPUTS, OUTPUTS)
+        if i == 3000:
+            rec.write_event(event())
+            rec.flush()  # both open chunks end
+    rec.close()
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    frames = next(c.id for c in summary.channels.values() if c.topic == TOPIC_FRAMES)
+    kinds = [set(index.message_index_offsets) for index in summary.chunk_indexes]
+    assert all(kind == {frames} or frames not in kind for kind in kinds)
+    frame_chunks = sum(kind == {frames} for kind in kinds)
+    assert 2 < frame_chunks < len(kinds) - 2
+
+    inflated: list[int] = []
+    inflate = McapFile._inflate
+    monkeypatch.setattr(McapFile, "_inflate",
+                        lambda self, pos, *args: inflated.append(pos) or inflate(self, pos, *args))
+    assert frame_indices(path) == list(range(6000))
+    assert len(inflated) == frame_chunks
+    inflated.clear()
+    assert read_samples(path).k.tolist() == list(range(2000))
+    assert len(inflated) == len(kinds) - frame_chunks
+    assert [m["kind"] for _, m in topic_messages(path, TOPIC_EVENTS)] == ["accepted"]
+    # mcap's own reader, in log-time order across the interleaved chunks
+    with open(path, "rb") as f:
+        times = [m.log_time for _, _, m in make_reader(f).iter_messages(log_time_order=True)]
+    assert times == sorted(times) and len(times) == summary.statistics.message_count
+
+
+def test_message_json_beyond_strict_json_still_reads(tmp_path: Path) -> None:
+    # Older canfdi logs wrote non-finite floats as bare NaN / Infinity tokens.
+    path = tmp_path / "old.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        schema = writer.register_schema("canfdi.Json", "jsonschema", b'{"type":"object"}')
+        channel = writer.register_channel("/x", "json", schema)
+        writer.add_message(channel, T0, b'{"a": NaN, "b": -Infinity, "c": 1}', T0)
+        writer.finish()
+    ((_, a),) = topic_messages(path, "/x")
+    assert math.isnan(a["a"]) and a["b"] == -math.inf and a["c"] == 1
