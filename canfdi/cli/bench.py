@@ -23,7 +23,9 @@ Measure, on this machine and in one run, side by side:
   capture          canfdi capture's path (arrays, assembly, MCAP) against python-can's
                    can.Logger writing BLF, on the same frames (best of three, interleaved)
   replay           samples/s of canfdi replay's block path over a long capture log (frames
-                   and samples), and over the monitor log of the throughput run
+                   and samples; the median of five runs): on every core (the log read ahead
+                   on a second one), per CPU second, and confined to one core (the per-core
+                   rate); and over the monitor log of the throughput run
   latency          p50/p99 from a frame's arrival to the end of its handling (fault frames
                    sent) in the live service, at 50% bus load (frames stamped on arrival: a
                    grid clock, which samples by time, then sees the drive's periods
@@ -139,8 +141,12 @@ def run(args: argparse.Namespace) -> int:
                    f"{r['cantools_decode_fps']:,.0f} = {r['decode_ratio_vs_cantools']:.0f} x"),
         ("capture", f"{r['capture_fps']:,.0f} frames/s vs python-can BLF "
                     f"{r['python_can_blf_fps']:,.0f} = {r['capture_ratio_vs_python_can']:.2f} x"),
-        ("replay", f"{r['replay_samples_per_s']:,.0f} samples/s over a capture log, "
-                   f"{r['replay_monitor_log_samples_per_s']:,.0f} over a monitor log"),
+        ("replay (capture log)", f"{r['replay_samples_per_s']:,.0f} samples/s, "
+                                 f"{r['replay_samples_per_cpu_s']:,.0f} per CPU second, "
+                                 + (f"{r['replay_one_core_samples_per_s']:,.0f} on one core"
+                                    if "replay_one_core_samples_per_s" in r
+                                    else "no one-core figure on this system")),
+        ("replay (monitor log)", f"{r['replay_monitor_log_samples_per_s']:,.0f} samples/s"),
         ("latency at 50% load", f"p50 {r['latency_p50_ms']:.3f} ms, p99 "
                                 f"{r['latency_p99_ms']:.3f} ms ({r['latency_blocks']} blocks, "
                                 f"{r['latency_faults_diagnosed']} faults diagnosed)"),

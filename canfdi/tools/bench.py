@@ -150,10 +150,8 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     capturer.sink = cap_recorder
     _feed(capturer, traffic)
     cap_recorder.close()
-    for key, path in (("replay", capture_path), ("replay_monitor_log", log_path)):
-        rate, samples = _replay_rate(config, path)
-        out[f"{key}_samples_per_s"] = rate
-        out[f"{key}_samples"] = samples
+    out.update(_replay_rates(config, capture_path, "replay", runs=3 if quick else 5))
+    out.update(_replay_rates(config, log_path, "replay_monitor_log", runs=1))
 
     # -- decode: ours (vectorised, precompiled) against cantools --------------------------
     say("decode: canfdi against cantools")
@@ -218,20 +216,43 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     return out
 
 
-def _replay_rate(config, path: Path) -> tuple[float, int]:
-    """(samples/s, samples) of `canfdi replay`'s block path over a log: read, decode,
-    assemble, residuals, detection (diagnosis included, no recording)."""
+def _replay_rates(config, path: Path, key: str, runs: int) -> dict:
+    """`canfdi replay`'s block path over a log (read, decode, assemble, residuals, detection,
+    diagnosis; no recording), the median of ``runs`` runs: samples/s on every core this
+    process may use (the log is read ahead on a second one), samples per CPU second of
+    those runs, and, with ``runs`` > 1, samples/s confined to one core (the reading thread
+    and the monitor sharing it): the rate per core."""
     from canfdi.io.logs import frame_blocks
     from canfdi.monitor import Monitor
 
-    replayer = Monitor(config, record_residuals=False)
+    def once() -> tuple[float, float, int]:
+        replayer = Monitor(config, record_residuals=False)  # built outside the timing
 
-    def replay() -> None:
-        for block in frame_blocks(path):
-            replayer.on_frames(block)
+        def replay() -> None:
+            for block in frame_blocks(path):
+                replayer.on_frames(block)
 
-    wall, _ = _timed(replay)
-    return replayer.samples / wall, replayer.samples
+        wall, cpu = _timed(replay)
+        return wall, cpu, replayer.samples
+
+    timed = [once() for _ in range(runs)]
+    samples = timed[0][2]
+    out = {
+        f"{key}_samples_per_s": samples / statistics.median(w for w, _, _ in timed),
+        f"{key}_samples_per_cpu_s": samples / statistics.median(c for _, c, _ in timed),
+        f"{key}_samples": samples,
+    }
+    if runs > 1 and hasattr(os, "sched_setaffinity"):
+        cores = os.sched_getaffinity(0)
+        # Threads inherit the affinity of the thread that starts them: the read-ahead thread
+        # frame_blocks starts shares the one core.
+        os.sched_setaffinity(0, {max(cores)})
+        try:
+            one = [once() for _ in range(runs)]
+        finally:
+            os.sched_setaffinity(0, cores)
+        out[f"{key}_one_core_samples_per_s"] = samples / statistics.median(w for w, _, _ in one)
+    return out
 
 
 def _virtual_bus(config, traffic: FrameBlock, count: int) -> dict:

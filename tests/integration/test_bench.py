@@ -10,7 +10,8 @@ import pytest
 from tests.conftest import REPO
 
 FIELDS = ("bus_limit_fps", "throughput_fps", "throughput_ratio", "decode_ratio_vs_cantools",
-          "capture_ratio_vs_python_can", "replay_samples_per_s", "latency_p50_ms",
+          "capture_ratio_vs_python_can", "replay_samples_per_s", "replay_samples_per_cpu_s",
+          "replay_one_core_samples_per_s", "latency_p50_ms",
           "latency_p99_ms", "rss_growth_mib")
 
 
