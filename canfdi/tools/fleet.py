@@ -682,8 +682,9 @@ def dask_client(jobs: int | None = None, scheduler: str | None = None,
         # No dashboard (no port to collide with, no bokeh needed); the workers' own log
         # lines only when something goes wrong. Dask starts its workers with glibc's
         # MALLOC_TRIM_THRESHOLD_ set (to give memory back sooner), which also fixes malloc's
-        # mmap threshold: every large numpy temporary is then a fresh mmap, and the monitor's
-        # block path ran at 0.26 instead of 0.47 million samples/s. Unset for our workers.
+        # mmap threshold: every large numpy temporary is then a fresh mmap, and replay runs at
+        # a third of its speed (0.50 instead of 1.6 million samples/s over canfdi bench's
+        # capture log). Unset for our workers.
         with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_":
                               None}):
             cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True,
