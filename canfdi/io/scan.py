@@ -654,14 +654,13 @@ class McapFile:
         wanted_topics = frozenset(topics) if topics is not None else None
         wanted = {cid: topic for cid, topic in self.channels.items()
                   if wanted_topics is None or topic in wanted_topics}
-        skip = (partial(self._none_wanted, wanted)
-                if wanted_topics is not None and self._summary_channels else None)
+        by_index = wanted_topics is not None and bool(self._summary_channels)
+        skip = partial(self._none_wanted, wanted) if by_index else None
         for op, start, stop, inner in self.records(skip=skip):
             if op == OP_CHUNK:
                 if inner is None:
                     continue
-                at = (self._indexed_at(start, stop, inner, wanted)
-                      if wanted_topics is not None and self._summary_channels else None)
+                at = self._indexed_at(start, stop, inner, wanted) if by_index else None
                 if at is not None:
                     yield from self._messages_at(start - 9, inner, at, wanted)
                 else:
@@ -677,11 +676,17 @@ class McapFile:
         ``start``..``stop`` with MessageIndex records, none of a wanted channel: a chunk of
         frames when samples are read, or of samples when frames are (canfdi writes frames
         in chunks of their own)."""
+        chunk = self._listed(start, stop)
+        return (chunk is not None and bool(chunk.index_channels)
+                and chunk.index_channels.isdisjoint(wanted))
+
+    def _listed(self, start: int, stop: int) -> _IndexedChunk | None:
+        """The intact summary's ChunkIndex entry of the chunk whose body is
+        ``start``..``stop``; None when it lists no chunk there, or one of another length."""
         if self._index_of is None:
             self._index_of = {c.offset: c for c in self._indexed}
         chunk = self._index_of.get(start - 9)
-        return (chunk is not None and chunk.length == stop - start + 9
-                and bool(chunk.index_channels) and chunk.index_channels.isdisjoint(wanted))
+        return chunk if chunk is not None and chunk.length == stop - start + 9 else None
 
     def _indexed_at(self, start: int, stop: int, inner: bytes, wanted: dict[int, str]
                     ) -> list[int] | None:
@@ -697,10 +702,8 @@ class McapFile:
         """
         if not _CHUNK_HEAD.unpack_from(self._buf, start)[3]:
             return None
-        if self._index_of is None:
-            self._index_of = {c.offset: c for c in self._indexed}
-        chunk = self._index_of.get(start - 9)
-        if chunk is None or chunk.length != stop - start + 9 or not chunk.index_offsets:
+        chunk = self._listed(start, stop)
+        if chunk is None or not chunk.index_offsets:
             return None
         at: list[int] = []
         for pos in chunk.index_offsets:
