@@ -150,8 +150,9 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     capturer.sink = cap_recorder
     _feed(capturer, traffic)
     cap_recorder.close()
-    out.update(_replay_rates(config, capture_path, "replay", runs=3 if quick else 5))
-    out.update(_replay_rates(config, log_path, "replay_monitor_log", runs=1))
+    out.update(_replay_rates(config, capture_path, "replay", runs=3 if quick else 5,
+                             one_core=True))
+    out.update(_replay_rates(config, log_path, "replay_monitor_log", runs=1, one_core=False))
 
     # -- decode: ours (vectorised, precompiled) against cantools --------------------------
     say("decode: canfdi against cantools")
@@ -216,11 +217,11 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     return out
 
 
-def _replay_rates(config, path: Path, key: str, runs: int) -> dict:
+def _replay_rates(config, path: Path, key: str, runs: int, one_core: bool) -> dict:
     """`canfdi replay`'s block path over a log (read, decode, assemble, residuals, detection,
     diagnosis; no recording), the median of ``runs`` runs: samples/s on every core this
     process may use (the log is read ahead on a second one), samples per CPU second of
-    those runs, and, with ``runs`` > 1, samples/s confined to one core (the reading thread
+    those runs, and, with ``one_core``, samples/s confined to one core (the reading thread
     and the monitor sharing it): the rate per core."""
     from canfdi.io.logs import frame_blocks
     from canfdi.monitor import Monitor
@@ -242,7 +243,7 @@ def _replay_rates(config, path: Path, key: str, runs: int) -> dict:
         f"{key}_samples_per_cpu_s": samples / statistics.median(c for _, c, _ in timed),
         f"{key}_samples": samples,
     }
-    if runs > 1 and hasattr(os, "sched_setaffinity"):
+    if one_core and hasattr(os, "sched_setaffinity"):
         cores = os.sched_getaffinity(0)
         # Threads inherit the affinity of the thread that starts them: the read-ahead thread
         # frame_blocks starts shares the one core.
