@@ -1,7 +1,8 @@
 """Real SocketCAN (vcan0): separate processes, can-utils, a vanishing interface, SIGTERM.
 
 Skipped with a reason where there is no vcan0; `deploy/vcan-harness` provides one (a User-Mode
-Linux kernel on hosts without CAN). Syscalls are slow there, so scenarios run at real time.
+Linux kernel on hosts without CAN). Syscalls are slow there, so scenarios run at real time,
+and the two-drive bus, which saturates it at real time, at half speed.
 """
 
 from __future__ import annotations
