@@ -31,6 +31,7 @@ Python ints of cantools' ``LinearIntegerConversion``). A multiplexer selects by
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -133,6 +134,30 @@ class SignalLayout:
         if self.maximum is not None:
             hi = min(hi, self.maximum)
         return lo, hi
+
+    def resolution_std(self, values: np.ndarray) -> float:
+        """The standard deviation of the rounding error this signal's encoding adds to
+        ``values`` (...): its step over sqrt(12) (uniform rounding); for a float signal the
+        step is the float's spacing (one unit in the last place) at the largest values (the
+        99.9th percentile of their magnitude): the rounding grows with the value, and a
+        threshold set from a mean spacing would alarm wherever the values are large. A
+        channel that carries no noise of its own (an echo of a setpoint, a quantised counter)
+        has this much: the floor of any noise estimate.
+
+        >>> SignalLayout("i_a", 32, 16, True, False, 0.001, 0.0, None, None).resolution_std(
+        ...     [1.0, 2.0]) == 0.001 / 12**0.5
+        True
+        """
+        v = np.asarray(values, dtype=float)
+        v = v[np.isfinite(v)]
+        if not self.is_float:
+            return abs(self.scale) / math.sqrt(12.0)
+        if v.size == 0:
+            return 0.0
+        top = np.percentile(np.abs((v - self.offset) / self.scale), 99.9)
+        step = float(np.spacing(np.array(top).astype(_float_dtype(self.length)))) * abs(
+            self.scale)
+        return step / math.sqrt(12.0)
 
     def quantize(self, values: np.ndarray) -> np.ndarray:
         """Values as the receiver decodes them after a sender encodes them.

@@ -310,6 +310,13 @@ class BusMap:
             Z_q[..., j] = sig.quantize(Z[..., j])
         return U_q, Z_q
 
+    def resolution(self, U: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """((p,), (q,)): the rounding noise each model input and output carries on the bus
+        (`SignalLayout.resolution_std` over the values U (N, p), Z (N, q))."""
+        u_sig, z_sig = self.model_signals()
+        return (np.array([s.resolution_std(U[:, j]) for j, s in enumerate(u_sig)]),
+                np.array([s.resolution_std(Z[:, j]) for j, s in enumerate(z_sig)]))
+
     def __repr__(self) -> str:
         used = ", ".join(f"{lay.name}=0x{key[0]:X}" for lay, key in zip(self.layouts, self.keys,
                                                                         strict=True))

@@ -54,11 +54,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import yaml
-
-    from canfdi.config import read_yaml
     from canfdi.io.damage import Damage
     from canfdi.tools.calibrate import LogFault, calibrate, config_document
+    from canfdi.tools.configdoc import ConfigDocument
 
     config = load_config_or_exit(args.config, "calibrate")
     if isinstance(config, int):
@@ -75,14 +73,19 @@ def run(args: argparse.Namespace) -> int:
         if sys.stderr.isatty() or not args.json:
             print(f"canfdi calibrate: {msg}", file=sys.stderr, flush=True)
 
-    doc = read_yaml(args.config, ValueError, "config")
+    try:
+        # the config as written (comments, literals), which the calibrated one is an edit of
+        document = ConfigDocument.load(args.config)
+    except ValueError as exc:
+        print(f"canfdi calibrate: {exc}", file=sys.stderr)
+        return 2
     damage = Damage()
 
     def lost() -> str:  # what damaged logs lost, for a one-line error
         return f" ({'; '.join(damage.lines())})" if damage else ""
 
     try:
-        result = calibrate(args.logs, config, doc, window=args.window,
+        result = calibrate(args.logs, config, document.plain(), window=args.window,
                            full=args.full_covariance, progress=progress, damage=damage)
     except LogFault as exc:
         print(f"canfdi calibrate: {exc}{lost()}", file=sys.stderr)
@@ -94,8 +97,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"canfdi calibrate: {line}", file=sys.stderr)
     when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     out = args.output or Path("calibrated.yaml")
-    header, written = config_document(result, args.config, out, when)
-    text = header + yaml.safe_dump(written, sort_keys=False, default_flow_style=None, width=100)
+    text = config_document(result, document, args.config, out, when).dump()
     report = result.report()
     report["damage"] = damage.as_dict()
     if args.json:
@@ -104,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
         _print_report(report)
     if args.output:
         args.output.parent.mkdir(parents=True, exist_ok=True)
-        args.output.write_text(text)
+        args.output.write_text(text)  # the text printed otherwise, so both say the same
         print(f"wrote {args.output}", file=sys.stderr if args.json else sys.stdout)
     elif not args.json:
         print(text)

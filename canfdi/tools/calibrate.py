@@ -14,7 +14,6 @@ refused, with where.
 from __future__ import annotations
 
 import dataclasses
-import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,12 +22,14 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from canfdi import methods
+from canfdi.bus.dbc import BusMap
 from canfdi.config import parse_config
 from canfdi.core.calibrate import threshold_for_long_run_variance
 from canfdi.core.noise import NoiseEstimate, estimate_measurement_noise
-from canfdi.core.settings import MonitorConfig
+from canfdi.core.settings import ConfigError, MonitorConfig
 from canfdi.io.damage import Damage
-from canfdi.tools.identify import assembled_samples, log_samples, regular_grid
+from canfdi.tools.configdoc import ConfigDocument
+from canfdi.tools.samples import assembled_samples, log_samples, regular_grid
 
 __all__ = ["Calibration", "LogFault", "Record", "ResidualCheck", "Teach", "calibrate",
            "calibrate_records",
@@ -83,18 +84,22 @@ class Calibration:
     residuals: list[ResidualCheck]
     config: MonitorConfig
     document: dict
+    floored: np.ndarray | None = None
 
     def report(self) -> dict[str, Any]:
         """A JSON-able summary."""
+        floored = (np.zeros(len(self.outputs), dtype=bool) if self.floored is None
+                   else self.floored)
         return {
             "logs": self.logs, "samples": self.samples, "window": self.noise.s,
             "noise": [{"sensor": name, "std": float(s), "std_error": float(e),
                        "config_std": float(p),
-                       "identified": ("alone" if ident else "with others (prior's split)"
+                       "identified": ("its resolution (the data show less)" if low else
+                                      "alone" if ident else "with others (prior's split)"
                                       if seen else "not seen (prior x the others' scale)")}
-                      for name, s, e, p, ident, seen in zip(
+                      for name, s, e, p, ident, seen, low in zip(
                           self.outputs, self.noise.std, self.noise.std_error, self.prior_std,
-                          self.noise.identifiable, self.noise.seen, strict=True)],
+                          self.noise.identifiable, self.noise.seen, floored, strict=True)],
             "covariance": self.noise.covariance.tolist(),
             "residuals": [dataclasses.asdict(r) for r in self.residuals],
         }
@@ -161,10 +166,24 @@ def calibrate(paths: Sequence[Path], config: MonitorConfig, doc: Mapping[str, An
                              window=window, full=full, progress=progress)
 
 
+def resolution_floor(config: MonitorConfig, Z: np.ndarray) -> np.ndarray:
+    """(q,) the rounding noise each output carries on the config's bus (its DBC scale, or its
+    float type's spacing at the values Z (N, q)); zeros when the config has no readable DBC."""
+    try:
+        _, floor = BusMap.from_config(config).resolution(np.zeros((1, len(config.inputs))), Z)
+    except (ConfigError, OSError, ValueError):
+        return np.zeros(len(config.outputs))
+    return floor
+
+
 def calibrate_records(records: Sequence[Record], config: MonitorConfig,
                       doc: Mapping[str, Any], *, window: int | None = None, full: bool = False,
-                      progress: Callable[[str], None] = lambda _: None) -> Calibration:
-    """`calibrate` on records already assembled."""
+                      progress: Callable[[str], None] = lambda _: None,
+                      floor_std: np.ndarray | None = None) -> Calibration:
+    """`calibrate` on records already assembled. A sensor whose noise the data put below its
+    resolution on the bus (``floor_std``, default `resolution_floor`: an echo of a setpoint,
+    a quantised counter) gets its resolution: a threshold needs some noise, and the rounding
+    is there."""
     paths = [r.name for r in records]
     total = sum(len(r.k) for r in records)
     if total < MIN_SAMPLES:
@@ -182,17 +201,22 @@ def calibrate_records(records: Sequence[Record], config: MonitorConfig,
     prior = np.ones(model.q) if prior is None else np.broadcast_to(prior, (model.q,)).copy()
     progress(f"estimating the noise of {model.q} sensors over windows of {s + 1} samples")
     noise = estimate_measurement_noise(model, s, U, Z, prior, full=full)
+    floor = (resolution_floor(config, Z[~np.isnan(Z).any(axis=1)]) if floor_std is None
+             else np.asarray(floor_std, dtype=float))
+    floored = noise.std < floor
+    if np.any(floored):
+        noise = dataclasses.replace(noise, std=np.maximum(noise.std, floor))
     if np.any(noise.std <= 0):
         zero = [n for n, v in zip(config.outputs, noise.std, strict=True) if v <= 0]
-        raise ValueError(f"the data show no noise on {', '.join(zero)}: a quantised or "
-                         "constant signal cannot set a threshold")
+        raise ValueError(f"the data show no noise on {', '.join(zero)} and its bus signal "
+                         "has no resolution to stand for it: a threshold cannot be set")
     document = calibrated_document(doc, config, noise.std)
     new = parse_config(document, config.path)
     progress("checking the residuals with the calibrated noise")
     checks = _check_residuals(records, new)
     return Calibration(logs=[str(p) for p in paths], samples=total, noise=noise,
                        prior_std=prior, outputs=list(config.outputs), residuals=checks,
-                       config=new, document=document)
+                       config=new, document=document, floored=floored)
 
 
 def _check_residuals(records: Sequence[Record], config: MonitorConfig
@@ -255,37 +279,53 @@ def _check_residuals(records: Sequence[Record], config: MonitorConfig
     return checks
 
 
-def config_document(calibration: Calibration, source: Path, output: Path, when: str
-                    ) -> tuple[str, dict]:
-    """The calibrated config's comment header (provenance: logs, samples, date ``when``) and
-    document, its relative DBC path rewritten to point at the same file from ``output``'s
-    directory."""
-    doc = dict(calibration.document)
-    bus = dict(doc.get("bus") or {})
-    dbc = bus.get("dbc")
-    if isinstance(dbc, str) and not Path(dbc).is_absolute() and (source.parent / dbc).is_file():
-        bus["dbc"] = os.path.relpath((source.parent / dbc).resolve(), output.resolve().parent)
-        doc["bus"] = bus
-    lines = [f"# Calibrated by `canfdi calibrate` on {when} from {calibration.samples} healthy",
-             f"# samples of {len(calibration.logs)} log(s): "
+def config_document(calibration: Calibration, document: ConfigDocument, source: Path,
+                    output: Path, when: str) -> ConfigDocument:
+    """The calibrated config to write to ``output``: ``document`` (the config as read from
+    ``source``, whose `plain` form calibration took) with the calibrated values of
+    `calibrated_document` set in place (``noise.measurement``; the method's own section, where
+    its ``with_noise`` puts a noise level), its relative DBC paths pointing at the same files
+    from ``output``'s folder, and the provenance (logs, samples, date ``when``) as comment
+    lines at the top. Everything else keeps the user's comments, order and literals.
+
+    Parameters
+    ----------
+    calibration : the result of `calibrate`; document : the config's round-trip document
+        (edited and returned); source : the config's path; output : where it will be
+        written (the relative paths are rewritten for its folder); when : the date to state.
+
+    Returns
+    -------
+    ``document``, edited.
+    """
+    calibrated = calibration.document
+    document.set("noise.measurement", calibrated["noise"]["measurement"])
+    method = methods.get(calibration.config.method)
+    if method.with_noise is not None and method.section is not None:
+        # merged key by key: only what with_noise changed is rewritten
+        document.set(method.section, calibrated[method.section])
+    document.relocate_paths(source, output)
+    noise = calibration.noise
+    lines = [f"Calibrated by `canfdi calibrate` on {when} from {calibration.samples} healthy",
+             f"samples of {len(calibration.logs)} log(s): "
              + ", ".join(Path(p).name for p in calibration.logs) + ".",
-             f"# noise.measurement estimated through the parity space over windows of "
-             f"{calibration.noise.s + 1} samples",
-             f"# ({calibration.noise.windows} windows); the config's {source.name} said "
+             f"noise.measurement estimated through the parity space over windows of "
+             f"{noise.s + 1} samples",
+             f"({noise.windows} windows); the config's {source.name} said "
              + ", ".join(f"{n} {p:.4g}" for n, p in zip(calibration.outputs,
                                                         calibration.prior_std, strict=True))
              + "."]
-    noise = calibration.noise
     shared = [n for n, ident, seen in zip(calibration.outputs, noise.identifiable, noise.seen,
                                           strict=True) if seen and not ident]
     unseen = [n for n, seen in zip(calibration.outputs, noise.seen, strict=True) if not seen]
     if shared:
-        lines.append("# Seen only together with other sensors (split in the prior's "
+        lines.append("Seen only together with other sensors (split in the prior's "
                      "proportions): " + ", ".join(shared) + ".")
     if unseen:
-        lines.append("# Read by no parity relation (the prior times the others' scale): "
+        lines.append("Read by no parity relation (the prior times the others' scale): "
                      + ", ".join(unseen) + ".")
-    return "\n".join(lines) + "\n", doc
+    document.header(lines)
+    return document
 
 
 def scenario_records(config: MonitorConfig, scenario: Any, seconds: float, seed: int

@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 import yaml
 
-from canfdi.config import load_config
+from canfdi.config import load_config, parse_config
 from canfdi.io.logs import write_frames
+from canfdi.tools.calibrate import calibrated_document
 from firmware_sim.emitter import frame_log
 from firmware_sim.scenario import load_scenario
 from tests.conftest import REPO
+from tests.unit.test_configdoc import assert_same, comments, hex_lines
 
 CONFIGS = REPO / "deploy" / "config"
 
@@ -36,6 +38,16 @@ def healthy_log(path, scenario, scale, seed=None, duration=90.0, faults=False):
         change.update(faults=(), drives=())
     write_frames(path, [frame_log(dataclasses.replace(sc, **change)).frames])
     return path
+
+
+def assert_written_as_the_input(config, text):
+    """The calibrated config is the input as its user wrote it: every comment, every hex
+    literal (issue 26)."""
+    original = config.read_text()
+    for comment in comments(original):
+        assert comment in text, comment
+    for line in hex_lines(original):
+        assert line in text, line
 
 
 def replay_json(log, config):
@@ -80,6 +92,7 @@ def test_a_twice_as_noisy_dc_motor_is_calibrated_and_then_silent(twice_as_noisy)
     text = out.read_text()
     assert text.startswith("# Calibrated by `canfdi calibrate` on ")
     assert "healthy.mcap" in text and "9000 healthy" in text
+    assert_written_as_the_input(CONFIGS / "dc_motor.yaml", text)
     config = load_config(out)
     np.testing.assert_allclose(config.design.measurement_std, stds, rtol=1e-3)
     # The config's own noise (half the drive's) alarms on healthy data without the noise
@@ -123,6 +136,14 @@ def test_every_method_and_bus_takes_the_calibration(tmp_path, scenario, config, 
     if section:  # the method's own noise level follows
         written = calibrated.method_options.sigma
         np.testing.assert_allclose(written, [n["std"] for n in report["noise"]], rtol=1e-3)
+    # The file keeps the input's comments and hex IDs (cia402: base 0x680) and holds, value
+    # for value, what calibrated_document (evaluate, soak, teach-in) makes of the same noise.
+    text = out.read_text()
+    assert_written_as_the_input(CONFIGS / config, text)
+    doc = yaml.safe_load((CONFIGS / config).read_text())
+    std = np.array([n["std"] for n in report["noise"]])
+    expected = calibrated_document(doc, load_config(CONFIGS / config), std)
+    assert_same(parse_config(yaml.safe_load(text), out), parse_config(expected, out))
     assert replay_alarms(log, out) == 0
 
 

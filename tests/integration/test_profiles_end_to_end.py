@@ -19,7 +19,7 @@ import pytest
 from canfdi import dbc as dbc_files
 from canfdi.cli.demo import run_demo
 from canfdi.config import load_config
-from canfdi.tools.identify import log_samples
+from canfdi.tools.samples import log_samples
 from firmware_sim.emitter import frame_log
 from firmware_sim.scenario import load_scenario
 from tests.conftest import REPO
