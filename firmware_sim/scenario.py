@@ -1,6 +1,6 @@
 """Scenarios: YAML files that say which plant runs, for how long, with which noise and faults.
 
-    plant: dc_motor          # dc_motor | winding_machine | vtol
+    plant: dc_motor          # dc_motor | winding_machine | vtol | servo_axis
     duration: 60.0           # seconds
     seed: 1
     noise: {measurement: 0.01, process: 0.0}   # standard deviations; plant defaults if absent
@@ -12,6 +12,12 @@
 Optional: ``name``, ``description``. A fault's ``kind`` defaults to ``scale_bias`` for
 actuators and ``bias`` for sensors; ``end`` (seconds) repairs it. Every error names its field,
 e.g. ``faults[1].index``.
+
+The plant's own options (optional; only plants that take some, firmware_sim.plants), passed to
+its constructor; an unknown option or a bad value is an error naming ``plant_options.<key>``:
+
+    plant: servo_axis
+    plant_options: {reference: commissioning, load_seed: 1}
 
 The bus (optional): which bus profile the drive speaks (firmware_sim/profiles: canfdi by
 default, cia402, float_node) and its node ID (default: the profile's; canfdi has none):
@@ -34,7 +40,7 @@ faults.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +48,7 @@ import numpy as np
 
 from canfdi.config import read_yaml
 from firmware_sim.faults import ACTUATOR_KINDS, SENSOR_KINDS, Fault
-from firmware_sim.plants import PLANTS, Plant, make_plant
+from firmware_sim.plants import PLANTS, Plant, PlantOptionError, make_plant
 from firmware_sim.profiles import DEFAULT_PROFILE, PROFILES, BusProfile, get_profile
 
 __all__ = ["MAX_DRIVES", "SCENARIO_DIR", "Drive", "Scenario", "ScenarioError", "load_scenario",
@@ -94,7 +100,8 @@ class Scenario:
     measurement_std : (q,); process_std : (n,); faults in the order given (the one drive's;
     empty with several drives: each has its own, in ``drives``). profile : the bus profile's
     name; drives : the drives on the bus (one, named after the scenario, when the YAML has no
-    ``drives:``).
+    ``drives:``); plant_options : the plant's options (``plant_options:``), which
+    `make_plant` passes to the plant: build the scenario's plant with it, never by name alone.
     """
 
     name: str
@@ -108,6 +115,7 @@ class Scenario:
     path: Path | None = None
     profile: str = DEFAULT_PROFILE
     drives: tuple[Drive, ...] = ()
+    plant_options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not self.drives:
@@ -115,7 +123,8 @@ class Scenario:
             object.__setattr__(self, "drives", (Drive(self.name, node, self.faults),))
 
     def make_plant(self) -> Plant:
-        return make_plant(self.plant)
+        """A fresh plant of the scenario, with its ``plant_options``."""
+        return make_plant(self.plant, self.plant_options)
 
     def drive_scenario(self, index: int) -> Scenario:
         """Drive ``index`` alone: its faults, run with the seed plus its seed offset (the
@@ -192,15 +201,23 @@ def parse_scenario(data: Any, path: Path | None = None) -> Scenario:
     """Validate a loaded YAML document and build a Scenario."""
     if not isinstance(data, dict):
         raise ScenarioError("(top level)", "expected a mapping")
-    allowed = {"name", "description", "plant", "duration", "seed", "noise", "faults", "bus",
-               "drives"}
+    allowed = {"name", "description", "plant", "plant_options", "duration", "seed", "noise",
+               "faults", "bus", "drives"}
     for key in data:
         if key not in allowed:
             raise ScenarioError(str(key), f"unknown key (allowed: {', '.join(sorted(allowed))})")
     plant_name = data.get("plant")
     if plant_name not in PLANTS:
         raise ScenarioError("plant", f"unknown plant {plant_name!r} (known: {', '.join(PLANTS)})")
-    plant = make_plant(plant_name)
+    plant_options = data.get("plant_options") or {}
+    if not isinstance(plant_options, dict):
+        raise ScenarioError("plant_options", f"expected a mapping like {{option: value}}, got "
+                                             f"{plant_options!r}")
+    try:
+        plant = make_plant(plant_name, plant_options)
+    except PlantOptionError as exc:
+        message = str(exc).removeprefix(f"{exc.option}: ")
+        raise ScenarioError(f"plant_options.{exc.option}", message) from None
     if "duration" not in data:
         raise ScenarioError("duration", "missing (seconds)")
     duration = _number(data["duration"], "duration", 0.0, strict=True)
@@ -241,13 +258,13 @@ def parse_scenario(data: Any, path: Path | None = None) -> Scenario:
         faults = ()
     return Scenario(name=name, description=description, plant=plant_name, duration=duration,
                     seed=seed, measurement_std=meas, process_std=proc, faults=faults, path=path,
-                    profile=profile.name, drives=drives)
+                    profile=profile.name, drives=drives, plant_options=dict(plant_options))
 
 
 def _bus(data: Any, plant_name: str) -> tuple[BusProfile, int | None]:
     """The ``bus:`` section: (profile, node or None)."""
     if data is None:
-        return get_profile(DEFAULT_PROFILE), None
+        data = {}  # the default profile, which must cover the plant too
     if not isinstance(data, dict):
         raise ScenarioError("bus", "expected a mapping like {profile: cia402, node: 1}")
     for key in data:

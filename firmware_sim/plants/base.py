@@ -62,12 +62,13 @@ class Plant(ABC):
 
     Class attributes
     ----------------
-    name : the scenario's ``plant:`` key (dc_motor, winding_machine, vtol).
+    name : the scenario's ``plant:`` key (dc_motor, winding_machine, vtol, servo_axis).
     dt : control period in seconds.
     state_names, input_names, output_names : names of x, u and y; input and output names are
         the DBC signal names of the commands and measurements.
     reference_names : DBC signal names of the controller's references (may be empty).
-    dbc : file name in dbc/ that describes this plant's bus.
+    dbc : file name in dbc/ that describes this plant's bus (canfdi's own bus profile), or None
+        when the plant does not speak that bus (its scenarios name another ``bus.profile``).
     config : file name in deploy/config/ of the monitor config for this plant.
     """
 
@@ -77,7 +78,7 @@ class Plant(ABC):
     input_names: tuple[str, ...]
     output_names: tuple[str, ...]
     reference_names: tuple[str, ...] = ()
-    dbc: str
+    dbc: str | None
     config: str
 
     @property

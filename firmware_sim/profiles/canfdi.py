@@ -120,7 +120,8 @@ class CanfdiProfile(BusProfile):
 
         if plant not in PLANTS:
             return None
-        return make_plant(plant).dbc.removesuffix(".dbc")
+        own = make_plant(plant).dbc
+        return None if own is None else own.removesuffix(".dbc")
 
     def encoder(self, plant: Plant, nodes: Sequence[int | None],
                 frame_spacing: float = 130e-6) -> CanfdiEncoder:

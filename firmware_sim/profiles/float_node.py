@@ -1,13 +1,14 @@
 """A node-ID float protocol, as open motor controllers speak it (ODrive's CAN Simple and alike).
 
 The frame ID is ``node << 5 | cmd`` (11-bit; node 0..62, 63 being the broadcast address),
-setpoints and estimates are IEEE float32, little-endian, in SI units (ODrive sends turns and
-turns/s; a DBC factor of 2 pi would convert, but canfdi.bus.codec does not apply a factor to
-float signals yet); no CRC, no counter. The drive sends its
-encoder estimates every control period on its own, the master sends the setpoint every period
-and polls the currents with remote frames (RTR), which the drive answers with the data frame
-of the same ID. ``dbc/dc_motor_float.dbc`` describes node 0 (IDs = cmd); the encoder reads its
-message layouts from there.
+setpoints and estimates are IEEE float32, little-endian: the DC motor's in SI units (ODrive
+sends turns and turns/s, as the servo axis does; a DBC factor of 2 pi would convert, but
+canfdi.bus.codec does not apply a factor to float signals yet); no CRC, no counter. The drive
+sends its encoder estimates every control period on its own, the master sends the setpoint
+every period and polls the currents with remote frames (RTR), which the drive answers with the
+data frame of the same ID. The plant's DBC (``dbc/dc_motor_float.dbc``,
+``dbc/servo_axis_float.dbc``) describes node 0 (IDs = cmd); the encoder reads its message
+layouts from there.
 
 Plant ``dc_motor`` (V in; i_f, i_a, i_f_plus_i_a, omega_r out), node n, dt = 10 ms:
 
@@ -39,10 +40,28 @@ several drives: the estimates of all nodes first, then each node's polls in node
   model's zero-order hold neglects the ~1 ms).
 - then Heartbeat of every node, in the periods with k % 10 == 0.
 
-One drive: the period's frames lie in [k dt, k dt + 1.15 ms]. There is no SYNC: a monitor
-samples this bus with a ``grid`` clock (period dt, phase dt/2: each sample in the quiet middle
-of a period, holding that period's burst). A ``trigger`` on the estimates frame would not do:
-the sample it closes would pair omega_r(k+1) with the currents and command of period k.
+Plant ``servo_axis`` (Input_Torque in; Iq_Setpoint, Iq_Measured, Vel_Estimate, Pos_Estimate
+out), an ODrive in torque control with ODrive's own units and message layouts
+(``dbc/servo_axis_float.dbc``; ODrive's published ``odrive-cansimple.dbc`` decodes the same
+frames), node n, dt = 10 ms:
+
+======================== ============ ==== ========= ========================================
+frame                    ID           DLC  sender    content
+======================== ============ ==== ========= ========================================
+Get_Encoder_Estimates    n<<5 | 0x09  8    DRIVE     Pos_Estimate (turns), Vel_Estimate
+                                                     (turns/s)
+Get_Iq (RTR)             n<<5 | 0x14  8    MASTER    remote frame, no data
+Get_Iq                   n<<5 | 0x14  8    DRIVE     Iq_Setpoint, Iq_Measured (A)
+Set_Input_Torque         n<<5 | 0x0E  8    MASTER    Input_Torque (Nm)
+Heartbeat                n<<5 | 0x01  8    DRIVE     Axis_Error 0, Axis_State 8 (closed loop),
+                                                     every 100 ms
+======================== ============ ==== ========= ========================================
+
+One DC motor drive: the period's frames lie in [k dt, k dt + 1.15 ms] (a servo axis, with one
+polled message: [k dt, k dt + 0.89 ms]). There is no SYNC: a monitor samples this bus with
+a ``grid`` clock (period dt, phase dt/2: each sample in the quiet middle of a period, holding
+that period's burst). A ``trigger`` on the estimates frame would not do: the sample it closes
+would pair omega_r(k+1) with the currents and command of period k.
 """
 
 from __future__ import annotations
@@ -115,6 +134,21 @@ _BUSES = {
             "Set_Input_Voltage": {"Input_Voltage": ("u_c", "V")},
             "Heartbeat": {"Axis_Error": 0, "Axis_State": 8, "Procedure_Result": 0,
                           "Trajectory_Done_Flag": 0},
+        },
+    ),
+    "servo_axis": FloatBusSpec(
+        dbc="servo_axis_float",
+        estimates=("Get_Encoder_Estimates",),
+        polled=("Get_Iq",),
+        commands=("Set_Input_Torque",),
+        heartbeat="Heartbeat",
+        sources={
+            "Get_Encoder_Estimates": {"Pos_Estimate": ("z", "Pos_Estimate"),
+                                      "Vel_Estimate": ("z", "Vel_Estimate")},
+            "Get_Iq": {"Iq_Setpoint": ("z", "Iq_Setpoint"),
+                       "Iq_Measured": ("z", "Iq_Measured")},
+            "Set_Input_Torque": {"Input_Torque": ("u_c", "Input_Torque")},
+            "Heartbeat": {"Axis_Error": 0, "Axis_State": 8},
         },
     ),
 }

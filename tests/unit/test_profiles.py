@@ -60,7 +60,11 @@ def test_registry_names_profiles_and_their_dbcs():
     for profile in PROFILES.values():
         assert profile.dbc("dc_motor") in dbc_files.available(), profile.name
         assert "dc_motor" in profile.plants()
-    assert PROFILES["canfdi"].plants() == list(PLANTS)
+    # Every plant but the servo axis has a DBC of canfdi's own bus; the servo axis speaks the
+    # node-id float protocol only (as an ODrive does).
+    assert PROFILES["canfdi"].plants() == [name for name in PLANTS if name != "servo_axis"]
+    assert PROFILES["float_node"].plants() == ["dc_motor", "servo_axis"]
+    assert PROFILES["float_node"].dbc("servo_axis") in dbc_files.available()
     assert PROFILES["cia402"].dbc("vtol") is None and PROFILES["float_node"].dbc("vtol") is None
 
 

@@ -62,7 +62,7 @@ def test_shipped_scenarios_load():
         plants.add(sc.plant)
         if not sc.faults:
             plants.add(f"{sc.plant}:fault-free")
-    for plant in ("dc_motor", "winding_machine", "vtol"):
+    for plant in ("dc_motor", "winding_machine", "vtol", "servo_axis"):
         assert f"{plant}:fault-free" in plants, f"no fault-free scenario for {plant}"
     consecutive = load_scenario("dc_motor_consecutive")
     assert len({(f.target, f.index) for f in consecutive.faults}) >= 3
@@ -103,6 +103,10 @@ FAULT = {"target": "sensor", "index": 0, "onset": 1.0, "bias": 1}
         (_with(bus={"profile": "canopen"}), "bus.profile", "known: canfdi, cia402, float_node"),
         ({**BASE, "plant": "vtol", "bus": {"profile": "cia402"}}, "bus.profile",
          "profiles for vtol: canfdi"),
+        # The servo axis has no DBC of the default (canfdi) bus, with or without a bus section.
+        ({**BASE, "plant": "servo_axis"}, "bus.profile", "profiles for servo_axis: float_node"),
+        ({**BASE, "plant": "servo_axis", "bus": {"profile": "cia402"}}, "bus.profile",
+         "profiles for servo_axis: float_node"),
         (_with(bus={"profile": "cia402", "node": 0}), "bus.node", "1..127"),
         (_with(bus={"profile": "cia402", "node": 128}), "bus.node", "1..127"),
         (_with(bus={"profile": "float_node", "node": 63}), "bus.node", "0..62"),
