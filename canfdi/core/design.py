@@ -227,9 +227,18 @@ def design_bank(source: StateSpace, input_names: list[str], output_names: list[s
     proc = (np.zeros(model.n) if options.process_std is None
             else np.asarray(options.process_std, dtype=float))
 
-    a_window, a_vectors, a_min = _bank(model, design_actuator, model.p, options.actuator_window,
+    # Sensors of different noise: each vector chosen per unit of its own noise (parity.py).
+    weighted = options.measurement_std is not None
+
+    def act(m, i, s):
+        return design_actuator(m, i, s, meas if weighted else None)
+
+    def sen(m, i, s):
+        return design_sensor(m, i, s, meas if weighted else None)
+
+    a_window, a_vectors, a_min = _bank(model, act, model.p, options.actuator_window,
                                        options.max_window)
-    s_window, s_vectors, s_min = _bank(model, design_sensor, model.q, options.sensor_window,
+    s_window, s_vectors, s_min = _bank(model, sen, model.q, options.sensor_window,
                                        options.max_window)
 
     def finish(vectors, mins, names, window, kind):
@@ -262,8 +271,8 @@ def design_bank(source: StateSpace, input_names: list[str], output_names: list[s
 
     comparison = []
     for kind, designer, names, window in (
-        ("actuator", design_actuator, input_names, a_window),
-        ("sensor", design_sensor, output_names, s_window),
+        ("actuator", act, input_names, a_window),
+        ("sensor", sen, output_names, s_window),
     ):
         if window is None:
             continue

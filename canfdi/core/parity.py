@@ -31,6 +31,7 @@ from scipy.linalg import null_space
 from canfdi.core.model import StateSpace
 
 __all__ = [
+    "NOISE_SPREAD",
     "RANK_RTOL",
     "ParityMatrices",
     "ParityVector",
@@ -182,8 +183,25 @@ class ParityVector:
     reason: str | None
 
 
-def _best_vector(N: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Unit v = N a maximising ||v^T M||; returns (v, v^T M, ||v^T M||)."""
+def _best_vector(N: np.ndarray, M: np.ndarray, weights: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Unit v = N a maximising ||v^T M||; returns (v, v^T M, ||v^T M||).
+
+    ``weights`` ((rows,) noise std of each window row; M's columns already in units of their
+    fault's noise): maximise ||v^T M|| / sqrt(v^T diag(weights^2) v) instead, the fault seen
+    per unit of the residual's own noise (then scaled to unit norm). With every row equally
+    noisy the two are the same vector."""
+    if weights is not None:
+        B = N.T @ (N * weights[:, None] ** 2)
+        L = np.linalg.cholesky(B + 1e-300 * np.eye(len(B)))
+        Li = np.linalg.inv(L)
+        U, _, _ = np.linalg.svd(Li @ (N.T @ M), full_matrices=False)
+        v = N @ (Li.T @ U[:, 0])
+        v = v / np.linalg.norm(v)
+        gain = v @ M
+        if gain[np.argmax(np.abs(gain))] < 0:
+            v, gain = -v, -gain
+        return v, gain, float(np.linalg.norm(gain))
     S = N.T @ M
     U, sig, _ = np.linalg.svd(S, full_matrices=False)
     v = N @ U[:, 0]
@@ -194,6 +212,45 @@ def _best_vector(N: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     return v, gain, float(sig[0])
 
 
+def _balanced(N: np.ndarray, M: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """M's columns (faults, in units of their noise) each divided by the most any vector of
+    span(N) can see of it per unit of its own noise: the residual then sees every fault it
+    can, rather than the one that dwarfs the others (a float32 echo next to a current)."""
+    B = N.T @ (N * weights[:, None] ** 2)
+    S = N.T @ M
+    best = np.sqrt(np.maximum(np.einsum("ij,ij->j", S, np.linalg.solve(B, S)), 0.0))
+    top = best.max() if best.size else 0.0
+    return np.where(best > GAIN_RTOL * max(top, 1e-300), M / np.where(best > 0, best, 1.0),
+                    0.0)
+
+
+def _every_fault(N: np.ndarray, Mb: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Unit v = N a of least noise that sees every fault of the balanced Mb alike: Mb's
+    seen columns all get a gain of 1 in size (least squares where they cannot), their signs
+    those of the best vector's gains. A vector that maximised the sum of the squared gains
+    would take one relation when two see different faults equally well (a tie that rounding
+    would break); this one takes both."""
+    B = N.T @ (N * weights[:, None] ** 2)
+    S = N.T @ Mb
+    seen = np.flatnonzero(np.linalg.norm(S, axis=0) > 0)
+    if seen.size == 0:
+        return _best_vector(N, Mb, weights)[0]
+    top, _, _ = _best_vector(N, Mb, weights)
+    signs = np.where(top @ Mb[:, seen] < 0, -1.0, 1.0)
+    Ss = S[:, seen]
+    BiS = np.linalg.solve(B, Ss)
+    a = BiS @ (np.linalg.pinv(Ss.T @ BiS, rcond=1e-10) @ signs)
+    v = N @ a
+    norm = np.linalg.norm(v)
+    if norm == 0:
+        return top
+    v = v / norm
+    gain = v @ Mb
+    if gain[np.argmax(np.abs(gain))] < 0:
+        v = -v
+    return v
+
+
 def _constraint_residual(v: np.ndarray, H: np.ndarray) -> float:
     if H.shape[1] == 0:
         return 0.0
@@ -202,14 +259,26 @@ def _constraint_residual(v: np.ndarray, H: np.ndarray) -> float:
 
 
 def _from_space(kind: str, i: int, s: int, N: np.ndarray, M: np.ndarray, H_check: np.ndarray,
-                rows: int, gain_floor: float, no_space: str, no_gain: str) -> ParityVector:
-    """The best vector of the admissible space N for the fault matrix M, or why there is none."""
+                rows: int, gain_floor: float, no_space: str, no_gain: str,
+                weights: np.ndarray | None = None, fault_scale: np.ndarray | None = None
+                ) -> ParityVector:
+    """The best vector of the admissible space N for the fault matrix M, or why there is none
+    (``weights``, ``fault_scale``: the noise-weighted choice of `_best_vector`; the gain
+    reported is v^T M in the faults' own units)."""
     rank = rows - N.shape[1]
     common = dict(kind=kind, index=i, s=s, null_dim=N.shape[1], rank=rank, rows=rows)
     none = dict(exists=False, vector=None, gain=None, sensitivity=0.0, decoupling_residual=None)
     if N.shape[1] == 0:
         return ParityVector(reason=no_space.format(rank=rank, rows=rows, s=s), **none, **common)
-    v, gain, sens = _best_vector(N, M)
+    if weights is None:
+        v, gain, sens = _best_vector(N, M)
+    else:
+        if fault_scale is None:
+            v, _, _ = _best_vector(N, M, weights)
+        else:
+            v = _every_fault(N, _balanced(N, M * fault_scale, weights), weights)
+        gain = v @ M
+        sens = float(np.linalg.norm(gain))
     if sens <= gain_floor:
         return ParityVector(reason=no_gain.format(dim=N.shape[1], s=s), **none, **common)
     return ParityVector(exists=True, vector=v, gain=gain, sensitivity=sens,
@@ -217,8 +286,30 @@ def _from_space(kind: str, i: int, s: int, N: np.ndarray, M: np.ndarray, H_check
                         **common)
 
 
-def design_actuator(model: StateSpace, i: int, s: int) -> ParityVector:
-    """Fully decoupled parity vector for actuator i at window order s (eq. 13, Theorem 3)."""
+NOISE_SPREAD = 10.0
+"""Sensors whose noise standard deviations differ by more than this factor get vectors chosen
+per unit of noise (`design_actuator`, `design_sensor`); closer ones keep the paper's choice."""
+
+
+def _weights(noise_std: np.ndarray | None, q: int, s: int) -> np.ndarray | None:
+    """Each window row's noise std, when the sensors' noise differs by more than
+    NOISE_SPREAD (else None: the paper's unweighted choice)."""
+    if noise_std is None:
+        return None
+    std = np.broadcast_to(np.asarray(noise_std, dtype=float), (q,))
+    if np.all(std > 0) and std.max() <= std.min() * NOISE_SPREAD:
+        return None
+    return np.tile(np.maximum(std, 1e-300), s + 1)
+
+
+def design_actuator(model: StateSpace, i: int, s: int, noise_std: np.ndarray | None = None
+                    ) -> ParityVector:
+    """Fully decoupled parity vector for actuator i at window order s (eq. 13, Theorem 3).
+
+    noise_std : (q,) the sensors' noise; when they differ by more than NOISE_SPREAD, the
+    vector is the one that sees the actuator best per unit of its own noise (a drive whose
+    sensors range from a float32 echo to a noisy current would otherwise get the vector of
+    the largest raw gain)."""
     if not 0 <= i < model.p:
         raise ValueError(f"i: actuator index must be in [0, {model.p}), got {i}")
     pm = parity_matrices(model, s)
@@ -228,6 +319,7 @@ def design_actuator(model: StateSpace, i: int, s: int) -> ParityVector:
     return _from_space(
         "actuator", i, s, left_null_space(Hstar), M, Hstar, Hstar.shape[0],
         gain_floor=GAIN_RTOL * max(np.linalg.norm(M, 2), 1e-300),
+        weights=_weights(noise_std, model.q, s),
         no_space=("Theorem 1: [H0 Hw Hpsi Hci] has rank {rank} = its {rows} rows at s={s}, so "
                   "no nonzero v decouples state, unknown inputs and other actuators"),
         no_gain=("Theorem 3: all {dim} decoupled vectors at s={s} have v^T Hc = 0: the "
@@ -235,8 +327,14 @@ def design_actuator(model: StateSpace, i: int, s: int) -> ParityVector:
     )
 
 
-def design_sensor(model: StateSpace, i: int, s: int) -> ParityVector:
-    """Fully decoupled parity vector blind to sensor i at window order s (eq. 20, Theorem 2)."""
+def design_sensor(model: StateSpace, i: int, s: int, noise_std: np.ndarray | None = None
+                  ) -> ParityVector:
+    """Fully decoupled parity vector blind to sensor i at window order s (eq. 20, Theorem 2).
+
+    noise_std : (q,) the sensors' noise; when they differ by more than NOISE_SPREAD, the
+    vector that sees the other sensors' biases best, each bias counted in its sensor's noise
+    stds, relative to the most any admissible vector sees of it, per unit of the residual's
+    own noise: it sees every other sensor it can, as the scheme wants."""
     if not 0 <= i < model.q:
         raise ValueError(f"i: sensor index must be in [0, {model.q}), got {i}")
     rows_i = sensor_rows(model.q, s, i)
@@ -248,9 +346,11 @@ def design_sensor(model: StateSpace, i: int, s: int) -> ParityVector:
     # Embed back into the full window with zeros on sensor i's rows.
     N = np.zeros(((s + 1) * model.q, N_red.shape[1]))
     N[np.delete(np.arange((s + 1) * model.q), rows_i)] = N_red
+    weights = _weights(noise_std, model.q, s)
     return _from_space(
         "sensor", i, s, N, identity_stack(model.q, s), Hfull, Hstar.shape[0],
-        gain_floor=GAIN_RTOL,
+        gain_floor=GAIN_RTOL, weights=weights,
+        fault_scale=None if weights is None else weights[:model.q],
         no_space=(f"Theorem 2: [H0i Hwi Hpsii] without sensor {i}'s rows has rank {{rank}} = "
                   "its {rows} rows at s={s}: the other sensors hold no redundancy free of the "
                   "state and unknown inputs"),

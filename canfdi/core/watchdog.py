@@ -97,9 +97,12 @@ class NoiseWatchdog:
 
     @property
     def scale(self) -> NDArray[np.float64]:
-        """(m,) the noise scale detection should use: the ratio of a residual in mismatch, 1
-        otherwise."""
-        return np.where(self.mismatch, self.ratio, 1.0)
+        """(m,) the noise scale detection should use: the ratio of a residual whose noise rose,
+        1 otherwise. A residual quieter than calibrated keeps its calibrated noise: a noise
+        estimate never tightens a threshold below what the config (and the signals'
+        resolution, which it includes) allow; rounding noise that shrinks with the values
+        comes back when they grow."""
+        return np.where(self.mismatch, np.maximum(self.ratio, 1.0), 1.0)
 
     def due(self, k: int) -> bool:
         """Whether sample k closes the open block (call `close` before diagnosing it)."""
