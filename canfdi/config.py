@@ -10,6 +10,12 @@ Layout::
     description: ...               # optional
     method: parity                 # parity (seed 001) | output_error (seed 003) | uio (seed 004)
     model: {time, dt, A, B, C, D, F, G}          # see canfdi.core.model.StateSpace.from_dict
+      identify:                    # optional: how `canfdi identify` learns A, B, C, F from a
+        unknown_inputs: 1          #   healthy log (the matrices may then be left out)
+        order: 4                   #   optional: the states (default: from the data)
+        delay: 1                   #   optional: samples from a command to its first effect
+        template: servo_axis       #   optional: a grey-box template, or {name, roles,
+                                   #   parameters, fixed, ...} (canfdi.core.greybox)
     signals:
       inputs: [V]                  # p names, the actuators
       outputs: [i_f, i_a, ...]     # q names, the sensors
@@ -76,11 +82,13 @@ from canfdi.core.settings import (
     DriveConfig,
     E2EConfig,
     IdentificationConfig,
+    IdentifySpec,
     MonitorConfig,
     MonitorFramesConfig,
     Option,
     RecordingConfig,
     SignalRef,
+    TemplateSpec,
     WatchdogConfig,
     parse_options,
     section,
@@ -93,6 +101,7 @@ __all__ = [
     "DetectionConfig",
     "IdentificationConfig",
     "MonitorConfig",
+    "NotIdentified",
     "RecordingConfig",
     "WatchdogConfig",
     "load_config",
@@ -121,6 +130,15 @@ _WATCHDOG = {"enabled": Option(bool), "factor": Option(float, 1.01, 100.0),
              "block": Option(int, 10, 10**6), "blocks": Option(int, 1, 1000)}
 _RECORDING = {"directory": Option(str), "rotate_mib": Option(float, 0.01, 1e7),
               "rotate_minutes": Option(float, 0.01, 1e7)}
+MAX_IDENTIFIED_ORDER = 20
+_IDENTIFY = {"unknown_inputs": Option(int, 0, MAX_IDENTIFIED_ORDER - 1),
+             "order": Option(int, 1, MAX_IDENTIFIED_ORDER), "delay": Option(int, 1, 10)}
+_TEMPLATE = {"name": Option(str)}
+_MATRICES = ("A", "B", "C", "D", "F", "G")
+
+
+class NotIdentified(ConfigError):
+    """A config whose model has no matrices yet: `canfdi identify` learns them."""
 
 
 def _names(value: Any, field: str, count: int | None) -> list[str]:
@@ -157,33 +175,118 @@ def _window(value: Any, field: str) -> int | None:
     return value
 
 
-def parse_config(data: Any, path: Path | None = None) -> MonitorConfig:
+def _template(value: Any, field: str) -> TemplateSpec:
+    """``model.identify.template``: a template's name, or {name, roles, parameters, fixed,
+    and the template's settings}; the names are checked against the template registry by
+    `canfdi identify` (canfdi.core.greybox), which knows each template's roles."""
+    if isinstance(value, str) and value:
+        return TemplateSpec(name=value)
+    if not isinstance(value, dict):
+        raise ConfigError(field, f"expected a template name or {{name, roles, parameters, "
+                                 f"fixed}}, got {value!r}")
+    if "name" not in value:
+        raise ConfigError(f"{field}.name", "missing: which template")
+    name = Option(str).check(value["name"], f"{field}.name")
+    roles = section(value, "roles", field)
+    for role, signal in roles.items():
+        Option(str).check(signal, f"{field}.roles.{role}")
+    params = section(value, "parameters", field)
+    starts: dict[str, float] = {}
+    fixed: list[str] = []
+    for key, entry in params.items():
+        where = f"{field}.parameters.{key}"
+        if isinstance(entry, dict):
+            parse_options(entry, {"value": Option(float, 0.0, None, open_lo=True),
+                                  "fixed": Option(bool)}, where)
+            if "value" in entry:
+                starts[key] = float(entry["value"])
+            if entry.get("fixed"):
+                if "value" not in entry:
+                    raise ConfigError(f"{where}.value", "a fixed parameter needs its value")
+                fixed.append(key)
+        else:
+            starts[key] = Option(float, 0.0, None, open_lo=True).check(entry, where)
+    settings = {k: v for k, v in value.items() if k not in ("name", "roles", "parameters")}
+    return TemplateSpec(name=name, roles=dict(roles), parameters=starts, fixed=tuple(fixed),
+                        settings=settings)
+
+
+def _identify_spec(model_data: dict) -> IdentifySpec | None:
+    raw = model_data.get("identify")
+    if raw is None:
+        return None
+    if not isinstance(raw, dict):
+        raise ConfigError("model.identify", f"expected a mapping like {{unknown_inputs: 1}}, "
+                                            f"got {raw!r}")
+    opts = parse_options(raw, _IDENTIFY, "model.identify", extra=("template",))
+    template = (_template(raw["template"], "model.identify.template")
+                if raw.get("template") is not None else None)
+    return IdentifySpec(unknown_inputs=opts.get("unknown_inputs", 0),
+                        order=opts.get("order"), delay=opts.get("delay", 1),
+                        template=template)
+
+
+def _model(data: dict, allow_unidentified: bool) -> tuple[StateSpace | None,
+                                                          IdentifySpec | None, float | None]:
+    """(model or None, identify spec, dt) of the ``model:`` section."""
+    raw = section(data, "model", required=True)
+    spec = _identify_spec(raw)
+    matrices = {k: v for k, v in raw.items() if k != "identify"}
+    if spec is not None and not any(k in matrices for k in _MATRICES):
+        if not allow_unidentified:
+            raise NotIdentified("model", "no matrices yet (model.identify says how to learn "
+                                         "them): run `canfdi identify LOG --config FILE -o "
+                                         "OUT.yaml` on a healthy log of the drive first")
+        dt = matrices.get("dt")
+        if dt is not None:
+            dt = Option(float, 0.0, 3600.0, open_lo=True).check(dt, "model.dt")
+        parse_options(matrices, {}, "model", extra=("dt", "time"))
+        return None, spec, dt
+    try:
+        model = StateSpace.from_dict(matrices)
+    except ModelError as exc:
+        raise ConfigError(exc.field, str(exc).split(": ", 1)[1]) from None
+    return model, spec, model.dt
+
+
+def parse_config(data: Any, path: Path | None = None, *, allow_unidentified: bool = False
+                 ) -> MonitorConfig:
     """Validate a loaded YAML document and build a MonitorConfig (the method's own section
-    parsed by its registry entry)."""
+    parsed by its registry entry).
+
+    allow_unidentified : accept a ``model:`` with ``identify:`` and no matrices (for
+    `canfdi identify`); the config's ``model`` is then None, and the signals' sizes come from
+    their lists. Otherwise such a config is a `NotIdentified` error.
+    """
     if not isinstance(data, dict):
         raise ConfigError("(top level)", "expected a mapping")
     method = methods.get(data.get("method", methods.DEFAULT))
     own = {m.section for m in map(methods.get, methods.names()) if m.section}
     parse_options(data, {}, "", extra=(*_COMMON_KEYS, *own))
-    try:
-        model = StateSpace.from_dict(section(data, "model", required=True))
-    except ModelError as exc:
-        raise ConfigError(exc.field, str(exc).split(": ", 1)[1]) from None
+    model, spec, dt = _model(data, allow_unidentified)
 
     signals = section(data, "signals", required=True)
     parse_options(signals, {}, "signals",
                   extra=("inputs", "outputs", "unknown_inputs", "unknown_outputs"))
-    inputs = _names(signals.get("inputs"), "signals.inputs", model.p)
-    outputs = _names(signals.get("outputs"), "signals.outputs", model.q)
+    inputs = _names(signals.get("inputs"), "signals.inputs", model.p if model else None)
+    outputs = _names(signals.get("outputs"), "signals.outputs", model.q if model else None)
+    if model is None and (not inputs or not outputs):
+        raise ConfigError("signals.inputs" if not inputs else "signals.outputs",
+                          "a model to identify needs its inputs and outputs named")
+    # A template brings its own unknown inputs: their names are checked when it is fitted.
+    unknown_count = (model.r if model else None if spec is None or spec.template is not None
+                     else spec.unknown_inputs)
     unknown_inputs = _names(signals.get("unknown_inputs"), "signals.unknown_inputs",
-                            model.r if "unknown_inputs" in signals else None)
+                            unknown_count if "unknown_inputs" in signals else None)
     unknown_outputs = _names(signals.get("unknown_outputs"), "signals.unknown_outputs",
-                             model.r1 if "unknown_outputs" in signals else None)
+                             (model.r1 if model else 0) if "unknown_outputs" in signals
+                             else None)
 
     noise = section(data, "noise")
     parse_options(noise, {}, "noise", extra=("measurement", "process"))
-    meas = _stds(noise.get("measurement"), "noise.measurement", model.q, None)
-    proc = _stds(noise.get("process"), "noise.process", model.n, None)
+    meas = _stds(noise.get("measurement"), "noise.measurement", len(outputs), None)
+    proc = (_stds(noise.get("process"), "noise.process", model.n, None) if model is not None
+            else None)
     if meas is not None and proc is not None and not np.any(meas) and not np.any(proc):
         raise ConfigError("noise", "all standard deviations are zero: no threshold can be derived")
 
@@ -211,12 +314,14 @@ def parse_config(data: Any, path: Path | None = None) -> MonitorConfig:
     if not isinstance(description, str):
         raise ConfigError("description", "expected a string")
     drives = _drives(data.get("drives"), bus)
+    if dt is None and bus.clock.period is not None:
+        dt = bus.clock.period
     config = MonitorConfig(name=name, description=description, model=model, inputs=inputs,
                            outputs=outputs, unknown_inputs=unknown_inputs,
                            unknown_outputs=unknown_outputs, design=options, bus=bus,
                            detection=detection, identification=identification,
                            recording=recording, watchdog=watchdog, path=path,
-                           method=method.name, drives=drives)
+                           method=method.name, drives=drives, identify=spec, dt=dt)
     raw = data.get(method.section) if method.section else None
     return dataclasses.replace(config, method_options=method.parse_options(raw, config))
 
@@ -365,7 +470,9 @@ def read_yaml(path: Path, error: type[ValueError], field: str) -> Any:
         raise error(field, f"invalid YAML{where}: {problem}") from None
 
 
-def load_config(path: str | Path) -> MonitorConfig:
-    """Read and validate a YAML monitor config; raises ConfigError naming the field."""
+def load_config(path: str | Path, *, allow_unidentified: bool = False) -> MonitorConfig:
+    """Read and validate a YAML monitor config; raises ConfigError naming the field
+    (`NotIdentified` for a model still to learn, unless ``allow_unidentified``)."""
     path = Path(path)
-    return parse_config(read_yaml(path, ConfigError, "config"), path)
+    return parse_config(read_yaml(path, ConfigError, "config"), path,
+                        allow_unidentified=allow_unidentified)

@@ -54,7 +54,10 @@ False alarms per hour count over fault-free samples: from the first residual to 
 onset (the whole run without faults) and from each acceptance to the next onset.
 
 --method chooses the default config deploy/config/<plant>.yaml (parity), <plant>_oe.yaml
-(output_error) or <plant>_uio.yaml (uio); --config gives any. -o DIR writes
+(output_error) or <plant>_uio.yaml (uio); --config gives any. --faults-from TRUE.yaml draws
+the faults, their sizes and the drive's noise from TRUE.yaml's design (the drive's true model)
+and evaluates the --config monitor on them: an identified model (`canfdi identify`) and the
+true one, evaluated with the same --faults-from and --seed, see the same runs. -o DIR writes
 <plant>_<method>.png (detection delay and isolation accuracy against FNR) and
 <plant>_<method>.json. Progress on stderr; --json prints one object. Exit status 0, or 2 on bad
 arguments or config.
@@ -76,6 +79,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "deploy/config (default: parity, or the --config's)")
     p.add_argument("--config", type=Path, default=None, metavar="FILE",
                    help="monitor config (default: by --plant and --method)")
+    p.add_argument("--faults-from", type=Path, default=None, metavar="FILE",
+                   help="draw the faults and the drive's noise from this config's design (the "
+                        "true model) and evaluate --config's monitor on them")
     p.add_argument("--runs", type=int, default=100, metavar="N",
                    help="generated runs (default 100)")
     p.add_argument("--seed", type=int, default=1, metavar="S", help="master seed (default 1)")
@@ -241,6 +247,16 @@ def run(args: argparse.Namespace) -> int:
     from canfdi.tools.evaluate import evaluate
 
     monitor, calibration = None, None
+    if args.faults_from is not None:
+        if args.calibrate is not None:
+            return _fail("--faults-from and --calibrate: give one")
+        reference = load_config_or_exit(args.faults_from, "evaluate")
+        if isinstance(reference, int):
+            return reference
+        if (reference.inputs, reference.outputs) != (config.inputs, config.outputs):
+            return _fail(f"--faults-from {args.faults_from}: its signals differ from "
+                         f"{path}'s")
+        monitor, config = config, reference
     if args.calibrate is not None:
         try:
             calibration = _calibrated(config, args.plant, args.noise_scale, args.calibrate,
@@ -261,6 +277,8 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, ValueError) as exc:
         return config_error(exc, "evaluate")
     result["config"] = str(path)
+    if args.faults_from is not None:
+        result["faults_from"] = str(args.faults_from)
     if calibration is not None:
         result["calibration"] = {"seconds": args.calibrate, "samples": calibration.samples,
                                  "measurement_std": calibration.noise.std.tolist()}

@@ -1,56 +1,86 @@
-"""`canfdi identify LOG --config FILE`: fit the output_error method's OE models (seed 003) from a
-fault-free log and write a config that uses them."""
+"""`canfdi identify LOG... --config FILE -o OUT.yaml`: the drive's model, its unknown inputs and
+its noise, learned from healthy logs."""
 
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import sys
 from pathlib import Path
 
-from canfdi.cli.common import load_config_or_exit
-
 HELP = """\
-Identify the parallel output-error models of seed 003 from a fault-free log: for every output,
-y = y0 + sum_i B_i(q)/F_i(q) q^-d (u_c,i - u0), fitted by the OE prediction-error method
-(Steiglitz-McBride start, then Levenberg-Marquardt on the simulation error;
-canfdi.methods.output_error.model). The log is an MCAP written by `canfdi demo -o`, `run` or
-`capture`, or a python-can log (.log .asc .blf .trc .csv); its frames are decoded and assembled
-with the config's DBC and signals.
+Learn the drive's model from healthy logs and write the config with it, ready to monitor.
 
-Orders: by default every (output, input) pair starts as B, F of first order with delay
---delay; pairs whose static gain is not significant (|K| < --min-gain-snr std(K)) are dropped
-(no path), then each remaining pair is raised to second order when the Bayesian information
-criterion improves. --orders OUTPUT:INPUT=NB,NF,D (or =none) fixes a pair; repeat it.
+The config names the signals, the DBC and the sample clock as for `canfdi run`; its model:
+section may leave the matrices out and say how to learn them instead (a config with matrices
+and no identify: is learned again with as many unknown inputs as its F has):
 
-Prints the fit per output (residual std against the config's noise, static gains with their
-standard deviations, and the gains of the config's state-space model when it has one) and
-writes the config (the input config with method: output_error and the output_error section
-filled in) to -o, or prints it. A damaged MCAP is read around its damage (chunks that fail their
-CRC are skipped, their samples missing as lost samples are): what was lost is said on stderr
-(one line per damaged file) and in the JSON's "damage". Exit status: 0 done (also from a
-damaged log, its loss said), 2 bad input (config, log, orders, too few samples: one line)."""
+  model:
+    identify:
+      unknown_inputs: 1      # unmeasured inputs acting on the drive (a load, friction, ...)
+      order: 4               # optional: states (default: from the data)
+      delay: 1               # optional: samples from a command to its first effect
+      template: servo_axis   # optional: a grey-box template (dc_motor, servo_axis) with
+                             # datasheet parameters as the start, any of them fixable
+
+The logs (canfdi MCAP, or any log python-can reads: .log candump, .asc, .blf, .trc, .csv, ...)
+are decoded and assembled with the config's bus, one sample per period (dt: model.dt, the
+clock's period, or the DBC's cycle time). Record them while the drive is commanded steps of
+several sizes and a chirp (or a PRBS), over its whole working range, with no fault.
+
+What is learned, by the config's method:
+  parity, uio   a state-space model (A, B, C, F): black-box (the state the outputs show, the
+                unknown inputs' directions F from what the noise does not explain; or a
+                PBSID subspace fit, consistent in closed loop, when the outputs show less
+                than the data hold), or the template's parameters fitted by prediction error;
+  output_error  seed 003's OE models (--orders, --oe-delay, --min-gain-snr, --skip).
+The last 30 % of each log (--holdout) or the --validate logs are left out of the fit and
+judge it: one-step and simulation fits per output (NRMSE %, as MATLAB's compare), the
+one-step errors' whiteness and correlation with the inputs, stability, minimality; then the
+noise is learned as `canfdi calibrate` does, over all the data (a channel without noise of
+its own, an echo or a quantised counter, gets its resolution as a floor), and the design
+(what `canfdi design` prints) is summarised.
+
+Writes the input config with model:, signals.unknown_inputs and noise.measurement filled in,
+its comments, keys and hex literals kept, relative paths rewritten for OUT's folder, and the
+provenance (logs, samples, date, order, fits) in comments on top; to -o or stdout.
+
+Exit status: 0 done; 1 the data cannot support a model (too short, not exciting, a fault in
+a log, a poor fit on the data left out, an unstable or non-minimal result: one line saying
+what to record instead); 2 bad input (config, options, unreadable log: one line)."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("identify", help="fit the output_error method's models from a log",
+    p = sub.add_parser("identify", help="learn the drive's model from healthy logs",
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("log", type=Path, help="fault-free log: MCAP, or a python-can log")
+    p.add_argument("logs", type=Path, nargs="+", metavar="LOG",
+                   help="healthy logs of the drive: MCAP, or a python-can log")
     p.add_argument("--config", required=True, type=Path, metavar="FILE",
-                   help="monitor config naming the signals and the DBC")
-    p.add_argument("--orders", action="append", default=[], metavar="OUT:IN=NB,NF,D",
-                   help="fix one pair's orders (or OUT:IN=none: no path); repeatable")
-    p.add_argument("--delay", type=int, default=1, metavar="D",
-                   help="delay of the pairs not fixed by --orders (default: 1)")
-    p.add_argument("--min-gain-snr", type=float, default=5.0, metavar="X",
-                   help="drop a pair whose |static gain| < X times its std (default: 5)")
-    p.add_argument("--skip", type=int, default=200, metavar="N",
-                   help="samples left out of the fit at the start (default: 200)")
-    p.add_argument("--force", action="store_true",
-                   help="fit even when the log's metadata says faults were injected")
+                   help="monitor config naming the signals, the DBC and model.identify")
     p.add_argument("-o", "--output", type=Path, metavar="OUT.yaml",
-                   help="write the config here (default: print it)")
-    p.add_argument("--json", action="store_true", help="print the fit report as JSON")
+                   help="write the identified config here (default: print it)")
+    p.add_argument("--validate", type=Path, action="append", default=[], metavar="LOG",
+                   help="validate on this log instead of the last part of each (repeatable)")
+    p.add_argument("--holdout", type=float, default=0.3, metavar="F",
+                   help="part of each log (its end) left out of the fit (default: 0.3)")
+    p.add_argument("--force", action="store_true",
+                   help="identify even when a log's metadata says faults were injected")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    oe = p.add_argument_group("output_error method")
+    oe.add_argument("--orders", action="append", default=[], metavar="OUT:IN=NB,NF,D",
+                    help="fix one pair's orders (or OUT:IN=none: no path); repeatable")
+    oe.add_argument("--oe-delay", type=int, default=1, metavar="D",
+                    help="delay of the pairs not fixed by --orders (default: 1)")
+    oe.add_argument("--min-gain-snr", type=float, default=5.0, metavar="X",
+                    help="drop a pair whose |static gain| < X times its std (default: 5)")
+    oe.add_argument("--skip", type=int, default=200, metavar="N",
+                    help="samples left out of the fit at the start (default: 200)")
+
+
+def _fail(message: str, status: int = 2) -> int:
+    print(f"canfdi identify: {message}", file=sys.stderr)
+    return status
 
 
 def _parse_orders(specs: list[str], inputs: list[str], outputs: list[str]) -> dict:
@@ -81,115 +111,151 @@ def _parse_orders(specs: list[str], inputs: list[str], outputs: list[str]) -> di
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-    import yaml
-
-    from canfdi.config import read_yaml
+    from canfdi.config import ConfigError, load_config, read_yaml
     from canfdi.io.damage import Damage
-    from canfdi.methods.output_error import METHOD as OUTPUT_ERROR
-    from canfdi.methods.output_error import output_error_section
-    from canfdi.tools.identify import identify, log_samples
+    from canfdi.io.logs import truth_of
+    from canfdi.tools.configdoc import ConfigDocument
+    from canfdi.tools.identify import OeOptions, Refusal, identify
 
-    config = load_config_or_exit(args.config, "identify")
-    if isinstance(config, int):
-        return config
-    if not args.log.exists():
-        print(f"canfdi identify: no such log: {args.log}", file=sys.stderr)
-        return 2
+    try:
+        config = load_config(args.config, allow_unidentified=True)
+    except ConfigError as exc:
+        return _fail(f"config error: {exc}")
+    for log in [*args.logs, *args.validate]:
+        if not log.exists():
+            return _fail(f"no such log: {log}")
+    if not 0.05 <= args.holdout <= 0.7:
+        return _fail("--holdout: expected a fraction in [0.05, 0.7]")
+    if args.oe_delay < 0 or args.skip < 0 or args.min_gain_snr < 0:
+        return _fail("--oe-delay, --skip and --min-gain-snr: must be >= 0")
     try:
         fixed = _parse_orders(args.orders, config.inputs, config.outputs)
     except ValueError as exc:
-        print(f"canfdi identify: {exc}", file=sys.stderr)
-        return 2
-    if args.delay < 0 or args.skip < 0 or args.min_gain_snr < 0:
-        print("canfdi identify: --delay, --skip and --min-gain-snr must be >= 0",
-              file=sys.stderr)
-        return 2
-    if args.log.suffix.lower() == ".mcap" and not args.force:
-        from canfdi.io.logs import truth_of
-
-        truth = truth_of(args.log)
-        if truth:
-            print(f"canfdi identify: {args.log} holds injected faults ({len(truth)} in its "
-                  "metadata); fit a fault-free log, or --force", file=sys.stderr)
-            return 2
+        return _fail(str(exc))
+    if not args.force:
+        for log in [*args.logs, *args.validate]:
+            truth = truth_of(log) if log.suffix.lower() == ".mcap" else None
+            if truth:
+                onsets = ", ".join(f"{f.get('target', '?')} {f.get('name', f.get('index'))} at "
+                                   f"{f.get('onset', '?')} s" for f in truth)
+                return _fail(f"{log} holds injected faults ({onsets}): a model is learned "
+                             "from a healthy drive; record a fault-free log (or --force)", 1)
 
     def progress(msg: str) -> None:
         if sys.stderr.isatty() or not args.json:
             print(f"canfdi identify: {msg}", file=sys.stderr, flush=True)
 
-    progress(f"reading {args.log}")
+    doc = read_yaml(args.config, ValueError, "config")
     damage = Damage()
+    oe = OeOptions(fixed=fixed, delay=args.oe_delay, min_gain_snr=args.min_gain_snr,
+                   skip=args.skip)
     try:
-        k, U, Z = log_samples(args.log, config, damage)
+        result = identify(args.logs, config, doc, validate=args.validate,
+                          holdout=args.holdout, oe=oe, progress=progress, damage=damage)
+    except Refusal as exc:
+        return _fail(str(exc), 1)
+    except ConfigError as exc:
+        return _fail(f"config error: {exc}")
     except (OSError, ValueError) as exc:
-        print(f"canfdi identify: cannot read {args.log}: {exc}", file=sys.stderr)
-        return 2
-    if len(k) < args.skip + 500:
         lost = f" ({'; '.join(damage.lines())})" if damage else ""
-        print(f"canfdi identify: {len(k)} samples in {args.log}: need at least "
-              f"{args.skip + 500} (--skip {args.skip} + 500){lost}", file=sys.stderr)
-        return 2
+        return _fail(f"{exc}{lost}")
     for line in damage.lines():
         print(f"canfdi identify: {line}", file=sys.stderr)
-    result = identify(k, U, Z, config.inputs, config.outputs, fixed, args.delay,
-                      args.min_gain_snr, args.skip, progress)
-    reference = None
-    m = config.model
-    if not m.continuous:
-        try:  # the config's state-space model, as a reference for the fitted gains
-            reference = m.C @ np.linalg.solve(np.eye(m.n) - m.A, m.B) + m.D
-        except np.linalg.LinAlgError:
-            reference = None
-    noise = config.design.measurement_std
-    report = {"log": str(args.log), "samples": result["samples"], "outputs": result["fits"],
-              "damage": damage.as_dict()}
+    when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    out = args.output or args.config
+    document = ConfigDocument.load(args.config)
+    for key, value in result.updates.items():
+        if value is None:
+            document.delete(key)
+        else:
+            document.set(key, value)
+    document.relocate_paths(args.config, out)
+    document.header([f"canfdi identify, {when}: {args.config.name} + "
+                     f"{', '.join(p.name for p in args.logs)} -> "
+                     f"{(args.output or Path('stdout')).name}", *result.header])
+    text = document.dump()
+    report = dict(result.report)
+    report["damage"] = damage.as_dict()
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(json.dumps(report, indent=2, default=_jsonable))
     else:
-        _print_report(result, config, noise, reference)
-    fit_note = {"log": args.log.name, "samples": result["samples"],
-                "method": "OE prediction error (Steiglitz-McBride start, Levenberg-Marquardt)"}
-    # The decision settings are written out (at their defaults) so that the file shows them.
-    from dataclasses import asdict
-
-    from canfdi.methods.output_error.diagnoser import OeSettings
-
-    settings = {key: value for key, value in asdict(OeSettings()).items()
-                if key not in ("drift", "false_alarm_interval")}
-    section = output_error_section(result["model"], result["sigma"], result["long_run"],
-                                   config.inputs, config.outputs, fit=fit_note, **settings)
-    doc = read_yaml(args.config, ValueError, "config")
-    doc["method"] = OUTPUT_ERROR.name
-    doc[OUTPUT_ERROR.section] = section
-    header = (f"# Written by `canfdi identify {args.log.name} --config {args.config.name}`: the\n"
-              "# output_error method (seed 003) with OE models fitted from that fault-free log.\n"
-              "# The model: section is the input config's (the output_error method does not "
-              "use it).\n")
-    text = header + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=100)
+        _print_report(report)
     if args.output:
         args.output.parent.mkdir(parents=True, exist_ok=True)
         args.output.write_text(text)
-        if not args.json:
-            print(f"wrote {args.output}")
+        print(f"wrote {args.output}", file=sys.stderr if args.json else sys.stdout)
     elif not args.json:
         print(text)
     return 0
 
 
-def _print_report(result: dict, config, noise, reference) -> None:
-    print(f"{result['samples']} samples")
-    for j, rep in enumerate(result["fits"]):
-        ref_noise = f" (noise {noise[j]:.4g})" if noise is not None else ""
-        print(f"{rep['output']}: residual std {rep['residual_std']:.4g}{ref_noise}, long-run "
-              f"variance ratio {rep['long_run_variance']:.3g}")
-        fitted = {p["input"]: p for p in rep["pairs"]}
-        for i, name in enumerate(config.inputs):
-            truth = (f"   config model {reference[j, i]:+.4g}" if reference is not None else "")
-            p = fitted.get(name)
-            if p is None:
-                print(f"  <- {name:<8} no path{truth}")
-                continue
-            print(f"  <- {name:<8} gain {p['static_gain']:+.4g} +/- {p['gain_std']:.2g}{truth}"
-                  f"   B {[round(b, 5) for b in p['b']]}  F {[round(f, 5) for f in p['f']]}"
-                  f"  delay {p['delay']}")
+def _jsonable(value):
+    if isinstance(value, complex):
+        return [value.real, value.imag]
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return str(value)
+
+
+def _print_report(report: dict) -> None:
+    if report["path"].startswith("output error"):
+        print(f"{report['samples']['fit']} samples; output-error models (seed 003)")
+        for rep in report["outputs"]:
+            print(f"  {rep['output']}: residual std {rep['residual_std']:.4g}, long-run "
+                  f"variance ratio {rep['long_run_variance']:.3g}")
+            for p in rep["pairs"]:
+                print(f"    <- {p['input']:<10} gain {p['static_gain']:+.4g} +/- "
+                      f"{p['gain_std']:.2g}  B {[round(b, 5) for b in p['b']]}  "
+                      f"F {[round(f, 5) for f in p['f']]}  delay {p['delay']}")
+        return
+    s = report["samples"]
+    print(f"model: {report['path']}, {report['order']} states ({', '.join(report['states'])}), "
+          f"{report['unknown_inputs']['count']} unknown input(s) "
+          f"{report['unknown_inputs']['names'] or ''}, dt {report['dt']:g} s")
+    print(f"data: {s['fit']} samples fitted, {s['validation']} left out for validation")
+    ev = report["order_evidence"]
+    if ev.get("output_eigenvalues"):
+        print(f"order: the outputs show {ev['visible_order']} states (whitened output "
+              "variances " + ", ".join(f"{v:.3g}" for v in ev["output_eigenvalues"]) + ")"
+              + (f"; the subspace fit's canonical correlations say {ev['subspace_order']}"
+                 if "subspace_order" in ev else ""))
+    d = report.get("details", {})
+    if d.get("rows_reached"):
+        print("unknown inputs reach: " + ", ".join(d["rows_reached"]) + " (one-step error over "
+              "noise per row: " + ", ".join(f"{k} {v:.2f}" for k, v in d["row_excess"].items())
+              + ")")
+    if d.get("pruned"):
+        print("set to zero (not significant): " + ", ".join(d["pruned"]))
+    if d.get("constant_state"):
+        print("a constant state holds the operating point's offset")
+    if "template" in report:
+        print(f"template {report['template']['name']}:")
+        for row in report["template"]["parameters"]:
+            print("  " + row["text"])
+    for note in report.get("notes", []):
+        print(f"note: {note}")
+    print("validation on the data left out of the fit:")
+    print(f"  {'output':<18} {'one-step':>9} {'simulation':>11}  whiteness (lags outside 99 %)"
+          "  input correlation")
+    for o in report["validation"]["outputs"]:
+        w = o["whiteness"]
+        corr = ", ".join(f"{k} {c['max']:.2f}" for k, c in o["input_correlation"].items())
+        print(f"  {o['output']:<18} {_pct(o['one_step_fit']):>9} {_pct(o['simulation_fit']):>11}"
+              f"  {w['outside']}/{w['lags']} (max {w['max']:.2f})"
+              f"{'':<6}{corr} (band {o['band']:.3f})"
+              + ("" if o["moves"] else "  [not moved]"))
+    print("design (canfdi design):")
+    for dsg in report["design"]:
+        same = (f"; same signature as {', '.join(dsg['same_signature_as'])}"
+                if dsg["same_signature_as"] else "")
+        print(f"  {dsg['kind']:<8} {dsg['name']:<18} "
+              f"{'detectable' if dsg['detectable'] else 'NOT detectable':<15} "
+              f"window {dsg['window']}, best fault/noise {dsg['fault_to_noise']:.3g}{same}")
+    print("noise (as canfdi calibrate):")
+    for n in report["calibration"]["noise"]:
+        print(f"  {n['sensor']:<18} std {n['std']:.4g} +/- {n['std_error']:.2g} "
+              f"({n['identified']})")
+
+
+def _pct(x) -> str:
+    return "-" if x is None else f"{x:.1f} %"

@@ -17,7 +17,11 @@ counter and CRC-8 in every frame; the default), cia402 (a CANopen drive and its 
 PDOs, heartbeat) or float_node (node-ID float protocol, currents polled by RTR).
 
 The default bus is python-can's in-process virtual bus, which only other code in the same
-process can hear: use --interface socketcan --channel vcan0 to reach other programs.
+process can hear: use --interface socketcan --channel vcan0 to reach other programs. With
+-o FILE no bus is opened: the frames, with their times in the drive's run, are written to a
+log file in the format its suffix names (.log candump, .asc, .blf, .trc, .csv, .mcap, ...: any
+that `canfdi export` writes), as fast as they are made: a recording of the drive, as
+`candump -L can0 > FILE.log` would make on the real bus.
 
 Scenarios: a YAML file, or the name of a shipped one (firmware_sim/scenarios/), e.g.
 dc_motor_consecutive. Exit status: 0 done, 1 bus error, 2 bad scenario or arguments."""
@@ -45,6 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="corrupt each frame's CRC with probability P (profiles with a CRC)")
     p.add_argument("--wrong-dlc", type=float, default=0.0, metavar="P",
                    help="send each frame one byte short (or long) with probability P")
+    p.add_argument("-o", "--output", type=Path, metavar="FILE",
+                   help="write the frames to this log file instead of a bus (format by suffix)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -84,6 +90,8 @@ def run(args: argparse.Namespace) -> int:
     disturbance = Disturbance(drop=args.drop, jitter=args.jitter, bad_crc=args.bad_crc,
                               wrong_dlc=args.wrong_dlc, seed=scenario.seed)
     plant = scenario.make_plant()
+    if args.output is not None:
+        return _to_file(args, scenario, disturbance)
     if args.truth:
         def faults(drive) -> list[dict]:
             return [f.truth(plant.dt, plant.input_names if f.target == "actuator"
@@ -131,6 +139,33 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(file=sys.stderr)
     print(json.dumps({"scenario": scenario.name, **stats.as_dict()}))
+    return 0
+
+
+def _to_file(args: argparse.Namespace, scenario, disturbance) -> int:
+    """The scenario's frames into a log file (no bus)."""
+    from canfdi.io.formats import LogFormatError, format_of
+    from canfdi.io.logs import write_frames
+    from firmware_sim.emitter import frame_log
+
+    try:
+        format_of(args.output)
+    except LogFormatError as exc:
+        return _fail(f"-o {args.output}: {exc}")
+    if args.output.exists():
+        return _fail(f"-o {args.output}: exists (not overwritten)")
+    if not args.quiet:
+        print(f"canfdi sim: {scenario.name}: writing {args.output}", file=sys.stderr)
+    log = frame_log(scenario, disturbance, duration=args.duration)
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        written = write_frames(args.output, [log.frames])
+    except (OSError, LogFormatError) as exc:
+        print(f"canfdi sim: cannot write {args.output}: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps({"scenario": scenario.name, "output": str(args.output),
+                      "frames": written.frames, "skipped": written.skipped,
+                      **log.stats.as_dict()}))
     return 0
 
 

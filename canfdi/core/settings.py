@@ -35,11 +35,13 @@ __all__ = [
     "DriveConfig",
     "E2EConfig",
     "IdentificationConfig",
+    "IdentifySpec",
     "MonitorConfig",
     "MonitorFramesConfig",
     "Option",
     "RecordingConfig",
     "SignalRef",
+    "TemplateSpec",
     "nearest",
     "parse_options",
     "section",
@@ -305,6 +307,35 @@ class IdentificationConfig:
 
 
 @dataclass(frozen=True)
+class TemplateSpec:
+    """A grey-box template for `canfdi identify` (canfdi.core.greybox): its name, the config
+    signal that plays each of its roles, start values of its parameters (the datasheet's;
+    unset: the template's defaults), the parameters held at their start, and its settings."""
+
+    name: str
+    roles: Mapping[str, str] = field(default_factory=dict)
+    parameters: Mapping[str, float] = field(default_factory=dict)
+    fixed: tuple[str, ...] = ()
+    settings: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class IdentifySpec:
+    """How `canfdi identify` learns the model (the config's ``model.identify``).
+
+    unknown_inputs : how many unmeasured inputs act on the drive (a load, friction, an
+        unmodelled coupling). order : the state dimension (None: from the data). delay :
+        samples from a command to its first effect (>= 1). template : a grey-box template,
+        or None for a black-box model.
+    """
+
+    unknown_inputs: int = 0
+    order: int | None = None
+    delay: int = 1
+    template: TemplateSpec | None = None
+
+
+@dataclass(frozen=True)
 class RecordingConfig:
     """MCAP logging of `canfdi run`."""
 
@@ -320,6 +351,10 @@ class MonitorConfig:
     method : the diagnosis method's registered name (canfdi.methods).
     method_options : that method's options, as its registry entry parsed them from its own
         config section (None for a method with no section of its own).
+    model : the drive's model; None only in a config read for `canfdi identify` whose
+        ``model:`` holds no matrices yet (``identify`` says how to learn them; ``dt`` its
+        sample period when known).
+    identify : the config's ``model.identify`` (None when it has none).
     """
 
     name: str
@@ -339,6 +374,8 @@ class MonitorConfig:
     path: Path | None = None
     method_options: Any = None
     drives: tuple[DriveConfig, ...] = ()
+    identify: IdentifySpec | None = None
+    dt: float | None = None
 
     @property
     def drive_list(self) -> tuple[DriveConfig, ...]:

@@ -1,139 +1,479 @@
-"""The library behind `canfdi identify`: the output_error method's OE models (seed 003) fitted
-from a fault-free log.
+"""The library behind `canfdi identify`: a drive's model, its unknown inputs and its noise,
+learned from healthy logs, validated on data left out, and refused when the data cannot
+support it.
 
-`log_samples` assembles a log's samples with the config's DBC (any format canfdi.io reads; a
-damaged MCAP around its damage, recorded in the `Damage` given);
-`identify` fits y = y0 + sum_i B_i(q)/F_i(q) q^-d (u_c,i - u0) for every output by the OE
-prediction-error method (canfdi.methods.output_error.model: Steiglitz-McBride start, then
-Levenberg-Marquardt on the simulation error), drops the paths the data cannot tell from none,
-and raises an order where the information criterion asks for it.
+`identify` reads the logs with the config's bus (any format canfdi.io reads; a damaged MCAP
+around its damage), puts each on its sample grid and keeps the last ``holdout`` of each (or
+the ``validate`` logs) out of the fit. Then, by the config:
+
+* method output_error: the OE models of seed 003 (canfdi.tools.identify_oe);
+* otherwise a state-space model: a grey-box template (canfdi.core.greybox) when
+  ``model.identify.template`` names one, else black-box (canfdi.core.sysid: the measured state
+  with its unknown inputs, or a PBSID subspace fit).
+
+The model is checked on the held-out data (one-step and simulation fits per output, the
+one-step errors' whiteness and correlation with the inputs: canfdi.core.validation), its
+stability and minimality; its noise is then learned exactly as `canfdi calibrate` does, over
+all the data, which also refuses a log in which the identified monitor detects something (a
+fault in the log, with where); and its design (what `canfdi design` prints) is summarised.
+
+A `Refusal` (exit 1) says what the data lack and what to record instead.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import dataclasses
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from canfdi.bus.clock import make_clock
-from canfdi.bus.dbc import BusMap
-from canfdi.bus.frames import FrameBlock
-from canfdi.core.settings import MonitorConfig
+from canfdi.bus.dbc import BusMap, load_dbc
+from canfdi.config import parse_config
+from canfdi.core.design import design_bank
+from canfdi.core.model import StateSpace
+from canfdi.core.settings import ConfigError, IdentifySpec, MonitorConfig
+from canfdi.core.sysid import IdentifiedModel, identify_state_space
+from canfdi.core.unknown_inputs import Record as FitRecord
+from canfdi.core.validation import (
+    initial_state,
+    input_correlation,
+    kalman_gain,
+    minimality,
+    nrmse,
+    persistence,
+    predict,
+    simulate,
+    stability,
+    whiteness,
+    with_unknown_inputs,
+)
 from canfdi.io.damage import Damage
-from canfdi.io.logs import frame_blocks
-from canfdi.methods.output_error.model import OeModel, fit_miso, long_run_ratio
+from canfdi.tools.calibrate import LogFault, Record, calibrate_records
+from canfdi.tools.samples import log_samples, regular_grid, sample_period
 
-__all__ = ["assembled_samples", "identify", "log_samples", "regular_grid"]
+__all__ = [
+    "HOLDOUT",
+    "MIN_FIT",
+    "MIN_SAMPLES",
+    "Identification",
+    "OeOptions",
+    "Refusal",
+    "identify",
+    "period_of",
+    "read_records",
+]
+
+MIN_SAMPLES = 3000
+"""Fewer samples than this in all the logs (30 s at 100 Hz) cannot support a model and its
+validation."""
+HOLDOUT = 0.3
+"""The part of each log (its end) kept out of the fit for validation."""
+MIN_FIT = 50.0
+"""A one-step fit (NRMSE %) below this on an output the drive moves is refused."""
+PE_ORDER = 10
+"""The commands must excite dynamics of this order: their stacked windows of this many
+samples must span every direction (their covariance's smallest eigenvalue at least PE_RTOL of
+its largest), and each input must change (by more than its resolution) in at least
+PE_CHANGES samples: a command that takes one step and holds excites too little."""
+PE_RTOL = 1e-9
+PE_CHANGES = 10 * PE_ORDER
+MOVES = 10.0
+"""An output whose variance is below this many times its noise variance is not moved by the
+drive (its fit is not judged)."""
+BURN_IN = 50
+"""Validation samples spent estimating the state before the fits are scored."""
 
 
-def log_samples(path: Path, config: MonitorConfig, damage: Damage | None = None) -> tuple:
-    """(k, U, Z) of a log's first drive, assembled from its frames with the config's DBC, map
-    and sample clock; what a damaged log lost is recorded in ``damage``."""
-    return assembled_samples(frame_blocks(path, damage=damage), config)
+class Refusal(ValueError):
+    """The data cannot support a model: what is missing, and what to record instead."""
 
 
-def assembled_samples(blocks: Iterable[FrameBlock], config: MonitorConfig) -> tuple:
-    """(k (N,), U (N, p), Z (N, q)) of the config's first drive from blocks of frames, in
-    order (U, Z None when no sample formed)."""
-    asm = make_clock(BusMap.from_config(config), config.model.dt or 1.0, config.bus.clock)
+@dataclass
+class Identification:
+    """What `identify` learned.
+
+    config : the identified (and calibrated) config. document : its plain YAML document
+    (what parse_config took). updates : dotted key -> value, the sections a writer replaces
+    in the user's file (model, signals.unknown_inputs, noise.measurement, and the method's own
+    section for output_error). header : provenance comment lines. report : JSON-able report.
+    """
+
+    config: MonitorConfig
+    document: dict
+    updates: dict[str, Any]
+    header: list[str]
+    report: dict[str, Any]
+    identified: IdentifiedModel | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def period_of(config: MonitorConfig) -> float:
+    """The sample period: the model's dt, the clock's period, or the DBC's cycle time of the
+    clock's trigger message (else of the fastest mapped message)."""
+    dt = sample_period(config)
+    if dt:
+        return dt
+    if config.bus.dbc is not None:
+        database, _ = load_dbc(config.bus.dbc, config.path)
+        names = {ref.message if not isinstance(ref.message, int) else None
+                 for ref in config.bus.map.values()}
+        cycles = []
+        for message in database.messages:
+            trig = config.bus.clock.message
+            if trig is not None and trig in (message.name, message.frame_id):
+                if message.cycle_time:
+                    return message.cycle_time / 1000.0
+            if message.name in names and message.cycle_time:
+                cycles.append(message.cycle_time)
+        if cycles:
+            return min(cycles) / 1000.0
+    raise ConfigError("model.dt", "the sample period is not known: give model.dt (or "
+                                  "bus.clock.period for a grid clock)")
+
+
+def read_records(paths: Sequence[Path], config: MonitorConfig, dt: float,
+                 progress: Callable[[str], None], damage: Damage | None = None) -> list[Record]:
+    """Each log's samples on its grid (lost samples NaN rows, lost commands held)."""
+    out = []
+    for path in paths:
+        progress(f"reading {path}")
+        k, U, Z = log_samples(path, config, damage, dt)
+        if len(k) == 0:
+            raise ValueError(f"{path}: no sample formed (no frame matched the config's bus "
+                             "map)")
+        Ug, Zg = regular_grid(k, U, Z)
+        out.append(Record(path, np.arange(int(k[0]), int(k[-1]) + 1), Ug, Zg))
+    return out
+
+
+def _split(records: Sequence[Record], holdout: float) -> tuple[list[Record], list[Record]]:
+    fit, val = [], []
+    for rec in records:
+        cut = round(len(rec.k) * (1 - holdout))
+        fit.append(Record(rec.name, rec.k[:cut], rec.U[:cut], rec.Z[:cut]))
+        val.append(Record(rec.name, rec.k[cut:], rec.U[cut:], rec.Z[cut:]))
+    return fit, [v for v in val if len(v.k)]
+
+
+def _check_data(records: Sequence[Record], config: MonitorConfig, dt: float,
+                u_res: np.ndarray) -> None:
+    total = sum(len(r.k) for r in records)
+    if total < MIN_SAMPLES:
+        raise Refusal(f"{total} samples ({total * dt:.1f} s) in the logs: too short to "
+                      f"identify and validate a model; record at least {MIN_SAMPLES * dt:.0f} s "
+                      "of the drive while it is commanded steps and a chirp")
+    stds, ratio = persistence([r.U for r in records], PE_ORDER)
+    flat = [n for n, s, res in zip(config.inputs, stds, u_res, strict=True)
+            if s <= max(2 * res, 1e-12 * (1 + s))]
+    if flat:
+        raise Refusal(f"the input {', '.join(flat)} is constant in the logs (it does not "
+                      "excite the drive): record while the drive is commanded steps and a chirp "
+                      "(or a PRBS) on it")
+    changes = [int(sum(np.sum(np.abs(np.diff(r.U[:, i])) > 2 * res + 1e-12 * (1 + abs(s)))
+                       for r in records))
+               for i, (s, res) in enumerate(zip(stds, u_res, strict=True))]
+    few = [f"{n} ({c} changes)" for n, c in zip(config.inputs, changes, strict=True)
+           if c < PE_CHANGES]
+    if ratio < PE_RTOL or few:
+        what = (f"{', '.join(few)} change too seldom" if few else
+                f"their windows of {PE_ORDER} samples span too few directions ({ratio:.1e})")
+        raise Refusal(f"the inputs are not persistently exciting of order {PE_ORDER}: {what}; "
+                      "record with richer commands: steps of several sizes and a chirp (or "
+                      "a PRBS)")
+
+
+def _fit_records(records: Sequence[Record]) -> list[FitRecord]:
+    return [FitRecord(r.U, r.Z) for r in records]
+
+
+def _spec(config: MonitorConfig) -> IdentifySpec:
+    """The config's model.identify; for a config with a model and none, the model learned
+    again with as many unknown inputs as its F has."""
+    if config.identify is not None:
+        return config.identify
+    return IdentifySpec(unknown_inputs=config.model.r if config.model is not None else 0)
+
+
+def _state_space(records: Sequence[Record], config: MonitorConfig, dt: float,
+                 floor: np.ndarray, progress) -> tuple[IdentifiedModel, list[str], dict]:
+    """(identified model, unknown-input names, template report or {})."""
+    spec = _spec(config)
+    prior = config.design.measurement_std
+    if spec.template is not None:
+        from canfdi.tools.identify_template import fit_with_template
+
+        return fit_with_template(records, config, dt, floor, progress)
+    model = identify_state_space(
+        _fit_records(records), dt, unknown_inputs=spec.unknown_inputs, order=spec.order,
+        delay=spec.delay, prior_std=prior, floor_std=floor, input_names=config.inputs,
+        output_names=config.outputs, progress=progress)
+    given = list(config.unknown_inputs)
+    names = (given if len(given) == model.unknown_inputs
+             else [f"w{i + 1}" for i in range(model.unknown_inputs)])
+    return model, names, {}
+
+
+def model_section(model: StateSpace, spec_raw: Any) -> dict[str, Any]:
+    """The ``model:`` section of an identified model: discrete, dt, the matrices (10
+    significant digits), the user's ``identify:`` kept so the model can be learned again."""
+    def mat(M: np.ndarray) -> list:
+        return [[float(f"{v:.10g}") for v in row] for row in np.asarray(M)]
+
+    out: dict[str, Any] = {"time": "discrete", "dt": float(model.dt or 0.0),
+                           "A": mat(model.A), "B": mat(model.B), "C": mat(model.C)}
+    if np.any(model.D):
+        out["D"] = mat(model.D)
+    if model.r:
+        out["F"] = mat(model.F)
+    if spec_raw is not None:
+        out["identify"] = spec_raw
+    return out
+
+
+def _validate(model: StateSpace, noise_std: np.ndarray, records: Sequence[Record],
+              outputs: Sequence[str], inputs: Sequence[str]) -> dict[str, Any]:
+    """The fits and the one-step errors' checks on the held-out records."""
+    walk = with_unknown_inputs(model)
+    K = kalman_gain(walk, noise_std**2, unknown_inputs=model.r)
+    sims, preds, ys, us = [], [], [], []
+    for rec in records:
+        if len(rec.k) <= BURN_IN + 10:
+            continue
+        x0 = initial_state(walk, rec.U, rec.Z, BURN_IN)
+        yp = predict(walk, K, rec.U, rec.Z, x0)
+        ys_sim = simulate(model, rec.U, x0[:model.n])
+        sims.append(ys_sim[BURN_IN:])
+        preds.append(yp[BURN_IN:])
+        ys.append(rec.Z[BURN_IN:])
+        us.append(rec.U[BURN_IN:])
+    if not ys:
+        raise Refusal("too few samples left out of the fit to validate the model: record "
+                      "longer logs (or give --validate LOG)")
+    Y, S, P, U = (np.vstack(a) for a in (ys, sims, preds, us))
+    E = Y - P
+    moves = np.nanvar(Y, axis=0) > MOVES * noise_std**2
+    white = whiteness(E)
+    corr = input_correlation(E, U)
+    out = {"samples": len(Y), "outputs": []}
+    fit_1 = nrmse(Y, P)
+    fit_s = nrmse(Y, S)
+    for j, name in enumerate(outputs):
+        out["outputs"].append({
+            "output": name, "one_step_fit": _finite(fit_1[j]),
+            "simulation_fit": _finite(fit_s[j]), "moves": bool(moves[j]),
+            "whiteness": white[j],
+            "input_correlation": {inputs[i]: c for i, c in enumerate(corr[j]["inputs"])},
+            "band": corr[j]["band"]})
+    return out
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def _judge(validation: dict, identified: IdentifiedModel | None, model: StateSpace) -> None:
+    poor = [f"{o['output']} {o['one_step_fit']:.1f} %" for o in validation["outputs"]
+            if o["moves"] and (o["one_step_fit"] is None or o["one_step_fit"] < MIN_FIT)]
+    if poor:
+        raise Refusal(f"the model predicts poorly on the data left out of the fit (one-step "
+                      f"fit below {MIN_FIT:.0f} %: {', '.join(poor)}): record a longer log "
+                      "with richer commands, or set model.identify.order / delay")
+    exempt = [i for i, name in enumerate(identified.state_names if identified else [])
+              if name == "1"]
+    _, unstable = stability(model, exempt)
+    if unstable:
+        raise Refusal(f"the identified model is unstable (eigenvalues of modulus "
+                      f"{', '.join(f'{m:.4f}' for m in unstable)}): the data do not pin its "
+                      "slow dynamics; record longer, or set model.identify.order")
+    bad = minimality(model, exempt)
+    if bad["unobservable"] or bad["uncontrollable"]:
+        parts = [f"{kind} modes at {', '.join(f'{v:.4g}' for v in vals)}"
+                 for kind, vals in bad.items() if vals]
+        raise Refusal("the identified model is not minimal (" + "; ".join(parts) + "): a "
+                      "lower model.identify.order describes these data")
+
+
+def _design_summary(config: MonitorConfig) -> list[dict[str, Any]]:
+    """What `canfdi design` says per fault: detectable, isolable, the window, best f/n."""
+    design = design_bank(config.model, config.inputs, config.outputs, config.design)
+    confused = design.confused_with()
+    names = design.input_names + design.output_names
+    responds = design.responds
+    sigma = np.array([r.noise_std for r in design.actuators + design.sensors])
+    out = []
+    p = design.model.p
+    for kind, j, det in design.detectability:
+        col = j if kind == "actuator" else p + j
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratios = np.abs(design.gain[:, col]) / sigma
+        ok = np.isfinite(ratios) & responds[:, col]
+        window = design.actuator_window if kind == "actuator" else design.sensor_window
+        out.append({"kind": kind, "name": names[col], "detectable": bool(det.detectable),
+                    "isolable": bool(det.detectable) and not confused[col],
+                    "same_signature_as": [names[k] for k in confused[col]],
+                    "window": window,
+                    "fault_to_noise": float(ratios[ok].max()) if ok.any() else 0.0})
+    return out
+
+
+@dataclass(frozen=True)
+class OeOptions:
+    """The output_error fit's choices (`canfdi identify --orders/--delay/--min-gain-snr/
+    --skip`): fixed pair orders {(output, input): (nb, nf, d) or None}, the free pairs' delay,
+    the gain significance to keep a pair, samples skipped at the start."""
+
+    fixed: dict = field(default_factory=dict)
+    delay: int = 1
+    min_gain_snr: float = 5.0
+    skip: int = 200
+
+
+def identify(paths: Sequence[Path], config: MonitorConfig, doc: dict, *,
+             validate: Sequence[Path] = (), holdout: float = HOLDOUT,
+             oe: OeOptions = OeOptions(),
+             progress: Callable[[str], None] = lambda _: None,
+             damage: Damage | None = None) -> Identification:
+    """Learn, validate and calibrate the config's model from healthy logs (module
+    docstring). ``doc`` is the config's plain YAML document.
+
+    Raises
+    ------
+    Refusal : the data cannot support a model (exit 1; the message says what to record).
+    ValueError, ConfigError : unreadable logs or a config identify cannot use (exit 2).
+    """
+    dt = period_of(config)
+    records = read_records(paths, config, dt, progress, damage)
+    if validate:
+        fit, val = records, read_records(validate, config, dt, progress, damage)
+    else:
+        fit, val = _split(records, holdout)
+    every = list(records) + (list(val) if validate else [])
+    bus_map = BusMap.from_config(config)
+    U_all = np.vstack([r.U for r in every])
+    Z_all = np.vstack([r.Z for r in every])
+    u_res, z_res = bus_map.resolution(U_all, Z_all)
+    _check_data(every, config, dt, u_res)
+    if config.method == "output_error":
+        return _output_error(fit, val, every, config, doc, dt, oe, progress)
+    identified, w_names, template_report = _state_space(fit, config, dt, z_res, progress)
+    model = identified.model
+    raw_spec = (doc.get("model") or {}).get("identify")
+    document = dict(doc)
+    document["model"] = model_section(model, raw_spec)
+    signals = dict(document.get("signals") or {})
+    if model.r:
+        signals["unknown_inputs"] = list(w_names)
+    else:
+        signals.pop("unknown_inputs", None)
+    document["signals"] = signals
+    noise = dict(document.get("noise") or {})
+    noise["measurement"] = [float(f"{v:.4g}") for v in identified.noise_std]
+    noise.pop("process", None)
+    document["noise"] = noise
+    progress("validating on the data left out of the fit")
+    validation = _validate(model, identified.noise_std, val, config.outputs, config.inputs)
+    _judge(validation, identified, model)
+    progress("learning the noise as `canfdi calibrate` does")
+    staged = parse_config(document, config.path)
+    try:
+        calibration = calibrate_records(every, staged, document, progress=progress,
+                                        floor_std=z_res)
+    except LogFault as exc:
+        raise Refusal(f"{exc}: a log with a fault (or a drive the model does not describe) "
+                      "cannot teach the healthy drive; record a fault-free log") from None
+    final = calibration.config
+    design = _design_summary(final)
+    report = {
+        "logs": [str(p) for p in paths], "validate": [str(p) for p in validate],
+        "samples": {"fit": int(sum(len(r.k) for r in fit)),
+                    "validation": int(sum(len(r.k) for r in val))},
+        "dt": dt, "path": identified.path, "order": identified.order,
+        "states": identified.state_names, "order_evidence": identified.order_evidence,
+        "unknown_inputs": {"count": model.r, "names": list(w_names)},
+        "eigenvalues": [complex(v) for v in np.linalg.eigvals(model.A)],
+        "details": identified.details, "notes": identified.notes,
+        "validation": validation, "design": design,
+        "calibration": calibration.report(),
+        "resolution": {name: float(v) for name, v in zip(config.outputs, z_res, strict=True)},
+    }
+    if template_report:
+        report["template"] = template_report
+    updates = {"model": calibration.document["model"],
+               "signals.unknown_inputs": calibration.document["signals"].get("unknown_inputs"),
+               "noise.measurement": calibration.document["noise"]["measurement"]}
+    header = _header(report)
+    return Identification(config=final, document=calibration.document, updates=updates,
+                          header=header, report=report, identified=identified,
+                          notes=identified.notes)
+
+
+def _output_error(fit, val, every, config, doc, dt, oe: OeOptions, progress
+                  ) -> Identification:
+    """The output_error method's models, fitted on the fit part, validated by simulation on
+    the rest."""
+    from canfdi.methods.output_error import METHOD as OUTPUT_ERROR
+    from canfdi.methods.output_error import output_error_section
+    from canfdi.methods.output_error.diagnoser import OeSettings
+    from canfdi.tools.identify_oe import fit_output_error
+
+    k, U, Z = _stacked(fit)
+    result = fit_output_error(k, U, Z, config.inputs, config.outputs, oe.fixed, oe.delay,
+                              oe.min_gain_snr, oe.skip, progress)
+    settings = {key: value for key, value in dataclasses.asdict(OeSettings()).items()
+                if key not in ("drift", "false_alarm_interval")}
+    section = output_error_section(result["model"], result["sigma"], result["long_run"],
+                                   config.inputs, config.outputs,
+                                   fit={"samples": result["samples"]}, **settings)
+    document = dict(doc)
+    document["method"] = OUTPUT_ERROR.name
+    document[OUTPUT_ERROR.section] = section
+    final = parse_config(document, config.path, allow_unidentified=True)
+    report = {"logs": [str(r.name) for r in every], "path": "output error (seed 003)",
+              "samples": {"fit": int(result["samples"])}, "outputs": result["fits"], "dt": dt}
+    del val
+    return Identification(config=final, document=document,
+                          updates={OUTPUT_ERROR.section: section, "method": OUTPUT_ERROR.name},
+                          header=[], report=report)
+
+
+def _stacked(records: Sequence[Record]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(k, U, Z) of records end to end on one grid, 500 lost samples between two."""
     ks, us, zs = [], [], []
-    for block in blocks:
-        log = asm.push_batch(block)
-        ks.append(log.k)
-        us.append(log.u)
-        zs.append(log.z)
-    for s in asm.flush():
-        ks.append(np.array([s.k]))
-        us.append(np.asarray(s.u)[None, :])
-        zs.append(np.asarray(s.z)[None, :])
-    if not ks:
-        return np.zeros(0, dtype=np.int64), None, None
+    offset = 0
+    for rec in records:
+        ok = ~np.isnan(rec.Z).all(axis=1)
+        ks.append(np.arange(len(rec.k))[ok] + offset)
+        us.append(rec.U[ok])
+        zs.append(rec.Z[ok])
+        offset += len(rec.k) + 500
     return np.concatenate(ks), np.vstack(us), np.vstack(zs)
 
 
-def regular_grid(k: np.ndarray, U: np.ndarray, Z: np.ndarray) -> tuple:
-    """Samples on a regular grid k0..k1: missing samples as NaN rows, lost commands held
-    (returns U held, Z with NaN, valid (N,) per output mask)."""
-    n = int(k[-1] - k[0] + 1)
-    Ug = np.full((n, U.shape[1]), np.nan)
-    Zg = np.full((n, Z.shape[1]), np.nan)
-    Ug[k - k[0]] = U
-    Zg[k - k[0]] = Z
-    for i in range(Ug.shape[1]):
-        col = Ug[:, i]
-        idx = np.where(~np.isnan(col), np.arange(n), 0)
-        np.maximum.accumulate(idx, out=idx)
-        Ug[:, i] = col[idx]
-        first = np.flatnonzero(~np.isnan(col))
-        Ug[: first[0] if len(first) else n, i] = np.nanmean(col) if len(first) else 0.0
-    return Ug, Zg
+def _header(report: dict) -> list[str]:
+    """The provenance lines on top of the written config (without their "#")."""
+    logs = ", ".join(Path(p).name for p in report["logs"])
+    held = ("the last " + str(round(HOLDOUT * 100)) + " % of each log" if not report["validate"]
+            else ", ".join(Path(p).name for p in report["validate"]))
+    lines = [f"Identified from {report['samples']['fit']} samples of {len(report['logs'])} "
+             f"log(s) ({logs}), validated on {report['samples']['validation']} samples left "
+             f"out ({held}).",
+             f"Model: {report['path']}, {report['order']} states ({', '.join(report['states'])}),"
+             f" {report['unknown_inputs']['count']} unknown input(s), dt {report['dt']:g} s."]
+    for o in report["validation"]["outputs"]:
+        lines.append(f"  {o['output']}: one-step fit {_pct(o['one_step_fit'])}, simulation fit "
+                     f"{_pct(o['simulation_fit'])}"
+                     + ("" if o["moves"] else " (not moved by the drive)"))
+    detectable = [d["name"] for d in report["design"] if d["detectable"]]
+    undetectable = [d["name"] for d in report["design"] if not d["detectable"]]
+    lines.append("Design: detectable " + (", ".join(detectable) or "none")
+                 + ("; not detectable: " + ", ".join(undetectable) if undetectable else "")
+                 + ".")
+    lines.append("noise.measurement learned as `canfdi calibrate` does, over all the data.")
+    return lines
 
 
-def identify(k, U, Z, inputs, outputs, fixed: dict, delay: int, min_snr: float, skip: int,
-             progress=None) -> dict:
-    """Fit every output; returns {"model", "sigma", "long_run", "fits": per output report}."""
-    Ug, Zg = regular_grid(k, U, Z)
-    u0 = Ug.mean(axis=0)
-    pairs, sigma, long_run, report = [], [], [], []
-    for j, name in enumerate(outputs):
-        if progress:
-            progress(f"fitting {name} ({j + 1} of {len(outputs)})")
-        valid = ~np.isnan(Zg[:, j])
-        y0 = float(np.mean(Zg[valid, j]))
-        y = np.where(valid, Zg[:, j] - y0, 0.0)
-
-        def fit(struct, y=y, valid=valid, j=j):
-            return fit_miso(Ug - u0, y, struct, output=j, skip=skip, valid=valid)
-
-        free = [i for i in range(len(inputs)) if (j, i) not in fixed]
-        orders = {i: (1, 1, delay) for i in free}
-        orders.update({i: fixed[(j, i)] for i in range(len(inputs))
-                       if fixed.get((j, i)) is not None})
-
-        def struct_of(orders):
-            return [(i, *orders[i]) for i in sorted(orders)]
-
-        result = fit(struct_of(orders)) if orders else None
-        if result is not None and free:
-            # Drop the pairs the data cannot tell from no path.
-            weak = [p.input for p, g in zip(result.pairs, result.gain_std, strict=True)
-                    if p.input in free and abs(p.static_gain) < min_snr * g]
-            for i in weak:
-                del orders[i]
-            if weak:
-                result = fit(struct_of(orders)) if orders else None
-            # Raise an order where the information criterion says the data want it.
-            n_used = int(valid[skip:].sum())
-
-            def bic(res, orders, n_used=n_used):
-                n_par = sum(nb + nf for nb, nf, _ in orders.values()) + 1
-                return n_used * np.log(res.sigma**2) + n_par * np.log(n_used)
-
-            for i in [i for i in free if i in orders]:
-                trial = dict(orders)
-                trial[i] = (2, 2, orders[i][2])
-                res2 = fit(struct_of(trial))
-                if bic(res2, trial) < bic(result, orders) - 10.0:
-                    orders, result = trial, res2
-        if result is None:
-            r = y
-            fitted, gain_std, offset = (), [], 0.0
-        else:
-            r, fitted, gain_std, offset = (result.residual, result.pairs, result.gain_std,
-                                           result.offset)
-        rv = r[skip:][valid[skip:]]
-        sigma.append(float(np.std(rv)))
-        long_run.append(long_run_ratio(rv))
-        pairs.extend(fitted)
-        report.append({
-            "output": name, "residual_std": sigma[-1], "long_run_variance": long_run[-1],
-            "pairs": [{"input": inputs[p.input], "b": list(p.b), "f": list(p.f),
-                       "delay": p.delay, "static_gain": p.static_gain, "gain_std": float(g)}
-                      for p, g in zip(fitted, gain_std, strict=True)],
-            "y0": y0 + offset,
-        })
-    y0 = np.array([rep["y0"] for rep in report])
-    model = OeModel(pairs=tuple(pairs), u0=u0, y0=y0)
-    return {"model": model, "sigma": np.array(sigma), "long_run": np.array(long_run),
-            "fits": report, "samples": len(Ug)}
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{x:.1f} %"

@@ -132,7 +132,8 @@ def reference(path: Path) -> Log:
 def logs(tmp_path_factory) -> dict[str, Log]:
     tmp = tmp_path_factory.mktemp("damaged")
     faulty = make_log(tmp / "faulty.mcap", "dc_motor_actuator", 12.0, faults=True)
-    healthy = make_log(tmp / "healthy.mcap", "dc_motor_nominal", 14.0, faults=False)
+    # Long enough for identify (30 s at least, a third of it left out for validation).
+    healthy = make_log(tmp / "healthy.mcap", "dc_motor_nominal", 48.0, faults=False)
     found = {"faulty": reference(faulty), "healthy": reference(healthy)}
     assert all(len(log.chunks) >= 12 for log in found.values())
     return found
@@ -224,6 +225,12 @@ def check(verb: str, log: Log, spans: list[tuple[int, int]], kind: str,
     """One run's outcome against the rules (AssertionError saying what is wrong)."""
     assert "Traceback" not in stderr, stderr
     lines = stderr.strip().splitlines()
+    if status == 1 and verb == "identify":
+        # What the damage left cannot support a model (too short, a poor fit): one line
+        # saying so, after the damage report.
+        refusal = [ln for ln in lines if ": damaged: " not in ln]
+        assert len(refusal) == 1 and "record" in refusal[0], stderr
+        return
     if status == 2:
         assert len(lines) == 1, stderr
         assert kind != "garbage in a chunk", "a damaged chunk of a sound file: exit 2"
@@ -284,5 +291,5 @@ def test_300_damaged_logs_end_in_a_loss_report_or_one_line_never_a_traceback(log
     assert not failures, f"{len(failures)} of {FILES} failed:\n" + "\n".join(failures[:15])
     # Each verb ran on 60 files, and most of them were read (exit 0), not refused.
     for verb in VERBS:
-        assert seen.get((verb, 0), 0) + seen.get((verb, 2), 0) == FILES // len(VERBS)
+        assert sum(seen.get((verb, code), 0) for code in (0, 1, 2)) == FILES // len(VERBS)
         assert seen.get((verb, 0), 0) >= FILES // len(VERBS) // 2, seen

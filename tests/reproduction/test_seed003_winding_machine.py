@@ -146,8 +146,7 @@ def test_identify_round_trip(tmp_path):
     res = _cli("demo", "--scenario", "winding_machine_nominal", "-o", str(log), "--json")
     assert res.returncode == 0, res.stderr
     out = tmp_path / "oe.yaml"
-    res = _cli("identify", str(log), "--config", str(REPO / "deploy/config/winding_machine.yaml"),
-               "-o", str(out), "--json")
+    res = _cli("identify", str(log), "--config", str(CONFIG), "-o", str(out), "--json")
     assert res.returncode == 0, res.stderr
     report = json.loads(res.stdout)
     gains = {(o["output"], p["input"]): p["static_gain"]
@@ -169,6 +168,6 @@ def test_identify_refuses_a_log_with_faults(tmp_path):
     assert _cli("demo", "--scenario", "winding_machine_sensor", "-o", str(log),
                 "--json").returncode == 0
     res = _cli("identify", str(log), "--config", str(CONFIG))
-    assert res.returncode == 2 and "fault-free" in res.stderr
+    assert res.returncode == 1 and "fault-free" in res.stderr
     res = _cli("identify", str(log), "--config", str(CONFIG), "--orders", "T1:u9=1,1,1")
     assert res.returncode == 2 and "--orders" in res.stderr
