@@ -176,3 +176,19 @@ def test_a_pure_actuator_bias_is_identified_with_one_parameter():
                              noise=0.0))
     (scale,) = [e for e in _feed(build_diagnoser(CONFIG), run) if e.kind == "accepted"]
     assert scale.estimates["eta"] == pytest.approx(1.3, abs=1e-6)
+
+
+@pytest.mark.parametrize("channel", [1, 2])
+def test_a_twin_group_is_named_by_its_first_channel_whatever_the_rounding(channel):
+    """i_a and i_f_plus_i_a fit a bias alike up to rounding; the group is named by the
+    channel listed first (i_a), the other a candidate with its own bias, whichever of the two
+    carries the fault and whichever way the BLAS rounds (issue 27)."""
+    run = simulate(_scenario([{"target": "sensor", "index": channel, "onset": 10.0,
+                               "bias": 0.5}], seed=5))
+    accepted = [e for e in _feed(build_diagnoser(CONFIG), run) if e.kind == "accepted"]
+    assert [(e.target, e.index) for e in accepted] == [("sensor", 1)]
+    names = {c["name"]: c["estimates"]["bias"] for c in accepted[0].candidates}
+    assert set(names) == {"i_a", "i_f_plus_i_a"}
+    sign = 1.0 if channel == 1 else -1.0
+    assert accepted[0].estimates["bias"] == pytest.approx(sign * 0.5, rel=0.05)
+    assert names["i_f_plus_i_a"] == pytest.approx(-sign * 0.5, rel=0.05)

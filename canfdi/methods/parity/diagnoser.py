@@ -347,10 +347,10 @@ class ParityDiagnoser(DetectorBacked):
         penalty = np.array([2.0 * s.isolation_margin * (h.n_params - 1) for h in self.hypotheses])
         cost_h = cost[np.arange(len(cost)), best_onset] + penalty
         order = np.argsort(cost_h, kind="stable")
-        best = int(order[0])
+        best = self._named(int(order[0]), cost_h)
         h_best = self.hypotheses[best]
         twins = self._twins[h_best]
-        outside = [i for i in order[1:] if self.hypotheses[i] not in twins]
+        outside = [i for i in order if i != best and self.hypotheses[i] not in twins]
         margin_ok = all(cost_h[i] - cost_h[best] >= s.isolation_margin for i in outside)
         kb = int(best_onset[best])
         P = fit.P[best, kb]
@@ -374,6 +374,21 @@ class ParityDiagnoser(DetectorBacked):
         if since >= s.max_samples:
             return self._unexplained(k, t, theta, best_onset, order)
         return []
+
+    def _named(self, best: int, cost_h: np.ndarray) -> int:
+        """The hypothesis that names the best fit's ambiguity group: twins (proportional
+        signatures) fit alike up to rounding, so the one whose cost came out lowest is the
+        floating point's choice, which a BLAS with other threads makes the other way. The
+        group is named by its first channel in config order (inputs, then outputs); the
+        others stay its candidates."""
+        h = self.hypotheses[best]
+        tol = 1e-6 * (1.0 + abs(float(cost_h[best])))
+        group = [best] + [i for i, g in enumerate(self.hypotheses)
+                          if g in self._twins[h] and g.n_params == h.n_params
+                          and abs(float(cost_h[i] - cost_h[best])) <= tol]
+        rank = {"actuator": 0, "actuator_bias": 1, "sensor": 2}
+        return min(group, key=lambda i: (rank.get(self.hypotheses[i].target, 3),
+                                         self.hypotheses[i].index))
 
     def _unexplained(self, k: int, t: int, theta: np.ndarray, best_onset: np.ndarray,
                      order: np.ndarray) -> list[FaultEvent]:
