@@ -122,7 +122,8 @@ def _estimable(G: np.ndarray, rtol: float = 1e-8) -> np.ndarray:
     if not live.any():
         return out
     Gn = G[:, live] / scale[live]
-    _, sv, vt = np.linalg.svd(Gn, full_matrices=True)
+    # vt is all that is needed: the full U of a tall matrix would be rows x rows.
+    _, sv, vt = np.linalg.svd(Gn, full_matrices=Gn.shape[0] < Gn.shape[1])
     rank = int((sv > rtol * sv[0]).sum())
     null = vt[rank:].T  # (live, dim): directions the equations cannot see
     out[np.flatnonzero(live)] = np.linalg.norm(null, axis=1) < 1e-6 if null.size else True
