@@ -119,9 +119,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.daemon_frames is not None:
         return _soak(config, args, scenario, progress, start)
+    from canfdi.tools.identify import identify
+
     try:
         result = run_bench(config, frames=frames, quick=args.quick, progress=progress,
-                           scenario=scenario, faulty=faulty)
+                           scenario=scenario, faulty=faulty, identify=identify)
     except ValueError as exc:
         return config_error(exc, "bench")
     result["elapsed_s"] = time.monotonic() - start
@@ -151,6 +153,10 @@ def run(args: argparse.Namespace) -> int:
                                 f"{r['latency_p99_ms']:.3f} ms ({r['latency_blocks']} blocks, "
                                 f"{r['latency_faults_diagnosed']} faults diagnosed)"),
         ("memory", f"{r['rss_growth_mib']:.2f} MiB RSS growth per 10^6 frames"),
+        ("identify", f"{r['identify_minutes']:g} min of a 100 Hz drive "
+                     f"({r['identify_samples']:,} samples) in {r['identify_wall_s']:.1f} s"
+                     f"{' on one core' if r['identify_one_core'] else ''} "
+                     f"({r['identify_cpu_s']:.1f} CPU s; {r['identify_path']})"),
     ]
     for name, value in rows:
         print(f"{name:<26}{value}")

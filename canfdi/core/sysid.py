@@ -2,16 +2,18 @@
 
 `identify_state_space` chooses the way the data allow (the path is reported):
 
-* **measured state** (canfdi.core.unknown_inputs): when the outputs show the state (the
-  noise-whitened output covariance has n directions well above the noise, n <= q). The
-  state is n of the outputs; with unknown inputs (r > 0) F and the rows it does not reach are
-  learned as that module says. Unknown inputs absorb what a linear model of the visible state
-  cannot explain (a load, friction, the nonlinear terms), so n is the visible order.
-* **subspace** (canfdi.core.subspace, PBSID, consistent in closed loop): when the data hold
-  more states than the outputs show (n from the predictor's singular values), or when the
-  config fixes such an order. With unknown inputs, F is taken as the r dominant directions of
-  the state innovation K Sigma_e K^T, measured in what it does to the next outputs
-  (whitened by the noise): the least exact of the three ways, said in the report.
+* **measured state** (canfdi.core.unknown_inputs), with unknown inputs (r > 0): when the
+  outputs show the state (the noise-whitened output covariance has n directions well above
+  the noise, n <= q). The state is n of the outputs; F and the rows it does not reach are
+  learned as that module says. Unknown inputs absorb what a linear model of the visible
+  state cannot explain (a load, friction, the nonlinear terms), so n is the visible order.
+  When no row's error exceeds its noise, the data show no unknown input: r becomes 0 (said).
+* **subspace** (canfdi.core.subspace, PBSID, consistent in closed loop): without unknown
+  inputs (it uses every horizon of the data, not one step, and pins slow dynamics better;
+  the order from the canonical correlations), or when the data hold more states than the
+  outputs show. With unknown inputs there, F is taken as the r dominant directions of the
+  state innovation K Sigma_e K^T, measured in what it does to the next outputs (whitened by
+  the noise): the least exact of the ways, said in the report.
 
 The measurement noise R is learned along (the fits need it: the regressors are measured, and
 F is what the noise does not explain): a first guess from a vector ARX model's one-step error
@@ -32,7 +34,12 @@ import numpy as np
 
 from canfdi.core.model import StateSpace
 from canfdi.core.noise import estimate_measurement_noise
-from canfdi.core.subspace import canonical_correlations, order_from_correlations, pbsid
+from canfdi.core.subspace import (
+    canonical_correlations,
+    input_matrices,
+    order_from_correlations,
+    pbsid,
+)
 from canfdi.core.unknown_inputs import (
     Record,
     fit_measured_state,
@@ -46,6 +53,7 @@ __all__ = [
     "IdentifiedModel",
     "first_noise_guess",
     "identify_state_space",
+    "realise_paths",
     "stack_records",
 ]
 
@@ -53,6 +61,9 @@ EXCESS = 0.10
 """A state row whose one-step error exceeds its noise's by more than this fraction is reached
 by an unknown input (or is not linear)."""
 MAX_ORDER = 12
+OFFSET = 0.5
+"""An output offset (of a subspace model) above this many noise stds gets a constant
+state."""
 NOISE_ROUNDS = 3
 
 
@@ -207,6 +218,17 @@ def identify_state_space(records: Sequence[Record], dt: float, *, unknown_inputs
     notes: list[str] = []
     evidence: dict = {"visible_order": n_vis,
                       "output_eigenvalues": [float(v) for v in eig]}
+    if r > 0 and n_vis >= 1 and (order is None or order <= min(q, n_vis)):
+        # Do the data show an unknown input at all? Rows (of the state the outputs show)
+        # whose one-step error exceeds the noise: none, and the drive is linear in what it is
+        # commanded (the VTOL's airspeed variation is a linear feedback, say).
+        n_try = n_vis if order is None else int(order)
+        excess = row_excess(recs, R, select_state_outputs(recs, R, n_try))
+        if not np.any(excess > 1 + EXCESS):
+            notes.append(f"no state row shows an error beyond its noise (the largest is "
+                         f"{excess.max():.3f} times it): the data show no unknown input, and "
+                         f"the model is learned without the {r} asked for")
+            r = 0
     n_ss = None
     if order is None and r == 0:
         progress("estimating the order (canonical correlations of the future and the past)")
@@ -217,14 +239,16 @@ def identify_state_space(records: Sequence[Record], dt: float, *, unknown_inputs
                         correlation_floor=floor, subspace_order=n_ss)
     if order is not None:
         n = int(order)
-        measured = n <= min(q, n_vis)
+        measured = r > 0 and n <= min(q, n_vis)
     elif r > 0:
         n = n_vis
         measured = True
     else:
+        # No unknown input: the subspace fit, which uses every horizon of the data rather
+        # than one step, pins slow dynamics better.
         n = max(n_ss or n_vis, 1)
-        measured = n <= n_vis
-    if measured and n < 1:
+        measured = False
+    if n < 1:
         raise ValueError("the outputs show no state above their noise: the log does not "
                          "excite the drive")
     if r >= n:
@@ -253,18 +277,24 @@ def _measured(recs, dt, n, r, R, floor_var, delay, names_u, names_y, evidence, n
     window = min(max(n, 2), 10)
     first = R.copy()
     sel = select_state_outputs(recs, R, n)
-    f_rows = None
+    f_rows: tuple[int, ...] = ()
     fit = None
     for round_ in range(NOISE_ROUNDS):
         progress(f"fitting {n} measured states with {r} unknown input(s), round "
                  f"{round_ + 1} of {NOISE_ROUNDS}")
-        if round_ and r:
+        if r:
+            # The rows an unknown input reaches: those whose error exceeds the noise. The
+            # first guess errs high, which keeps a row the inputs do not reach clear of the
+            # threshold; later rounds refine with the noise the parity space gives.
             excess = row_excess(recs, R, sel)
             rows = tuple(int(i) for i in np.flatnonzero(excess > 1 + EXCESS))
-            f_rows = rows if len(rows) >= r else tuple(
-                int(i) for i in np.argsort(-excess, kind="stable")[:r])
-        fit = fit_measured_state(recs, R, n, r, state_outputs=sel, f_rows=f_rows,
-                                 input_names=names_u, output_names=names_y)
+            if len(rows) >= r:
+                f_rows = rows
+            elif len(f_rows) < r:
+                f_rows = tuple(int(i) for i in np.argsort(-excess, kind="stable")[:r])
+        fit = fit_measured_state(recs, R, n, r, state_outputs=sel,
+                                 f_rows=f_rows if r else None, input_names=names_u,
+                                 output_names=names_y)
         A, B, C, F = _with_delay(fit.A, fit.B, fit.C, fit.F, delay)
         try:
             R = _noise_round(A, B, C, F, dt, recs, first, floor_var, window)
@@ -302,21 +332,20 @@ def _subspace(recs, dt, n, r, R, floor_var, delay, names_u, names_y, evidence, n
     progress(f"subspace fit (PBSID) of order {n}, past window {past}")
     sub, sv = pbsid([(x.U, x.Y) for x in recs], n, past, max(past // 2, n + 1))
     A, B, C = sub.A, sub.B, sub.C
-    # Raw signals: x+ = A x + B u - B u0, y = C x + y0 (the fit holds for deviations). Move
-    # the constant input into the state's steady state; keep what is left as a constant
-    # state.
-    c = -B @ sub.u0
-    d = sub.y0 + np.zeros(q)
-    shift = np.zeros(n)
-    try:
-        shift = np.linalg.solve(np.eye(n) - A, c)
-        c = np.zeros(n)
-    except np.linalg.LinAlgError:
-        pass
-    d = d + C @ shift
+    # B again, with the output offset and each record's initial state, by least squares on
+    # the raw signals once A and C are known (the predictor's B is for deviations from the
+    # data's mean, which a slow excitation leaves off the steady state): the offset that is
+    # left is the drive's, not the fit's. White measurement noise keeps it consistent in
+    # closed loop too (the regressors are the commands' past).
+    c = np.zeros(n)
+    if not np.any(np.isclose(np.abs(np.linalg.eigvals(A)), 1.0, atol=1e-3)):
+        B, _, d, _ = input_matrices([(x.U, x.Y) for x in recs], A, C)
+    else:  # an integrator: the constant input stays a state input
+        c, d = -B @ sub.u0, sub.y0 + np.zeros(q)
     noise = np.sqrt(np.maximum(R, floor_var))
-    significant = np.any(np.abs(d) > 4 * noise / np.sqrt(sum(len(x.Y) for x in recs))) or \
-        np.any(c != 0)
+    # An offset left, of half the noise or more, would sit in the residuals: a
+    # constant state takes it out (it costs a decoupling dimension, so not for less).
+    significant = bool(np.any(np.abs(d) > OFFSET * noise) or np.any(c != 0))
     F = np.zeros((n, 0))
     if r:
         F = _innovation_directions(A, C, sub.K, sub.sigma_e, R, r, past)
@@ -365,3 +394,46 @@ def _innovation_directions(A, C, K, sigma_e, R, r, horizon) -> np.ndarray:
         k = int(np.argmax(np.abs(F[:, c])))
         F[:, c] /= F[k, c]
     return F
+
+
+def realise_paths(paths: Sequence[tuple[int, int, Sequence[float], Sequence[float], int]],
+                  p: int, q: int, offsets: np.ndarray, noise: np.ndarray, dt: float
+                  ) -> tuple[StateSpace, list[str]]:
+    """(model, state names): output-error paths y_j += B(q)/F(q) q^-d u_i (each
+    (output, input, b, f, delay)) realised block by block (scipy's controllable form of each
+    transfer function), the blocks side by side: a path the data do not show is an exact
+    zero, which a subspace fit's dense basis cannot keep. ``offsets`` (q,): each output's
+    level at zero input; one of more than OFFSET noise stds gets a constant state."""
+    import warnings
+
+    from scipy.signal import BadCoefficients, tf2ss
+
+    blocks = []
+    for j, i, b, f, d in paths:
+        num = np.concatenate([np.zeros(d), np.asarray(b, float)])
+        den = np.concatenate([[1.0], np.asarray(f, float)])
+        size = max(len(num), len(den))
+        num = np.pad(num, (0, size - len(num)))
+        den = np.pad(den, (0, size - len(den)))
+        with warnings.catch_warnings():  # the delay's leading zeros: no loss, said anyway
+            warnings.simplefilter("ignore", BadCoefficients)
+            Ab, Bb, Cb, Db = tf2ss(num, den)
+        blocks.append((j, i, Ab, Bb[:, 0], Cb[0], float(Db[0, 0])))
+    n = sum(len(Ab) for _, _, Ab, _, _, _ in blocks)
+    A, B, C, D = np.zeros((n, n)), np.zeros((n, p)), np.zeros((q, n)), np.zeros((q, p))
+    names, at = [], 0
+    for j, i, Ab, Bb, Cb, Db in blocks:
+        m = len(Ab)
+        A[at:at + m, at:at + m] = Ab
+        B[at:at + m, i] = Bb
+        C[j, at:at + m] = Cb
+        D[j, i] += Db
+        names += [f"y{j + 1}<-u{i + 1}.{k + 1}" for k in range(m)]
+        at += m
+    offsets = np.asarray(offsets, float)
+    if np.any(np.abs(offsets) > OFFSET * np.asarray(noise, float)):
+        A = np.block([[A, np.zeros((n, 1))], [np.zeros((1, n)), np.ones((1, 1))]])
+        B = np.vstack([B, np.zeros((1, p))])
+        C = np.hstack([C, offsets[:, None]])
+        names.append("1")
+    return StateSpace(A=A, B=B, C=C, D=D, dt=dt), names

@@ -9,9 +9,9 @@ F's span and on the rows N^T [A B] alone. This module learns exactly those from 
 
 When the outputs show the state (the usual drive: currents, speed, position, a setpoint echo;
 as many independent outputs as states, the redundant ones tied by static relations), the state
-is taken as n of the measured outputs (``state_outputs``; chosen by pivoting on the noise-
-whitened output covariance, ties broken by config order), so C has an identity block and the
-model's rows keep the meaning of the signals. Then (the "equation error with the unknown inputs
+is taken as n of the measured outputs (``state_outputs``: in config order, those the earlier
+ones do not explain), so C has an identity block and the model's rows keep the meaning of the
+signals. Then (the "equation error with the unknown inputs
 eliminated" fit):
 
 1. every row of x(k+1) = A x(k) + B u(k) + c is fitted by least squares, corrected for the
@@ -45,6 +45,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import f as f_dist
 
 from canfdi.core._check import check_shape
 
@@ -128,22 +129,30 @@ def visible_order(records: Sequence[Record], R: np.ndarray, threshold: float = V
 
 
 def select_state_outputs(records: Sequence[Record], R: np.ndarray, n: int) -> tuple[int, ...]:
-    """The n outputs that best span the state: column pivoting on the top-n eigenvectors of
-    the whitened output covariance; a near tie (1e-9 relative) goes to the output listed
-    first, so the choice does not hang on rounding."""
-    S = _whitened_covariance(records, R)
-    w, V = np.linalg.eigh(S)
-    order = np.argsort(-w, kind="stable")
-    M = V[:, order[:n]].T.copy()  # (n, q): columns are outputs
+    """The n outputs taken as the state: in the config's order, each output that the ones
+    already taken do not explain (its variance left after their least-squares fit is more
+    than VISIBLE times its noise); an output they explain (the DC motor's i_f + i_a after i_f
+    and i_a) is a static relation. The order decides among outputs that explain one another,
+    so the choice does not hang on rounding; if fewer than n qualify, the least explained of
+    the rest fill up."""
+    Y = np.vstack([r.Y for r in records])
+    Y = Y[~np.isnan(Y).any(axis=1)]
+    Y = (Y - Y.mean(axis=0)) / np.sqrt(R)  # in noise units
     chosen: list[int] = []
-    for _ in range(n):
-        norms = np.linalg.norm(M, axis=0)
-        norms[chosen] = -1.0
-        best = float(norms.max())
-        j = int(np.flatnonzero(norms >= best * (1 - 1e-9))[0])
-        chosen.append(j)
-        v = M[:, j] / max(np.linalg.norm(M[:, j]), 1e-300)
-        M = M - np.outer(v, v @ M)
+    left = np.zeros(Y.shape[1])
+    for j in range(Y.shape[1]):
+        if len(chosen) == n:
+            break
+        X = Y[:, chosen]
+        rest = Y[:, j] - X @ np.linalg.lstsq(X, Y[:, j], rcond=None)[0] if chosen else Y[:, j]
+        left[j] = float(np.mean(rest**2))
+        if left[j] > VISIBLE:
+            chosen.append(j)
+    for j in np.argsort(-left, kind="stable"):
+        if len(chosen) == n:
+            break
+        if int(j) not in chosen:
+            chosen.append(int(j))
     return tuple(sorted(chosen))
 
 
@@ -300,10 +309,27 @@ def _pruned_row(Phi: np.ndarray, t: np.ndarray, noise: np.ndarray, target_noise:
                 prunable: int, prune_t: float) -> tuple[np.ndarray, list[int]]:
     """One row's coefficients (d,), its insignificant ones among the first ``prunable``
     columns set to zero one at a time (the least significant first, ties to the lower
-    column), and the columns zeroed."""
+    column), and the columns zeroed. A coefficient goes only while the ones gone, together,
+    leave the row's error where it was (an F test at 1 %): with collinear regressors (slow
+    states) each may look insignificant alone and all of them matter."""
     d = Phi.shape[1]
+    n_rows = len(Phi)
     active = list(range(d))
     zeroed: list[int] = []
+
+    def rss(cols: list[int]) -> float:
+        # The error left by the bias-compensated fit on these columns, with their noise
+        # taken out as the fit takes it out (t't - b' G^-1 b, G = Phi'Phi - N noise): what
+        # ordinary least squares would leave is not comparable (its attenuated coefficients
+        # need any slow regressor as an offset).
+        if not cols:
+            return float(t @ t)
+        X = Phi[:, cols]
+        G = X.T @ X - n_rows * noise[np.ix_(cols, cols)]
+        b = X.T @ t
+        return float(t @ t - b @ np.linalg.solve(G, b))
+
+    rss_full = rss(active)
     while active:
         theta, _, se = _bcls(Phi[:, active], t[:, None], noise[np.ix_(active, active)],
                              np.array([target_noise]))
@@ -313,6 +339,11 @@ def _pruned_row(Phi: np.ndarray, t: np.ndarray, noise: np.ndarray, target_noise:
             break
         worst = min(candidates, key=lambda i: (tstat[i], active[i]))
         if tstat[worst] >= prune_t:
+            break
+        trial = [c for j, c in enumerate(active) if j != worst]
+        k = len(zeroed) + 1
+        stat = ((rss(trial) - rss_full) / k) / max(rss_full / max(n_rows - d, 1), 1e-300)
+        if stat > f_dist.ppf(0.99, k, max(n_rows - d, 1)):
             break
         zeroed.append(active.pop(worst))
     full = np.zeros(d)

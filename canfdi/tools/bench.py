@@ -93,11 +93,14 @@ def _feed(monitor, traffic: FrameBlock, block: int = 4096,
 def run_bench(config, frames: int = 1_000_000, quick: bool = False,
               progress: Callable[[str], None] | None = None, workdir: Path | None = None,
               scenario: Scenario | str = "dc_motor_nominal",
-              faulty: Scenario | str = "dc_motor_consecutive") -> dict:
+              faulty: Scenario | str = "dc_motor_consecutive",
+              identify: Callable | None = None) -> dict:
     """Measure everything; returns the JSON-ready result.
 
     ``scenario`` plays the config's bus fault-free (throughput, decode, capture, replay);
-    ``faulty`` plays it with faults (latency, diagnoses included)."""
+    ``faulty`` plays it with faults (latency, diagnoses included). ``identify``:
+    canfdi.tools.identify.identify, handed in by the verb (one verb's library does not import
+    another's), timed on a commissioning log of the servo axis (`identify_time`)."""
     from canfdi.io.writer import McapRecorder
     from canfdi.monitor import Monitor
 
@@ -214,7 +217,47 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     out.update(_virtual_bus(config, traffic, sub))
     say("latency at 50% bus load")
     out.update(_latency(config, plain, faulty, seconds=2.0 if quick else 6.0))
+    if identify is not None:
+        minutes = 2.0 if quick else 10.0
+        say(f"identify: {minutes:g} minutes of a 100 Hz drive, on one core")
+        out.update(identify_time(identify, tmp, minutes))
     return out
+
+
+IDENTIFY_CONFIG = "servo_axis_odrive.yaml"
+IDENTIFY_SCENARIO = "servo_axis_commissioning"
+
+
+def identify_time(identify: Callable, workdir: Path, minutes: float) -> dict:
+    """`canfdi identify`'s whole path (read a candump log, assemble, fit with its unknown
+    input, validate, learn the noise as calibrate does, design) over ``minutes`` of the servo
+    axis's commissioning run at 100 Hz, confined to one core: wall and CPU seconds."""
+    import dataclasses
+
+    from canfdi.config import load_config, read_yaml
+    from canfdi.io.logs import write_frames
+    from firmware_sim.emitter import frame_log
+    from firmware_sim.scenario import load_scenario
+
+    config_path = Path(__file__).resolve().parents[2] / "deploy" / "config" / IDENTIFY_CONFIG
+    config = load_config(config_path, allow_unidentified=True)
+    doc = read_yaml(config_path, ValueError, "config")
+    scenario = dataclasses.replace(load_scenario(IDENTIFY_SCENARIO), duration=minutes * 60.0)
+    log = workdir / "commissioning.log"
+    write_frames(log, [frame_log(scenario).frames])
+    cores = os.sched_getaffinity(0) if hasattr(os, "sched_setaffinity") else None
+    if cores is not None:
+        os.sched_setaffinity(0, {max(cores)})
+    try:
+        result: dict = {}
+        wall, cpu = _timed(lambda: result.update(model=identify([log], config, doc)))
+    finally:
+        if cores is not None:
+            os.sched_setaffinity(0, cores)
+    found = result["model"].report
+    return {"identify_minutes": minutes, "identify_samples": sum(found["samples"].values()),
+            "identify_wall_s": wall, "identify_cpu_s": cpu, "identify_one_core": cores is not None,
+            "identify_path": found["path"]}
 
 
 def _replay_rates(config, path: Path, key: str, runs: int, one_core: bool) -> dict:

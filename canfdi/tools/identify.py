@@ -85,6 +85,9 @@ MOVES = 10.0
 drive (its fit is not judged)."""
 BURN_IN = 50
 """Validation samples spent estimating the state before the fits are scored."""
+WHITE_MAX = 0.3
+"""An output the unknown inputs do not reach whose one-step errors correlate more than this
+at some lag (1 to 25) is not described by the model (its dynamics, or a change in the log)."""
 
 
 class Refusal(ValueError):
@@ -210,10 +213,82 @@ def _state_space(records: Sequence[Record], config: MonitorConfig, dt: float,
         _fit_records(records), dt, unknown_inputs=spec.unknown_inputs, order=spec.order,
         delay=spec.delay, prior_std=prior, floor_std=floor, input_names=config.inputs,
         output_names=config.outputs, progress=progress)
+    if model.unknown_inputs == 0 and model.order > len(config.outputs) and spec.order is None:
+        model = _structured_or(model, records, config, dt, spec.delay, progress)
     given = list(config.unknown_inputs)
     names = (given if len(given) == model.unknown_inputs
              else [f"w{i + 1}" for i in range(model.unknown_inputs)])
     return model, names, {}
+
+
+def _structured_or(subspace: IdentifiedModel, records: Sequence[Record], config: MonitorConfig,
+                   dt: float, delay: int, progress) -> IdentifiedModel:
+    """Where the data hold more states than the outputs show and no unknown input: each
+    output's transfer functions from the inputs it depends on (seed 003's fit: a path the
+    data cannot tell from none is none), realised block by block, keep the zeros a subspace
+    fit's dense basis loses (the decoupled residuals need them: the winding machine's T1 does
+    not depend on u3). Taken when minimal and its simulation fits on the held-out part are
+    the subspace fit's (within a point); else the subspace fit."""
+    from canfdi.core.noise import estimate_measurement_noise
+    from canfdi.core.sysid import realise_paths
+    from canfdi.tools.identify_oe import fit_output_error
+
+    progress("fitting each output's transfer functions (output error, seed 003)")
+    fit, val = _split(records, HOLDOUT)
+    k, U, Z = _stacked(fit)
+    try:
+        oe = fit_output_error(k, U, Z, config.inputs, config.outputs, {}, delay, 5.0, 200)
+    except (ValueError, np.linalg.LinAlgError):
+        return subspace
+    m = oe["model"]
+    paths = [(pr.output, pr.input, pr.b, pr.f, pr.delay) for pr in m.pairs]
+    if not paths:
+        return subspace
+    offsets = m.y0 - m.static_gains() @ m.u0
+    structured, names = realise_paths(paths, len(config.inputs), len(config.outputs), offsets,
+                                      subspace.noise_std, dt)
+    exempt = [i for i, name in enumerate(names) if name == "1"]
+    bad = minimality(structured, exempt)
+    if bad["unobservable"] or bad["uncontrollable"]:
+        return subspace
+    try:
+        judged = {key: _validate(mod, subspace.noise_std, val, config.outputs, config.inputs)
+                  for key, mod in (("subspace", subspace.model), ("structured", structured))}
+    except Refusal:
+        return subspace
+    fits = {key: [o["simulation_fit"] for o in v["outputs"]] for key, v in judged.items()}
+    if any(b is None or (a is not None and b < a - 1.0)
+           for a, b in zip(fits["subspace"], fits["structured"], strict=True)):
+        return subspace
+    Us, Ys = _stacked_grid(records)
+    window = min(max(structured.n, 2), 10)
+    try:
+        est = estimate_measurement_noise(structured, window, Us, Ys, subspace.noise_std)
+        noise = np.where(np.isfinite(est.std), est.std, subspace.noise_std)
+    except ValueError:
+        noise = subspace.noise_std
+    return IdentifiedModel(
+        model=structured, state_names=names, path="output-error paths, realised",
+        order=structured.n - len(exempt), order_evidence=subspace.order_evidence,
+        noise_std=np.maximum(noise, 1e-300), unknown_inputs=0,
+        notes=[*subspace.notes, f"each output's transfer functions ({len(paths)} paths) "
+               "realised block by block: the subspace fit's simulation fits, and the zeros "
+               "of the paths the data do not show"],
+        details={"paths": [f"{config.outputs[j]} <- {config.inputs[i]}: B {list(b)}, "
+                           f"F {list(f)}, delay {d}" for j, i, b, f, d in paths],
+                 "subspace_simulation_fits": fits["subspace"]})
+
+
+def _stacked_grid(records: Sequence[Record]) -> tuple[np.ndarray, np.ndarray]:
+    """(U, Z) of records end to end, 12 lost samples between two."""
+    us, zs = [], []
+    for i, rec in enumerate(records):
+        if i:
+            us.append(np.zeros((12, rec.U.shape[1])))
+            zs.append(np.full((12, rec.Z.shape[1]), np.nan))
+        us.append(rec.U)
+        zs.append(rec.Z)
+    return np.vstack(us), np.vstack(zs)
 
 
 def model_section(model: StateSpace, spec_raw: Any) -> dict[str, Any]:
@@ -274,13 +349,58 @@ def _finite(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-def _judge(validation: dict, identified: IdentifiedModel | None, model: StateSpace) -> None:
+def _change_point(model: StateSpace, records: Sequence[Record], j: int, dt: float) -> str:
+    """Where output j's one-step error changes level most, as words ('near sample k (t s
+    into LOG)'): the error of the state taken from the outputs (least squares on C, no
+    predictor adapting to the change), y_j(k+1) - C_j (A x(k) + B u(k)), and the largest
+    excursion of its cumulative sum about the mean (the classic single change point). Empty
+    when the outputs do not show the state."""
+    C = model.C
+    n = model.n
+    # A constant state (the operating point: x_c(k+1) = x_c(k), nothing drives it) is 1.
+    const = [i for i in range(n) if np.array_equal(model.A[i], np.eye(n)[i])
+             and not np.any(model.B[i]) and not np.any(model.F[i])]
+    free = [i for i in range(n) if i not in const]
+    if np.linalg.matrix_rank(C[:, free]) < len(free):
+        return ""
+    Cp = np.linalg.pinv(C[:, free])
+    best = (0.0, "", 0)
+    for rec in records:
+        X = np.ones((len(rec.Z), n))
+        X[:, free] = (rec.Z - rec.U @ model.D.T - C[:, const].sum(axis=1)) @ Cp.T
+        e = rec.Z[1:, j] - (X[:-1] @ model.A.T + rec.U[:-1] @ model.B.T) @ C[j]
+        e = np.where(np.isnan(e), 0.0, e - np.nanmean(e))
+        excursion = np.abs(np.cumsum(e))
+        i = int(np.argmax(excursion)) if len(e) else 0
+        if len(e) and excursion[i] > best[0]:
+            best = (float(excursion[i]), str(rec.name), i + 1)
+    _, name, i = best
+    return f"near sample {i} ({i * dt:.2f} s into {Path(name).name})" if name else ""
+
+
+def _judge(validation: dict, identified: IdentifiedModel | None, model: StateSpace,
+           where: Callable[[int], str] = lambda j: "") -> None:
     poor = [f"{o['output']} {o['one_step_fit']:.1f} %" for o in validation["outputs"]
             if o["moves"] and (o["one_step_fit"] is None or o["one_step_fit"] < MIN_FIT)]
     if poor:
         raise Refusal(f"the model predicts poorly on the data left out of the fit (one-step "
                       f"fit below {MIN_FIT:.0f} %: {', '.join(poor)}): record a longer log "
                       "with richer commands, or set model.identify.order / delay")
+    # The unknown inputs' outputs carry the load's changes in their one-step errors; the
+    # others' errors are the noise, white, when the model describes them.
+    hit = np.abs(model.C @ model.F) if model.r else np.zeros((model.q, 0))
+    reached = hit.max(axis=1, initial=0.0) > 1e-9 * max(hit.max(initial=0.0), 1e-300)
+    coloured = [j for j, (o, far) in enumerate(zip(validation["outputs"], reached,
+                                                    strict=True))
+                if o["moves"] and not far and o["whiteness"]["max"] > WHITE_MAX]
+    if coloured:
+        j = coloured[0]
+        o = validation["outputs"][j]
+        raise Refusal(f"the one-step errors of {o['output']} are correlated (max "
+                      f"{o['whiteness']['max']:.2f} at lags 1-25), which the unknown inputs do "
+                      f"not explain: the log holds a change (a fault?) {where(j)}, or the model "
+                      "misses dynamics; record a fault-free log, or set model.identify.order / "
+                      "delay")
     exempt = [i for i, name in enumerate(identified.state_names if identified else [])
               if name == "1"]
     _, unstable = stability(model, exempt)
@@ -375,7 +495,18 @@ def identify(paths: Sequence[Path], config: MonitorConfig, doc: dict, *,
     document["noise"] = noise
     progress("validating on the data left out of the fit")
     validation = _validate(model, identified.noise_std, val, config.outputs, config.inputs)
-    _judge(validation, identified, model)
+    def where(j: int) -> str:
+        # The model fitted on data that hold a change has absorbed it; one fitted on the
+        # first third of each log (before a change in its later part) shows where it is.
+        head = [Record(r.name, r.k[: len(r.k) // 3], r.U[: len(r.k) // 3],
+                       r.Z[: len(r.k) // 3]) for r in fit]
+        try:
+            early, _, _ = _state_space(head, config, dt, z_res, lambda _: None)
+        except (ValueError, ConfigError):
+            return ""
+        return _change_point(early.model, every, j, dt)
+
+    _judge(validation, identified, model, where)
     progress("learning the noise as `canfdi calibrate` does")
     staged = parse_config(document, config.path)
     try:

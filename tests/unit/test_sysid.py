@@ -51,14 +51,14 @@ def run(A, B, C, U, noise, rng, F=None, w=None):
 
 
 def test_a_random_stable_system_is_recovered_up_to_its_markov_parameters():
-    """Outputs showing the state (q = n): the measured-state path; its Markov parameters are
-    the system's to a few parts in a thousand."""
+    """No unknown input: the subspace path (every horizon of the data, not one step); its
+    Markov parameters are the system's to a few parts in a thousand."""
     rng = np.random.default_rng(1)
     A, B, C = random_system(rng, 3, 2, 3)
     U = rng.standard_normal((20000, 2))
     Y = run(A, B, C, U, 0.01, rng)
     found = identify_state_space([Record(U, Y)], 0.01)
-    assert found.path == "measured state" and found.order == 3
+    assert found.path == "subspace (PBSID)" and found.order == 3
     m = found.model
     truth, got = markov(A, B, C), markov(m.A, m.B, m.C)
     assert np.max(np.abs(got - truth)) < 5e-3 * np.max(np.abs(truth))
@@ -247,3 +247,21 @@ def test_persistence_stability_and_minimality_checks():
     bad = minimality(hidden)
     assert bad["unobservable"] == [pytest.approx(0.7)]
     assert bad["uncontrollable"] == [pytest.approx(0.7)]
+
+
+def test_output_error_paths_realised_keep_their_zeros():
+    """The winding machine's five paths (seed 003), realised block by block: its Markov
+    parameters exactly, and a zero wherever a path is absent (T1 does not see u3)."""
+    from canfdi.core.sysid import realise_paths
+    from firmware_sim.plants.winding_machine import CHANNELS, WindingMachine
+
+    plant = WindingMachine()
+    paths = [(c.output, c.input, c.b, c.f, 1) for c in CHANNELS]
+    model, names = realise_paths(paths, 3, 3, np.zeros(3), np.full(3, 1e-4), 0.01)
+    got = markov(model.A, model.B, model.C)
+    np.testing.assert_allclose(got, markov(plant.A, plant.B, plant.C), atol=1e-12)
+    assert np.all(got[:, 0, 2] == 0.0) and np.all(got[:, 1, 0] == 0.0)
+    assert "1" not in names
+    _, with_offset = realise_paths(paths, 3, 3, np.array([0.0, 1e-3, 0.0]),
+                                   np.full(3, 1e-4), 0.01)
+    assert with_offset[-1] == "1"
