@@ -287,7 +287,7 @@ class ServoAxis(Plant):
     >>> round(float(model["A"][1, 1]), 4)  # the fast current pole
     0.2865
     >>> x = plant.step(plant.initial_state(), np.array([0.4]))
-    >>> float(plant.output(x)[0])  # the setpoint echo: u / Kt
+    >>> round(float(plant.output(x)[0]), 6)  # the setpoint echo: u / Kt, as a float32 on the wire
     5.0
     """
 
