@@ -194,6 +194,50 @@ def _bank(model: StateSpace, designer, count: int, fixed: int | None, max_window
     return window, [designer(model, i, window) for i in range(count)], min_windows
 
 
+def _unseen(model: StateSpace, vectors: list[ParityVector], wanted: list[int]) -> list[int]:
+    """The faults (columns of [actuators, sensors]) in ``wanted`` no residual responds to."""
+    rows = [_unit_fault_gains(model, pv.vector, pv.s)[1] for pv in vectors if pv.exists]
+    if not rows:
+        return list(wanted)
+    response = np.array(rows)
+    seen = (response > RESPONSE_RTOL * max(response.max(), 1e-300)).any(axis=0)
+    return [c for c in wanted if not seen[c]]
+
+
+def _seeing_every_fault(model: StateSpace, source: StateSpace, options: DesignOptions,
+                        actuator: tuple, sensor: tuple) -> tuple:
+    """The banks at the smallest windows, or, when a fault the model can detect leaves every
+    residual there untouched, at the smallest larger windows where each such fault moves
+    some residual (the sensor bank grown first; a fixed window stays). Parity vectors at
+    the smallest window can all miss a fault that a longer window sees: an identified servo
+    axis whose velocity bias only shows through a second sample of the setpoint's echo.
+
+    ``actuator``, ``sensor``: (designer, window, vectors). Returns (actuator window, vectors,
+    sensor window, vectors)."""
+    (act, a_window, a_vectors), (sen, s_window, s_vectors) = actuator, sensor
+    wanted = [j if kind == "actuator" else model.p + j
+              for kind, j, d in model_detectability(source) if d.detectable]
+    before = _unseen(model, a_vectors + s_vectors, wanted)
+    if not before or a_window is None or s_window is None:
+        return a_window, a_vectors, s_window, s_vectors
+    grow_a = options.actuator_window is None
+    grow_s = options.sensor_window is None
+    top = options.max_window
+    for extra in range(1, 2 * top + 1):
+        for ds in range(extra, -1, -1):
+            da = extra - ds
+            if (da and not grow_a) or (ds and not grow_s):
+                continue
+            aw, sw = a_window + da, s_window + ds
+            if aw > top or sw > top:
+                continue
+            av = a_vectors if not da else [act(model, i, aw) for i in range(model.p)]
+            sv = s_vectors if not ds else [sen(model, i, sw) for i in range(model.q)]
+            if not _unseen(model, av + sv, before):
+                return aw, av, sw, sv
+    return a_window, a_vectors, s_window, s_vectors
+
+
 def _unit_fault_gains(model: StateSpace, v: np.ndarray, s: int) -> tuple[np.ndarray, np.ndarray]:
     """Responses of residual v (window s) to each actuator and sensor fault, shapes (p + q,).
 
@@ -240,6 +284,8 @@ def design_bank(source: StateSpace, input_names: list[str], output_names: list[s
                                        options.max_window)
     s_window, s_vectors, s_min = _bank(model, sen, model.q, options.sensor_window,
                                        options.max_window)
+    a_window, a_vectors, s_window, s_vectors = _seeing_every_fault(
+        model, source, options, (act, a_window, a_vectors), (sen, s_window, s_vectors))
 
     def finish(vectors, mins, names, window, kind):
         out, gains, responses = [], [], []

@@ -114,3 +114,30 @@ def test_sensors_of_very_different_noise_get_vectors_per_unit_of_noise():
     b = design_bank(dc.model, dc.inputs, dc.outputs,
                     DesignOptions(actuator_window=8, sensor_window=4))
     np.testing.assert_array_equal(a.sensor_matrix(), b.sensor_matrix())
+
+
+def test_a_fault_unseen_at_the_smallest_window_grows_the_window_until_seen():
+    """A servo axis identified from 300 s of commissioning (its matrices as written): at the
+    smallest sensor window no residual decoupled from the load and the setpoint's echo can
+    move with the velocity sensor's bias (two constraints on the position and velocity rows
+    leave no vector); at s = 2 one does. A fixed window stays as given."""
+    from canfdi.core.model import StateSpace
+
+    A = [[9.525528145e-10, 0.0, -1.429979565e-10, 0.0],
+         [0.0, 0.2870760169, 0.0, 0.0],
+         [0.3499175213, -0.3236013612, 1.00015743, 3.595434366e-05],
+         [0.001756021422, -0.001478719291, 0.01000104871, 1.000000178]]
+    model = StateSpace(A=A, B=[[12.49999999], [8.913854031], [-0.04673848401],
+                               [-0.002056809998]], C=np.eye(4),
+                       F=[[0.0], [0.0], [1.0], [0.005010224352]], dt=0.01)
+    names = ["Iq_Setpoint", "Iq_Measured", "Vel_Estimate", "Pos_Estimate"]
+    noise = [1.377e-07, 0.05031, 0.01009, 9.984e-05]
+    grown = design_bank(model, ["Input_Torque"], names, DesignOptions(measurement_std=noise))
+    fixed = design_bank(model, ["Input_Torque"], names,
+                        DesignOptions(measurement_std=noise, sensor_window=1))
+    vel = 1 + 2
+    assert fixed.sensor_window == 1 and not fixed.responds[:, vel].any()
+    assert grown.actuator_window == 1 and grown.sensor_window == 2
+    assert grown.responds[:, vel].any()
+    ratio = np.abs(grown.gain[:, vel]) / [r.noise_std for r in grown.actuators + grown.sensors]
+    assert ratio.max() > 20
