@@ -243,6 +243,14 @@ def test_persistence_stability_and_minimality_checks():
     assert stability(unstable)[1] == [pytest.approx(1.05)]
     integrator = StateSpace(A=np.array([[1.0]]), B=[[1.0]], C=[[1.0]], dt=0.01)
     assert stability(integrator)[1] == []
+    # A mode the unknown input reaches is the fit's choice (A + F L is the same data); one
+    # it does not reach is the drive's.
+    rotor = StateSpace(A=np.array([[0.3, 0.0], [0.2, 1.002]]), B=[[1.0], [0.0]],
+                       C=np.eye(2), F=[[0.0], [1.0]], dt=0.01)
+    assert stability(rotor)[1] == []
+    hidden_f = StateSpace(A=np.array([[0.3, 0.2], [0.0, 1.002]]), B=[[1.0], [1.0]],
+                          C=np.eye(2), F=[[1.0], [0.0]], dt=0.01)
+    assert stability(hidden_f)[1] == [pytest.approx(1.002)]
     hidden = StateSpace(A=np.diag([0.5, 0.7]), B=[[1.0], [0.0]], C=[[1.0, 0.0]], dt=0.01)
     bad = minimality(hidden)
     assert bad["unobservable"] == [pytest.approx(0.7)]
