@@ -39,6 +39,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="N times real time; 0 = as fast as the bus takes frames (default: 1)")
     p.add_argument("--duration", type=float, default=None, metavar="T",
                    help="seconds of scenario time to run (default: the scenario's duration)")
+    p.add_argument("--healthy", action="store_true",
+                   help="play the scenario's drives without their faults (a healthy "
+                        "recording, for `canfdi identify` or `calibrate`)")
     p.add_argument("--truth", type=Path, metavar="FILE",
                    help="write the injected faults as JSON to FILE before sending")
     p.add_argument("--drop", type=float, default=0.0, metavar="P",
@@ -68,6 +71,7 @@ def _fail(message: str) -> int:
 def run(args: argparse.Namespace) -> int:
     import can
 
+    from canfdi.tools.pairing import without_faults
     from firmware_sim.emitter import Disturbance, emit
     from firmware_sim.profiles import get_profile
     from firmware_sim.scenario import ScenarioError, load_scenario
@@ -76,6 +80,8 @@ def run(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
         return _fail(f"scenario error: {exc}")
+    if args.healthy:
+        scenario = without_faults(scenario)
     if args.speed < 0:
         return _fail("--speed: must be >= 0")
     if args.duration is not None and args.duration <= 0:
@@ -90,8 +96,6 @@ def run(args: argparse.Namespace) -> int:
     disturbance = Disturbance(drop=args.drop, jitter=args.jitter, bad_crc=args.bad_crc,
                               wrong_dlc=args.wrong_dlc, seed=scenario.seed)
     plant = scenario.make_plant()
-    if args.output is not None:
-        return _to_file(args, scenario, disturbance)
     if args.truth:
         def faults(drive) -> list[dict]:
             return [f.truth(plant.dt, plant.input_names if f.target == "actuator"
@@ -104,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
         truth = {"scenario": scenario.name, "plant": plant.name, "dt": plant.dt,
                  "profile": scenario.profile, "faults": everything, "drives": drives}
         args.truth.write_text(json.dumps(truth, indent=2) + "\n")
+    if args.output is not None:
+        return _to_file(args, scenario, disturbance)
     kwargs = {"interface": args.interface, "channel": args.channel}
     if args.bitrate is not None:
         kwargs["bitrate"] = args.bitrate

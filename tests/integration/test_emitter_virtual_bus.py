@@ -290,3 +290,21 @@ def test_cli_plays_a_profile_scenario_and_writes_per_drive_truth(tmp_path):
          "--speed", "0", "--duration", "1", "--bad-crc", "0.1"],
         capture_output=True, text=True, cwd=REPO, timeout=60)
     assert res.returncode == 2 and "float_node" in res.stderr and "CRC" in res.stderr
+
+
+def test_cli_records_a_healthy_run_to_a_candump_log(tmp_path):
+    """`sim --healthy -o drive.log`: the scenario's drive without its faults, as a candump that
+    python-can reads back frame for frame."""
+    import can
+
+    log, truth = tmp_path / "drive.log", tmp_path / "truth.json"
+    res = subprocess.run(
+        [sys.executable, "-m", "canfdi", "sim", "--scenario", "dc_motor_consecutive", "--healthy",
+         "--duration", "2", "--truth", str(truth), "-o", str(log), "--quiet"],
+        capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert res.returncode == 0, res.stderr
+    report = json.loads(res.stdout)
+    assert report["scenario"] == "dc_motor_consecutive without faults"
+    assert report["samples"] == 200
+    assert sum(1 for _ in can.CanutilsLogReader(str(log))) == report["frames"] > 0
+    assert json.loads(truth.read_text())["faults"] == []
