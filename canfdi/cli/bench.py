@@ -31,6 +31,9 @@ Measure, on this machine and in one run, side by side:
                    grid clock, which samples by time, then sees the drive's periods
                    compressed, and the figure is the handling time alone)
   memory           RSS growth over the throughput run, per 10^6 frames
+  identify         canfdi identify's whole path (read a candump, assemble, fit with the unknown
+                   input, validate, learn the noise, design) on 10 minutes of the servo axis's
+                   commissioning run at 100 Hz (2 with --quick), confined to one core
 The traffic is the emulator's drive on the config's bus (firmware_sim): a fault-free run of the
 shipped scenario that plays that bus (its bus profile's DBC, as many drives), and for the
 latency the same bus with faults; --scenario names another. So `--config

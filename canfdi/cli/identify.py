@@ -248,13 +248,14 @@ def _print_report(report: dict) -> None:
     for dsg in report["design"]:
         same = (f"; same signature as {', '.join(dsg['same_signature_as'])}"
                 if dsg["same_signature_as"] else "")
-        print(f"  {dsg['kind']:<8} {dsg['name']:<18} "
-              f"{'detectable' if dsg['detectable'] else 'NOT detectable':<15} "
+        verdict = ("NOT detectable" if not dsg["detectable"] else "detectable"
+                   if dsg["strongly_detectable"] else "transient only")
+        print(f"  {dsg['kind']:<8} {dsg['name']:<18} {verdict:<15} "
               f"window {dsg['window']}, best fault/noise {dsg['fault_to_noise']:.3g}{same}")
     print("noise (as canfdi calibrate):")
     for n in report["calibration"]["noise"]:
         print(f"  {n['sensor']:<18} std {n['std']:.4g} +/- {n['std_error']:.2g} "
-              f"({n['identified']})")
+              f"{n['identified']}")
 
 
 def _pct(x) -> str:

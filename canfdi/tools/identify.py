@@ -399,8 +399,8 @@ def _judge(validation: dict, identified: IdentifiedModel | None, model: StateSpa
         raise Refusal(f"the one-step errors of {o['output']} are correlated (max "
                       f"{o['whiteness']['max']:.2f} at lags 1-25), which the unknown inputs do "
                       f"not explain: the log holds a change (a fault?) {where(j)}, or the model "
-                      "misses dynamics; record a fault-free log, or set model.identify.order / "
-                      "delay")
+                      "misses dynamics or an unmeasured input; record a fault-free log, or set "
+                      "model.identify.order / delay / unknown_inputs")
     exempt = [i for i, name in enumerate(identified.state_names if identified else [])
               if name == "1"]
     _, unstable = stability(model, exempt)
@@ -432,6 +432,7 @@ def _design_summary(config: MonitorConfig) -> list[dict[str, Any]]:
         ok = np.isfinite(ratios) & responds[:, col]
         window = design.actuator_window if kind == "actuator" else design.sensor_window
         out.append({"kind": kind, "name": names[col], "detectable": bool(det.detectable),
+                    "strongly_detectable": bool(det.strongly_detectable),
                     "isolable": bool(det.detectable) and not confused[col],
                     "same_signature_as": [names[k] for k in confused[col]],
                     "window": window,

@@ -115,6 +115,23 @@ def test_the_sensor_biases_are_diagnosed_on_their_channels(identified, logs):
     assert result["unexplained"] == []
 
 
+@pytest.mark.parametrize("seconds", [60.0, 300.0])
+def test_a_shorter_or_longer_commissioning_run_gives_the_same_diagnoses(seconds, logs, tmp_path):
+    """Not tuned to one log: 1 and 5 minutes of commissioning give models that diagnose both
+    biases on their channels (at 5 minutes the velocity's bias is seen only at the sensor
+    window 2, which the design then takes)."""
+    log = _log(tmp_path, "servo_axis_commissioning", "commissioning.log", duration=seconds)
+    out = tmp_path / "identified.yaml"
+    res = _cli("identify", str(log), "--config", str(CONFIG), "-o", str(out))
+    assert res.returncode == 0, res.stderr
+    result = _replay(logs["faults"], out)
+    assert [f["name"] for f in result["faults"]] == ["Iq_Measured", "Vel_Estimate"]
+    for f, bias, onset in zip(result["faults"], (0.5, 0.1), (4000, 8000), strict=True):
+        assert f["estimate"]["bias"] == pytest.approx(bias, rel=0.1)
+        assert f["detected_sample"] - onset <= 5
+    assert result["unexplained"] == []
+
+
 def test_300_s_of_operation_with_the_load_changing_raise_no_alarm(identified, logs):
     out, _ = identified
     result = _replay(logs["operation"], out)
