@@ -114,8 +114,9 @@ def run(args: argparse.Namespace) -> int:
     from canfdi.config import ConfigError, load_config, read_yaml
     from canfdi.io.damage import Damage
     from canfdi.io.logs import truth_of
+    from canfdi.methods.output_error.fit import FitOptions
     from canfdi.tools.configdoc import ConfigDocument
-    from canfdi.tools.identify import OeOptions, Refusal, identify
+    from canfdi.tools.identify import Refusal, identify
 
     try:
         config = load_config(args.config, allow_unidentified=True)
@@ -147,11 +148,11 @@ def run(args: argparse.Namespace) -> int:
 
     doc = read_yaml(args.config, ValueError, "config")
     damage = Damage()
-    oe = OeOptions(fixed=fixed, delay=args.oe_delay, min_gain_snr=args.min_gain_snr,
-                   skip=args.skip)
+    oe = FitOptions(fixed=fixed, delay=args.oe_delay, min_gain_snr=args.min_gain_snr,
+                    skip=args.skip)
     try:
         result = identify(args.logs, config, doc, validate=args.validate,
-                          holdout=args.holdout, oe=oe, progress=progress, damage=damage)
+                          holdout=args.holdout, fit_options=oe, progress=progress, damage=damage)
     except Refusal as exc:
         return _fail(str(exc), 1)
     except ConfigError as exc:

@@ -53,7 +53,9 @@ __all__ = [
     "IdentifiedModel",
     "first_noise_guess",
     "identify_state_space",
+    "parity_noise",
     "realise_paths",
+    "regular_grid",
     "stack_records",
 ]
 
@@ -89,6 +91,24 @@ class IdentifiedModel:
     unknown_inputs: int
     notes: list[str] = field(default_factory=list)
     details: dict = field(default_factory=dict)
+
+
+def regular_grid(k: np.ndarray, U: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The samples k (N,), U (N, p), Z (N, q) on their regular grid k0..k1: (Ug (n, p) with
+    lost commands held, Zg (n, q) with lost samples as NaN rows)."""
+    n = int(k[-1] - k[0] + 1)
+    Ug = np.full((n, U.shape[1]), np.nan)
+    Zg = np.full((n, Z.shape[1]), np.nan)
+    Ug[k - k[0]] = U
+    Zg[k - k[0]] = Z
+    for i in range(Ug.shape[1]):
+        col = Ug[:, i]
+        idx = np.where(~np.isnan(col), np.arange(n), 0)
+        np.maximum.accumulate(idx, out=idx)
+        Ug[:, i] = col[idx]
+        first = np.flatnonzero(~np.isnan(col))
+        Ug[: first[0] if len(first) else n, i] = np.nanmean(col) if len(first) else 0.0
+    return Ug, Zg
 
 
 def stack_records(records: Sequence[Record], gap: int) -> tuple[np.ndarray, np.ndarray]:
@@ -168,15 +188,24 @@ def _with_delay(A, B, C, F, delay: int):
     return Aa, Ba, Ca, Fa
 
 
+def parity_noise(model: StateSpace, records: Sequence[Record], window: int,
+                 prior_std: np.ndarray) -> np.ndarray:
+    """(q,) each output's noise std through the parity space of ``model`` over windows of
+    ``window`` + 1 samples of the records (end to end, no window across two), as `canfdi
+    calibrate` learns it (canfdi.core.noise); ``prior_std`` (q,) where the data cannot tell
+    and for splitting what they see only together. Raises ValueError when nothing can be
+    estimated."""
+    U, Y = stack_records(records, window + 1)
+    est = estimate_measurement_noise(model, window, U, Y, prior_std)
+    return np.where(np.isfinite(est.std), est.std, prior_std)
+
+
 def _noise_round(A, B, C, F, dt, records, prior_var, floor_var, window) -> np.ndarray:
     """R (q,) through the parity space of (A, B, C, F), at least the floor; the outputs the
     data see only together are split in the proportions of ``prior_var`` (the first guess,
     never a previous round's split, which would only repeat itself)."""
     model = StateSpace(A=A, B=B, C=C, F=F, dt=dt)
-    U, Y = stack_records(records, window + 1)
-    est = estimate_measurement_noise(model, window, U, Y, np.sqrt(prior_var))
-    var = np.where(np.isfinite(est.std), est.std**2, prior_var)
-    return np.maximum(var, floor_var)
+    return np.maximum(parity_noise(model, records, window, np.sqrt(prior_var)) ** 2, floor_var)
 
 
 def identify_state_space(records: Sequence[Record], dt: float, *, unknown_inputs: int = 0,

@@ -81,6 +81,11 @@ class Method:
     with_noise : (its section as written, sensor noise stds (q,)) -> the section for that
         noise, for a method whose own section holds a noise level (`canfdi calibrate` writes
         it). None: the method reads ``noise.measurement`` only.
+    fit_models : (k (N,), U (N, p), Z (N, q) healthy samples, config, the method's fit
+        options or None, progress) -> (its config section, a JSON-able report with ``path``
+        and ``samples``), for a method whose models are its own rather than the config's
+        state space (output_error's OE models): `canfdi identify` fits them and writes the
+        section. None: identify learns the state-space model.
     estimate_history : (config, log contents, accepted event) -> EstimateHistory or None:
         the estimate's trajectory for `canfdi report`, recomputed from the log (its
         ``residuals``, ``samples``, ``accepted`` events; what it cannot do goes to its
@@ -98,6 +103,8 @@ class Method:
     estimate_history: Callable[[MonitorConfig, Any, FaultEvent],
                                EstimateHistory | None] | None = None
     with_noise: Callable[[Mapping[str, Any], Any], dict] | None = None
+    fit_models: Callable[[np.ndarray, np.ndarray, np.ndarray, MonitorConfig, Any,
+                          Callable[[str], None]], tuple[dict, dict]] | None = None
 
     def __post_init__(self) -> None:
         unknown = set(self.fault_kinds) - set(FAULT_KINDS)

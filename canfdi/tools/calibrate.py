@@ -27,13 +27,25 @@ from canfdi.config import parse_config
 from canfdi.core.calibrate import threshold_for_long_run_variance
 from canfdi.core.noise import NoiseEstimate, estimate_measurement_noise
 from canfdi.core.settings import ConfigError, MonitorConfig
+from canfdi.core.sysid import regular_grid, stack_records
+from canfdi.core.unknown_inputs import Record as FitRecord
 from canfdi.io.damage import Damage
 from canfdi.tools.configdoc import ConfigDocument
-from canfdi.tools.samples import assembled_samples, log_samples, regular_grid
+from canfdi.tools.samples import assembled_samples, log_samples
 
-__all__ = ["Calibration", "LogFault", "Record", "ResidualCheck", "Teach", "calibrate",
-           "calibrate_records",
-           "calibrated_document", "config_document", "scenario_records"]
+__all__ = [
+    "Calibration",
+    "LogFault",
+    "Record",
+    "ResidualCheck",
+    "Teach",
+    "calibrate",
+    "calibrate_records",
+    "calibrated_document",
+    "config_document",
+    "read_records",
+    "scenario_records",
+]
 
 MIN_SAMPLES = 1000
 """Fewer healthy samples than this (10 s at 100 Hz) say too little about the noise."""
@@ -138,14 +150,14 @@ def _record(name: Path, k: np.ndarray, U: np.ndarray | None, Z: np.ndarray | Non
     return Record(name, np.arange(int(k[0]), int(k[-1]) + 1), Ug, Zg)
 
 
-def _records(paths: Sequence[Path], config: MonitorConfig, progress: Callable[[str], None],
-             damage: Damage | None = None) -> list[Record]:
-    """Each log's record, assembled with the config's bus (damaged logs around their damage,
-    recorded in ``damage``)."""
+def read_records(paths: Sequence[Path], config: MonitorConfig, progress: Callable[[str], None],
+                 damage: Damage | None = None, dt: float | None = None) -> list[Record]:
+    """Each log's record, assembled with the config's bus at the sample period ``dt``
+    (default the config's; damaged logs around their damage, recorded in ``damage``)."""
     out = []
     for path in paths:
         progress(f"reading {path}")
-        out.append(_record(path, *log_samples(path, config, damage)))
+        out.append(_record(path, *log_samples(path, config, damage, dt)))
     return out
 
 
@@ -162,7 +174,7 @@ def calibrate(paths: Sequence[Path], config: MonitorConfig, doc: Mapping[str, An
     ValueError : a log without samples, or too few samples in all.
     LogFault : the calibrated monitor detects something in a log (where, in the message).
     """
-    return calibrate_records(_records(paths, config, progress, damage), config, doc,
+    return calibrate_records(read_records(paths, config, progress, damage), config, doc,
                              window=window, full=full, progress=progress)
 
 
@@ -192,11 +204,7 @@ def calibrate_records(records: Sequence[Record], config: MonitorConfig,
     model = config.model.discretize() if config.model.continuous else config.model
     s = window if window is not None else min(max(config.design.max_window, 1), 10)
     # The logs end to end, s+1 lost samples between two, so that no window straddles them.
-    gap_u = np.full((s + 1, model.p), np.nan)
-    gap_z = np.full((s + 1, model.q), np.nan)
-    U = np.vstack([x for r in records for x in (r.U, gap_u)][:-1])
-    Z = np.vstack([x for r in records for x in (r.Z, gap_z)][:-1])
-    U = np.where(np.isnan(U), 0.0, U)  # only gap rows, whose windows Z makes missing
+    U, Z = stack_records([FitRecord(r.U, r.Z) for r in records], s + 1)
     prior = config.design.measurement_std
     prior = np.ones(model.q) if prior is None else np.broadcast_to(prior, (model.q,)).copy()
     progress(f"estimating the noise of {model.q} sensors over windows of {s + 1} samples")

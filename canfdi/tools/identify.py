@@ -6,7 +6,8 @@ support it.
 around its damage), puts each on its sample grid and keeps the last ``holdout`` of each (or
 the ``validate`` logs) out of the fit. Then, by the config:
 
-* method output_error: the OE models of seed 003 (canfdi.tools.identify_oe);
+* a method with models of its own (its registry entry's ``fit_models``: output_error's OE
+  models of seed 003, canfdi.methods.output_error.fit), fitted on the fit part;
 * otherwise a state-space model: a grey-box template (canfdi.core.greybox) when
   ``model.identify.template`` names one, else black-box (canfdi.core.sysid: the measured state
   with its unknown inputs, or a PBSID subspace fit).
@@ -22,7 +23,6 @@ A `Refusal` (exit 1) says what the data lack and what to record instead.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from canfdi import methods
 from canfdi.bus.dbc import BusMap, load_dbc
 from canfdi.config import parse_config
 from canfdi.core.design import design_bank
@@ -51,19 +52,17 @@ from canfdi.core.validation import (
     with_unknown_inputs,
 )
 from canfdi.io.damage import Damage
-from canfdi.tools.calibrate import LogFault, Record, calibrate_records
-from canfdi.tools.samples import log_samples, regular_grid, sample_period
+from canfdi.tools.calibrate import LogFault, Record, calibrate_records, read_records
+from canfdi.tools.samples import sample_period
 
 __all__ = [
     "HOLDOUT",
     "MIN_FIT",
     "MIN_SAMPLES",
     "Identification",
-    "OeOptions",
     "Refusal",
     "identify",
     "period_of",
-    "read_records",
 ]
 
 MIN_SAMPLES = 3000
@@ -135,21 +134,6 @@ def period_of(config: MonitorConfig) -> float:
             return min(cycles) / 1000.0
     raise ConfigError("model.dt", "the sample period is not known: give model.dt (or "
                                   "bus.clock.period for a grid clock)")
-
-
-def read_records(paths: Sequence[Path], config: MonitorConfig, dt: float,
-                 progress: Callable[[str], None], damage: Damage | None = None) -> list[Record]:
-    """Each log's samples on its grid (lost samples NaN rows, lost commands held)."""
-    out = []
-    for path in paths:
-        progress(f"reading {path}")
-        k, U, Z = log_samples(path, config, damage, dt)
-        if len(k) == 0:
-            raise ValueError(f"{path}: no sample formed (no frame matched the config's bus "
-                             "map)")
-        Ug, Zg = regular_grid(k, U, Z)
-        out.append(Record(path, np.arange(int(k[0]), int(k[-1]) + 1), Ug, Zg))
-    return out
 
 
 def _split(records: Sequence[Record], holdout: float) -> tuple[list[Record], list[Record]]:
@@ -229,15 +213,15 @@ def _structured_or(subspace: IdentifiedModel, records: Sequence[Record], config:
     fit's dense basis loses (the decoupled residuals need them: the winding machine's T1 does
     not depend on u3). Taken when minimal and its simulation fits on the held-out part are
     the subspace fit's (within a point); else the subspace fit."""
-    from canfdi.core.noise import estimate_measurement_noise
-    from canfdi.core.sysid import realise_paths
-    from canfdi.tools.identify_oe import fit_output_error
+    from canfdi.core.sysid import parity_noise, realise_paths
+    from canfdi.methods.output_error.fit import FitOptions, fit_output_error
 
     progress("fitting each output's transfer functions (output error, seed 003)")
     fit, val = _split(records, HOLDOUT)
     k, U, Z = _stacked(fit)
     try:
-        oe = fit_output_error(k, U, Z, config.inputs, config.outputs, {}, delay, 5.0, 200)
+        oe = fit_output_error(k, U, Z, config.inputs, config.outputs,
+                              FitOptions(delay=delay))
     except (ValueError, np.linalg.LinAlgError):
         return subspace
     m = oe["model"]
@@ -260,11 +244,9 @@ def _structured_or(subspace: IdentifiedModel, records: Sequence[Record], config:
     if any(b is None or (a is not None and b < a - 1.0)
            for a, b in zip(fits["subspace"], fits["structured"], strict=True)):
         return subspace
-    Us, Ys = _stacked_grid(records)
-    window = min(max(structured.n, 2), 10)
     try:
-        est = estimate_measurement_noise(structured, window, Us, Ys, subspace.noise_std)
-        noise = np.where(np.isfinite(est.std), est.std, subspace.noise_std)
+        noise = parity_noise(structured, _fit_records(records), min(max(structured.n, 2), 10),
+                             subspace.noise_std)
     except ValueError:
         noise = subspace.noise_std
     return IdentifiedModel(
@@ -277,18 +259,6 @@ def _structured_or(subspace: IdentifiedModel, records: Sequence[Record], config:
         details={"paths": [f"{config.outputs[j]} <- {config.inputs[i]}: B {list(b)}, "
                            f"F {list(f)}, delay {d}" for j, i, b, f, d in paths],
                  "subspace_simulation_fits": fits["subspace"]})
-
-
-def _stacked_grid(records: Sequence[Record]) -> tuple[np.ndarray, np.ndarray]:
-    """(U, Z) of records end to end, 12 lost samples between two."""
-    us, zs = [], []
-    for i, rec in enumerate(records):
-        if i:
-            us.append(np.zeros((12, rec.U.shape[1])))
-            zs.append(np.full((12, rec.Z.shape[1]), np.nan))
-        us.append(rec.U)
-        zs.append(rec.Z)
-    return np.vstack(us), np.vstack(zs)
 
 
 def model_section(model: StateSpace, spec_raw: Any) -> dict[str, Any]:
@@ -440,25 +410,14 @@ def _design_summary(config: MonitorConfig) -> list[dict[str, Any]]:
     return out
 
 
-@dataclass(frozen=True)
-class OeOptions:
-    """The output_error fit's choices (`canfdi identify --orders/--delay/--min-gain-snr/
-    --skip`): fixed pair orders {(output, input): (nb, nf, d) or None}, the free pairs' delay,
-    the gain significance to keep a pair, samples skipped at the start."""
-
-    fixed: dict = field(default_factory=dict)
-    delay: int = 1
-    min_gain_snr: float = 5.0
-    skip: int = 200
-
-
 def identify(paths: Sequence[Path], config: MonitorConfig, doc: dict, *,
              validate: Sequence[Path] = (), holdout: float = HOLDOUT,
-             oe: OeOptions = OeOptions(),
+             fit_options: Any = None,
              progress: Callable[[str], None] = lambda _: None,
              damage: Damage | None = None) -> Identification:
     """Learn, validate and calibrate the config's model from healthy logs (module
-    docstring). ``doc`` is the config's plain YAML document.
+    docstring). ``doc`` is the config's plain YAML document; ``fit_options`` the options of
+    a method that fits models of its own (its ``fit_models``; None: its defaults).
 
     Raises
     ------
@@ -466,9 +425,9 @@ def identify(paths: Sequence[Path], config: MonitorConfig, doc: dict, *,
     ValueError, ConfigError : unreadable logs or a config identify cannot use (exit 2).
     """
     dt = period_of(config)
-    records = read_records(paths, config, dt, progress, damage)
+    records = read_records(paths, config, progress, damage, dt)
     if validate:
-        fit, val = records, read_records(validate, config, dt, progress, damage)
+        fit, val = records, read_records(validate, config, progress, damage, dt)
     else:
         fit, val = _split(records, holdout)
     every = list(records) + (list(val) if validate else [])
@@ -477,8 +436,9 @@ def identify(paths: Sequence[Path], config: MonitorConfig, doc: dict, *,
     Z_all = np.vstack([r.Z for r in every])
     u_res, z_res = bus_map.resolution(U_all, Z_all)
     _check_data(every, config, dt, u_res)
-    if config.method == "output_error":
-        return _output_error(fit, val, every, config, doc, dt, oe, progress)
+    method = methods.get(config.method)
+    if method.fit_models is not None:
+        return _own_models(method, fit, every, config, doc, dt, fit_options, progress)
     identified, w_names, template_report = _state_space(fit, config, dt, z_res, progress)
     model = identified.model
     raw_spec = (doc.get("model") or {}).get("identify")
@@ -542,32 +502,20 @@ def identify(paths: Sequence[Path], config: MonitorConfig, doc: dict, *,
                           notes=identified.notes)
 
 
-def _output_error(fit, val, every, config, doc, dt, oe: OeOptions, progress
-                  ) -> Identification:
-    """The output_error method's models, fitted on the fit part, validated by simulation on
-    the rest."""
-    from canfdi.methods.output_error import METHOD as OUTPUT_ERROR
-    from canfdi.methods.output_error import output_error_section
-    from canfdi.methods.output_error.diagnoser import OeSettings
-    from canfdi.tools.identify_oe import fit_output_error
-
+def _own_models(method: methods.Method, fit: Sequence[Record], every: Sequence[Record],
+                config: MonitorConfig, doc: dict, dt: float, options: Any, progress
+                ) -> Identification:
+    """The models of a method that fits its own (``method.fit_models``), fitted on the fit
+    part; its section and ``method:`` written into the config."""
     k, U, Z = _stacked(fit)
-    result = fit_output_error(k, U, Z, config.inputs, config.outputs, oe.fixed, oe.delay,
-                              oe.min_gain_snr, oe.skip, progress)
-    settings = {key: value for key, value in dataclasses.asdict(OeSettings()).items()
-                if key not in ("drift", "false_alarm_interval")}
-    section = output_error_section(result["model"], result["sigma"], result["long_run"],
-                                   config.inputs, config.outputs,
-                                   fit={"samples": result["samples"]}, **settings)
+    section, report = method.fit_models(k, U, Z, config, options, progress)
     document = dict(doc)
-    document["method"] = OUTPUT_ERROR.name
-    document[OUTPUT_ERROR.section] = section
+    document["method"] = method.name
+    document[method.section] = section
     final = parse_config(document, config.path, allow_unidentified=True)
-    report = {"logs": [str(r.name) for r in every], "path": "output error (seed 003)",
-              "samples": {"fit": int(result["samples"])}, "outputs": result["fits"], "dt": dt}
-    del val
+    report = {"logs": [str(r.name) for r in every], **report, "dt": dt}
     return Identification(config=final, document=document,
-                          updates={OUTPUT_ERROR.section: section, "method": OUTPUT_ERROR.name},
+                          updates={method.section: section, "method": method.name},
                           header=[], report=report)
 
 

@@ -12,7 +12,7 @@ import numpy as np
 from canfdi.core.greybox import get_template
 from canfdi.core.model import StateSpace
 from canfdi.core.settings import ConfigError, MonitorConfig, unknown_name
-from canfdi.core.sysid import IdentifiedModel, first_noise_guess, stack_records
+from canfdi.core.sysid import IdentifiedModel, first_noise_guess, parity_noise, stack_records
 from canfdi.core.unknown_inputs import Record as FitRecord
 from canfdi.tools.calibrate import Record
 
@@ -53,8 +53,6 @@ def fit_with_template(records: Sequence[Record], config: MonitorConfig, dt: floa
     ------
     ConfigError : an unknown template, role, parameter or setting (naming the key).
     """
-    from canfdi.core.noise import estimate_measurement_noise
-
     spec = config.identify.template
     try:
         template = get_template(spec.name)
@@ -78,8 +76,7 @@ def fit_with_template(records: Sequence[Record], config: MonitorConfig, dt: floa
     prior = np.sqrt(np.maximum(first_noise_guess(fits), floor**2 + 1e-300))
     notes: list[str] = []
     try:
-        est = estimate_measurement_noise(model, window, U, Y, prior)
-        noise = np.maximum(np.where(np.isfinite(est.std), est.std, prior), floor)
+        noise = np.maximum(parity_noise(model, fits, window, prior), floor)
     except ValueError as exc:
         notes.append(f"the noise could not be learned through the parity space ({exc})")
         noise = prior

@@ -2,8 +2,8 @@
 
 The verbs that learn from logs (identify, calibrate) read them this way: `log_samples` (any
 format canfdi.io reads; a damaged MCAP around its damage, recorded in the `Damage` given),
-`assembled_samples` (blocks of frames already read), `regular_grid` (lost samples as NaN
-rows, lost commands held).
+`assembled_samples` (blocks of frames already read); `canfdi.core.sysid.regular_grid` puts
+them on their grid.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from canfdi.core.settings import MonitorConfig
 from canfdi.io.damage import Damage
 from canfdi.io.logs import frame_blocks
 
-__all__ = ["assembled_samples", "log_samples", "regular_grid", "sample_period"]
+__all__ = ["assembled_samples", "log_samples", "sample_period"]
 
 
 def sample_period(config: MonitorConfig) -> float | None:
@@ -59,21 +59,3 @@ def assembled_samples(blocks: Iterable[FrameBlock], config: MonitorConfig,
     if not ks:
         return np.zeros(0, dtype=np.int64), None, None
     return np.concatenate(ks), np.vstack(us), np.vstack(zs)
-
-
-def regular_grid(k: np.ndarray, U: np.ndarray, Z: np.ndarray) -> tuple:
-    """Samples on a regular grid k0..k1: missing samples as NaN rows, lost commands held
-    (returns U held, Z with NaN, valid (N,) per output mask)."""
-    n = int(k[-1] - k[0] + 1)
-    Ug = np.full((n, U.shape[1]), np.nan)
-    Zg = np.full((n, Z.shape[1]), np.nan)
-    Ug[k - k[0]] = U
-    Zg[k - k[0]] = Z
-    for i in range(Ug.shape[1]):
-        col = Ug[:, i]
-        idx = np.where(~np.isnan(col), np.arange(n), 0)
-        np.maximum.accumulate(idx, out=idx)
-        Ug[:, i] = col[idx]
-        first = np.flatnonzero(~np.isnan(col))
-        Ug[: first[0] if len(first) else n, i] = np.nanmean(col) if len(first) else 0.0
-    return Ug, Zg

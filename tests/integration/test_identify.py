@@ -168,10 +168,11 @@ def test_without_the_unknown_input_the_model_is_refused_and_would_miss_the_veloc
 
     from canfdi.bus.dbc import BusMap
     from canfdi.core.sysid import identify_state_space
-    from canfdi.tools.identify import model_section, read_records
+    from canfdi.tools.calibrate import read_records
+    from canfdi.tools.identify import model_section
 
     cfg = load_config(config, allow_unidentified=True)
-    records = read_records([logs["commissioning"]], cfg, 0.01, lambda _: None)
+    records = read_records([logs["commissioning"]], cfg, lambda _: None, dt=0.01)
     _, floor = BusMap.from_config(cfg).resolution(records[0].U, records[0].Z)
     from canfdi.core.unknown_inputs import Record
 

@@ -18,6 +18,7 @@ from canfdi.methods.output_error.config import (
     with_noise,
 )
 from canfdi.methods.output_error.diagnoser import OeSettings, OutputErrorDiagnoser
+from canfdi.methods.output_error.fit import fit_section
 
 __all__ = ["METHOD", "OeOptions", "OeSettings", "OutputErrorDiagnoser", "output_error_section"]
 
@@ -29,4 +30,5 @@ METHOD = Method(
     build=build,
     fault_kinds=("actuator_bias", "sensor_bias"),
     with_noise=with_noise,
+    fit_models=fit_section,
 )

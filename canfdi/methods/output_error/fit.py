@@ -1,26 +1,67 @@
-"""The output_error method's models (seed 003) fitted from fault-free records, for
-`canfdi identify`.
+"""The output_error method's models (seed 003) fitted from fault-free samples: what `canfdi
+identify` learns for a config with ``method: output_error`` (the registry entry's
+``fit_models``), and the black-box path's output-error fit of each output's paths.
 
 `fit_output_error` fits y = y0 + sum_i B_i(q)/F_i(q) q^-d (u_c,i - u0) for every output by the
 OE prediction-error method (canfdi.methods.output_error.model: Steiglitz-McBride start, then
 Levenberg-Marquardt on the simulation error), drops the paths the data cannot tell from none,
-and raises an order where the information criterion asks for it.
+and raises an order where the information criterion asks for it. `fit_section` gives the
+config section of those models.
 """
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
 import numpy as np
 
+from canfdi.core.settings import MonitorConfig
+from canfdi.core.sysid import regular_grid
+from canfdi.methods.output_error.config import output_error_section
+from canfdi.methods.output_error.diagnoser import OeSettings
 from canfdi.methods.output_error.model import OeModel, fit_miso, long_run_ratio
-from canfdi.tools.samples import regular_grid
 
-__all__ = ["fit_output_error"]
+__all__ = ["FitOptions", "fit_output_error", "fit_section"]
 
 
-def fit_output_error(k, U, Z, inputs, outputs, fixed: dict, delay: int, min_snr: float,
-                     skip: int, progress=None) -> dict:
+@dataclass(frozen=True)
+class FitOptions:
+    """The fit's choices (`canfdi identify --orders/--oe-delay/--min-gain-snr/--skip`): fixed
+    pair orders {(output, input): (nb, nf, d) or None}, the free pairs' delay, the gain
+    significance to keep a pair, samples skipped at the start."""
+
+    fixed: dict = field(default_factory=dict)
+    delay: int = 1
+    min_gain_snr: float = 5.0
+    skip: int = 200
+
+
+def fit_section(k: np.ndarray, U: np.ndarray, Z: np.ndarray, config: MonitorConfig,
+                options: FitOptions | None, progress: Callable[[str], None]
+                ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(the ``output_error:`` section, a JSON-able report) of the models fitted to the
+    samples k (N,), U (N, p), Z (N, q), with the method's default decision settings."""
+    result = fit_output_error(k, U, Z, config.inputs, config.outputs, options or FitOptions(),
+                              progress)
+    settings = {key: value for key, value in dataclasses.asdict(OeSettings()).items()
+                if key not in ("drift", "false_alarm_interval")}
+    section = output_error_section(result["model"], result["sigma"], result["long_run"],
+                                   config.inputs, config.outputs,
+                                   fit={"samples": result["samples"]}, **settings)
+    report = {"path": "output error (seed 003)", "samples": {"fit": int(result["samples"])},
+              "outputs": result["fits"]}
+    return section, report
+
+
+def fit_output_error(k, U, Z, inputs, outputs, options: FitOptions,
+                     progress: Callable[[str], None] | None = None) -> dict:
     """Fit every output of the samples k (N,), U (N, p), Z (N, q); returns {"model",
     "sigma", "long_run", "fits": per output report, "samples"}."""
+    fixed, delay, min_snr, skip = (options.fixed, options.delay, options.min_gain_snr,
+                                   options.skip)
     Ug, Zg = regular_grid(k, U, Z)
     u0 = Ug.mean(axis=0)
     pairs, sigma, long_run, report = [], [], [], []
