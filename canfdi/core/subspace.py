@@ -35,6 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from canfdi.core.identify import least_squares
+
 __all__ = [
     "ORDER_FLOOR",
     "SubspaceModel",
@@ -137,7 +139,7 @@ def _ac_from_gamma(G: np.ndarray, q: int) -> tuple[np.ndarray, np.ndarray]:
     """(A, C) from an extended observability matrix ((future q, n)): C its first block row, A
     from the shift invariance (least squares)."""
     C = G[:q]
-    A = np.linalg.lstsq(G[:-q], G[q:], rcond=None)[0]
+    A = least_squares(G[:-q], G[q:]).theta
     return A, C
 
 
@@ -196,7 +198,7 @@ def input_matrices(records: Sequence[tuple[np.ndarray, np.ndarray]], A: np.ndarr
         block = np.concatenate(cols, axis=2)[ok]
         blocks.append(block.reshape(-1, block.shape[2]))
         targets.append(Y[ok].reshape(-1))
-    theta = np.linalg.lstsq(np.vstack(blocks), np.concatenate(targets), rcond=None)[0]
+    theta = least_squares(np.vstack(blocks), np.concatenate(targets)).theta
     i = n * p
     B = theta[:i].reshape(p, n).T
     D = np.zeros((q, p))
@@ -229,7 +231,7 @@ def pbsid(records: Sequence[tuple[np.ndarray, np.ndarray]], n: int | None, past:
     Zp = z[:, :past][:, ::-1].reshape(M, -1)  # z(k-1), ..., z(k-past)
     Yk = wy[:, past] - y0
     X = Zp
-    Theta = np.linalg.lstsq(X, Yk, rcond=None)[0]
+    Theta = least_squares(X, Yk).theta
     E = Yk - X @ Theta
     Se = E.T @ E / M
     w, V = np.linalg.eigh(Se)
@@ -252,16 +254,16 @@ def pbsid(records: Sequence[tuple[np.ndarray, np.ndarray]], n: int | None, past:
     U_k = wu[:, past] - u0
     Xn = Xs.T
     if feedthrough:
-        CD = np.linalg.lstsq(np.hstack([Xn, U_k]), Yk, rcond=None)[0]
+        CD = least_squares(np.hstack([Xn, U_k]), Yk).theta
         C, D = CD[:n].T, CD[n:].T
     else:
-        C = np.linalg.lstsq(Xn, Yk, rcond=None)[0].T
+        C = least_squares(Xn, Yk).theta.T
         D = np.zeros((q, p))
     e = Yk - Xn @ C.T - U_k @ D.T
     nxt = _successors(records, past + 1)
     a, b = nxt[:, 0], nxt[:, 1]
     reg = np.hstack([Xn[a], U_k[a], e[a]])
-    ABK = np.linalg.lstsq(reg, Xn[b], rcond=None)[0]
+    ABK = least_squares(reg, Xn[b]).theta
     A = ABK[:n].T
     B = ABK[n:n + p].T
     K = ABK[n + p:].T

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from canfdi.core.identify import least_squares
 from canfdi.core.model import StateSpace
 from canfdi.core.noise import estimate_measurement_noise
 from canfdi.core.subspace import (
@@ -152,7 +153,7 @@ def first_noise_guess(records: Sequence[Record], order: int = 4) -> np.ndarray:
         raise ValueError(f"{len(X)} runs of {order + 1} consecutive samples: too few for a "
                          "first look at the noise")
     T = np.vstack(targets)
-    theta = np.linalg.lstsq(X, T, rcond=None)[0]
+    theta = least_squares(X, T).theta
     E = T - X @ theta
     mad = np.median(np.abs(E - np.median(E, axis=0)), axis=0)
     own = np.array([sum(theta[i * q + j, j] ** 2 for i in range(order)) for j in range(q)])

@@ -48,6 +48,7 @@ import numpy as np
 from scipy.stats import f as f_dist
 
 from canfdi.core._check import check_shape
+from canfdi.core.identify import least_squares
 
 __all__ = [
     "MeasuredStateFit",
@@ -144,7 +145,7 @@ def select_state_outputs(records: Sequence[Record], R: np.ndarray, n: int) -> tu
         if len(chosen) == n:
             break
         X = Y[:, chosen]
-        rest = Y[:, j] - X @ np.linalg.lstsq(X, Y[:, j], rcond=None)[0] if chosen else Y[:, j]
+        rest = Y[:, j] - X @ least_squares(X, Y[:, j]).theta if chosen else Y[:, j]
         left[j] = float(np.mean(rest**2))
         if left[j] > VISIBLE:
             chosen.append(j)

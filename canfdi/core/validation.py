@@ -26,6 +26,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy.linalg import solve_discrete_are
 
+from canfdi.core.identify import least_squares
 from canfdi.core.model import StateSpace
 
 __all__ = [
@@ -115,7 +116,7 @@ def initial_state(model: StateSpace, U: np.ndarray, Y: np.ndarray, count: int) -
     del B, D
     if not rows:
         return np.zeros(n)
-    return np.linalg.lstsq(np.vstack(rows), np.concatenate(targets), rcond=None)[0]
+    return least_squares(np.vstack(rows), np.concatenate(targets)).theta
 
 
 def simulate(model: StateSpace, U: np.ndarray, x0: np.ndarray) -> np.ndarray:
