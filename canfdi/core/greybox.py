@@ -82,18 +82,17 @@ Examples
 
 from __future__ import annotations
 
-import difflib
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.linalg import expm
 from scipy.optimize import least_squares as _scipy_least_squares
 
 from canfdi.core._check import check_shape
 from canfdi.core.identify import least_squares
-from canfdi.core.model import StateSpace
+from canfdi.core.model import StateSpace, zoh
+from canfdi.core.settings import nearest
 
 __all__ = [
     "TEMPLATES",
@@ -107,7 +106,6 @@ __all__ = [
     "get_template",
     "monitor_model",
     "simulate_template",
-    "zoh",
 ]
 
 #: A parameter whose relative standard deviation exceeds this is "not determined".
@@ -394,25 +392,9 @@ class TemplateFit:
 # --------------------------------------------------------------------------- helpers
 
 
-def zoh(A: np.ndarray, B: np.ndarray, F: np.ndarray, dt: float
-        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Zero-order hold of dx/dt = A x + B u + F w over ``dt`` (u and w held), by the matrix
-    exponential of the augmented matrix (as StateSpace.discretize): (n, n), (n, p), (n, r).
-
-    >>> Ad, Bd, Fd = zoh(np.array([[-2.0]]), np.array([[2.0]]), np.zeros((1, 0)), 0.5)
-    >>> round(float(Ad[0, 0]), 6), round(float(Bd[0, 0]), 6), Fd.shape
-    (0.367879, 0.632121, (1, 0))
-    """
-    n, p = B.shape
-    M = np.zeros((n + p + F.shape[1], n + p + F.shape[1]))
-    M[:n, :n], M[:n, n: n + p], M[:n, n + p:] = A, B, F
-    E = expm(M * dt)
-    return E[:n, :n], E[:n, n: n + p], E[:n, n + p:]
-
-
 def _nearest(name: str, options: Iterable[str]) -> str:
     options = list(options)
-    close = difflib.get_close_matches(name, options, n=3, cutoff=0.5)
+    close = nearest(name, options, cutoff=0.5)
     return f"did you mean {', '.join(close)}?" if close else f"known: {', '.join(options)}"
 
 
@@ -539,8 +521,8 @@ def _dc_linear(theta: np.ndarray, dt: float, present: tuple[str, ...],
     A = np.diag([-Rf / Lf, -Ra / La, -D / J])
     B = np.array([[1 / Lf], [1 / La], [0.0]])
     F = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    Ad, Bd, Fd = zoh(A, B, F, dt)
-    return Ad, Bd, np.eye(3), Fd
+    Ad, BFd = zoh(A, np.hstack([B, F]), dt)
+    return Ad, BFd[:, :1], np.eye(3), BFd[:, 1:]
 
 
 def _dc_rate(theta: np.ndarray) -> float:
@@ -574,9 +556,9 @@ def _servo_linear(theta: np.ndarray, dt: float, present: tuple[str, ...],
     Ac = np.array([[-1 / tau, 0.0, 0.0], [Kt / J, -b / J, 0.0], [0.0, 1.0, 0.0]])
     Bc = np.array([[1 / (Kt * tau)], [0.0], [0.0]])
     Fc = np.array([[0.0], [-1 / J], [0.0]])
-    Ad3, Bd3, Fd3 = zoh(Ac, Bc, Fc, dt)
+    Ad3, BFd3 = zoh(Ac, np.hstack([Bc, Fc]), dt)
     A, B, F = np.zeros((4, 4)), np.zeros((4, 1)), np.zeros((4, 1))
-    A[1:, 1:], B[1:], F[1:] = Ad3, Bd3, Fd3
+    A[1:, 1:], B[1:], F[1:] = Ad3, BFd3[:, :1], BFd3[:, 1:]
     B[0, 0] = 1 / Kt  # the echo: Iq_sp(k+1) = u(k) / Kt
     s = 1 / _servo_scale(settings)  # SI -> the drive's units
     A, B, F = s[:, None] * A / s[None, :], s[:, None] * B, s[:, None] * F

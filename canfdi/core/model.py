@@ -9,8 +9,9 @@ with x of size n, u of size p, y of size q, w of size r (state unknown input, en
 and psi of size r1 (output unknown input, entering through G). D is optional (zero in seed 001).
 
 A continuous model carries a sample period ``dt`` and is discretised with a zero-order hold
-(scipy.signal.cont2discrete); the unknown input w is discretised as if it were held over the
-period too, which is what makes F a valid distribution matrix for the sampled w(k).
+(`zoh`, the matrix exponential, as scipy.signal.cont2discrete does it); the unknown input w
+is discretised as if it were held over the period too, which is what makes F a valid
+distribution matrix for the sampled w(k).
 """
 
 from __future__ import annotations
@@ -19,11 +20,26 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.signal import cont2discrete
+from scipy.linalg import expm
 
 from canfdi.core._check import check_shape
 
-__all__ = ["ModelError", "StateSpace"]
+__all__ = ["ModelError", "StateSpace", "zoh"]
+
+
+def zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Zero-order hold of dx/dt = A x + B u over ``dt`` (u held): (Ad (n, n), Bd (n, m)),
+    read off the exponential of the augmented matrix [[A, B], [0, 0]] dt.
+
+    >>> Ad, Bd = zoh(np.array([[-2.0]]), np.array([[2.0]]), 0.5)
+    >>> round(float(Ad[0, 0]), 6), round(float(Bd[0, 0]), 6)
+    (0.367879, 0.632121)
+    """
+    n, m = B.shape
+    M = np.zeros((n + m, n + m))
+    M[:n, :n], M[:n, n:] = A, B
+    E = expm(M * dt)
+    return E[:n, :n], E[:n, n:]
 
 
 class ModelError(ValueError):
@@ -148,10 +164,7 @@ class StateSpace:
         """
         if not self.continuous:
             return self
-        BF = np.hstack([self.B, self.F])
-        Ad, BFd, _, _, _ = cont2discrete(
-            (self.A, BF, self.C, np.zeros((self.q, BF.shape[1]))), self.dt, method="zoh"
-        )
+        Ad, BFd = zoh(self.A, np.hstack([self.B, self.F]), self.dt)
         return StateSpace(
             A=Ad, B=BFd[:, : self.p], C=self.C, D=self.D, F=BFd[:, self.p :], G=self.G,
             dt=self.dt, continuous=False,

@@ -57,9 +57,9 @@ class ConfigError(ValueError):
         self.field = field
 
 
-def nearest(name: str, names: Iterable[str], count: int = 3) -> list[str]:
-    """The names most like ``name`` (difflib's ratio >= 0.6), best first."""
-    return difflib.get_close_matches(str(name), list(names), n=count, cutoff=0.6)
+def nearest(name: str, names: Iterable[str], count: int = 3, cutoff: float = 0.6) -> list[str]:
+    """The names most like ``name`` (difflib's ratio >= ``cutoff``), best first."""
+    return difflib.get_close_matches(str(name), list(names), n=count, cutoff=cutoff)
 
 
 def unknown_name(field: str, what: str, name: object, names: Iterable[str]) -> ConfigError:

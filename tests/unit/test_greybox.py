@@ -23,9 +23,8 @@ from canfdi.core.greybox import (
     get_template,
     monitor_model,
     simulate_template,
-    zoh,
 )
-from canfdi.core.model import StateSpace
+from canfdi.core.model import StateSpace, zoh
 from firmware_sim.plants.dc_motor import DcMotor, DcMotorParameters
 from firmware_sim.scenario import load_scenario
 from firmware_sim.simulate import simulate
@@ -310,7 +309,8 @@ def test_servo_monitor_model_f_is_the_zoh_torque_column(servo_fit):
     Ac = np.array([[-1 / tau, 0, 0], [Kt / Jf, -b / Jf, 0], [0, 1, 0]])
     Bc = np.array([[1 / (Kt * tau)], [0], [0]])
     Fc = np.array([[0], [-1 / Jf], [0]])
-    Ad, Bd, Fd = zoh(Ac, Bc, Fc, 0.01)
+    Ad, BFd = zoh(Ac, np.hstack([Bc, Fc]), 0.01)
+    Bd, Fd = BFd[:, :1], BFd[:, 1:]
     model = servo_fit.model
     assert servo_fit.states == ("current_setpoint", "current", "velocity", "position")
     assert servo_fit.unknown_inputs == ("load_torque",)
