@@ -111,7 +111,7 @@ def _parse_orders(specs: list[str], inputs: list[str], outputs: list[str]) -> di
 
 
 def run(args: argparse.Namespace) -> int:
-    from canfdi.config import ConfigError, load_config, read_yaml
+    from canfdi.config import ConfigError, load_config
     from canfdi.io.damage import Damage
     from canfdi.io.logs import truth_of
     from canfdi.methods.output_error.fit import FitOptions
@@ -146,12 +146,16 @@ def run(args: argparse.Namespace) -> int:
         if sys.stderr.isatty() or not args.json:
             print(f"canfdi identify: {msg}", file=sys.stderr, flush=True)
 
-    doc = read_yaml(args.config, ValueError, "config")
+    try:
+        # the config as written (comments, literals), which the identified one is an edit of
+        document = ConfigDocument.load(args.config)
+    except ValueError as exc:
+        return _fail(str(exc))
     damage = Damage()
     oe = FitOptions(fixed=fixed, delay=args.oe_delay, min_gain_snr=args.min_gain_snr,
                     skip=args.skip)
     try:
-        result = identify(args.logs, config, doc, validate=args.validate,
+        result = identify(args.logs, config, document.plain(), validate=args.validate,
                           holdout=args.holdout, fit_options=oe, progress=progress, damage=damage)
     except Refusal as exc:
         return _fail(str(exc), 1)
@@ -164,7 +168,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"canfdi identify: {line}", file=sys.stderr)
     when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     out = args.output or args.config
-    document = ConfigDocument.load(args.config)
     for key, value in result.updates.items():
         if value is None:
             document.delete(key)
