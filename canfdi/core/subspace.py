@@ -68,6 +68,15 @@ class SubspaceModel:
     method: str
 
 
+def _record_windows(U: np.ndarray, Y: np.ndarray, length: int
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One record's windows of ``length`` consecutive samples: (W, length, p), (W, length, q)
+    and (W,) which hold no lost sample."""
+    wu = sliding_window_view(U, (length, U.shape[1]))[:, 0]
+    wy = sliding_window_view(Y, (length, Y.shape[1]))[:, 0]
+    return wu, wy, ~np.isnan(wy).any(axis=(1, 2)) & ~np.isnan(wu).any(axis=(1, 2))
+
+
 def _windows(records: Sequence[tuple[np.ndarray, np.ndarray]], length: int
              ) -> tuple[np.ndarray, np.ndarray]:
     """(M, length, p), (M, length, q): every window of ``length`` consecutive samples with no
@@ -76,9 +85,7 @@ def _windows(records: Sequence[tuple[np.ndarray, np.ndarray]], length: int
     for U, Y in records:
         if len(Y) < length:
             continue
-        wu = sliding_window_view(U, (length, U.shape[1]))[:, 0]
-        wy = sliding_window_view(Y, (length, Y.shape[1]))[:, 0]
-        ok = ~np.isnan(wy).any(axis=(1, 2)) & ~np.isnan(wu).any(axis=(1, 2))
+        wu, wy, ok = _record_windows(U, Y, length)
         us.append(wu[ok])
         ys.append(wy[ok])
     p = records[0][0].shape[1]
@@ -281,9 +288,7 @@ def _successors(records, length: int) -> np.ndarray:
     for U, Y in records:
         if len(Y) < length:
             continue
-        wy = sliding_window_view(Y, (length, Y.shape[1]))[:, 0]
-        wu = sliding_window_view(U, (length, U.shape[1]))[:, 0]
-        ok = ~np.isnan(wy).any(axis=(1, 2)) & ~np.isnan(wu).any(axis=(1, 2))
+        _, _, ok = _record_windows(U, Y, length)
         idx = np.cumsum(ok) - 1 + offset
         starts = np.flatnonzero(ok[:-1] & ok[1:])
         pairs.append(np.column_stack([idx[starts], idx[starts + 1]]))
