@@ -204,7 +204,7 @@ def _unseen(model: StateSpace, vectors: list[ParityVector], wanted: list[int]) -
     return [c for c in wanted if not seen[c]]
 
 
-def _seeing_every_fault(model: StateSpace, source: StateSpace, options: DesignOptions,
+def _seeing_every_fault(model: StateSpace, detectability: list, options: DesignOptions,
                         actuator: tuple, sensor: tuple) -> tuple:
     """The banks at the smallest windows, or, when a fault the model can detect leaves every
     residual there untouched, at the smallest larger windows where each such fault moves
@@ -212,11 +212,12 @@ def _seeing_every_fault(model: StateSpace, source: StateSpace, options: DesignOp
     the smallest window can all miss a fault that a longer window sees: an identified servo
     axis whose velocity bias only shows through a second sample of the setpoint's echo.
 
-    ``actuator``, ``sensor``: (designer, window, vectors). Returns (actuator window, vectors,
+    ``detectability``: `model_detectability` of the source model. ``actuator``, ``sensor``:
+    (designer, window, vectors). Returns (actuator window, vectors,
     sensor window, vectors)."""
     (act, a_window, a_vectors), (sen, s_window, s_vectors) = actuator, sensor
     wanted = [j if kind == "actuator" else model.p + j
-              for kind, j, d in model_detectability(source) if d.detectable]
+              for kind, j, d in detectability if d.detectable]
     before = _unseen(model, a_vectors + s_vectors, wanted)
     if not before or a_window is None or s_window is None:
         return a_window, a_vectors, s_window, s_vectors
@@ -284,8 +285,9 @@ def design_bank(source: StateSpace, input_names: list[str], output_names: list[s
                                        options.max_window)
     s_window, s_vectors, s_min = _bank(model, sen, model.q, options.sensor_window,
                                        options.max_window)
+    detectability = model_detectability(source)
     a_window, a_vectors, s_window, s_vectors = _seeing_every_fault(
-        model, source, options, (act, a_window, a_vectors), (sen, s_window, s_vectors))
+        model, detectability, options, (act, a_window, a_vectors), (sen, s_window, s_vectors))
 
     def finish(vectors, mins, names, window, kind):
         out, gains, responses = [], [], []
@@ -340,7 +342,7 @@ def design_bank(source: StateSpace, input_names: list[str], output_names: list[s
         model=model, source=source, input_names=list(input_names),
         output_names=list(output_names), actuators=actuators, sensors=sensors,
         actuator_window=a_window, sensor_window=s_window,
-        detectability=model_detectability(source),
+        detectability=detectability,
         detectability_discrete=model_detectability(model) if source.continuous else None,
         gain=gain, response=response, window_comparison=comparison,
     )
