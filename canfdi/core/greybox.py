@@ -93,6 +93,7 @@ from canfdi.core._check import check_shape
 from canfdi.core.identify import least_squares
 from canfdi.core.model import StateSpace, zoh
 from canfdi.core.settings import nearest
+from canfdi.core.validation import robust_std
 
 __all__ = [
     "TEMPLATES",
@@ -693,15 +694,6 @@ def _instruments(prob: _Problem, theta: np.ndarray) -> _Problem:
     return replace(prob, x0=P2[prob.base], evaluations=0)
 
 
-def _robust_std(R: np.ndarray) -> np.ndarray:
-    """(n,) 1.4826 x the median absolute deviation of each column's finite entries."""
-    out = np.empty(R.shape[1])
-    for i in range(R.shape[1]):
-        col = R[np.isfinite(R[:, i]), i]
-        out[i] = 1.4826 * np.median(np.abs(col - np.median(col))) if col.size else np.nan
-    return out
-
-
 def _floor(std: np.ndarray, level: np.ndarray) -> np.ndarray:
     """Keep a weight away from zero (an exact row: a setpoint echo)."""
     return np.maximum(np.nan_to_num(std, nan=1.0), np.maximum(1e-9 * level, 1e-300))
@@ -777,7 +769,7 @@ def _solve(prob: _Problem, phi0: np.ndarray, noise_given: bool
         iterations += res.njev
         if noise_given:
             break
-        new = _floor(_robust_std(prob.grid(phi)) * prob.weight, prob.weight)
+        new = _floor(robust_std(prob.grid(phi)) * prob.weight, prob.weight)
         ratio = new / prob.weight
         prob.weight = new
         if np.all((ratio > 0.7) & (ratio < 1.4)):
@@ -785,7 +777,7 @@ def _solve(prob: _Problem, phi0: np.ndarray, noise_given: bool
     # Instrumental variables, outliers left out: z(k) is the error's sensitivity d e(k) / d phi
     # evaluated on data the noise in e(k) does not reach (see _instruments).
     R = prob.grid(phi)
-    scale = _floor(_robust_std(R), np.ones(R.shape[1]))
+    scale = _floor(robust_std(R), np.ones(R.shape[1]))
     keep = mask & (np.abs(np.nan_to_num(R, nan=np.inf)) <= OUTLIER_SIGMAS * scale)
     inst = _instruments(prob, prob.theta(phi))
     Z = np.nan_to_num(_jacobian(inst, phi)[keep])
@@ -934,7 +926,7 @@ def fit_template(template: Template | str, U: np.ndarray, Y: np.ndarray,
         prob.weight = _floor(sensor * np.where(differenced, math.sqrt(6), math.sqrt(2)),
                              level_n)
     else:
-        prob.weight = _floor(_robust_std(prob.fitted(prob.errors(theta0))), level_n)
+        prob.weight = _floor(robust_std(prob.fitted(prob.errors(theta0))), level_n)
 
     undetermined: dict[int, float] = {}
     iterations = 0
@@ -989,7 +981,7 @@ def fit_template(template: Template | str, U: np.ndarray, Y: np.ndarray,
     E = prob.errors(theta)
     residuals = np.full((N, n), np.nan)
     residuals[1:] = E / scale
-    row_std = _robust_std(prob.fitted(E)) * prob.weight / scale
+    row_std = robust_std(prob.fitted(E)) * prob.weight / scale
     row_std[[i for i in range(n) if i not in rows]] = np.nan
 
     A, B, C_roles, F = template.linear_model(theta, float(dt), present, conf)

@@ -48,6 +48,7 @@ from canfdi.core.unknown_inputs import (
     select_state_outputs,
     visible_order,
 )
+from canfdi.core.validation import robust_std
 
 __all__ = [
     "EXCESS",
@@ -155,9 +156,8 @@ def first_noise_guess(records: Sequence[Record], order: int = 4) -> np.ndarray:
     T = np.vstack(targets)
     theta = least_squares(X, T).theta
     E = T - X @ theta
-    mad = np.median(np.abs(E - np.median(E, axis=0)), axis=0)
     own = np.array([sum(theta[i * q + j, j] ** 2 for i in range(order)) for j in range(q)])
-    return (1.4826 * mad) ** 2 / (1.0 + own)
+    return robust_std(E) ** 2 / (1.0 + own)
 
 
 def _delayed(records: Sequence[Record], delay: int) -> list[Record]:

@@ -37,6 +37,7 @@ __all__ = [
     "nrmse",
     "persistence",
     "predict",
+    "robust_std",
     "simulate",
     "stability",
     "whiteness",
@@ -62,6 +63,17 @@ def nrmse(Y: np.ndarray, Yhat: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         out = 100.0 * (1.0 - err / spread)
     return np.where(spread > 0, out, np.nan)
+
+
+def robust_std(R: np.ndarray) -> np.ndarray:
+    """(n,) each column's standard deviation from its finite entries' median absolute
+    deviation (x 1.4826, exact for Gaussian data): a few load steps or outliers do not count.
+    NaN for a column with none."""
+    out = np.empty(R.shape[1])
+    for i in range(R.shape[1]):
+        col = R[np.isfinite(R[:, i]), i]
+        out[i] = 1.4826 * np.median(np.abs(col - np.median(col))) if col.size else np.nan
+    return out
 
 
 def with_unknown_inputs(model: StateSpace) -> StateSpace:
