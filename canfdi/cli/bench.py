@@ -126,7 +126,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         result = run_bench(config, frames=frames, quick=args.quick, progress=progress,
-                           scenario=scenario, faulty=faulty, identify=identify)
+                           scenario=scenario, faulty=faulty, identify=identify,
+                           identify_config=DEFAULT_CONFIG_DIR / "servo_axis_odrive.yaml")
     except ValueError as exc:
         return config_error(exc, "bench")
     result["elapsed_s"] = time.monotonic() - start

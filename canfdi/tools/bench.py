@@ -94,13 +94,14 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
               progress: Callable[[str], None] | None = None, workdir: Path | None = None,
               scenario: Scenario | str = "dc_motor_nominal",
               faulty: Scenario | str = "dc_motor_consecutive",
-              identify: Callable | None = None) -> dict:
+              identify: Callable | None = None, identify_config: Path | None = None) -> dict:
     """Measure everything; returns the JSON-ready result.
 
     ``scenario`` plays the config's bus fault-free (throughput, decode, capture, replay);
     ``faulty`` plays it with faults (latency, diagnoses included). ``identify``:
     canfdi.tools.identify.identify, handed in by the verb (one verb's library does not import
-    another's), timed on a commissioning log of the servo axis (`identify_time`)."""
+    another's), timed with ``identify_config`` (the servo axis's) on a commissioning log of
+    the servo axis (`identify_time`)."""
     from canfdi.io.writer import McapRecorder
     from canfdi.monitor import Monitor
 
@@ -217,21 +218,22 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     out.update(_virtual_bus(config, traffic, sub))
     say("latency at 50% bus load")
     out.update(_latency(config, plain, faulty, seconds=2.0 if quick else 6.0))
-    if identify is not None:
+    if identify is not None and identify_config is not None:
         minutes = 2.0 if quick else 10.0
         say(f"identify: {minutes:g} minutes of a 100 Hz drive, on one core")
-        out.update(identify_time(identify, tmp, minutes))
+        out.update(identify_time(identify, identify_config, tmp, minutes))
     return out
 
 
-IDENTIFY_CONFIG = "servo_axis_odrive.yaml"
 IDENTIFY_SCENARIO = "servo_axis_commissioning"
 
 
-def identify_time(identify: Callable, workdir: Path, minutes: float) -> dict:
+def identify_time(identify: Callable, config_path: Path, workdir: Path, minutes: float
+                  ) -> dict:
     """`canfdi identify`'s whole path (read a candump log, assemble, fit with its unknown
-    input, validate, learn the noise as calibrate does, design) over ``minutes`` of the servo
-    axis's commissioning run at 100 Hz, confined to one core: wall and CPU seconds."""
+    input, validate, learn the noise as calibrate does, design) with the config at
+    ``config_path`` over ``minutes`` of the servo axis's commissioning run at 100 Hz,
+    confined to one core: wall and CPU seconds."""
     import dataclasses
 
     from canfdi.config import load_config, read_yaml
@@ -239,7 +241,6 @@ def identify_time(identify: Callable, workdir: Path, minutes: float) -> dict:
     from firmware_sim.emitter import frame_log
     from firmware_sim.scenario import load_scenario
 
-    config_path = Path(__file__).resolve().parents[2] / "deploy" / "config" / IDENTIFY_CONFIG
     config = load_config(config_path, allow_unidentified=True)
     doc = read_yaml(config_path, ValueError, "config")
     scenario = dataclasses.replace(load_scenario(IDENTIFY_SCENARIO), duration=minutes * 60.0)
