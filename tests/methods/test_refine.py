@@ -44,8 +44,11 @@ def test_a_fault_that_grows_after_acceptance_is_refined_not_raised_again(method)
     dg = methods.build_diagnoser(config)
     events = dg.update_block(k, t_ns, U, Z).events
     decisions = [e for e in events if e.kind != "detected"]
-    assert [e.kind for e in decisions][:2] == ["accepted", "refined"], decisions
-    first, refined = decisions[:2]
+    # Refinements by the parity method's tracker (detected_sample None: no re-detection) may
+    # come before; the growth's own diagnosis is the first refinement of a detection.
+    redetected = [e for e in decisions if e.kind == "accepted" or e.detected_sample is not None]
+    assert [e.kind for e in redetected][:2] == ["accepted", "refined"], decisions
+    first, refined = redetected[:2]
     assert (first.target, first.index) == (refined.target, refined.index) == ("sensor", 0)
     assert first.estimates["bias"] == pytest.approx(bias, rel=0.05)
     assert refined.estimates["bias"] == pytest.approx(1.1 * bias, rel=0.05)
@@ -68,10 +71,12 @@ def test_the_monitor_announces_a_refinement_with_estimates_only():
     # is the third; the refinement sends none.
     assert [d["State"] for d in faults] == [1, 3, 1]
     estimates = [d["Value"] for name, d in decoded if name == "FDI_ESTIMATE" and d["Param"] == 2]
+    # The accepted estimate, then the refinements (the tracker's and the re-detection's),
+    # each the channel's total: the last one holds the grown bias.
     assert estimates[0] == pytest.approx(bias, rel=0.05)
-    assert estimates[1] == pytest.approx(1.1 * bias, rel=0.05)
+    assert estimates[-1] == pytest.approx(1.1 * bias, rel=0.05)
     summary = monitor.summary()
-    assert len(summary["faults"]) == 1 and len(summary["refined"]) == 1
+    assert len(summary["faults"]) == 1 and len(summary["refined"]) == len(estimates) - 1
     assert monitor.status_frames()  # one channel active, whatever the entries
     status = db.decode_message(monitor.status_frames()[0].frame_id,
                                monitor.status_frames()[0].data, decode_choices=False)

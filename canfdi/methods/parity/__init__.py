@@ -21,7 +21,7 @@ from canfdi.core.settings import MonitorConfig
 from canfdi.methods import EstimateHistory, Method
 from canfdi.methods.parity.diagnoser import ParityDiagnoser, ParitySettings
 from canfdi.methods.parity.history import estimate_history
-from canfdi.methods.parity.thresholds import calibrate_thresholds
+from canfdi.methods.parity.thresholds import calibrate_thresholds, long_run_covariance
 
 __all__ = ["METHOD", "ParityDiagnoser", "ParitySettings", "build", "calibrate_thresholds"]
 
@@ -52,7 +52,7 @@ def build(config: MonitorConfig) -> ParityDiagnoser:
     settings = config.method_options or parse_options(None, config)
     thresholds = calibrate_thresholds(bank, meas, config.design.process_std, design.model,
                                       settings.drift, settings.false_alarm_interval)
-    return ParityDiagnoser(design, settings, thresholds)
+    return ParityDiagnoser(design, settings, thresholds, long_run_covariance(bank, meas))
 
 
 def describe(config: MonitorConfig) -> dict:

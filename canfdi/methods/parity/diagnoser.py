@@ -26,7 +26,10 @@ u_j = eta u_cj + lambda), the residual window is rebuilt from compensated sample
 detector restarts (seed 003 Section 3.3), so a later fault on any channel is diagnosed on top of
 the ones already found, repaired or not. A later diagnosis on a channel already compensated
 (what a not quite exact estimate leaves of a large fault) refines it: a "refined" event with the
-channel's updated total (canfdi.core.records.fold), not a new fault.
+channel's updated total (canfdi.core.records.fold), not a new fault. Between diagnoses the
+accepted faults go on being estimated on the compensated residuals, and a significant
+correction is folded in the same way (canfdi.methods.parity.tracking): a "refined" event with no
+detection.
 """
 
 from __future__ import annotations
@@ -56,6 +59,7 @@ from canfdi.methods.parity.hypotheses import (
     proportional,
     regressors,
 )
+from canfdi.methods.parity.tracking import AcceptedFaultTracker, Tracked
 
 __all__ = ["Diagnosis", "ParityDiagnoser", "ParitySettings"]
 
@@ -114,10 +118,13 @@ class ParityDiagnoser(DetectorBacked):
     design : the residual bank's design (canfdi.core.design.design_bank).
     settings : ParitySettings.
     thresholds : (m,) Page-Hinkley thresholds in noise-std units (calibrate_thresholds).
+    long_run : (m, m) long-run covariance of the normalised residuals (thresholds.
+        long_run_covariance), which the refinement of accepted faults judges its fits by;
+        None: white, independent residuals.
     """
 
-    def __init__(self, design: Design, settings: ParitySettings, thresholds: np.ndarray
-                 ) -> None:
+    def __init__(self, design: Design, settings: ParitySettings, thresholds: np.ndarray,
+                 long_run: np.ndarray | None = None) -> None:
         self.design = design
         self.settings = settings
         self.bank = ResidualBank(design)
@@ -166,6 +173,7 @@ class ParityDiagnoser(DetectorBacked):
         self.compensation: list[Compensation] = []
         self.events: list[FaultEvent] = []
         self._diag: Diagnosis | None = None
+        self.tracker = AcceptedFaultTracker(self.bank, long_run)
         self.reset()
 
     # -- state ---------------------------------------------------------------------------
@@ -179,6 +187,7 @@ class ParityDiagnoser(DetectorBacked):
         self._history.clear()
         self._recent.clear()
         self.compensation = []
+        self.tracker.clear()
         self._restart_detector()
         self._last_k: int | None = None
         self.last_residuals: np.ndarray | None = None
@@ -246,7 +255,16 @@ class ParityDiagnoser(DetectorBacked):
         res = self.bank.batch(E)  # row r: the residuals at X row r, as update would give them
         rn = res / self.bank.sigma
         have = has_values(rn)  # rows where update returns residuals
-        ph, done = self.detector.run(k[i:j], rn)
+        cap = j - i
+        to_check = self.tracker.samples_to_check()
+        if to_check is not None:
+            # The sample that reaches the tracker's checkpoint goes through update.
+            reach = np.flatnonzero(np.cumsum(have) >= max(to_check, 1))
+            if len(reach):
+                cap = int(reach[0])
+            if cap == 0:
+                return i
+        ph, done = self.detector.run(k[i: i + cap], rn[:cap])
         if done > 0:
             rows.stat[i: i + done] = np.maximum(ph.g_up[:done], ph.g_down[:done])
             rows.R[i: i + done] = res[:done]
@@ -258,6 +276,11 @@ class ParityDiagnoser(DetectorBacked):
                                       np.array(U[i + r], dtype=float)))
             for r in np.flatnonzero(have[:done])[-self._recent.maxlen:].tolist():
                 self._recent.append((int(k[i + r]), E[r: r + S + 1].copy(), rn[r]))
+            if self.tracker.tracked:
+                rows_u = np.lib.stride_tricks.sliding_window_view(
+                    E[: S + done, self.q:], S + 1, axis=0).transpose(0, 2, 1)
+                sel = np.flatnonzero(have[:done])
+                self.tracker.absorb(k[i + sel], rows_u[sel], rn[sel])
             self._last_k = int(k[i + done - 1])
             if have[done - 1]:
                 self.last_residuals, self.last_normalized = res[done - 1], rn[done - 1]
@@ -290,9 +313,13 @@ class ParityDiagnoser(DetectorBacked):
         self.last_normalized = rn
         window = self.bank.window.copy()
         self._recent.append((k, window, rn))
-        if self.mode == MONITOR:
-            return self._monitor(k, sample.timestamp_ns, rn)
-        return self._diagnose(k, sample.timestamp_ns, window, rn)
+        if self.mode != MONITOR:
+            return self._diagnose(k, sample.timestamp_ns, window, rn)
+        self.tracker.absorb(np.array([k]), window[None, :, self.q:], rn[None, :])
+        events = self._monitor(k, sample.timestamp_ns, rn)
+        if self.mode == MONITOR and self.tracker.due:
+            events += self._refine_tracked(k, sample.timestamp_ns)
+        return events
 
     def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
         alarm = self.detector.step(k, rn)
@@ -344,7 +371,7 @@ class ParityDiagnoser(DetectorBacked):
         best_onset = np.argmin(cost, axis=1)  # (H,)
         # Each parameter beyond the first must earn twice the isolation margin, so a richer
         # model never wins on the noise it fits (a likelihood-ratio test in effect).
-        penalty = np.array([2.0 * s.isolation_margin * (h.n_params - 1) for h in self.hypotheses])
+        penalty = np.array([self._penalty(h) for h in self.hypotheses])
         cost_h = cost[np.arange(len(cost)), best_onset] + penalty
         order = np.argsort(cost_h, kind="stable")
         best = self._named(int(order[0]), cost_h)
@@ -374,6 +401,10 @@ class ParityDiagnoser(DetectorBacked):
         if since >= s.max_samples:
             return self._unexplained(k, t, theta, best_onset, order)
         return []
+
+    def _penalty(self, h: Hypothesis) -> float:
+        """Each parameter beyond the first must earn twice the isolation margin."""
+        return 2.0 * self.settings.isolation_margin * (h.n_params - 1)
 
     def _named(self, best: int, cost_h: np.ndarray) -> int:
         """The hypothesis that names the best fit's ambiguity group: twins (proportional
@@ -466,6 +497,18 @@ class ParityDiagnoser(DetectorBacked):
             # fault explains the alarm (a transient, such as one corrupt sample).
             return self._unexplained(k, t, theta, best_onset, np.argsort(cost_h, kind="stable"))
         events = []
+        # What the fit knows about each accepted channel's parameters (normalised residuals:
+        # the information over the cost's scale), for the tracker's prior.
+        info = d.info.J[best, kb] / max(float(cost_h[best] - self._penalty(h)) /
+                                         max(d.info.n_eq - h.n_params, 1), 1e-300)
+        accepted_now = {}
+        for target, index, *_rest in faults:
+            if h.target == "sensors":
+                hyp = Hypothesis("sensor", index, self.design.output_names[index])
+                col = h.members.index(index)
+                accepted_now[(target, index)] = (hyp, info[col: col + 1, col: col + 1])
+            else:
+                accepted_now[(target, index)] = (h, info[: h.n_params, : h.n_params])
         for target, index, est, variances, candidates in faults:
             names = self.design.input_names if target == "actuator" else self.design.output_names
             kind, total = fold(self.compensation, Compensation(
@@ -476,7 +519,15 @@ class ParityDiagnoser(DetectorBacked):
                 name=names[index], estimates=est if kind == "accepted" else total,
                 variances=variances, onset_sample=onset, detected_sample=d.k_d,
                 accepted_sample=k, candidates=candidates))
-        # Seed 003 Section 3.3: rebuild the window from compensated samples and restart.
+        self._reload_window()
+        self.mode = MONITOR
+        self._restart_detector(k)
+        self._track_compensated(accepted_now)
+        self.events.extend(events)
+        return events
+
+    def _reload_window(self) -> None:
+        """Seed 003 Section 3.3: rebuild the window from compensated samples."""
         tail = []
         for kk, z, u in self._history:
             if tail and kk != tail[-1][0] + 1:
@@ -486,7 +537,48 @@ class ParityDiagnoser(DetectorBacked):
         self.bank.restart()
         self.bank.load(x)
         self._recent.clear()
-        self.mode = MONITOR
-        self._restart_detector(k)
-        self.events.extend(events)
+
+    def _track_compensated(self, accepted_now: dict) -> None:
+        """Restart the tracker over every compensated channel: the ones just accepted with
+        their fit's information (added to what an earlier acceptance of the same kind knew),
+        the others as they were tracked."""
+        tracked = {("actuator" if t.hypothesis.target == "actuator_bias"
+                    else t.hypothesis.target, t.hypothesis.index): t
+                   for t in self.tracker.tracked}
+        for key, (hyp, precision) in accepted_now.items():
+            before = tracked.get(key)
+            if before is not None and before.hypothesis.target == hyp.target:
+                precision = precision + before.precision
+            onset = min(c.onset for c in self.compensation if (c.target, c.index) == key)
+            tracked[key] = Tracked(hyp, onset, precision)
+        self.tracker.restart([tracked[key] for key in sorted(tracked)])
+
+    def _refine_tracked(self, k: int, t: int) -> list[FaultEvent]:
+        """A tracker checkpoint: fold its significant corrections into the compensation,
+        each announced as a "refined" event with the channel's new total."""
+        corrections = self.tracker.correction()
+        events = []
+        for c in corrections:
+            h = c.tracked.hypothesis
+            if h.target == "sensor":
+                entry = Compensation("sensor", h.index, c.tracked.onset, bias=float(c.delta[0]))
+                variances = {"bias": float(c.variances[0])}
+                target = "sensor"
+            else:
+                eta = 1.0 + float(c.delta[0]) if h.target == "actuator" else 1.0
+                lam = float(c.delta[-1])
+                entry = Compensation("actuator", h.index, c.tracked.onset, eta=eta, lam=lam,
+                                     scale=True)
+                variances = ({"eta": float(c.variances[0]), "lambda": float(c.variances[1])}
+                             if h.target == "actuator" else
+                             {"eta": 0.0, "lambda": float(c.variances[0])})
+                target = "actuator"
+            _, total = fold(self.compensation, entry)
+            events.append(FaultEvent(
+                kind="refined", sample=k, timestamp_ns=t, target=target, index=h.index,
+                name=h.name, estimates=total, variances=variances,
+                onset_sample=c.tracked.onset, accepted_sample=k))
+        if events:
+            self._reload_window()
+            self.events.extend(events)
         return events

@@ -15,7 +15,7 @@ import numpy as np
 
 from canfdi.core.residuals import ResidualBank
 
-__all__ = ["Hypothesis", "independent_sensors", "proportional", "regressors"]
+__all__ = ["Hypothesis", "independent_sensors", "proportional", "regressors", "row_regressors"]
 
 
 @dataclass(frozen=True)
@@ -101,3 +101,36 @@ def regressors(bank: ResidualBank, hypotheses: list[Hypothesis], d: int, k: int,
             out[h_i, :, :, 0] = ua[h.index]
             out[h_i, :, :, 1] = ub[h.index]
     return out / bank.sigma[None, None, :, None]
+
+
+def row_regressors(bank: ResidualBank, hypotheses: list[Hypothesis], onsets: list[int],
+                   k: np.ndarray, u_windows: np.ndarray) -> np.ndarray:
+    """(N, m, D) normalised regressors of several hypotheses at once, each at its own onset,
+    for N samples: the columns of `regressors` side by side (D = the hypotheses' parameters
+    in all), one row block per sample. What a fit of several faults together (the accepted
+    ones, refined as data come in) needs over a stretch of samples in one pass.
+
+    Parameters
+    ----------
+    hypotheses : single-channel hypotheses ("actuator", "actuator_bias", "sensor");
+    onsets : their fault onsets.
+    k : (N,) samples; u_windows : (N, S+1, p) the (compensated) commands of samples k-S..k of
+        each, NaN taken as 0 (as in `regressors`).
+    """
+    k = np.asarray(k, dtype=np.int64)
+    S = bank.S
+    positions = k[:, None] - S + np.arange(S + 1)[None, :]  # (N, S+1)
+    u = np.nan_to_num(np.asarray(u_windows, dtype=float))
+    cols = []
+    for h, onset in zip(hypotheses, onsets, strict=True):
+        mask = (positions >= onset).astype(float)
+        if h.target == "sensor":
+            cols.append(np.einsum("ms,ns->nm", bank.Gz[h.index], mask))
+        elif h.target in ("actuator", "actuator_bias"):
+            if h.target == "actuator":
+                cols.append(np.einsum("ms,ns,ns->nm", bank.Gu[h.index], mask, u[:, :, h.index]))
+            cols.append(np.einsum("ms,ns->nm", bank.Gu[h.index], mask))
+        else:
+            raise ValueError(f"hypotheses: {h.label} is not a single channel")
+    out = np.stack(cols, axis=-1) if cols else np.zeros((len(k), bank.m, 0))
+    return out / bank.sigma[None, :, None]

@@ -12,7 +12,7 @@ import numpy as np
 from canfdi.core.calibrate import calibrate_threshold, threshold_for_long_run_variance
 from canfdi.core.residuals import ResidualBank
 
-__all__ = ["calibrate_thresholds"]
+__all__ = ["calibrate_thresholds", "long_run_covariance"]
 
 
 def calibrate_thresholds(bank: ResidualBank, measurement_std: np.ndarray,
@@ -75,12 +75,23 @@ def _long_run_variance(bank: ResidualBank, measurement_std: np.ndarray,
     correlation the formula does not see: with process noise, batch means over the
     calibration record (blocks of 50 windows) estimate it too, and the larger value is used.
     """
-    coef = bank.M.reshape(bank.m, bank.S + 1, -1)[:, :, : bank.q]
-    var = np.asarray(measurement_std, dtype=float) ** 2 * np.ones(bank.q)
-    exact = (coef.sum(axis=1) ** 2 @ var) / bank.sigma**2
+    exact = np.diag(long_run_covariance(bank, measurement_std)).copy()
     block = 50 * (bank.S + 1)
     n_blocks = len(rn) // block
     if process_std is None or not np.any(process_std) or n_blocks < 20:
         return exact
     means = rn[: n_blocks * block].reshape(n_blocks, block, -1).mean(axis=1)
     return np.maximum(exact, means.var(axis=0, ddof=1) * block)
+
+
+def long_run_covariance(bank: ResidualBank, measurement_std: np.ndarray) -> np.ndarray:
+    """(m, m) long-run covariance (sum over all lags) of the normalised residuals under white
+    measurement noise: r_i = sum_l sum_c M_i[l, c] x_c(k - S + l), so the sum of r over a
+    stretch moves as sum_c var(x_c) (sum_l M_i[l, c]) (sum_l M_j[l, c]) per sample. What a sum
+    of residuals (a bias fitted over many samples) really varies by: the white, independent
+    residuals that least squares assumes would give the identity. Process noise adds
+    correlation this does not count."""
+    coef = bank.M.reshape(bank.m, bank.S + 1, -1)[:, :, : bank.q]
+    var = np.asarray(measurement_std, dtype=float) ** 2 * np.ones(bank.q)
+    gain = coef.sum(axis=1) / bank.sigma[:, None]  # (m, q)
+    return (gain * var[None, :]) @ gain.T
