@@ -36,6 +36,8 @@ Frame statuses (canfdi.bus.frames ``STATUS_NAMES``, int8 codes in the batch form
 ``jump``        a counter further ahead than the time since the last frame allows (the drive
                 sends one sample per period), not confirmed by the next frame: a random frame
                 that passed the 8-bit CRC, which would otherwise open a sample of garbage
+``time_jump``   a timestamp further from the drive's time than the bound allows, not confirmed
+                as a step of the clock by the frames after it (canfdi.bus.timegate)
 =============== ============================================================================
 
 The first three are valid; every other status is counted by reason and never enters a sample.
@@ -60,13 +62,14 @@ from canfdi.bus.frames import (
     FrameBlock,
     frame_counters,
 )
+from canfdi.bus.timegate import MIN_BOUND_PERIODS, TimeGate
 from canfdi.core.records import Sample
 from canfdi.core.settings import ConfigError
 
 __all__ = ["AssembledLog", "SampleAssembler", "assemble_batch"]
 
 (_OK, _MONITOR, _UNUSED, _UNKNOWN_ID, _EXTENDED, _REMOTE, _ERROR_FRAME, _FD, _DLC, _CRC,
- _DUPLICATE, _STALE, _JUMP) = range(len(STATUS_NAMES))
+ _DUPLICATE, _STALE, _JUMP, _TIME_JUMP) = range(len(STATUS_NAMES))
 
 # Fewest accepted drive frames push_batch sends through the state machine at a time (unless a
 # regular run can take over), and fewest periods of a run it assembles with numpy: below these
@@ -158,6 +161,8 @@ class SampleAssembler:
         self._complete = 0
         self._broken = 0
         self._missing = 0
+        # Within a counter's modulus the counter says how many periods passed.
+        self.gate = TimeGate(round(max(self._mod, MIN_BOUND_PERIODS) * self._dt_ns))
 
     @property
     def stats(self) -> dict:
@@ -170,7 +175,8 @@ class SampleAssembler:
         never completed, including one closed by `flush`; delivered with NaN for the signals of
         their missing messages), samples_missing (no valid frame at all), duplicates.
         """
-        return frame_counters(self._counts, self._complete, self._broken, self._missing)
+        return frame_counters(self._counts, self._complete, self._broken, self._missing,
+                              len(self.gate.steps))
 
     def push(
         self,
@@ -204,6 +210,10 @@ class SampleAssembler:
         if status != "ok":
             self._counts[STATUS_CODES[status]] += 1
             return status, []
+        timestamp_ns = self.gate.step(timestamp_ns)
+        if timestamp_ns is None:
+            self._counts[_TIME_JUMP] += 1
+            return "time_jump", []
         code = self._place(slot, counter, timestamp_ns)
         self._counts[code] += 1
         out = self._take_partial()
@@ -270,9 +280,12 @@ class SampleAssembler:
         sends the frames up to the next such run through the state machine (about 2 us a
         frame).
         """
-        timestamps_ns = block.t_ns
         status, slot, values, counters = self.bus_map.decode_frames(block)
         drive = np.flatnonzero(status == _OK)
+        timestamps_ns, dropped = self.gate.apply(block.t_ns, drive)
+        if dropped.size:
+            status[drive[dropped]] = _TIME_JUMP
+            drive = np.delete(drive, dropped)
         blocks = self._assemble(drive, slot[drive], counters[drive], timestamps_ns, values,
                                 status)
         # Every status is final now (the machine wrote its verdicts): count them in one go.

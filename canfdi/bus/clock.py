@@ -16,8 +16,13 @@ canfdi.bus.assembler's `AssembledLog`:
   the PDOs sent after SYNC k).
 * ``grid``: samples at fixed instants ``t0 + phase + k period`` (t0: the first mapped frame's
   arrival), each holding the newest value of each mapped signal received up to the instant, if
-  not older than ``max_age``. A sample is delivered once a frame later than its instant has
-  arrived.
+  not older than ``max_age``. A sample is delivered once a valid frame of the drive's DBC later
+  than its instant has arrived (only the drive's own frames move its clock: a foreign frame's
+  time is not checked).
+
+Every clock first passes the drive's valid frames through a `canfdi.bus.timegate.TimeGate`: a
+frame whose time leaves the drive's by more than the bound is a ``time_jump``, dropped; a step
+of the clock is followed, not materialised as missing samples.
 
 A value too old, or never received, is NaN: the diagnoser treats it as a lost frame's. A frame
 whose message has an alive counter and repeats its predecessor's count is a ``duplicate``.
@@ -42,6 +47,7 @@ from canfdi.bus.frames import (
     FrameBlock,
     frame_counters,
 )
+from canfdi.bus.timegate import MIN_BOUND_PERIODS, TimeGate
 from canfdi.core.records import Sample
 from canfdi.core.settings import ClockConfig, ConfigError
 
@@ -52,6 +58,9 @@ CLOCKS = ("counter", "trigger", "grid")
 
 _OK = STATUS_CODES["ok"]
 _DUPLICATE = STATUS_CODES["duplicate"]
+_UNUSED = STATUS_CODES["unused"]
+_TIME_JUMP = STATUS_CODES["time_jump"]
+_NEVER = np.iinfo(np.int64).min
 
 
 class LatestValueClock:
@@ -89,11 +98,13 @@ class LatestValueClock:
         self._t0: int | None = None  # grid: the first mapped frame's time
         self._counts = [0] * len(STATUS_NAMES)
         self._complete = self._broken = self._missing = 0
+        self.gate = TimeGate(round(MIN_BOUND_PERIODS * max(self._dt_ns, self._period_ns)))
 
     @property
     def stats(self) -> dict:
         """Counters since construction, as `SampleAssembler.stats`."""
-        return frame_counters(self._counts, self._complete, self._broken, self._missing)
+        return frame_counters(self._counts, self._complete, self._broken, self._missing,
+                              len(self.gate.steps))
 
     # -- streaming ----------------------------------------------------------------------------
     def push(self, timestamp_ns: int, frame_id: int, data: bytes | bytearray, *,
@@ -106,12 +117,18 @@ class LatestValueClock:
                  | is_fd * FLAG_FD)
         status, slot, values, counter = self.bus_map.decode_frame(frame_id, data, flags)
         code = STATUS_CODES[status]
+        t = int(timestamp_ns)
+        if code in (_OK, _UNUSED):
+            checked = self.gate.step(t)
+            if checked is None:
+                code = _TIME_JUMP
+            else:
+                t = checked
         if code == _OK and counter >= 0:
             if counter == self._last_counter[slot]:
                 code = _DUPLICATE
             self._last_counter[slot] = counter
         self._counts[code] += 1
-        t = int(timestamp_ns)
         if self.kind == "trigger":
             if code == _OK:
                 self._store(slot, values, t)  # the trigger frame's own values count
@@ -124,7 +141,8 @@ class LatestValueClock:
         else:
             if code == _OK and self._t0 is None:
                 self._t0 = t
-            instants, _ = self._grid_instants(np.array([t], dtype=np.int64))
+            instants, _ = self._grid_instants(np.array(
+                [t if code in (_OK, _UNUSED) else _NEVER], dtype=np.int64))
         samples = []
         if len(instants):
             ks, gaps = self._indices(instants)
@@ -156,7 +174,9 @@ class LatestValueClock:
     def push_batch(self, block: FrameBlock) -> AssembledLog:
         """`push` for a block of frames, in order (vectorised)."""
         status, slot, values, counters = self.bus_map.decode_frames(block)
-        t = block.t_ns
+        drive = np.flatnonzero((status == _OK) | (status == _UNUSED))
+        t, dropped = self.gate.apply(block.t_ns, drive)
+        status[drive[dropped]] = _TIME_JUMP
         self._mark_duplicates(status, slot, counters)
         ok = np.flatnonzero(status == _OK)
         if self.kind == "trigger":
@@ -173,7 +193,9 @@ class LatestValueClock:
                 # (a jittered stray stamped later than it would, the scalar path shows).
                 start = int(ok[0])
                 self._t0 = int(t[start])
-            instants, upto = self._grid_instants(t[start:])
+            # Only the drive's own valid frames move its clock.
+            own = (status[start:] == _OK) | (status[start:] == _UNUSED)
+            instants, upto = self._grid_instants(np.where(own, t[start:], _NEVER))
             upto = upto + start
         ks, gaps = self._indices(instants)
         flat = self._values_at(ok, slot, values, t, instants, upto)
@@ -208,7 +230,7 @@ class LatestValueClock:
     def _grid_instants(self, t: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.intp]]:
         """The grid instants this block makes final (earlier than its latest frame), and per
         instant the last row received up to it."""
-        if self._t0 is None or not len(t):
+        if self._t0 is None or not len(t) or int(np.max(t)) == _NEVER:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.intp)
         latest = int(np.max(t))
         first = self._k + 1

@@ -41,7 +41,7 @@ _GET = {name: operator.attrgetter(name) for name in (
 
 STATUS_NAMES: tuple[str, ...] = (
     "ok", "monitor", "unused", "unknown_id", "extended", "remote", "error_frame", "fd", "dlc",
-    "crc", "duplicate", "stale", "jump",
+    "crc", "duplicate", "stale", "jump", "time_jump",
 )
 """What the assembler found of each received frame (canfdi.bus.assembler explains each)."""
 STATUS_CODES: dict[str, int] = {name: code for code, name in enumerate(STATUS_NAMES)}
@@ -51,7 +51,8 @@ SENT = "sent"
 """The status of a frame the monitor itself sent (a log holds both directions)."""
 
 
-def frame_counters(counts, complete: int, broken: int, missing: int) -> dict:
+def frame_counters(counts, complete: int, broken: int, missing: int,
+                   clock_steps: int = 0) -> dict:
     """The counters of a sample clock (and of the monitor) from its per-status frame counts.
 
     Parameters
@@ -59,12 +60,13 @@ def frame_counters(counts, complete: int, broken: int, missing: int) -> dict:
     counts : (len(STATUS_NAMES),) frames seen with each status code.
     complete, broken, missing : samples complete, broken (delivered with NaN for the signals of
         their missing messages) and missing (no valid frame at all).
+    clock_steps : steps of the drive's clock followed (canfdi.bus.timegate).
 
     Returns
     -------
     dict with frames_received, frames_valid, frames_invalid, invalid_by_reason (every invalid
     status -> count, zeros included), samples_complete, samples_broken, samples_missing,
-    duplicates.
+    duplicates, clock_steps.
     """
     invalid = {name: int(counts[STATUS_CODES[name]]) for name in _INVALID_NAMES}
     valid = sum(int(counts[STATUS_CODES[name]]) for name in VALID_STATUSES)
@@ -77,6 +79,7 @@ def frame_counters(counts, complete: int, broken: int, missing: int) -> dict:
         "samples_broken": broken,
         "samples_missing": missing,
         "duplicates": int(counts[STATUS_CODES["duplicate"]]),
+        "clock_steps": int(clock_steps),
     }
 
 MAX_DATA = 8

@@ -28,6 +28,7 @@ from canfdi.bus.frames import (
     STATUS_NAMES,
     FrameBlock,
 )
+from canfdi.bus.timegate import CONFIRM_FRAMES
 from tests.unit.test_busmap import DT_NS, as_log, dc_motor_map, drive_traffic
 
 DT = DT_NS / 1e9
@@ -162,8 +163,9 @@ def test_clean_traffic_assembles_every_sample_to_the_dbc_resolution():
         "frames_received": 3 * n, "frames_valid": 3 * n, "frames_invalid": 0,
         "invalid_by_reason": dict.fromkeys(
             ("unknown_id", "extended", "remote", "error_frame", "fd", "dlc", "crc",
-             "duplicate", "stale", "jump"), 0),
+             "duplicate", "stale", "jump", "time_jump"), 0),
         "samples_complete": n, "samples_broken": 0, "samples_missing": 0, "duplicates": 0,
+        "clock_steps": 0,
     }
 
 
@@ -423,10 +425,10 @@ def test_a_counter_ahead_of_the_clock_is_garbage_unless_the_next_frame_confirms_
     assert lost_messages(samples[-5]) == {CMD}  # its first frame was the unconfirmed jump
 
 
-@pytest.mark.parametrize("lost", [200, 1000, 1023])
+@pytest.mark.parametrize("lost", [129, 200, 255])
 def test_long_outage_is_unwrapped_by_the_timestamps(lost):
-    # 200: a counter step over 128 that is not stale; 1023: the counter after the outage equals
-    # the last one before it (d = 0), only the elapsed time tells 4 wraps.
+    # Beyond 128 periods the counter alone would call the frames stale: the elapsed time
+    # (within the time gate's bound of 256 periods) says how far it went.
     n, start = lost + 300, 200
     frames = [f for f in frames_of(n) if not start * DT_NS <= f[0] < (start + lost) * DT_NS]
     statuses, samples, stats = run(frames)
@@ -435,6 +437,36 @@ def test_long_outage_is_unwrapped_by_the_timestamps(lost):
     assert samples[start].gap == lost
     assert stats["samples_missing"] == lost
     assert_values_are_the_drives(samples, n)
+
+
+@pytest.mark.parametrize("step_s", [3600, 86400, -3600, -1.7e9])
+def test_a_step_of_the_clock_is_followed_not_counted(step_s):
+    # The timestamps step by an hour, a day, an hour back, back to 1970 (NTP, a gateway
+    # without a real-time clock): beyond the bound, confirmed by the frames after it. Eight
+    # frames go as time_jump, then the clock follows: a pause of at most the bound (256
+    # periods) plus the counter's reach, never the step's 360,000 periods.
+    n, start = 600, 200
+    step = round(step_s * 1e9)
+    frames = [(t + (step if t >= start * DT_NS else 0), *rest) for t, *rest in frames_of(n)]
+    statuses, samples, stats = run(frames)
+    assert statuses.count("time_jump") == CONFIRM_FRAMES - 1
+    assert stats["clock_steps"] == 1
+    assert stats["samples_missing"] <= 256 + 256
+    assert len(samples) >= n - 5 and max(s.gap for s in samples) <= 512
+    assert_batch_equals_streaming(frames)
+
+
+@pytest.mark.parametrize("off_s", [3600, 86400, -3600, -1.7e9])
+def test_one_frame_with_a_wild_timestamp_is_dropped(off_s):
+    # A copy of a valid frame stamped an hour ahead (a merged log), a day ahead, back, 1970:
+    # dropped as time_jump, nothing else changes.
+    frames = frames_of(400)
+    wild = (frames[300][0] + round(off_s * 1e9), *frames[300][1:])
+    statuses, samples, stats = run([*frames[:301], wild, *frames[301:]])
+    assert statuses[301] == "time_jump" and statuses.count("time_jump") == 1
+    assert [s.k for s in samples] == list(range(400))
+    assert stats["samples_missing"] == 0 and stats["clock_steps"] == 0
+    assert_batch_equals_streaming([*frames[:301], wild, *frames[301:]])
 
 
 def test_flush_breaks_the_pending_sample_and_delivers_it():
@@ -458,7 +490,8 @@ def test_flush_breaks_the_pending_sample_and_delivers_it():
 
 def _every_defect() -> list[tuple[int, int, bytes, int]]:
     frames = frames_of(1500, k0=100)
-    frames = [f for f in frames if not 300 * DT_NS <= f[0] < 1300 * DT_NS]
+    # An outage of 240 periods: beyond the counter's half range, within the time gate's bound.
+    frames = [f for f in frames if not 300 * DT_NS <= f[0] < 540 * DT_NS]
     rng = np.random.default_rng(11)
     out = []
     for t, frame_id, data, flags in frames:
@@ -496,8 +529,8 @@ def test_batch_equals_streaming_on_every_kind_of_defect():
     # The stream really exercises every path.
     assert {"ok", "monitor", "unknown_id", "error_frame", "dlc", "crc", "duplicate",
             "stale"} <= set(statuses)
-    assert stats["samples_missing"] >= 1000 and stats["samples_broken"] > 0
-    assert max(s.gap for s in samples) >= 1000
+    assert stats["samples_missing"] >= 240 and stats["samples_broken"] > 0
+    assert max(s.gap for s in samples) >= 240
     assert_values_are_the_drives(samples, 1500, k0=100)
     assert_batch_equals_streaming(frames)
 

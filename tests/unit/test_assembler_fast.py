@@ -287,13 +287,13 @@ def test_defects_sprinkled_over_long_traffic(rate):
     frames = _sprinkled(N_CLEAN, 0, seed=int(rate * 1000), rate=rate)
     rng = np.random.default_rng(17)
     cuts = sorted(set(rng.integers(0, len(frames), 25).tolist()))
-    then = shifted(frames_of(50, k0=N_CLEAN), 3000 * DT_NS)
+    then = shifted(frames_of(50, k0=N_CLEAN), 240 * DT_NS)  # an outage within the bound
     assembler, statuses, samples = assert_batch_equals_push(frames, then=then)
     assert {"ok", "monitor", "unknown_id", "extended", "error_frame", "dlc", "crc",
             "duplicate", "stale"} <= set(statuses)
     stats = assembler.stats
-    assert stats["samples_missing"] > 600 and stats["samples_broken"] > 0
-    assert max(s.gap for s in samples) >= 600
+    assert stats["samples_missing"] > 200 and stats["samples_broken"] > 0
+    assert max(s.gap for s in samples) >= 200
     assert_batch_equals_push(frames, cuts=cuts, then=then)
     # The fast path still carries the regular stretches between the defects.
     fresh = SampleAssembler(dc_motor_map(), DT)
