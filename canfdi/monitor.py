@@ -191,6 +191,7 @@ class Monitor:
                                      for v in self._owner_keys], dtype=np.int64)
         # Frame counters of the whole bus (a shared frame once), by status code.
         self._frame_counts = np.zeros(len(STATUS_NAMES), dtype=np.int64)
+        self._steps_said: dict[str, int] = {}  # clock steps logged, per drive
         self.sink = sink
         self.record_residuals = record_residuals
         self.events: list[FaultEvent] = []
@@ -240,7 +241,21 @@ class Monitor:
             return self.drives[0].clock.stats
         clocks = [d.clock.stats for d in self.drives]
         return frame_counters(self._frame_counts, *(sum(c[key] for c in clocks) for key in (
-            "samples_complete", "samples_broken", "samples_missing")))
+            "samples_complete", "samples_broken", "samples_missing", "clock_steps")))
+
+    def clock_notices(self) -> list[str]:
+        """One line for each step of a drive's clock not said yet (canfdi.bus.timegate): the
+        service logs them, once each."""
+        out = []
+        for drive in self.drives:
+            steps = drive.clock.gate.steps
+            said = self._steps_said.get(drive.name, 0)
+            for _, size in steps[said:]:
+                who = f"drive {drive.name}: " if len(self.drives) > 1 else ""
+                out.append(f"{who}clock stepped by {size / 1e9:+.3f} s; following it (the "
+                           "samples across the step are not counted missing)")
+            self._steps_said[drive.name] = len(steps)
+        return out
 
     # -- metadata ---------------------------------------------------------------------------
     def metadata(self, truth: list[dict] | None = None) -> dict[str, str]:
@@ -662,6 +677,7 @@ def summary_json(events: list[FaultEvent], frame_stats: dict, dt: float,
             "samples_complete": frame_stats["samples_complete"],
             "samples_broken": frame_stats["samples_broken"],
             "samples_missing": frame_stats["samples_missing"],
+            "clock_steps": frame_stats.get("clock_steps", 0),
         },
     }
     if samples == 0:

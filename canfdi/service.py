@@ -249,6 +249,8 @@ class MonitorService:
             frames.append(item)
         if frames:
             self._process(frames)
+            for notice in self.monitor.clock_notices():
+                log.warning("%s", notice)
         return lost
 
     def _process(self, frames: list) -> None:

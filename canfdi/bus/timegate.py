@@ -66,7 +66,8 @@ class TimeGate:
         self.ref: int | None = None  # the drive's time: the latest accepted frame's, corrected
         self._chain: list[int] = []  # raw times of the latest frames beyond the bound, in a row
         self.jumps = 0
-        self.steps: list[tuple[int, int]] = []  # (raw time of the step, its size), ns
+        # (raw time of the first frame after the step, the step's size), ns
+        self.steps: list[tuple[int, int]] = []
 
     def step(self, t: int) -> int | None:
         """One valid frame's raw time: its corrected time, or None (a time jump: drop it)."""
@@ -86,9 +87,10 @@ class TimeGate:
         if len(self._chain) < self.confirm:
             self.jumps += 1
             return None
-        # Confirmed: the clock stepped. Land this frame a bound after the drive's time.
+        # Confirmed: the clock stepped (by as much as the chain's first frame jumped). Land
+        # this frame a bound after the drive's time.
         landed = self.ref + self.bound
-        self.steps.append((t, c - landed))
+        self.steps.append((self._chain[0], self._chain[0] - self.offset - self.ref))
         self.offset += c - landed
         self._chain.clear()
         self.ref = landed

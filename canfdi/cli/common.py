@@ -176,9 +176,12 @@ def print_comparison(result: dict, truth: list[dict] | None) -> None:
     for u in result.get("unexplained", []):
         print(f"  unexplained change detected at k={u['detected_sample']}")
     fr = result["frames"]
-    print(f"frames: {fr['received']} received, {fr['invalid']} invalid "
-          f"{ {k: v for k, v in fr['invalid_by_reason'].items() if v} or ''}; "
+    reasons = ", ".join(f"{k} {v}" for k, v in fr["invalid_by_reason"].items() if v)
+    steps = fr.get("clock_steps", 0)
+    print(f"frames: {fr['received']} received, {fr['invalid']} invalid"
+          f"{f' ({reasons})' if reasons else ''}; "
           f"samples: {result['samples']} "
-          f"({fr['samples_broken']} broken, {fr['samples_missing']} missing)")
+          f"({fr['samples_broken']} broken, {fr['samples_missing']} missing)"
+          f"{f'; the clock stepped {steps} time(s), followed' if steps else ''}")
     if "no_samples" in result:
         print(result["no_samples"])

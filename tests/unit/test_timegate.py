@@ -50,7 +50,8 @@ def test_a_confirmed_step_lands_a_bound_after_the_drive_time():
     # Three frames dropped, the fourth confirms the step and lands at 20 + BOUND.
     assert out[:6] == [0, 10, 20, None, None, None]
     assert out[6:] == [20 + BOUND, 30 + BOUND, 40 + BOUND]
-    assert gate.steps == [(step + 60, step + 60 - 20 - BOUND)]
+    # The step is said as the first frame after it saw it: 10 ns after the drive's time.
+    assert gate.steps == [(step + 30, step + 10)]
 
 
 def test_scattered_stray_frames_never_confirm_a_step():
