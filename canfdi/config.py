@@ -90,6 +90,7 @@ from canfdi.core.settings import (
     SignalRef,
     TemplateSpec,
     WatchdogConfig,
+    brief,
     parse_options,
     section,
     unknown_name,
@@ -167,11 +168,17 @@ def _stds(value: Any, field: str, size: int, default: float | None) -> np.ndarra
     return arr
 
 
+MAX_WINDOW = 50
+"""The longest parity window a config may ask for (design.max_window's bound too): the
+window's matrices grow as its square, and 50 periods is far beyond any fault's need."""
+
+
 def _window(value: Any, field: str) -> int | None:
     if value is None or value == "auto":
         return None
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise ConfigError(field, f"expected 'auto' or an integer >= 0, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_WINDOW:
+        raise ConfigError(field, f"expected 'auto' or an integer from 0 to {MAX_WINDOW}, got "
+                                 f"{brief(value)}")
     return value
 
 
@@ -183,7 +190,7 @@ def _template(value: Any, field: str) -> TemplateSpec:
         return TemplateSpec(name=value)
     if not isinstance(value, dict):
         raise ConfigError(field, f"expected a template name or {{name, roles, parameters, "
-                                 f"fixed}}, got {value!r}")
+                                 f"fixed}}, got {brief(value)}")
     if "name" not in value:
         raise ConfigError(f"{field}.name", "missing: which template")
     name = Option(str).check(value["name"], f"{field}.name")
@@ -217,7 +224,7 @@ def _identify_spec(model_data: dict) -> IdentifySpec | None:
         return None
     if not isinstance(raw, dict):
         raise ConfigError("model.identify", f"expected a mapping like {{unknown_inputs: 1}}, "
-                                            f"got {raw!r}")
+                                            f"got {brief(raw)}")
     opts = parse_options(raw, _IDENTIFY, "model.identify", extra=("template",))
     template = (_template(raw["template"], "model.identify.template")
                 if raw.get("template") is not None else None)
@@ -291,7 +298,7 @@ def parse_config(data: Any, path: Path | None = None, *, allow_unidentified: boo
         raise ConfigError("noise", "all standard deviations are zero: no threshold can be derived")
 
     design = section(data, "design")
-    max_window = parse_options(design, {"max_window": Option(int, 0, 50)}, "design",
+    max_window = parse_options(design, {"max_window": Option(int, 0, MAX_WINDOW)}, "design",
                                extra=("actuator_window", "sensor_window")).get("max_window", 10)
     options = DesignOptions(
         actuator_window=_window(design.get("actuator_window"), "design.actuator_window"),
@@ -329,9 +336,10 @@ def parse_config(data: Any, path: Path | None = None, *, allow_unidentified: boo
 def _message_ref(value: Any, field: str) -> str | int:
     """A DBC message named by its name or by its (DBC) ID."""
     if isinstance(value, bool) or not isinstance(value, str | int) or value == "":
-        raise ConfigError(field, f"expected a message name or ID, got {value!r}")
+        raise ConfigError(field, f"expected a message name or ID, got {brief(value)}")
     if isinstance(value, int) and not 0 <= value <= MAX_EXTENDED_ID:
-        raise ConfigError(field, f"expected an ID in [0, 0x{MAX_EXTENDED_ID:X}], got {value!r}")
+        raise ConfigError(field, f"expected an ID in [0, 0x{MAX_EXTENDED_ID:X}], got "
+                                 f"{brief(value)}")
     return value
 
 
@@ -340,11 +348,12 @@ def _signal_ref(value: Any, field: str) -> SignalRef:
         message, dot, signal = value.rpartition(".")
         if not dot or not message or not signal:
             raise ConfigError(field, f"expected MESSAGE.SIGNAL or {{message, signal}}, got "
-                                     f"{value!r}")
+                                     f"{brief(value)}")
         return SignalRef(_message_ref(int(message, 0) if _is_int(message) else message, field),
                          signal)
     if not isinstance(value, dict):
-        raise ConfigError(field, f"expected MESSAGE.SIGNAL or {{message, signal}}, got {value!r}")
+        raise ConfigError(field, f"expected MESSAGE.SIGNAL or {{message, signal}}, got "
+                                 f"{brief(value)}")
     parse_options(value, {"signal": Option(str)}, field, extra=("message",))
     if "message" not in value or "signal" not in value:
         raise ConfigError(field, "needs both message and signal")
@@ -371,7 +380,8 @@ def _e2e_spec(value: Any, field: str) -> Any:
         if name not in E2E_PROFILES:
             raise unknown_name(f"{field}.profile", "E2E profile", name, E2E_PROFILES)
         return dict(value)
-    raise ConfigError(field, f"expected a profile name or {{profile, ...options}}, got {value!r}")
+    raise ConfigError(field, f"expected a profile name or {{profile, ...options}}, got "
+                             f"{brief(value)}")
 
 
 def _bus(data: dict, names: list[str]) -> BusConfig:
@@ -407,7 +417,7 @@ def _bus(data: dict, names: list[str]) -> BusConfig:
     shared = node.get("shared", [])
     if not isinstance(shared, list):
         raise ConfigError("bus.node.shared", f"expected a list of message names or IDs, got "
-                                             f"{shared!r}")
+                                             f"{brief(shared)}")
     node_shared = tuple(_message_ref(ref, f"bus.node.shared[{i}]")
                         for i, ref in enumerate(shared))
     monitor_data = section(data, "monitor", "bus")
@@ -441,7 +451,7 @@ def _drives(value: Any, bus: BusConfig) -> tuple[DriveConfig, ...]:
         if "name" not in opts:
             raise ConfigError(f"{where}.name", "missing: every drive needs a name")
         if opts["name"] in seen:
-            raise ConfigError(f"{where}.name", f"{opts['name']!r} is named twice")
+            raise ConfigError(f"{where}.name", f"{brief(opts['name'])} is named twice")
         seen.add(opts["name"])
         if len(value) > 1 and "node" not in opts:
             raise ConfigError(f"{where}.node", "missing: several drives need a node each")
@@ -449,6 +459,11 @@ def _drives(value: Any, bus: BusConfig) -> tuple[DriveConfig, ...]:
     if len(drives) > 1 and bus.node_id is None:
         raise ConfigError("bus.node.id", "several drives need a node-id template (e.g. "
                                          "\"(id & ~0x7F) | node\" for CANopen)")
+    if bus.node_id is not None:
+        # Every drive's node, now: a template that divides by zero for one of them is a bad
+        # config, not a crash when that drive's frames are mapped.
+        check_template(bus.node_id, "bus.node.id",
+                       nodes=tuple(d.node for d in drives if d.node is not None) or (1,))
     return tuple(drives)
 
 
@@ -462,12 +477,39 @@ def read_yaml(path: Path, error: type[ValueError], field: str) -> Any:
     except OSError as exc:
         raise error(field, f"cannot read {path}: {exc.strerror}") from None
     try:
-        return yaml.safe_load(text)
+        document = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(exc, "problem", exc)
         raise error(field, f"invalid YAML{where}: {problem}") from None
+    except RecursionError:
+        raise error(field, "invalid YAML: nested too deeply") from None
+    if _expanded_size(document, MAX_DOCUMENT_VALUES) > MAX_DOCUMENT_VALUES:
+        raise error(field, f"the document expands to more than {MAX_DOCUMENT_VALUES:,} values "
+                           "(YAML aliases repeated?)")
+    return document
+
+
+MAX_DOCUMENT_VALUES = 1_000_000
+"""The most values (scalars, lists and mappings, aliases counted each time they are used) a
+YAML file may expand to: a config is a few thousand; an alias repeated within aliases is
+exponential, and everything that reads the document would pay for it."""
+
+
+def _expanded_size(document: Any, limit: int) -> int:
+    """Values in the document as if every alias were copied, counted up to just past
+    ``limit``."""
+    count, stack = 0, [document]
+    while stack and count <= limit:
+        item = stack.pop()
+        count += 1
+        if isinstance(item, dict):
+            stack.extend(item.keys())
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
+    return count
 
 
 def load_config(path: str | Path, *, allow_unidentified: bool = False) -> MonitorConfig:

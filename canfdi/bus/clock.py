@@ -49,7 +49,7 @@ from canfdi.bus.frames import (
 )
 from canfdi.bus.timegate import MIN_BOUND_PERIODS, TimeGate
 from canfdi.core.records import Sample
-from canfdi.core.settings import ClockConfig, ConfigError
+from canfdi.core.settings import ClockConfig, ConfigError, brief
 
 __all__ = ["CLOCKS", "LatestValueClock", "make_clock"]
 
@@ -291,5 +291,5 @@ def make_clock(bus_map: BusMap, dt: float, clock: ClockConfig
     if clock.kind in ("trigger", "grid"):
         return LatestValueClock(bus_map, dt, clock.kind, period=clock.period, phase=clock.phase,
                                 max_age=clock.max_age)
-    raise ConfigError("bus.clock.kind", f"unknown clock {clock.kind!r} (known: "
+    raise ConfigError("bus.clock.kind", f"unknown clock {brief(clock.kind)} (known: "
                                         f"{', '.join(CLOCKS)})")

@@ -19,6 +19,7 @@ for a frame whose FD flag is not its message's, ``dlc``, ``crc`` (the E2E check 
 
 from __future__ import annotations
 
+import logging
 import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -46,6 +47,7 @@ from canfdi.core.settings import (
     DriveConfig,
     MonitorConfig,
     SignalRef,
+    brief,
     nearest,
 )
 
@@ -83,12 +85,65 @@ def load_dbc(value: str, config_path: Path | None, field: str = "bus.dbc"
     if not candidate.is_file():
         shipped = ", ".join(dbc_files.available()) or "none"
         raise ConfigError(field, f"no DBC file {candidate} and no shipped DBC named "
-                                 f"{value!r} (shipped: {shipped})")
+                                 f"{brief(value)} (shipped: {shipped})")
+    # cantools warns of a message overwritten by another of the same ID; check_unique_ids
+    # makes that the config error, said once.
+    quiet = logging.getLogger("cantools.database")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
     try:
         database = cantools.database.load_file(candidate, database_format="dbc", strict=False)
     except (OSError, ValueError, cantools.database.Error) as exc:
         raise ConfigError(field, f"cannot load {candidate}: {exc}") from None
+    finally:
+        quiet.setLevel(level)
+    check_unique_ids(database, field, str(candidate))
     return database, str(candidate)  # type: ignore[return-value]
+
+
+def check_unique_ids(database: Database, field: str, label: str) -> None:
+    """ConfigError(field) naming two messages of one ID (which one would a frame be?)."""
+    seen: dict[MessageKey, str] = {}
+    for message in database.messages:
+        key = message_key(message.frame_id, message.is_extended_frame)
+        if key in seen:
+            raise ConfigError(field, f"{label}: messages {seen[key]} and {message.name} have the "
+                                     f"same ID 0x{message.frame_id:X}")
+        seen[key] = message.name
+
+
+def signal_bits(signal) -> frozenset[int]:
+    """The payload bits a DBC signal occupies, numbered 8 * byte + bit (bit 0 the LSB):
+    Intel signals run up from their start bit, Motorola ones down from their MSB, on to the
+    next byte's bit 7.
+
+    >>> import cantools
+    >>> sorted(signal_bits(cantools.database.can.Signal("s", start=7, length=10,
+    ...                                                 byte_order="big_endian")))
+    [0, 1, 2, 3, 4, 5, 6, 7, 14, 15]
+    """
+    if signal.byte_order == "little_endian":
+        return frozenset(range(signal.start, signal.start + signal.length))
+    bits, pos = set(), signal.start
+    for _ in range(signal.length):
+        bits.add(pos)
+        pos = pos + 15 if pos % 8 == 0 else pos - 1
+    return frozenset(bits)
+
+
+def check_no_overlap(message: Message, names: list[str], field: str, label: str) -> None:
+    """ConfigError(field) when a mapped signal shares payload bits with another signal of its
+    message (multiplexed signals aside: they take turns)."""
+    plain = [sig for sig in message.signals if not sig.multiplexer_ids]
+    bits = {sig.name: signal_bits(sig) for sig in plain}
+    for name in names:
+        if name not in bits:
+            continue
+        for other in plain:
+            if other.name != name and bits[name] & bits[other.name]:
+                raise ConfigError(field, f"{label}: signals {name} and {other.name} of "
+                                         f"{message.name} overlap (bits "
+                                         f"{sorted(bits[name] & bits[other.name])[:4]}...)")
 
 
 def find_message(database: Database, ref: str | int, field: str, label: str) -> Message:
@@ -105,7 +160,7 @@ def find_message(database: Database, ref: str | int, field: str, label: str) -> 
     names = [m.name for m in database.messages]
     close = nearest(ref, names)
     hint = f"did you mean {' or '.join(close)}? " if close else ""
-    raise ConfigError(field, f"no message {ref!r} in {label} ({hint}messages: "
+    raise ConfigError(field, f"no message {brief(ref)} in {label} ({hint}messages: "
                              f"{', '.join(names)})")
 
 
@@ -123,12 +178,12 @@ def _resolve(database: Database, name: str, ref: SignalRef | None, label: str
             return found[0], name
         if len(found) > 1:
             where = ", ".join(m.name for m in found)
-            raise ConfigError(field, f"signal {name!r} is in {len(found)} messages of {label} "
+            raise ConfigError(field, f"signal {brief(name)} is in {len(found)} messages of {label} "
                                      f"({where}): map it to one of them")
         every = sorted({s.name for m in database.messages for s in m.signals})
         close = nearest(name, every)
         hint = f"; nearest signals: {', '.join(close)}" if close else ""
-        raise ConfigError(field, f"no signal {name!r} in {label}: map the model signal to the "
+        raise ConfigError(field, f"no signal {brief(name)} in {label}: map the model signal to the "
                                  f"DBC signal that carries it (bus.map.{name}: MESSAGE.SIGNAL)"
                                  f"{hint}")
     message = find_message(database, ref.message, f"{field}.message", label)
@@ -138,7 +193,7 @@ def _resolve(database: Database, name: str, ref: SignalRef | None, label: str
     hint = f"did you mean {' or '.join(close)}? " if close else ""
     elsewhere = [m.name for m in _carriers(database, ref.signal)]
     carriers = (f"; {ref.signal!r} is in {', '.join(elsewhere)}" if elsewhere else "")
-    raise ConfigError(f"{field}.signal", f"no signal {ref.signal!r} in {message.name} ({hint}"
+    raise ConfigError(f"{field}.signal", f"no signal {brief(ref.signal)} in {message.name} ({hint}"
                                          f"signals: {', '.join(s.name for s in message.signals)})"
                                          f"{carriers}")
 
@@ -368,6 +423,7 @@ class BusMap:
         for message, fields in sorted(by_message.values(),
                                       key=lambda e: (e[0].is_extended_frame, e[0].frame_id)):
             key = _drive_key(bus, message, drive)
+            check_no_overlap(message, [f[0] for f in fields], "bus.dbc", dbc_label)
             try:
                 layout = compile_layout(message, [f[0] for f in fields])
             except ValueError as exc:

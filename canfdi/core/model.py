@@ -50,7 +50,24 @@ class ModelError(ValueError):
         self.field = field_name
 
 
+MAX_DIMENSION = 256
+"""The most rows or columns a model matrix may have (states, inputs, outputs): checked before
+anything is allocated, so that a config (a YAML alias repeated) cannot ask for gigabytes."""
+
+MAX_ENTRY = 1e9
+"""The largest magnitude of a model matrix entry: beyond it products over a parity window
+overflow float64, and no drive's model needs it."""
+
+
 def _matrix(value: Any, name: str) -> np.ndarray:
+    if isinstance(value, list | tuple):
+        if len(value) > MAX_DIMENSION or any(
+                isinstance(row, list | tuple) and len(row) > MAX_DIMENSION for row in value):
+            raise ModelError(name, f"more than {MAX_DIMENSION} rows or columns")
+        if any(isinstance(row, list | tuple) and any(isinstance(x, list | tuple | dict)
+                                                      for x in row) for row in value):
+            raise ModelError(name, "expected a 2-D matrix (a list of rows of numbers), got "
+                                   "deeper nesting")
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -61,8 +78,13 @@ def _matrix(value: Any, name: str) -> np.ndarray:
         arr = arr.reshape(1, -1) if arr.size else arr.reshape(0, 0)
     if arr.ndim != 2:
         raise ModelError(name, f"expected a 2-D matrix, got {arr.ndim} dimensions")
-    if not np.all(np.isfinite(arr)):
-        raise ModelError(name, "contains NaN or infinite entries")
+    if arr.size > MAX_DIMENSION ** 2:
+        raise ModelError(name, f"more than {MAX_DIMENSION} rows or columns")
+    bad = np.argwhere(~np.isfinite(arr) | (np.abs(np.nan_to_num(arr)) > MAX_ENTRY))
+    if len(bad):
+        i, j = bad[0]
+        raise ModelError(f"{name}[{i}][{j}]", f"{float(arr[i, j])!r} is not a finite number of "
+                                              f"magnitude at most {MAX_ENTRY:g}")
     return arr
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import reprlib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,11 +50,36 @@ __all__ = [
 ]
 
 
+_BRIEF = reprlib.Repr()
+_BRIEF.maxlevel, _BRIEF.maxlist, _BRIEF.maxtuple, _BRIEF.maxdict = 2, 4, 4, 4
+_BRIEF.maxstring, _BRIEF.maxother, _BRIEF.maxlong = 40, 40, 40
+
+MAX_MESSAGE = 400
+"""The longest config error line: a value echoed in it is cut (`brief`)."""
+
+
+def brief(value: object) -> str:
+    """A short repr of a config value for an error line: nested lists and mappings cut after
+    a few items and two levels, long strings cut (a YAML alias repeated nine times nine
+    times is never expanded into the message).
+
+    >>> brief("x" * 100)
+    "'xxxxxxxxxxxxxxxxx...xxxxxxxxxxxxxxxxxx'"
+    >>> brief([[1, 2, 3, 4, 5, 6]] * 9)
+    '[[1, 2, 3, 4, ...], [1, 2, 3, 4, ...], [1, 2, 3, 4, ...], [1, 2, 3, 4, ...], ...]'
+    """
+    return _BRIEF.repr(value)
+
+
 class ConfigError(ValueError):
-    """A configuration problem; ``field`` is the dotted path of the offending key."""
+    """A configuration problem; ``field`` is the dotted path of the offending key. The line
+    is cut at `MAX_MESSAGE` characters."""
 
     def __init__(self, field: str, message: str) -> None:
-        super().__init__(f"{field}: {message}")
+        text = f"{field}: {message}"
+        if len(text) > MAX_MESSAGE:
+            text = text[: MAX_MESSAGE - 3] + "..."
+        super().__init__(text)
         self.field = field
 
 
@@ -67,7 +93,7 @@ def unknown_name(field: str, what: str, name: object, names: Iterable[str]) -> C
     known = sorted(names)
     close = nearest(str(name), known)
     hint = f"did you mean {' or '.join(close)}? " if close else ""
-    return ConfigError(field, f"unknown {what} {name!r} ({hint}known: {', '.join(known)})")
+    return ConfigError(field, f"unknown {what} {brief(name)} ({hint}known: {', '.join(known)})")
 
 
 @dataclass(frozen=True)
@@ -104,7 +130,7 @@ class Option:
 
     def check(self, value: Any, field: str) -> Any:
         """The value as ``kind``, or a ConfigError naming ``field``."""
-        bad = ConfigError(field, f"expected {self.expected()}, got {value!r}")
+        bad = ConfigError(field, f"expected {self.expected()}, got {brief(value)}")
         if self.kind is bool:
             if not isinstance(value, bool):
                 raise bad

@@ -23,7 +23,11 @@ def test_shapes_and_defaults():
         (dict(A=np.eye(2), B=[[1], [2]], C=[[1, 0]], G=[[1], [2]]), "G", "(1, any)"),
         (dict(A=np.eye(2), B=[[1], [2]], C=[[1, 0]], continuous=True), "dt", "sample period"),
         (dict(A=np.eye(2), B=[[1], [2]], C=[[1, 0]], dt=-1.0), "dt", "positive"),
-        (dict(A=[[np.nan]], B=[[1]], C=[[1]]), "A", "NaN"),
+        (dict(A=[[np.nan]], B=[[1]], C=[[1]]), "A[0][0]", "nan is not a finite number"),
+        (dict(A=[[0.5, 1e308]], B=[[1]], C=[[1]]), "A[0][1]", "magnitude at most 1e+09"),
+        (dict(A=np.eye(2), B=[[1], [-np.inf]], C=[[1, 0]]), "B[1][0]", "-inf"),
+        (dict(A=[[0.5] * 300], B=[[1]], C=[[1]]), "A", "more than 256 rows or columns"),
+        (dict(A=[[[0.5]]], B=[[1]], C=[[1]]), "A", "deeper nesting"),
     ],
 )
 def test_shape_errors_name_the_matrix(kwargs, field, expected):

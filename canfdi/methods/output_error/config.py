@@ -45,6 +45,7 @@ from canfdi.core.settings import (
     ConfigError,
     MonitorConfig,
     Option,
+    brief,
     parse_options,
     unknown_name,
 )
@@ -84,7 +85,7 @@ def _number(value: Any, field: str) -> float:
 
 def _numbers(value: Any, field: str, size: int | None = None) -> list[float]:
     if not isinstance(value, list):
-        raise ConfigError(field, f"expected a list of numbers, got {value!r}")
+        raise ConfigError(field, f"expected a list of numbers, got {brief(value)}")
     out = [_number(v, f"{field}[{i}]") for i, v in enumerate(value)]
     if size is not None and len(out) != size:
         raise ConfigError(field, f"expected {size} values, got {len(out)}")
