@@ -184,6 +184,9 @@ def run(args: argparse.Namespace) -> int:
             live=make_view if not quiet and not args.no_live and sys.stdout.isatty() else None))
     except ValueError as exc:
         return config_error(exc, "demo")
+    except OSError as exc:
+        print(f"canfdi demo: cannot write {args.output}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
     finally:
         for r in recorders:
             close_recorder(r)

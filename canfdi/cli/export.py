@@ -25,7 +25,7 @@ truncated MCAP (a killed process) is exported up to its last complete block; a d
 around its damage (chunks that fail their CRC are skipped; what was lost is said on stderr, one
 line per damaged file). The format is --format, or the suffix of -o. Exit status: 0 written
 (also from a damaged log, its loss said), 2 bad log or arguments (one line, no output left), 1
-the output could not be written."""
+the output could not be written, or the log holds no frame (one line, no output left)."""
 
 
 def _writable() -> list[LogFormat]:
@@ -119,6 +119,13 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if not args.no_progress and sys.stderr.isatty():
         print("\r", end="", file=sys.stderr)
+    if written.frames == 0:
+        # Nothing usable: no empty file that looks like an export, and a status that says so.
+        out.unlink(missing_ok=True)
+        lost = "; ".join(damage.lines())
+        print(f"canfdi export: {args.log}: no frame to export{f' ({lost})' if lost else ''}",
+              file=sys.stderr)
+        return 1
     skipped = (f", {written.skipped:,} left out ({target.suffix} cannot hold them)"
                if written.skipped else "")
     print(f"canfdi export: {written.frames:,} frames -> {out}{skipped} "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -24,8 +25,9 @@ Estimate trajectories are recomputed from the log's residuals with the log's emb
 and in the page; the rest is made anyway. A damaged log is read around its damage (chunks that
 fail their CRC are skipped): what was lost is said on stderr (one line per damaged file), in
 the page and in the JSON's "damage".
-Exit status: 0 report written (also of a damaged log, its loss said), 2 bad input (no such
-file, not an MCAP, bad --config: one line)."""
+Exit status: 0 report written (also of a damaged log, its loss said), 1 the log holds no
+sample, residual or event (nothing to report: one line), 2 bad input (no such file, not an
+MCAP, bad --config: one line)."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -55,6 +57,17 @@ def run(args: argparse.Namespace) -> int:
     except ReportError as exc:
         print(f"canfdi report: {exc}", file=sys.stderr)
         return 2
+    if report.empty:
+        # No page of empty figures left behind that looks like a report.
+        for path in [*report.figures, report.html]:
+            path.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            out.rmdir()
+        lost = "; ".join(report.damage.lines()) if report.damage else ""
+        print(f"canfdi report: {args.log} holds no sample, residual or event: nothing to "
+              "report (a capture's frames: canfdi replay LOG --config FILE diagnoses them)"
+              + (f"; {lost}" if lost else ""), file=sys.stderr)
+        return 1
     for note in report.notes:
         print(f"canfdi report: missing: {note}", file=sys.stderr)
     for line in report.damage.lines() if report.damage is not None else []:

@@ -472,9 +472,13 @@ class McapRecorder:
             # No file: the buffers still go out on time, to the tap.
             self._next_flush = self._deadline = now + self._flush_interval
             return
-        for _, stale in numbered_segments(self._path):
-            logger.info("removing %s, a segment of an earlier recording under this name", stale)
-            stale.unlink()
+        stale = numbered_segments(self._path)
+        if stale:
+            # Its segments would be read as this recording's: refuse rather than delete a
+            # file this run did not write.
+            raise FileExistsError(errno.EEXIST, f"{stale[0][1].name} exists (a segment of an "
+                                  f"earlier recording named {self._path.name}?): move or "
+                                  "remove it, or record under another name", str(stale[0][1]))
 
         try:
             self._open_segment(now, raise_errors=True)

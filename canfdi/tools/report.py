@@ -869,6 +869,7 @@ class Report:
     rows: list[dict]
     notes: list[str]
     damage: Any = None
+    empty: bool = False  # the log held no sample, residual or event: nothing was reported
 
     def as_dict(self) -> dict:
         return {"html": str(self.html), "figures": [str(p) for p in self.figures],
@@ -922,4 +923,6 @@ def make_report(log: str | Path, out_dir: str | Path, config_path: Path | None =
     say("index.html")
     page = write_html(contents, rows, figures, out / "index.html")
     return Report(html=page, figures=[out / f for f, _ in figures], rows=rows,
-                  notes=list(contents.notes), damage=contents.damage)
+                  notes=list(contents.notes), damage=contents.damage,
+                  empty=(contents.samples is None and contents.residuals is None
+                         and not contents.events))

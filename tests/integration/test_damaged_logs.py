@@ -231,6 +231,11 @@ def check(verb: str, log: Log, spans: list[tuple[int, int]], kind: str,
         refusal = [ln for ln in lines if ": damaged: " not in ln]
         assert len(refusal) == 1 and "record" in refusal[0], stderr
         return
+    if status == 1 and verb in ("export", "report"):
+        # Nothing usable was left: one line saying so, with what was lost (issue 27).
+        assert len(lines) == 1, stderr
+        assert "no frame to export" in lines[0] or "nothing to report" in lines[0], stderr
+        return
     if status == 2:
         assert len(lines) == 1, stderr
         assert kind != "garbage in a chunk", "a damaged chunk of a sound file: exit 2"

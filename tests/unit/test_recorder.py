@@ -839,10 +839,18 @@ def test_sigkilled_child_loses_at_most_the_last_flush_interval(tmp_path: Path) -
 # --------------------------------------------------------------------------------------
 
 
-def test_rotation_by_bytes(tmp_path: Path) -> None:
+def test_a_segment_of_an_earlier_recording_is_never_deleted(tmp_path: Path) -> None:
+    # Its segments would read as this recording's: the recorder refuses, and deletes nothing.
     path = tmp_path / "run.mcap"
     stale = tmp_path / "run-0009.mcap"
     stale.write_bytes(b"from an earlier run")
+    with pytest.raises(FileExistsError, match=r"run-0009\.mcap exists"):
+        McapRecorder(path, metadata=METADATA, clock=FakeClock())
+    assert stale.read_bytes() == b"from an earlier run" and not path.exists()
+
+
+def test_rotation_by_bytes(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
     unrelated = tmp_path / "run-x-0001.mcap"
     unrelated.write_bytes(b"not ours")
     limit = 8_000
@@ -854,7 +862,7 @@ def test_rotation_by_bytes(tmp_path: Path) -> None:
         block_frames=64,
         clock=FakeClock(),
     )
-    assert not stale.exists() and unrelated.exists()
+    assert unrelated.exists()
     write_frames(rec, 0, 6000)
     rec.close()
 

@@ -1,0 +1,42 @@
+"""Logs that leave nothing usable end non-zero with one line, and a run never deletes a file it
+did not write (issue 27)."""
+
+from __future__ import annotations
+
+from canfdi.cli import main
+from canfdi.config import load_config
+from canfdi.io.writer import McapRecorder
+from canfdi.monitor import Monitor
+from tests.conftest import REPO
+
+CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
+
+
+def test_demo_never_deletes_a_segment_it_did_not_write(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "x-0001.mcap").write_text("someone's file")
+    assert main(["demo", "-o", "x.mcap", "--no-live"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "x-0001.mcap exists" in err[0]
+    assert (tmp_path / "x-0001.mcap").read_text() == "someone's file"
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def test_export_of_a_log_without_frames_is_one_line_exit_1_and_no_file(tmp_path, capsys):
+    log = tmp_path / "empty.log"
+    log.write_text("")
+    out = tmp_path / "out.csv"
+    assert main(["export", str(log), "-o", str(out), "--no-progress"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no frame to export" in err[0]
+    assert not out.exists()
+
+
+def test_report_of_a_log_without_samples_is_one_line_exit_1_and_no_page(tmp_path, capsys):
+    log = tmp_path / "nothing.mcap"
+    McapRecorder(log, metadata=Monitor(load_config(CONFIG)).metadata()).close()
+    out = tmp_path / "report"
+    assert main(["report", str(log), "-o", str(out), "--no-progress"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nothing to report" in err[0]
+    assert not out.exists()
