@@ -159,6 +159,8 @@ class FileDamage:
         Messages that are not JSON, by (chunk offset, offset in the chunk): their topic.
     first_ns, last_ns : int or None
         The log time span of the intact chunks read (the origin of ``t=`` in `line`).
+    notes : list of str
+        What a format without chunks found wrong (a BLF shorter than its header says).
     """
 
     path: str
@@ -170,11 +172,12 @@ class FileDamage:
     bad_messages: dict[tuple[int, int], str] = field(default_factory=dict)
     first_ns: int | None = None
     last_ns: int | None = None
+    notes: list[str] = field(default_factory=list)
     _last: LostRegion | None = field(default=None, repr=False, compare=False)
 
     def __bool__(self) -> bool:
         return bool(self.regions or self.bad_magic or self.data_crc or self.unknown_channels
-                    or self.bad_messages)
+                    or self.bad_messages or self.notes)
 
     def lost(self, start: int, end: int, reason: str, *,
              chunks: dict[int, tuple[int, int] | None] | None = None,
@@ -247,6 +250,7 @@ class FileDamage:
         if self.data_crc:
             parts.append("the data section's CRC does not match (a record outside the chunks, "
                          "metadata or an index, is damaged)")
+        parts += self.notes
         rest = "; the rest was read" if self.size else ""
         return f"{self.path}: damaged: {', '.join(parts)}{rest}"
 

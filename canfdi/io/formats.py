@@ -346,15 +346,17 @@ def _python_can(name: str, description: str, *, compressed: bool = False, write:
     inner = "." + name.removesuffix(".gz")
     held = frozenset(holds)
 
-    def read(path: Path, frames_per_block: int, received: bool) -> Iterator[FrameBlock]:
-        return read_blocks(path, inner, compressed, frames_per_block)
+    def read(path: Path, frames_per_block: int, received: bool, damage: Damage | None = None
+             ) -> Iterator[FrameBlock]:
+        return read_blocks(path, inner, compressed, frames_per_block, damage)
 
     def writer(path: Path, blocks: Iterable[FrameBlock]) -> Written:
         return write_blocks(path, inner, blocks, compressed, held)
 
     return LogFormat(name, "." + name, description, read, writer if write else None,
                      directions=directions, absolute_time=absolute_time,
-                     resolution_ns=resolution_ns, holds=held, requires=requires, extra=extra)
+                     resolution_ns=resolution_ns, holds=held, requires=requires, extra=extra,
+                     reports_damage=name == "blf")
 
 
 _ASC = "Vector ASCII (CANalyzer, CANoe, SavvyCAN)"

@@ -154,7 +154,7 @@ def block_messages(block: FrameBlock, channel: Any = None, resolution_ns: int = 
 
 
 def read_blocks(path: Path, suffix: str, compressed: bool = False,
-                frames_per_block: int = 65536) -> Iterator[FrameBlock]:
+                frames_per_block: int = 65536, damage: Any = None) -> Iterator[FrameBlock]:
     """The frames of a python-can log in blocks of ``frames_per_block``, in log order.
 
     Parameters
@@ -167,6 +167,9 @@ def read_blocks(path: Path, suffix: str, compressed: bool = False,
         The file is gzip-compressed.
     frames_per_block : int
         Frames per block (the last one may hold fewer).
+    damage : canfdi.io.damage.Damage, optional
+        Where a log shorter than its own header says is recorded (a BLF's header holds its
+        file size and object count: a cut copy reads to its cut without an error otherwise).
 
     Yields
     ------
@@ -181,13 +184,22 @@ def read_blocks(path: Path, suffix: str, compressed: bool = False,
     """
     with _open_reader(path, suffix, compressed) as reader:
         pending: list[Any] = []
+        frames = 0
         for message in reader:
             pending.append(message)
+            frames += 1
             if len(pending) >= frames_per_block:
                 yield messages_block(pending)
                 pending = []
         if pending:
             yield messages_block(pending)
+        announced = int(getattr(reader, "file_size", 0) or 0) if suffix == ".blf" else 0
+        size = path.stat().st_size
+        if damage is not None and not compressed and announced > size:
+            objects = int(getattr(reader, "object_count", 0) or 0)
+            damage.file(path, size).notes.append(
+                f"cut short: {size:,} of the {announced:,} bytes its header announces "
+                f"({objects:,} objects); {frames:,} frames read")
 
 
 def write_blocks(path: Path, suffix: str, blocks: Iterable[FrameBlock], compressed: bool = False,

@@ -40,3 +40,25 @@ def test_report_of_a_log_without_samples_is_one_line_exit_1_and_no_page(tmp_path
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nothing to report" in err[0]
     assert not out.exists()
+
+
+def test_a_cut_blf_is_said_with_what_its_header_announces(tmp_path, capsys):
+    import json
+
+    from canfdi.io.logs import write_frames
+    from firmware_sim.emitter import frame_log
+    from firmware_sim.scenario import load_scenario
+
+    frames = frame_log(load_scenario("dc_motor_actuator"), duration=8.0).frames
+    whole = tmp_path / "run.blf"
+    write_frames(whole, [frames])
+    cut = tmp_path / "cut.blf"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
+    assert main(["replay", str(whole), "--config", str(CONFIG), "--json", "--no-progress"]) == 0
+    clean = json.loads(capsys.readouterr().out)
+    assert clean["damage"] == []
+    assert main(["replay", str(cut), "--config", str(CONFIG), "--json", "--no-progress"]) == 0
+    captured = capsys.readouterr()
+    result = json.loads(captured.out)
+    assert "cut short" in captured.err and f"{frames.size:,} objects" in captured.err
+    assert result["damage"] and result["frames"]["received"] < frames.size
