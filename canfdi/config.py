@@ -354,10 +354,23 @@ def _signal_ref(value: Any, field: str) -> SignalRef:
     if not isinstance(value, dict):
         raise ConfigError(field, f"expected MESSAGE.SIGNAL or {{message, signal}}, got "
                                  f"{brief(value)}")
-    parse_options(value, {"signal": Option(str)}, field, extra=("message",))
+    parse_options(value, {"signal": Option(str)}, field, extra=("message", "range"))
     if "message" not in value or "signal" not in value:
         raise ConfigError(field, "needs both message and signal")
-    return SignalRef(_message_ref(value["message"], f"{field}.message"), value["signal"])
+    return SignalRef(_message_ref(value["message"], f"{field}.message"), value["signal"],
+                     _range(value.get("range"), f"{field}.range"))
+
+
+def _range(value: Any, field: str) -> tuple[float, float] | None:
+    """``[low, high]``: finite numbers, low < high."""
+    if value is None:
+        return None
+    if (not isinstance(value, list) or len(value) != 2
+            or not all(isinstance(x, int | float) and not isinstance(x, bool)
+                       and np.isfinite(x) for x in value) or not value[0] < value[1]):
+        raise ConfigError(field, f"expected [low, high], two finite numbers with low < high, "
+                                 f"got {brief(value)}")
+    return float(value[0]), float(value[1])
 
 
 def _is_int(text: str) -> bool:

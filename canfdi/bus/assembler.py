@@ -38,6 +38,9 @@ Frame statuses (canfdi.bus.frames ``STATUS_NAMES``, int8 codes in the batch form
                 that passed the 8-bit CRC, which would otherwise open a sample of garbage
 ``time_jump``   a timestamp further from the drive's time than the bound allows, not confirmed
                 as a step of the clock by the frames after it (canfdi.bus.timegate)
+``implausible`` a mapped value outside its signal's range (the DBC's, or the config's
+                ``bus.map.<name>.range``): data without protection (CANopen has no CRC) that
+                no drive sends
 =============== ============================================================================
 
 The first three are valid; every other status is counted by reason and never enters a sample.
@@ -69,7 +72,7 @@ from canfdi.core.settings import ConfigError
 __all__ = ["AssembledLog", "SampleAssembler", "assemble_batch"]
 
 (_OK, _MONITOR, _UNUSED, _UNKNOWN_ID, _EXTENDED, _REMOTE, _ERROR_FRAME, _FD, _DLC, _CRC,
- _DUPLICATE, _STALE, _JUMP, _TIME_JUMP) = range(len(STATUS_NAMES))
+ _DUPLICATE, _STALE, _JUMP, _TIME_JUMP, _IMPLAUSIBLE) = range(len(STATUS_NAMES))
 
 # Fewest accepted drive frames push_batch sends through the state machine at a time (unless a
 # regular run can take over), and fewest periods of a run it assembles with numpy: below these

@@ -20,6 +20,7 @@ for a frame whose FD flag is not its message's, ``dlc``, ``crc`` (the E2E check 
 from __future__ import annotations
 
 import logging
+import math
 import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -56,6 +57,7 @@ if TYPE_CHECKING:
 
 __all__ = ["BusMap", "Known", "MessageKey", "find_message", "keys_of", "load_dbc", "message_key"]
 
+_IMPLAUSIBLE = STATUS_CODES["implausible"]
 (_OK, _MONITOR, _UNUSED, _UNKNOWN_ID, _EXTENDED, _REMOTE, _ERROR, _FD, _DLC, _CRC) = (
     STATUS_CODES[name] for name in ("ok", "monitor", "unused", "unknown_id", "extended",
                                     "remote", "error_frame", "fd", "dlc", "crc"))
@@ -198,6 +200,22 @@ def _resolve(database: Database, name: str, ref: SignalRef | None, label: str
                                          f"{carriers}")
 
 
+def _plausible(message: Message, signal: str, ref: SignalRef | None) -> tuple[float, float]:
+    """The range a mapped signal's values must fall in: the config's ``range``, else the
+    DBC's [minimum|maximum] when it states one ([0|0] states none), widened by half a step of
+    the signal's resolution (a value at the limit, rounded); (-inf, inf) otherwise."""
+    sig = message.get_signal_by_name(signal)
+    if ref is not None and ref.range is not None:
+        low, high = ref.range
+    elif (sig.minimum is not None and sig.maximum is not None
+          and (sig.minimum, sig.maximum) != (0, 0) and sig.minimum < sig.maximum):
+        low, high = float(sig.minimum), float(sig.maximum)
+    else:
+        return -math.inf, math.inf
+    slack = abs(float(sig.scale or 0.0)) / 2.0 if not sig.is_float else 0.0
+    return low - slack, high + slack
+
+
 def _profile(e2e: Any, message: Message, key: MessageKey, explicit_only: bool) -> E2EProfile:
     """The E2E profile of a message on this bus. A slot takes its configured profile (the
     default when not listed); a message that is no slot only a profile configured for it by
@@ -246,6 +264,9 @@ class _Slot:
     fields: tuple[tuple[str, str, int], ...]
     dests: tuple[int, ...]
     program: tuple | None  # the scalar fast path (Intel, <= 8 bytes), or None
+    low: tuple[float, ...] = ()  # per field, the plausible range (-inf, inf: none)
+    high: tuple[float, ...] = ()
+    checked: bool = False  # whether any field has a range
 
 
 @dataclass(frozen=True)
@@ -409,6 +430,7 @@ class BusMap:
         for i, ref in enumerate(bus.node_shared):
             find_message(database, ref, f"bus.node.shared[{i}]", dbc_label)
         p = len(config.inputs)
+        model_names = {"u": config.inputs, "z": config.outputs}
         by_message: dict[str, tuple[Message, list[tuple[str, str, int]]]] = {}
         for vector, names in (("u", config.inputs), ("z", config.outputs)):
             for j, name in enumerate(names):
@@ -432,7 +454,12 @@ class BusMap:
             # Values come out in the order of the payload.
             ordered = tuple(sorted(fields, key=lambda f, lay=layout: lay.signal(f[0]).start))
             dests = tuple(j if vec == "u" else p + j for _, vec, j in ordered)
-            slots.append(_Slot(layout, key, profile, ordered, dests, _program(layout, ordered)))
+            ranges = [_plausible(message, sig, bus.map.get(model_names[vec][j]))
+                      for sig, vec, j in ordered]
+            low = tuple(r[0] for r in ranges)
+            high = tuple(r[1] for r in ranges)
+            slots.append(_Slot(layout, key, profile, ordered, dests, _program(layout, ordered),
+                               low, high, any(np.isfinite(low + high))))
         keys = [s.key for s in slots]
         if len(set(keys)) != len(keys):
             raise ConfigError("bus.node.id", f"two mapped messages of drive {drive.name} get "
@@ -487,10 +514,15 @@ class BusMap:
         counter = s.e2e.counter(bytes(data))
         counter = -1 if counter is None else counter
         if s.program is not None:
-            return "ok", slot, _run_program(s.program, data), counter
-        row = np.frombuffer(bytes(data), dtype=np.uint8)[None, :]
-        decoded = s.layout.decode(row)
-        return "ok", slot, tuple(float(decoded[name][0]) for name, _, _ in s.fields), counter
+            values = _run_program(s.program, data)
+        else:
+            row = np.frombuffer(bytes(data), dtype=np.uint8)[None, :]
+            decoded = s.layout.decode(row)
+            values = tuple(float(decoded[name][0]) for name, _, _ in s.fields)
+        if s.checked and not all(lo <= v <= hi for v, lo, hi in zip(values, s.low, s.high,
+                                                                    strict=True)):
+            return "implausible", slot, (), -1
+        return "ok", slot, values, counter
 
     def decode_frames(
         self, block: FrameBlock
@@ -551,6 +583,15 @@ class BusMap:
             found = s.e2e.counters(payloads)
             if found is not None:
                 counters[rows] = found
+            if s.checked:
+                width = len(s.fields)
+                inside = ((values[rows, :width] >= np.array(s.low))
+                          & (values[rows, :width] <= np.array(s.high))).all(axis=1)
+                if not inside.all():
+                    bad = rows[~inside]
+                    status[bad] = _IMPLAUSIBLE
+                    values[bad] = np.nan
+                    counters[bad] = -1
         return status, slot, values, counters
 
 

@@ -214,10 +214,12 @@ def parse_options(data: Any, spec: Mapping[str, Option], where: str, *,
 @dataclass(frozen=True)
 class SignalRef:
     """Where the bus carries a model signal: a message of the DBC (its name, or its ID as the
-    DBC writes it) and one of its signals."""
+    DBC writes it) and one of its signals; ``range`` (low, high): the values the drive can
+    physically send, tighter than the DBC's (a frame outside is "implausible")."""
 
     message: str | int
     signal: str
+    range: tuple[float, float] | None = None
 
     def __str__(self) -> str:
         msg = self.message if isinstance(self.message, str) else f"0x{self.message:X}"

@@ -62,3 +62,39 @@ def test_a_cut_blf_is_said_with_what_its_header_announces(tmp_path, capsys):
     result = json.loads(captured.out)
     assert "cut short" in captured.err and f"{frames.size:,} objects" in captured.err
     assert result["damage"] and result["frames"]["received"] < frames.size
+
+
+def _pdo_garbage(periods: int, seed: int = 2) -> list:
+    """SYNC and random payloads on the three PDO IDs of the CiA 402 drive, every period."""
+    import can
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(periods):
+        t = k * 0.01
+        out.append(can.Message(timestamp=t, arbitration_id=0x080, dlc=0, is_extended_id=False))
+        for j, fid in enumerate((0x181, 0x281, 0x201)):
+            out.append(can.Message(timestamp=t + 1e-4 * (j + 1), arbitration_id=fid,
+                                   data=bytes(rng.integers(0, 256, 6).tolist()),
+                                   is_extended_id=False))
+    return out
+
+
+def test_random_pdo_payloads_are_implausible_not_faults(tmp_path, capsys):
+    """CANopen PDOs carry no CRC: random payloads on the drive's PDO IDs are counted
+    "implausible" by the shipped config's physical ranges and raise no fault."""
+    import json
+
+    import can
+
+    log = tmp_path / "garbage.asc"
+    with can.Logger(str(log)) as writer:
+        for message in _pdo_garbage(6000):
+            writer.on_message_received(message)
+    cia402 = REPO / "deploy" / "config" / "dc_motor_cia402.yaml"
+    assert main(["replay", str(log), "--config", str(cia402), "--json", "--no-progress"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["faults"] == [] and result["unexplained"] == []
+    implausible = result["frames"]["invalid_by_reason"]["implausible"]
+    assert implausible >= 0.9 * 3 * 6000

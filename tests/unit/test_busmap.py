@@ -29,6 +29,7 @@ from firmware_sim.simulate import SimChunk, Simulator
 
 REPO = Path(__file__).resolve().parents[2]
 DC_MOTOR_CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
+CONFIGS = REPO / "deploy" / "config"
 DT_NS = 10_000_000  # motor_drive: dt = 0.01 s
 # Frames of one period are spread over its first 300 us, in ID order, like a real drive.
 FRAME_SPACING_NS = 100_000
@@ -372,3 +373,31 @@ def test_decode_frames_handles_ids_and_lengths_outside_classic_can():
     assert [STATUS_NAMES[c] for c in status] == ["unknown_id", "dlc", "dlc"]
     assert slot.tolist() == [-1, 1, 2]
     assert (counters == -1).all()
+
+
+def test_a_value_outside_its_range_is_implausible_frame_by_frame_and_by_the_block():
+    """bus.map.<name>.range: a mapped value outside it makes the frame "implausible" (no
+    values, no counter), in decode_frame and decode_frames alike; a bad range is a config
+    error naming it."""
+    import yaml
+
+    from canfdi.config import parse_config
+
+    doc = yaml.safe_load((CONFIGS / "dc_motor_cia402.yaml").read_text())
+    config = parse_config(doc, CONFIGS / "dc_motor_cia402.yaml")
+    bus_map = BusMap.from_config(config)
+    db = dbc_files.load("dc_motor_cia402")
+    tpdo2 = db.get_message_by_name("TPDO2_node1")
+    good = tpdo2.encode({"FieldCurrent": 1.0, "ArmatureCurrent": 10.0, "LineCurrent": 11.0})
+    bad = tpdo2.encode({"FieldCurrent": 20.0, "ArmatureCurrent": 10.0, "LineCurrent": 11.0})
+    assert bus_map.decode_frame(0x281, good)[0] == "ok"
+    assert bus_map.decode_frame(0x281, bad)[:3] == ("implausible", bus_map.slot_of[(0x281,
+                                                                                    False)], ())
+    payloads = np.zeros((2, 8), dtype=np.uint8)
+    payloads[0, :6], payloads[1, :6] = list(good), list(bad)
+    status, _, values, _ = bus_map.decode_frames(_block([0x281, 0x281], [6, 6], payloads))
+    assert [STATUS_NAMES[c] for c in status] == ["ok", "implausible"]
+    assert not np.isnan(values[0, :3]).any() and np.isnan(values[1]).all()
+    doc["bus"]["map"]["i_f"]["range"] = [5, -5]
+    with pytest.raises(ConfigError, match=r"bus\.map\.i_f\.range"):
+        parse_config(doc, CONFIGS / "dc_motor_cia402.yaml")
