@@ -318,8 +318,8 @@ class Damage:
     def as_dict(self) -> list[dict[str, Any]]:
         """Per damaged file: ``{"path", "size", "lost_s", "regions": [{"bytes", "reason",
         "chunks", "t_ns", "t_s", "messages", "messages_complete", "cut"}], "bad_magic",
-        "data_crc", "unknown_channel_messages", "bad_messages", "line"}``; [] when nothing
-        was damaged."""
+        "data_crc", "unknown_channel_messages", "bad_messages", "notes", "line"}``; [] when
+        nothing was damaged."""
         out = []
         for f in self.files.values():
             if not f:
@@ -331,6 +331,6 @@ class Damage:
                                                           key=lambda r: r.start)],
                 "bad_magic": f.bad_magic, "data_crc": f.data_crc,
                 "unknown_channel_messages": sum(f.unknown_channels.values()),
-                "bad_messages": len(f.bad_messages), "line": f.line(),
+                "bad_messages": len(f.bad_messages), "notes": list(f.notes), "line": f.line(),
             })
         return out

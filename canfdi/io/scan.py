@@ -591,6 +591,7 @@ class McapFile:
         whole = False  # and they follow its one lost chunk directly: they count it whole
         self.complete = False
         self._last_chunk, self._waiting, self._past_data = None, [], False
+        seen: dict[bytes, int] = {}  # a checked chunk's header -> where it was first read
         while pos < size:
             found = self._sound(pos)
             if found is None:
@@ -624,6 +625,17 @@ class McapFile:
                                             else None)
                     self._waiting.append(tail)
                     whole = tail.start == pos  # not merged into garbage before it
+                    pos = stop
+                    continue
+                head = bytes(buf[start: start + _CHUNK_HEAD.size])
+                first = seen.setdefault(head, pos) if _CHUNK_HEAD.unpack_from(head)[3] else pos
+                if first != pos:
+                    # The same times, size and CRC as a chunk already read: a copy (a damaged
+                    # copy of a log, a careless concatenation). Read once.
+                    clean = False
+                    note = f"a copy of the chunk at byte {first} at byte {pos}, skipped"
+                    if note not in self.damage.notes:  # (said once over several walks)
+                        self.damage.notes.append(note)
                     pos = stop
                     continue
                 self._intact(start)

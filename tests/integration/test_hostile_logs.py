@@ -98,3 +98,31 @@ def test_random_pdo_payloads_are_implausible_not_faults(tmp_path, capsys):
     assert result["faults"] == [] and result["unexplained"] == []
     implausible = result["frames"]["invalid_by_reason"]["implausible"]
     assert implausible >= 0.9 * 3 * 6000
+
+
+def test_a_duplicated_chunk_is_read_once_and_said(tmp_path, capsys):
+    import json
+
+    from canfdi.io.scan import OP_CHUNK, McapFile
+
+    log = tmp_path / "run.mcap"
+    assert main(["demo", "--scenario", "dc_motor_actuator", "-o", str(log), "--no-live",
+                 "--json"]) == 0
+    capsys.readouterr()
+    with McapFile(log) as f:
+        chunks = [(start - 9, stop) for op, start, stop, _ in f.records(inflate=False)
+                  if op == OP_CHUNK]
+    data = log.read_bytes()
+    a, b = chunks[0]
+    copy = tmp_path / "copy.mcap"
+    copy.write_bytes(data[:b] + data[a:b] + data[b:])
+    runs = []
+    for path in (log, copy):
+        assert main(["replay", str(path), "--config", str(CONFIG), "--json",
+                     "--no-progress"]) == 0
+        captured = capsys.readouterr()
+        runs.append((json.loads(captured.out), captured.err))
+    (clean, _), (copied, err) = runs
+    assert copied["frames"]["received"] == clean["frames"]["received"]
+    assert copied["samples"] == clean["samples"] and len(copied["faults"]) == 1
+    assert "a copy of the chunk" in err and copied["damage"]
