@@ -669,7 +669,9 @@ def _mapped(config: Path) -> tuple[dict, dict[str, tuple[Message, Signal]]]:
             message_name, signal_name = where.split(".")
             message = database.get_message_by_name(message_name)
         else:
-            message = database.get_message_by_frame_id(where["message"])
+            ref = where["message"]
+            message = (database.get_message_by_name(ref) if isinstance(ref, str)
+                       else database.get_message_by_frame_id(ref))
             signal_name = where["signal"]
         signals[name] = (message, message.get_signal_by_name(signal_name))
     return doc, signals
