@@ -63,7 +63,6 @@ __all__ = [
     "RlsSolution",
     "RlsState",
     "least_squares",
-    "rls_absorb",
     "rls_batch",
     "rls_init",
     "rls_solve",
@@ -209,35 +208,6 @@ def rls_update(state: RlsState, phi: ArrayLike, r: ArrayLike) -> RlsState:
     h = state.h + np.einsum("...mi,...m->...i", phi_a, r_a)
     rr = state.rr + np.einsum("...m,...m->...", r_a, r_a)
     return RlsState(J=J, h=h, rr=rr, n=state.n + 1, n_eq=state.n_eq + int(valid.sum()))
-
-
-def rls_absorb(state: RlsState, Phi: ArrayLike, R: ArrayLike) -> RlsState:
-    """Absorb N samples at once when only the end matters: N calls of `rls_update` (up to
-    the order of the sums), without `rls_batch`'s trajectory.
-
-    Parameters
-    ----------
-    state : one estimator (no batch dimensions).
-    Phi : (N, m, d) regressors; R : (N, m) residuals, NaN for missing rows.
-
-    Examples
-    --------
-    >>> s = rls_absorb(rls_init(1), np.ones((4, 2, 1)), np.full((4, 2), 3.0))
-    >>> round(float(rls_solve(s).theta[0]), 6), s.n, s.n_eq
-    (3.0, 4, 8)
-    """
-    d = state.d
-    if state.h.shape != (d,):
-        raise ValueError(f"state: rls_absorb takes one estimator, got batch shape "
-                         f"{state.h.shape[:-1]}")
-    Phi_a = check_shape("Phi", Phi, ("N", "m", d), dtype=float)
-    n, m, _ = Phi_a.shape
-    R_a = check_shape("R", R, (n, m), dtype=float)
-    phi_v, r_v, valid = _rows(Phi_a, R_a, d)
-    return RlsState(J=state.J + np.einsum("nmi,nmj->ij", phi_v, phi_v),
-                    h=state.h + np.einsum("nmi,nm->i", phi_v, r_v),
-                    rr=state.rr + float(np.einsum("nm,nm->", r_v, r_v)),
-                    n=state.n + n, n_eq=state.n_eq + int(valid.sum()))
 
 
 def rls_solve(state: RlsState) -> RlsSolution:
