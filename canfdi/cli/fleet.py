@@ -45,7 +45,8 @@ Writes, with pyarrow:
                       channels that explain the data as well), method
   OUT.logs.parquet    one row per log: drive, log, log_start, log_end, samples, frames,
                       frames_<status> per frame status, lost_bytes, lost_messages,
-                      lost_seconds (what damage lost), residual_names, residual_variances
+                      lost_seconds (what damage lost), damage (it in words: every kind of
+                      loss, null when none), residual_names, residual_variances
                       (each residual's variance over the log), alarms (detections), faults,
                       error (null when fine: an unreadable log, or one of which no frame made
                       a sample, is a row with its error, not a failed run), seconds

@@ -478,7 +478,8 @@ def _log_row(task: LogTask, **values: Any) -> dict[str, Any]:
     row: dict[str, Any] = {
         "drive": task.drive, "log": task.log, "log_start": None, "log_end": None,
         "samples": 0, "frames": 0, **{f"frames_{s}": 0 for s in STATUS_NAMES},
-        "lost_bytes": 0, "lost_messages": 0, "lost_seconds": 0.0, "residual_names": [],
+        "lost_bytes": 0, "lost_messages": 0, "lost_seconds": 0.0, "damage": None,
+        "residual_names": [],
         "residual_variances": [], "alarms": 0, "faults": 0, "error": None, "seconds": 0.0,
     }
     row.update(values)
@@ -539,6 +540,7 @@ def diagnose_log(task: LogTask) -> LogResult:
         samples=monitor.samples, frames=int(stats.counts.sum()),
         **{f"frames_{s}": int(stats.counts[i]) for i, s in enumerate(STATUS_NAMES)},
         lost_bytes=lost_bytes, lost_messages=lost_messages, lost_seconds=lost_seconds,
+        damage="; ".join(replayed.damage.lines()) or None,
         residual_names=names, residual_variances=variances,
         alarms=sum(e.kind == "detected" for e in monitor.events),
         faults=sum(e.kind == "accepted" for e in monitor.events),
@@ -569,7 +571,8 @@ def schemas() -> tuple[pyarrow.Schema, pyarrow.Schema]:
         ("samples", pa.int64()), ("frames", pa.int64()),
         *((f"frames_{s}", pa.int64()) for s in STATUS_NAMES),
         ("lost_bytes", pa.int64()), ("lost_messages", pa.int64()),
-        ("lost_seconds", pa.float64()), ("residual_names", pa.list_(pa.string())),
+        ("lost_seconds", pa.float64()), ("damage", pa.string()),
+        ("residual_names", pa.list_(pa.string())),
         ("residual_variances", pa.list_(pa.float64())), ("alarms", pa.int64()),
         ("faults", pa.int64()), ("error", pa.string()), ("seconds", pa.float64()),
     ])
@@ -584,7 +587,9 @@ def fleet_tables(results: Sequence[LogResult]) -> tuple[pyarrow.Table, pyarrow.T
     log's start), k (int64), bus_drive (nullable), kind, channel, parameter, estimate,
     variance (null if none), candidates (list<string>), method. logs: drive, log, log_start,
     log_end (null if unreadable), samples, frames, frames_<status> per STATUS_NAMES,
-    lost_bytes, lost_messages, lost_seconds, residual_names, residual_variances, alarms,
+    lost_bytes, lost_messages, lost_seconds, damage (what a damaged log lost, in words: every
+    kind of loss, a copied chunk or a cut BLF too; null when none), residual_names,
+    residual_variances, alarms,
     faults, error (null when fine), seconds.
     """
     import pyarrow as pa
@@ -635,7 +640,8 @@ def fleet_summary(logs: Sequence[dict[str, Any]], wall_s: float, workers: int
         "lost_bytes": sum(r["lost_bytes"] for r in logs),
         "lost_messages": sum(r["lost_messages"] for r in logs),
         "lost_seconds": sum(r["lost_seconds"] for r in logs),
-        "damaged_logs": sum(bool(r["lost_bytes"] or r["lost_seconds"]) for r in logs),
+        "damaged_logs": sum(bool(r["lost_bytes"] or r["lost_seconds"] or r.get("damage"))
+                            for r in logs),
         "wall_s": wall_s, "workers": workers,
         "samples_per_s": samples / wall_s if wall_s > 0 else 0.0,
         "samples_per_s_per_worker": samples / wall_s / workers if wall_s > 0 else 0.0,

@@ -315,7 +315,7 @@ def _float(value: Any) -> float:
 
 def _lost(log: dict) -> bool:
     return (_int(log.get("lost_bytes")) > 0 or _int(log.get("lost_messages")) > 0
-            or _float(log.get("lost_seconds")) > 0.0)
+            or _float(log.get("lost_seconds")) > 0.0 or bool(log.get("damage")))
 
 
 @dataclass

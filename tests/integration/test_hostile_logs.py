@@ -126,3 +126,8 @@ def test_a_duplicated_chunk_is_read_once_and_said(tmp_path, capsys):
     assert copied["frames"]["received"] == clean["frames"]["received"]
     assert copied["samples"] == clean["samples"] and len(copied["faults"]) == 1
     assert "a copy of the chunk" in err and copied["damage"]
+    # fleet's logs table carries the loss too (its byte counts cannot: nothing was lost).
+    from canfdi.tools.fleet import LogTask, diagnose_log
+
+    row = diagnose_log(LogTask(str(copy), "copy.mcap", "d1", str(CONFIG))).log
+    assert "a copy of the chunk" in row["damage"] and row["samples"] == clean["samples"]
