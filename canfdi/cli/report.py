@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import sys
 from pathlib import Path
@@ -44,7 +43,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from canfdi.tools.report import ReportError, make_report
+    from canfdi.tools.report import NothingToReport, ReportError, make_report
 
     out = args.output or args.log.with_name(args.log.stem + "_report")
 
@@ -54,20 +53,12 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         report = make_report(args.log, out, args.config, progress)
+    except NothingToReport as exc:
+        print(f"canfdi report: {exc}", file=sys.stderr)
+        return 1
     except ReportError as exc:
         print(f"canfdi report: {exc}", file=sys.stderr)
         return 2
-    if report.empty:
-        # No page of empty figures left behind that looks like a report.
-        for path in [*report.figures, report.html]:
-            path.unlink(missing_ok=True)
-        with contextlib.suppress(OSError):
-            out.rmdir()
-        lost = "; ".join(report.damage.lines()) if report.damage else ""
-        print(f"canfdi report: {args.log} holds no sample, residual or event: nothing to "
-              "report (a capture's frames: canfdi replay LOG --config FILE diagnoses them)"
-              + (f"; {lost}" if lost else ""), file=sys.stderr)
-        return 1
     for note in report.notes:
         print(f"canfdi report: missing: {note}", file=sys.stderr)
     for line in report.damage.lines() if report.damage is not None else []:

@@ -57,8 +57,9 @@ from canfdi.tools.figures import CSS as _CSS
 from canfdi.tools.figures import LEGEND_OUTSIDE as _OUTSIDE
 from canfdi.tools.figures import new_figure as _figure
 
-__all__ = ["MAX_POINTS", "LogContents", "Report", "ReportError", "Trajectory", "decimate",
-           "diagnosis_rows", "estimate_trajectory", "make_report", "read_log_contents"]
+__all__ = ["MAX_POINTS", "LogContents", "NothingToReport", "Report", "ReportError", "Trajectory",
+           "decimate", "diagnosis_rows", "estimate_trajectory", "make_report",
+           "read_log_contents"]
 
 MAX_POINTS = 5000
 """At most this many points per plotted line (min/max decimation beyond)."""
@@ -70,6 +71,11 @@ Progress = Callable[[str], None]
 
 class ReportError(ValueError):
     """Bad input: no such log, not an MCAP file, a config that cannot be read."""
+
+
+class NothingToReport(ReportError):
+    """The log holds no sample, residual or event (its message says so, with what damage
+    lost): no figure is drawn, nothing is written."""
 
 
 # ------------------------------------------------------------------------------------------
@@ -869,7 +875,6 @@ class Report:
     rows: list[dict]
     notes: list[str]
     damage: Any = None
-    empty: bool = False  # the log held no sample, residual or event: nothing was reported
 
     def as_dict(self) -> dict:
         return {"html": str(self.html), "figures": [str(p) for p in self.figures],
@@ -889,9 +894,16 @@ def make_report(log: str | Path, out_dir: str | Path, config_path: Path | None =
     ------
     ReportError
         Bad input (see `read_log_contents`), or ``out_dir`` cannot be created.
+    NothingToReport
+        The log holds no sample, residual or event.
     """
     say = progress or (lambda _msg: None)
     contents = read_log_contents(log, config_path, progress)
+    if contents.samples is None and contents.residuals is None and not contents.events:
+        lost = "; ".join(contents.damage.lines()) if contents.damage else ""
+        raise NothingToReport(f"{log} holds no sample, residual or event: nothing to report "
+                              "(a capture's frames: canfdi replay LOG --config FILE diagnoses "
+                              "them)" + (f"; {lost}" if lost else ""))
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -923,6 +935,4 @@ def make_report(log: str | Path, out_dir: str | Path, config_path: Path | None =
     say("index.html")
     page = write_html(contents, rows, figures, out / "index.html")
     return Report(html=page, figures=[out / f for f, _ in figures], rows=rows,
-                  notes=list(contents.notes), damage=contents.damage,
-                  empty=(contents.samples is None and contents.residuals is None
-                         and not contents.events))
+                  notes=list(contents.notes), damage=contents.damage)
