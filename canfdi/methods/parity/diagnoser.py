@@ -371,7 +371,7 @@ class ParityDiagnoser(DetectorBacked):
         best_onset = np.argmin(cost, axis=1)  # (H,)
         # Each parameter beyond the first must earn twice the isolation margin, so a richer
         # model never wins on the noise it fits (a likelihood-ratio test in effect).
-        penalty = np.array([self._penalty(h) for h in self.hypotheses])
+        penalty = np.array([2.0 * s.isolation_margin * (h.n_params - 1) for h in self.hypotheses])
         cost_h = cost[np.arange(len(cost)), best_onset] + penalty
         order = np.argsort(cost_h, kind="stable")
         best = self._named(int(order[0]), cost_h)
@@ -397,14 +397,10 @@ class ParityDiagnoser(DetectorBacked):
             settled = bool(np.all(np.sqrt(var[:n_b]) <= s.settle_rel_std * np.abs(th[:n_b])))
         fits = scale <= s.max_fit_variance
         if margin_ok and fits and (settled or since >= s.max_samples):
-            return self._accept(k, t, best, kb, theta, var, best_onset, cost_h)
+            return self._accept(k, t, best, kb, theta, var, scale, best_onset, cost_h)
         if since >= s.max_samples:
             return self._unexplained(k, t, theta, best_onset, order)
         return []
-
-    def _penalty(self, h: Hypothesis) -> float:
-        """Each parameter beyond the first must earn twice the isolation margin."""
-        return 2.0 * self.settings.isolation_margin * (h.n_params - 1)
 
     def _named(self, best: int, cost_h: np.ndarray) -> int:
         """The hypothesis that names the best fit's ambiguity group: twins (proportional
@@ -425,15 +421,18 @@ class ParityDiagnoser(DetectorBacked):
                      order: np.ndarray) -> list[FaultEvent]:
         event = FaultEvent(kind="unexplained", sample=k, timestamp_ns=t,
                            detected_sample=self._diag.k_d,
-                           candidates=tuple(self._describe(i, theta[i, best_onset[i]])
+                           candidates=tuple(self._describe(self.hypotheses[i],
+                                                           theta[i, best_onset[i]])
                                             for i in order[:3]))
         self.events.append(event)
         self.mode = MONITOR
         self._restart_detector(k)
         return [event]
 
-    def _describe(self, h_i: int, th: np.ndarray, var: np.ndarray | None = None) -> dict:
-        h = self.hypotheses[h_i]
+    def _describe(self, h: Hypothesis, th: np.ndarray, var: np.ndarray | None = None
+                  ) -> dict:
+        """{target, index, name, estimates (and variances)} of a hypothesis' parameters
+        ``th`` (for an actuator, eta - 1 and lambda) and their variances ``var`` (diagonal)."""
         if h.target == "actuator":
             est = {"eta": float(1.0 + th[0]), "lambda": float(th[1])}
             variances = {"eta": float(var[0]), "lambda": float(var[1])} if var is not None else {}
@@ -475,14 +474,14 @@ class ParityDiagnoser(DetectorBacked):
         return tuple(out)
 
     def _accept(self, k: int, t: int, best: int, kb: int, theta: np.ndarray, var: np.ndarray,
-                best_onset: np.ndarray, cost_h: np.ndarray) -> list[FaultEvent]:
+                scale: float, best_onset: np.ndarray, cost_h: np.ndarray) -> list[FaultEvent]:
         d = self._diag
         h = self.hypotheses[best]
         onset = int(d.onsets[kb])
         th = theta[best, kb]
         faults = []  # (target, index, estimates, variances, candidates)
         if h.target in ("actuator", "actuator_bias"):
-            desc = self._describe(best, th, var)
+            desc = self._describe(h, th, var)
             faults.append(("actuator", h.index, desc["estimates"], desc["variances"], ()))
         else:
             members = h.members if h.target == "sensors" else (h.index,)
@@ -499,8 +498,7 @@ class ParityDiagnoser(DetectorBacked):
         events = []
         # What the fit knows about each accepted channel's parameters (normalised residuals:
         # the information over the cost's scale), for the tracker's prior.
-        info = d.info.J[best, kb] / max(float(cost_h[best] - self._penalty(h)) /
-                                         max(d.info.n_eq - h.n_params, 1), 1e-300)
+        info = d.info.J[best, kb] / scale
         accepted_now = {}
         for target, index, *_rest in faults:
             if h.target == "sensors":
@@ -511,9 +509,7 @@ class ParityDiagnoser(DetectorBacked):
                 accepted_now[(target, index)] = (h, info[: h.n_params, : h.n_params])
         for target, index, est, variances, candidates in faults:
             names = self.design.input_names if target == "actuator" else self.design.output_names
-            kind, total = fold(self.compensation, Compensation(
-                target, index, onset, eta=est.get("eta", 1.0), lam=est.get("lambda", 0.0),
-                bias=est.get("bias", 0.0), scale=target == "actuator"))
+            kind, total = self._fold(target, index, onset, est)
             events.append(FaultEvent(
                 kind=kind, sample=k, timestamp_ns=t, target=target, index=index,
                 name=names[index], estimates=est if kind == "accepted" else total,
@@ -525,6 +521,13 @@ class ParityDiagnoser(DetectorBacked):
         self._track_compensated(accepted_now)
         self.events.extend(events)
         return events
+
+    def _fold(self, target: str, index: int, onset: int, est: dict[str, float]
+              ) -> tuple[str, dict[str, float]]:
+        """Fold estimates (named as in FaultEvent) into the compensation (records.fold)."""
+        return fold(self.compensation, Compensation(
+            target, index, onset, eta=est.get("eta", 1.0), lam=est.get("lambda", 0.0),
+            bias=est.get("bias", 0.0), scale=target == "actuator"))
 
     def _reload_window(self) -> None:
         """Seed 003 Section 3.3: rebuild the window from compensated samples."""
@@ -560,23 +563,11 @@ class ParityDiagnoser(DetectorBacked):
         events = []
         for c in corrections:
             h = c.tracked.hypothesis
-            if h.target == "sensor":
-                entry = Compensation("sensor", h.index, c.tracked.onset, bias=float(c.delta[0]))
-                variances = {"bias": float(c.variances[0])}
-                target = "sensor"
-            else:
-                eta = 1.0 + float(c.delta[0]) if h.target == "actuator" else 1.0
-                lam = float(c.delta[-1])
-                entry = Compensation("actuator", h.index, c.tracked.onset, eta=eta, lam=lam,
-                                     scale=True)
-                variances = ({"eta": float(c.variances[0]), "lambda": float(c.variances[1])}
-                             if h.target == "actuator" else
-                             {"eta": 0.0, "lambda": float(c.variances[0])})
-                target = "actuator"
-            _, total = fold(self.compensation, entry)
+            desc = self._describe(h, c.delta, c.variances)
+            _, total = self._fold(desc["target"], h.index, c.tracked.onset, desc["estimates"])
             events.append(FaultEvent(
-                kind="refined", sample=k, timestamp_ns=t, target=target, index=h.index,
-                name=h.name, estimates=total, variances=variances,
+                kind="refined", sample=k, timestamp_ns=t, target=desc["target"], index=h.index,
+                name=h.name, estimates=total, variances=desc["variances"],
                 onset_sample=c.tracked.onset, accepted_sample=k))
         if events:
             self._reload_window()
