@@ -8,8 +8,8 @@ that drive. Only integers, the two names, ``+ - * // % << >> & | ^ ~`` and paren
 allowed: the expression is parsed, never executed as Python. It is bounded before anything
 is computed: at most `MAX_TEMPLATE_LENGTH` characters and `MAX_TEMPLATE_DEPTH` levels of
 nesting, shifts by at most 64 bits, every intermediate value within 2^64; and it is evaluated
-at load time for every DBC ID and every drive's node, so a division by zero or an ID out of
-range is a config error then, not a crash when a drive starts.
+at load time for every drive's node (and for every DBC ID when the bus map is built), so a
+division by zero or an ID out of range is a config error, not a crash when a drive starts.
 
 >>> frame_id("(id & ~0x7F) | node", 0x181, 2)
 386
@@ -23,7 +23,7 @@ import ast
 import operator
 from collections.abc import Callable
 
-from canfdi.core.settings import ConfigError
+from canfdi.core.settings import ConfigError, brief
 
 __all__ = ["MAX_EXTENDED_ID", "MAX_STANDARD_ID", "MAX_TEMPLATE_DEPTH", "MAX_TEMPLATE_LENGTH",
            "check_template", "frame_id"]
@@ -100,15 +100,10 @@ def _parse(template: str) -> ast.Expression:
     return ast.parse(text, mode="eval")
 
 
-def _short(template: str) -> str:
-    text = str(template)
-    return repr(text if len(text) <= 40 else text[:37] + "...")
-
-
-def check_template(template: str, field: str, ids: tuple[int, ...] = (1,),
-                   nodes: tuple[int, ...] = (1,)) -> None:
+def check_template(template: str, field: str, nodes: tuple[int, ...] = (1,)) -> None:
     """Raise ConfigError(field) unless ``template`` is a valid expression of id and node that
-    gives a CAN ID for every one of ``ids`` (the DBC's) on every one of ``nodes``."""
+    gives a CAN ID for id 1 on every one of ``nodes`` (the DBC's own IDs are checked when the
+    bus map is built: canfdi.bus.dbc)."""
     if not isinstance(template, str):
         raise ConfigError(field, f"expected an expression of id and node as a string, got "
                                  f"{type(template).__name__}")
@@ -117,14 +112,13 @@ def check_template(template: str, field: str, ids: tuple[int, ...] = (1,),
         _evaluate(tree, dict.fromkeys(_NAMES, 1))
     except (SyntaxError, ValueError, RecursionError, MemoryError) as exc:
         detail = exc.msg if isinstance(exc, SyntaxError) else str(exc) or type(exc).__name__
-        raise ConfigError(field, f"not a node-id template ({detail}): {_short(template)}"
+        raise ConfigError(field, f"not a node-id template ({detail}): {brief(template)}"
                           ) from None
     for node in nodes:
-        for dbc_id in ids:
-            try:
-                frame_id(template, dbc_id, node)
-            except ValueError as exc:
-                raise ConfigError(field, f"{_short(template)} {exc}") from None
+        try:
+            frame_id(template, 1, node)
+        except ValueError as exc:
+            raise ConfigError(field, f"{brief(template)} {exc}") from None
 
 
 def frame_id(template: str | None, dbc_id: int, node: int | None) -> int:
