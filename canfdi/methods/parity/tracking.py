@@ -40,7 +40,6 @@ FIRST_CHECK = 64
 """Residual samples after an acceptance before the first check; each later one doubles it."""
 
 
-
 @dataclass(frozen=True)
 class Tracked:
     """A compensated channel and how it is fitted: its hypothesis ("actuator",
@@ -118,7 +117,7 @@ class AcceptedFaultTracker:
         """Track nothing."""
         self.restart([])
 
-    def ratio(self, h: Hypothesis) -> float:
+    def _ratio(self, h: Hypothesis) -> float:
         """How much a sum of residuals along the channel's steady bias signature varies over
         what least squares assumes (1: white, independent residuals)."""
         G = self.bank.Gz if h.target == "sensor" else self.bank.Gu
@@ -139,7 +138,7 @@ class AcceptedFaultTracker:
         self.J, self.h, self.M = np.zeros((D, D)), np.zeros(D), np.zeros((D, D))
         for t, s in zip(self.tracked, self._slices, strict=True):
             self.J[s, s] = t.precision
-            self.M[s, s] = self.ratio(t.hypothesis) * t.precision
+            self.M[s, s] = self._ratio(t.hypothesis) * t.precision
         self._new_segment()
         self.absorbed = 0
         self.next_check = FIRST_CHECK
