@@ -194,7 +194,7 @@ def read_blocks(path: Path, suffix: str, compressed: bool = False,
         if pending:
             yield messages_block(pending)
         announced = int(getattr(reader, "file_size", 0) or 0) if suffix == ".blf" else 0
-        size = path.stat().st_size
+        size = path.stat().st_size if damage is not None and announced else 0
         if damage is not None and not compressed and announced > size:
             objects = int(getattr(reader, "object_count", 0) or 0)
             damage.file(path, size).notes.append(

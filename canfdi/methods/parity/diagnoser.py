@@ -315,7 +315,8 @@ class ParityDiagnoser(DetectorBacked):
         self._recent.append((k, window, rn))
         if self.mode != MONITOR:
             return self._diagnose(k, sample.timestamp_ns, window, rn)
-        self.tracker.absorb(np.array([k]), window[None, :, self.q:], rn[None, :])
+        if self.tracker.tracked:
+            self.tracker.absorb(np.array([k]), window[None, :, self.q:], rn[None, :])
         events = self._monitor(k, sample.timestamp_ns, rn)
         if self.mode == MONITOR and self.tracker.due:
             events += self._refine_tracked(k, sample.timestamp_ns)
