@@ -21,6 +21,13 @@ chunk's MessageIndex records, a metadata record) are read too. Each skipped regi
 canfdi.io.damage `FileDamage` (bytes, chunks, log times, messages per topic from the
 MessageIndex records of a lost chunk), which the caller owns and prints: nothing here prints.
 
+Chunks come in log-time order (canfdi.io.chunkorder, from one walk of the record headers): the
+order the intact summary lists them, each matched to its entry by its header (a summary that
+bytes inserted before it moved is found after the last DataEnd record and taken when its CRC
+checks), else each topic's chunks in the order of their MessageIndex times. A chunk out of
+that order is held back as an offset and inflated when its turn comes; a chunk the intact
+summary does not list (another recording's) is skipped and noted.
+
 A file cut short (a killed writer) is read up to its last sound record; a file whose first
 bytes are not MCAP's (and that does not go on as an MCAP file) raises `NotMcap`. Channels come
 from the Channel records in the chunks and, when the summary is intact, from its copies there,
@@ -46,6 +53,7 @@ from typing import Any
 import numpy as np
 import orjson
 
+from canfdi.io.chunkorder import ChunkKey, ChunkOrder, ChunkSeen, HeldChunks, order_chunks
 from canfdi.io.damage import Damage, FileDamage, LostRegion
 
 try:  # the same CRC-32, ten times faster (python-isal: installed with canfdi[mf4]'s asammdf)
@@ -254,6 +262,8 @@ class McapFile:
         self._stats: tuple[int, int] | None = None
         self._data_end: int | None = None
         self._past_data = False  # the walk is past the DataEnd record
+        self._listed_chunks: list[tuple[int, ChunkKey]] | None = None  # the summary's entries
+        self._order: ChunkOrder | None = None
         try:
             self._first = self._check_magic()
             if self._first < size:
@@ -306,7 +316,9 @@ class McapFile:
     def _read_summary(self) -> None:
         """Channels, chunk offsets and times from the summary, when its footer is sound, its
         CRC checks (without one: every record of it is sound) and it points inside the
-        file."""
+        file. A summary not where the footer says (bytes inserted into or cut from the data
+        section) is looked for right after the last DataEnd record, and taken when its CRC
+        checks."""
         buf, size = self._buf, self.size
         footer = size - 8 - 9 - 20
         if footer < self._first or bytes(buf[size - 8 :]) != MAGIC:
@@ -314,19 +326,34 @@ class McapFile:
         found = self._sound(footer)
         if found is None or found[0] != OP_FOOTER:
             return
-        summary_start, _, crc = _parse(buf, footer + 9, footer + 29, _SPECS[OP_FOOTER]) or (0, 0, 0)
+        declared, _, crc = _parse(buf, footer + 9, footer + 29, _SPECS[OP_FOOTER]) or (0, 0, 0)
+        if self._summary_at(declared, footer, crc, moved=False):
+            return
+        end = self._raw.rfind(_DATA_END_PATTERN, self._first, footer)
+        if crc and end >= 0 and end + 13 != declared \
+                and self._summary_at(end + 13, footer, crc, moved=True):
+            self.damage.notes.append(f"the summary is at byte {end + 13}, not at byte "
+                                     f"{declared} where the footer says: bytes were inserted "
+                                     "into or cut from the data section")
+
+    def _summary_at(self, summary_start: int, footer: int, crc: int, moved: bool) -> bool:
+        """Read the summary from ``summary_start`` when it checks (see `_read_summary`);
+        whether it did. ``moved``: the footer does not point there, so the chunk offsets it
+        lists are not checked against it (the chunks are matched by their headers)."""
+        buf = self._buf
         if not self._first < summary_start <= footer:
-            return
+            return False
         if crc and crc != _crc32(buf[footer : footer + 25], _crc32(buf[summary_start:footer])):
-            return
+            return False
         channels: dict[int, str] = {}
         indexed: list[_IndexedChunk] = []
+        listed: list[tuple[int, ChunkKey]] = []
         stats = None
         pos = summary_start
         while pos < footer:
             found = self._sound(pos)
             if found is None or found[2] > footer:
-                return
+                return False
             op, start, stop = found
             fields = _parse(buf, start, stop, _SPECS[op])
             assert fields is not None
@@ -334,17 +361,19 @@ class McapFile:
                 channels[fields[0]] = fields[2]
             elif op == OP_CHUNK_INDEX:
                 t0, t1, offset, length, (a, b) = fields[:5]
-                if not self._first <= offset < offset + length <= summary_start:
-                    return
+                if not moved and not self._first <= offset < offset + length <= summary_start:
+                    return False
                 offsets = tuple(_U64.unpack_from(buf, p + 2)[0] for p in range(a, b, 10))
                 ids = frozenset(_U16.unpack_from(buf, p)[0] for p in range(a, b, 10))
                 indexed.append(_IndexedChunk(offset, length, t0, t1, offsets, ids))
+                listed.append((offset, (length, t0, t1, fields[8], fields[7])))
             elif op == OP_STATISTICS:
                 stats = (fields[6], fields[7])
             pos = stop
         self.channels.update(channels)
         self._summary_channels = True
         self._indexed = sorted(indexed, key=lambda c: c.offset)
+        self._listed_chunks = listed
         self._stats = stats
         if stats is not None and stats[0] <= stats[1] and indexed:
             self.damage.saw_times(*stats)
@@ -352,6 +381,70 @@ class McapFile:
         found = self._sound(end) if end >= self._first else None
         if found is not None and found[0] == OP_DATA_END:
             self._data_end = end
+        return True
+
+    def _reading_order(self) -> ChunkOrder:
+        """The chunks' reading order (canfdi.io.chunkorder), from one walk of the record
+        headers (cached). The intact summary's index entries are moved to where their chunks
+        are in the file; a foreign chunk has no entry, so it is not indexed."""
+        if self._order is not None:
+            return self._order
+        buf, seen, last = self._buf, [], None
+        pos = self._first
+        while pos < self.size:
+            found = self._sound(pos)
+            if found is None:
+                last, pos = None, self._next_chunk(pos)
+                if pos is None:
+                    break
+                continue
+            op, start, stop = found
+            if op == OP_CHUNK:
+                t0, t1, size, _, _, (a, b) = _parse(buf, start, stop, _SPECS[OP_CHUNK]) or ()
+                last = ChunkSeen(pos, (stop - pos, t0, t1, size, b - a))
+                seen.append(last)
+            elif op == OP_MESSAGE_INDEX and last is not None and stop - start > 6:
+                (channel,) = _U16.unpack_from(buf, start)
+                times = np.frombuffer(buf, dtype="<u8", offset=start + 6,
+                                      count=(stop - start - 6) // 8)[0::2]
+                t = int(times.min())
+                if last.key[1] <= t <= int(times.max()) <= last.key[2]:
+                    # (an index is not CRC-checked: one outside its chunk's times is not used)
+                    last.earliest[channel] = min(t, last.earliest.get(channel, t))
+            elif op == OP_DATA_END:
+                break
+            elif op != OP_MESSAGE_INDEX:
+                last = None
+            pos = stop
+        self._order = order_chunks(seen, self._listed_chunks)
+        if self._listed_chunks is not None:
+            listed_at = self._order.listed_at
+            by_offset = {c.offset: c for c in self._indexed}
+            moved = []
+            for at, offset in listed_at.items():
+                c = by_offset[offset]
+                shift = at - offset
+                moved.append(_IndexedChunk(at, c.length, c.start_ns, c.end_ns,
+                                           tuple(p + shift for p in c.index_offsets),
+                                           c.index_channels))
+            # A listed chunk no sound record matched keeps its offset (it is damaged there),
+            # unless a matched chunk now lies over it.
+            kept = set(listed_at.values())
+            spans = [(m.offset, m.offset + m.length) for m in moved]
+            moved += [c for c in self._indexed if c.offset not in kept
+                      and not any(a <= c.offset < b for a, b in spans)]
+            self._indexed = sorted(moved, key=lambda c: c.offset)
+            self._index_of = None
+        return self._order
+
+    def _next_chunk(self, pos: int) -> int | None:
+        """The next place after ``pos`` where a sound Chunk or DataEnd record starts,
+        found by its bytes (not by the summary's offsets, which may be shifted)."""
+        for where in self._candidates(pos, by_pattern=True):
+            found = self._sound(where)
+            if found is not None and found[0] in (OP_CHUNK, OP_DATA_END):
+                return where
+        return None
 
     # -- records ---------------------------------------------------------------------------
 
@@ -443,9 +536,11 @@ class McapFile:
 
     # -- resynchronising -------------------------------------------------------------------
 
-    def _candidates(self, pos: int) -> Iterator[int]:
-        """Ascending places after ``pos`` where a chunk or the DataEnd record may start."""
-        if self._indexed:
+    def _candidates(self, pos: int, by_pattern: bool = False) -> Iterator[int]:
+        """Ascending places after ``pos`` where a chunk or the DataEnd record may start: the
+        summary's chunk offsets when it has them (unless ``by_pattern``), else where their
+        bytes are found."""
+        if self._indexed and not by_pattern:
             later = [c.offset for c in self._indexed if c.offset > pos]
             if self._data_end is not None and self._data_end > pos:
                 later.append(self._data_end)
@@ -592,6 +687,13 @@ class McapFile:
         self.complete = False
         self._last_chunk, self._waiting, self._past_data = None, [], False
         seen: dict[bytes, int] = {}  # a checked chunk's header -> where it was first read
+        order = self._reading_order() if inflate else None
+        held: HeldChunks | None = None
+        if order is not None and not order.in_file_order:
+            held = HeldChunks(order)
+            self._note("chunks out of log-time order, read in the order "
+                       + ("the summary lists them" if self._listed_chunks is not None
+                          else "of their messages' times"))
         while pos < size:
             found = self._sound(pos)
             if found is None:
@@ -612,35 +714,32 @@ class McapFile:
                 pos = stop
                 continue
             tail, whole = None, False
-            if op == OP_CHUNK and inflate and skip is not None and skip(start, stop):
-                self._intact(start)
-                yield op, start, stop, None
-            elif op == OP_CHUNK and inflate:
-                inner, why = self._inflate(pos, start, stop)
-                if inner is None:
+            if op == OP_CHUNK and inflate:
+                if order is not None and pos in order.foreign:
+                    # Its bytes are sound, but the summary (intact) lists no such chunk: it
+                    # is another recording's, inserted. The data CRC cannot judge the rest.
+                    self._note(f"a chunk at byte {pos} that the summary does not list (not "
+                               "this recording's), skipped")
                     clean = False
-                    tail = self.damage.lost(pos, stop, why, exact=True,
-                                            chunks={pos: self._chunk_head(pos)},
-                                            before_ns=self._last_chunk[1] if self._last_chunk
-                                            else None)
-                    self._waiting.append(tail)
-                    whole = tail.start == pos  # not merged into garbage before it
-                    pos = stop
-                    continue
-                head = bytes(buf[start: start + _CHUNK_HEAD.size])
-                first = seen.setdefault(head, pos) if _CHUNK_HEAD.unpack_from(head)[3] else pos
-                if first != pos:
-                    # The same times, size and CRC as a chunk already read: a copy (a damaged
-                    # copy of a log, a careless concatenation). Read once.
-                    clean = False
-                    note = f"a copy of the chunk at byte {first} at byte {pos}, skipped"
-                    if note not in self.damage.notes:  # (said once over several walks)
-                        self.damage.notes.append(note)
-                    pos = stop
-                    continue
-                self._intact(start)
-                yield op, start, stop, inner
-            elif op == OP_DATA_END:
+                elif held is not None and pos in order.rank:
+                    clean = False  # the data CRC is over file order: it cannot match
+                    held.hold(pos, start, stop)
+                    for at, a, b in held.ready(stop):
+                        yield from self._held_chunk(at, a, b, skip, seen)
+                else:
+                    give, inner, region = self._take_chunk(pos, start, stop, skip, seen)
+                    if region is not None:
+                        clean, tail, whole = False, region, region.start == pos
+                    elif not give:
+                        clean = False
+                    else:
+                        yield op, start, stop, inner
+                pos = stop
+                continue
+            if held is not None and op == OP_DATA_END:
+                for at, a, b in held.ready(None):
+                    yield from self._held_chunk(at, a, b, skip, seen)
+            if op == OP_DATA_END:
                 self._past_data = True
                 (stored,) = _U32.unpack_from(buf, start)
                 if inflate and clean and crc is not None and stored and stored != crc:
@@ -657,7 +756,57 @@ class McapFile:
                 elif not MAGIC.startswith(rest):
                     self._lose(pos, None)
                 break
+        if held is not None:  # a file cut short before its DataEnd
+            for at, a, b in held.ready(None):
+                yield from self._held_chunk(at, a, b, skip, seen)
         self.truncated = not self.complete
+
+    def _note(self, text: str) -> None:
+        """A note on the file's damage, said once however many walks meet it."""
+        if text not in self.damage.notes:
+            self.damage.notes.append(text)
+
+    def _take_chunk(self, pos: int, start: int, stop: int,
+                    skip: Callable[[int, int], bool] | None, seen: dict[bytes, int]
+                    ) -> tuple[bool, Any, LostRegion | None]:
+        """Check the chunk at ``pos`` (body ``start``..``stop``) as `records` gives it:
+        (whether to give it, its records or None, the region it was lost in or None).
+
+        A chunk with the same times, size and CRC as one already read (its first place in
+        ``seen``) is a copy (a damaged copy of a log, a careless concatenation): not given,
+        read once."""
+        head = bytes(self._buf[start: start + _CHUNK_HEAD.size])
+        first = seen.get(head, pos) if _CHUNK_HEAD.unpack_from(head)[3] else pos
+        if first != pos:
+            self._note(f"a copy of the chunk at byte {first} at byte {pos}, skipped")
+            return False, None, None
+        inner = None
+        if skip is None or not skip(start, stop):
+            inner, why = self._inflate(pos, start, stop)
+            if inner is None:
+                region = self.damage.lost(pos, stop, why, exact=True,
+                                          chunks={pos: self._chunk_head(pos)},
+                                          before_ns=self._last_chunk[1] if self._last_chunk
+                                          else None)
+                self._waiting.append(region)
+                return False, None, region
+        seen[head] = pos
+        self._intact(start)
+        return True, inner, None
+
+    def _held_chunk(self, pos: int, start: int, stop: int,
+                    skip: Callable[[int, int], bool] | None, seen: dict[bytes, int]
+                    ) -> Iterator[tuple[int, int, int, Any]]:
+        """A chunk held back to be read in log-time order, as `records` gives it: the walk
+        is past its MessageIndex records, so a lost one is counted from the summary's."""
+        give, inner, region = self._take_chunk(pos, start, stop, skip, seen)
+        if give:
+            yield OP_CHUNK, start, stop, inner
+        elif region is not None:
+            listed = self._listed(start, stop)
+            offsets = listed.index_offsets if listed is not None else ()
+            counted = [self._count_index(region, at) for at in offsets]
+            region.indexed = bool(offsets) and all(counted) and region.chunks == 1
 
     def messages(self, topics: Iterable[str] | None = None
                  ) -> Iterator[tuple[str, int, Any]]:

@@ -3,12 +3,14 @@ two demo logs made here (one with a fault, one healthy: the logs follow the reco
 
 Each copy gets one kind of damage, drawn deterministically from its number: random bytes at
 random offsets, truncation at a random point, a zeroed span, a wrong magic, garbage inside a
-chunk (its CRC then fails), a huge length field. Each verb runs on every fifth copy (60 each),
-in this process (python -m canfdi per run would take minutes of interpreter starts), under a
-watchdog. Every run must end with exit 0, saying what was lost on stderr when anything was
-(and in its JSON), or with exit 2 and one line; never a traceback, never a hang. The frames
-that export writes and replay reads are those of the intact log, in order, and include every
-frame of every chunk the damage did not touch: the rest of the log is read.
+chunk (its CRC then fails), a huge length field, two chunks swapped (half of them without the
+summary), a chunk duplicated, a chunk of the other log inserted. Each verb runs on every fifth
+copy (60 each), in this process (python -m canfdi per run would take minutes of interpreter
+starts), under a watchdog. Every run must end with exit 0, saying what was lost on stderr when
+anything was (and in its JSON), or with exit 2 and one line; never a traceback, never a hang.
+The frames that export writes and replay reads are those of the intact log, in order, and
+include every frame of every chunk the damage did not touch: the rest of the log is read.
+After a swap, a copy or an insertion every frame is still there: all are read, once, in order.
 """
 
 from __future__ import annotations
@@ -46,7 +48,10 @@ CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
 FILES = 300
 VERBS = ("replay", "export", "report", "identify", "calibrate")
 KINDS = ("random bytes", "truncation", "zeroed span", "wrong magic", "garbage in a chunk",
-         "huge length")
+         "huge length", "chunks swapped", "chunk duplicated", "foreign chunk inserted")
+WHOLE = ("chunks swapped", "chunk duplicated", "foreign chunk inserted")
+"""Kinds after which every frame of the log is still there, in its place in log time: all of
+them must be read, in order, and nothing else (issue 27)."""
 WATCHDOG_S = 60
 SEED = 17
 
@@ -83,6 +88,12 @@ class Log:
     received: list[int]  # frames the monitor received (not "sent"), per chunk
     summary_start: int
     boundaries: set[int]  # where the top-level records begin and end
+
+    def region(self, i: int) -> tuple[int, int]:
+        """Chunk i with its MessageIndex records: from its offset to the next chunk's (the
+        DataEnd record's for the last)."""
+        end = self.chunks[i + 1][0] if i + 1 < len(self.chunks) else self.summary_start - 13
+        return self.chunks[i][0], end
 
     def clean_cut(self, spans: list[tuple[int, int]]) -> bool:
         """The copy is a truncation at a record boundary: a killed writer's file, not
@@ -139,8 +150,10 @@ def logs(tmp_path_factory) -> dict[str, Log]:
     return found
 
 
-def damage(log: Log, kind: str, rng: random.Random) -> tuple[bytes, list[tuple[int, int]]]:
-    """A damaged copy of the log and the byte ranges that changed."""
+def damage(log: Log, kind: str, rng: random.Random, other: Log
+           ) -> tuple[bytes, list[tuple[int, int]]]:
+    """A damaged copy of the log and the byte ranges that changed (``other``: another
+    recording, whose chunk a "foreign chunk inserted" copy gets)."""
     data = bytearray(log.data)
     size = len(data)
     spans: list[tuple[int, int]] = []
@@ -172,6 +185,26 @@ def damage(log: Log, kind: str, rng: random.Random) -> tuple[bytes, list[tuple[i
         offset, _, _ = log.chunks[rng.randrange(len(log.chunks))]
         field = rng.choice((1, 9 + 16, 9 + 28 + 4 + 4))  # record, uncompressed, data length
         put(offset + field, struct.pack("<Q", rng.randrange(1 << 40, 1 << 64)))
+    elif kind == "chunks swapped":
+        # Two chunks, each with its MessageIndex records, trade places; half of the copies
+        # also lose their summary (then the chunks' message times give the order).
+        i, j = sorted(rng.sample(range(len(log.chunks)), 2))
+        (a, b), (c, d) = log.region(i), log.region(j)
+        data[a:d] = data[c:d] + data[b:c] + data[a:b]
+        spans.append((a, d))
+        if rng.random() < 0.5:
+            end = log.summary_start - 13  # the DataEnd record
+            return bytes(data[:end]), [*spans, (end, size)]
+    elif kind == "chunk duplicated":
+        a, b = log.region(rng.randrange(len(log.chunks)))
+        at = log.region(rng.randrange(len(log.chunks)))[rng.randrange(2)]
+        data[at:at] = data[a:b]
+        spans.append((at, size))
+    elif kind == "foreign chunk inserted":
+        a, b = other.region(rng.randrange(len(other.chunks)))
+        at = log.region(rng.randrange(len(log.chunks)))[rng.randrange(2)]
+        data[at:at] = other.data[a:b]
+        spans.append((at, size))
     return bytes(data), spans
 
 
@@ -263,11 +296,15 @@ def check(verb: str, log: Log, spans: list[tuple[int, int]], kind: str,
             assert must <= set(indices), f"{len(must - set(indices))} intact frames not read"
         if len(indices) < len(log.frames):
             assert said or log.clean_cut(spans), "frames lost without a word"
+        if kind in WHOLE:
+            assert len(indices) == len(log.frames), "a frame lost or read twice"
     elif verb == "replay":
         received = result["frames"]["received"]
         assert received <= sum(log.received)
         if channels_known:
             assert received >= sum(log.received[c] for c in kept)
+        if kind in WHOLE:
+            assert received == sum(log.received), "a frame lost or read twice"
 
 
 def test_300_damaged_logs_end_in_a_loss_report_or_one_line_never_a_traceback(logs, tmp_path):
@@ -278,7 +315,8 @@ def test_300_damaged_logs_end_in_a_loss_report_or_one_line_never_a_traceback(log
         verb = VERBS[n % len(VERBS)]
         kind = KINDS[(n // len(VERBS)) % len(KINDS)]
         log = logs["healthy" if verb in ("identify", "calibrate") else "faulty"]
-        data, spans = damage(log, kind, rng)
+        other = logs["faulty" if log is logs["healthy"] else "healthy"]
+        data, spans = damage(log, kind, rng, other)
         where = tmp_path / f"{n:03d}"
         where.mkdir()
         path = where / "damaged.mcap"

@@ -131,3 +131,42 @@ def test_a_duplicated_chunk_is_read_once_and_said(tmp_path, capsys):
 
     row = diagnose_log(LogTask(str(copy), "copy.mcap", "d1", str(CONFIG))).log
     assert "a copy of the chunk" in row["damage"] and row["samples"] == clean["samples"]
+
+
+def test_swapped_and_foreign_chunks_are_read_in_log_order_and_skipped(tmp_path, capsys):
+    """Two chunks of frames far apart swapped (with the summary, and cut before it), and a
+    chunk of another recording inserted: replay diagnoses what the intact log gives."""
+    import json
+
+    from tests.integration.test_damaged_logs import make_log, reference
+
+    log = reference(make_log(tmp_path / "a.mcap", "dc_motor_consecutive", 25.0, faults=True))
+    other = reference(make_log(tmp_path / "b.mcap", "dc_motor_nominal", 12.0, faults=False))
+    data = log.data
+    (a, b), (c, d) = log.region(2), log.region(len(log.chunks) - 4)
+    swapped = data[:a] + data[c:d] + data[b:c] + data[a:b] + data[d:]
+    x, y = other.region(5)
+    copies = {"swapped": swapped, "swapped, no summary": swapped[: log.summary_start - 13],
+              "inserted": data[:b] + other.data[x:y] + data[b:]}
+    runs = {}
+    for name, content in [("intact", data), *copies.items()]:
+        path = tmp_path / "copy.mcap"
+        path.write_bytes(content)
+        assert main(["replay", str(path), "--config", str(CONFIG), "--json",
+                     "--no-progress"]) == 0
+        captured = capsys.readouterr()
+        runs[name] = (json.loads(captured.out), captured.err)
+    intact = runs["intact"][0]
+    assert len(intact["faults"]) == 2
+    for name in copies:
+        result = runs[name][0]
+        assert result["frames"] == intact["frames"], name
+        assert result["samples"] == intact["samples"], name
+        assert [f["onset_sample"] for f in result["faults"]] == \
+            [f["onset_sample"] for f in intact["faults"]], name
+        assert result["unexplained"] == [], name
+    assert "chunks out of log-time order, read in the order the summary lists" \
+        in runs["swapped"][1]
+    assert "in the order of their messages' times" in runs["swapped, no summary"][1]
+    assert "that the summary does not list (not this recording's), skipped" \
+        in runs["inserted"][1]
