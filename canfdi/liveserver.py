@@ -9,18 +9,40 @@ layout.json). It serves with the ``foxglove-sdk`` package, an optional extra
 
 Messages reach it as the recorder writes them: frames, samples and residual rows in batches,
 at least every flush interval (1 s).
+
+A client that does not keep up costs bounded memory: the SDK queues at most
+`BACKLOG_MESSAGES` messages per client and drops its oldest beyond, and no message published
+here is larger than `LIVE_MESSAGE_BYTES` (a frame block is cut into blocks that small; another
+message that large is not published, and counted), so a client's queue holds at most
+`BACKLOG_BYTES`. Stopping waits `STOP_WAIT_S` at most for the clients, whatever they do.
 """
 
 from __future__ import annotations
 
+import logging
+import threading
 from typing import Any
 
-__all__ = ["BACKLOG_MESSAGES", "FoxgloveServer", "FoxgloveUnavailable", "parse_address"]
+from canfdi.io.blocks import split_frame_block
+from canfdi.io.schemas import TOPIC_FRAMES
 
-BACKLOG_MESSAGES = 1 << 16
+__all__ = ["BACKLOG_BYTES", "BACKLOG_MESSAGES", "LIVE_MESSAGE_BYTES", "STOP_WAIT_S",
+           "FoxgloveServer", "FoxgloveUnavailable", "parse_address"]
+
+log = logging.getLogger("canfdi.liveserver")
+
+LIVE_MESSAGE_BYTES = 16 * 1024
+"""The largest message published live: a sample or residual row, an event or a log line is
+well under 1 KiB; a frame block (up to a flush interval of frames, 130 KB at 100 Hz) is cut."""
+BACKLOG_BYTES = 64 * 1024 * 1024
+"""What a client that does not read may cost: its queue's messages times their largest."""
+BACKLOG_MESSAGES = BACKLOG_BYTES // LIVE_MESSAGE_BYTES
 """Messages the server queues per client before it drops the oldest (the SDK's default is
-1,024): 65,536 is ten seconds of a sample row, a residual row and a frame block per period at
-1 kHz, with room for a diagnosis's events and log lines."""
+1,024, which lost rows in the test's Python client when a diagnosis burst met a busy machine):
+4,096 is 20 s of a sample row and a residual row per period at 100 Hz, 2 s at 1 kHz."""
+STOP_WAIT_S = 0.5
+"""How long stopping waits for the server to close its clients (the SDK's stop waits for each
+client's queue to drain: 44 s with one that stopped reading)."""
 
 
 class FoxgloveUnavailable(RuntimeError):
@@ -72,10 +94,8 @@ class FoxgloveServer:
         # A context of its own: channels reach this server only, not the SDK's global sinks.
         self._context = foxglove.Context()
         try:
-            # The SDK keeps a bounded queue per client and drops its oldest messages when a
-            # burst outruns the client: the default lost rows in the test's Python client when
-            # a diagnosis burst (events, log lines, sample rows) met a busy machine. A few
-            # seconds of every topic at a saturated bus's rate fit in this one.
+            # The SDK keeps a queue per client, bounded in messages, and drops its oldest when
+            # a client falls behind: with our messages bounded in size, a bound in bytes.
             self._server = foxglove.start_server(name=name, host=host, port=port,
                                                  context=self._context,
                                                  message_backlog_size=BACKLOG_MESSAGES)
@@ -83,6 +103,8 @@ class FoxgloveServer:
             raise OSError(f"cannot serve Foxglove on {host}:{port}: {exc}") from None
         self.host = host
         self._channels: dict[str, tuple[tuple[str, bytes], Any]] = {}
+        self.oversize = 0
+        """Messages not published live for their size (`LIVE_MESSAGE_BYTES`)."""
 
     @property
     def port(self) -> int:
@@ -91,7 +113,23 @@ class FoxgloveServer:
 
     def __call__(self, topic: str, schema: tuple[str, bytes], log_time_ns: int,
                  data: bytes) -> None:
-        """Publish one message (the recorder's tap)."""
+        """Publish one message (the recorder's tap): a frame block larger than
+        `LIVE_MESSAGE_BYTES` as several, another message that large not at all (counted in
+        `oversize`, said once)."""
+        if len(data) > LIVE_MESSAGE_BYTES:
+            if topic != TOPIC_FRAMES:
+                if not self.oversize:
+                    log.warning("Foxglove: a %s message of %d bytes is not published live "
+                                "(at most %d bytes)", topic, len(data), LIVE_MESSAGE_BYTES)
+                self.oversize += 1
+                return
+            for t, piece in split_frame_block(data, log_time_ns, LIVE_MESSAGE_BYTES):
+                self._log(topic, schema, t, piece)
+            return
+        self._log(topic, schema, log_time_ns, data)
+
+    def _log(self, topic: str, schema: tuple[str, bytes], log_time_ns: int,
+             data: bytes) -> None:
         entry = self._channels.get(topic)
         if entry is None or entry[0] is not schema:
             if entry is not None:  # a row topic's schema widened: advertise it anew
@@ -104,8 +142,14 @@ class FoxgloveServer:
         entry[1].log(data, log_time=log_time_ns)
 
     def close(self) -> None:
-        """Stop serving."""
+        """Stop serving, waiting `STOP_WAIT_S` at most (the SDK's stop goes on in the
+        background; it does not hold the interpreter)."""
         for _, channel in self._channels.values():
             channel.close()
         self._channels.clear()
-        self._server.stop()
+        stopping = threading.Thread(target=self._server.stop, name="foxglove-stop", daemon=True)
+        stopping.start()
+        stopping.join(STOP_WAIT_S)
+        if stopping.is_alive():
+            log.warning("Foxglove: a client still had messages queued; stopped without "
+                        "waiting for it")

@@ -55,6 +55,7 @@ __all__ = [
     "gathered",
     "no_frames",
     "pack_frame",
+    "split_frame_block",
     "stamp",
     "unique_names",
 ]
@@ -256,6 +257,54 @@ def encode_frame_block(
     if long:
         text += b',"long":' + encode_json({str(row): d.hex() for row, d in long.items()}).encode()
     return text + b"}"
+
+
+def split_frame_block(data: bytes, t_ns: int, max_bytes: int) -> list[tuple[int, bytes]]:
+    """A ``/can/frames`` message cut into messages of at most about ``max_bytes`` each.
+
+    Parameters
+    ----------
+    data : bytes
+        One block message (`encode_frame_block`'s form).
+    t_ns : int
+        Its timestamp.
+    max_bytes : int
+        The size each piece keeps within: its records' base64 plus the block's head and
+        statuses (a full CAN FD payload of a piece's frames may add to it).
+
+    Returns
+    -------
+    list of (int, bytes)
+        (timestamp ns, message) of each piece, in order: the frames of ``data``, each once,
+        with their statuses. ``data`` alone when it is small enough already.
+    """
+    if len(data) <= max_bytes:
+        return [(t_ns, data)]
+    message = orjson.loads(data)
+    records = pybase64.b64decode(message["frames"], validate=True)
+    count = len(records) // FRAME_SIZE
+    statuses = encode_json(message["statuses"]).encode()
+    long = {int(row): bytes.fromhex(d) for row, d in message.get("long", {}).items()}
+    room = max(FRAME_SIZE * 2, max_bytes - len(FRAMES_HEAD) - len(statuses) - 64)
+    # Each frame's share of a piece: its record in base64, and its full payload in hex.
+    cost = np.full(count, FRAME_SIZE * 4 / 3)
+    for row, payload in long.items():
+        if 0 <= row < count:
+            cost[row] += 2 * len(payload) + 16
+    ends = np.unique(np.searchsorted(np.cumsum(cost), room * np.arange(1, cost.sum() // room
+                                                                       + 2), side="right"))
+    ends = [int(e) for e in ends if 0 < e < count] + [count]
+    pieces = []
+    start = 0
+    for stop in ends:
+        if stop <= start:
+            continue
+        (t0,) = first_time(records, start * FRAME_SIZE)
+        mine = {row - start: d for row, d in long.items() if start <= row < stop}
+        pieces.append((t0, encode_frame_block(records[start * FRAME_SIZE: stop * FRAME_SIZE],
+                                              stop - start, t0, statuses, mine)))
+        start = stop
+    return pieces
 
 
 def _cells(values: NDArray) -> list[bytes]:

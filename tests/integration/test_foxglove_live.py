@@ -122,3 +122,80 @@ def test_a_bad_address_is_one_line_and_status_2(capsys) -> None:
 ])
 def test_parse_address(text: str, expected: tuple[str, int]) -> None:
     assert parse_address(text) == expected
+
+
+def test_a_client_that_stops_reading_costs_bounded_memory_and_does_not_hold_the_stop(caplog):
+    """Issue 27: a subscriber that stops reading. Every message published live is at most
+    LIVE_MESSAGE_BYTES (a frame block is cut, each frame kept once, in order), so its queue of
+    BACKLOG_MESSAGES holds at most BACKLOG_BYTES; closing the server does not wait for it
+    (the SDK's own stop took 28-44 s here)."""
+    import logging
+    import time
+
+    import orjson
+
+    from canfdi.io.blocks import decode_frames, encode_frame_block, pack_frame
+    from canfdi.io.schemas import TOPIC_FRAMES
+    from canfdi.liveserver import (
+        BACKLOG_BYTES,
+        BACKLOG_MESSAGES,
+        LIVE_MESSAGE_BYTES,
+        STOP_WAIT_S,
+        FoxgloveServer,
+    )
+
+    assert BACKLOG_MESSAGES * LIVE_MESSAGE_BYTES <= BACKLOG_BYTES
+    server = FoxgloveServer(port=0)
+    published: list[tuple[int, bytes]] = []
+    server._log = lambda topic, schema, t, data, log=server._log: (
+        published.append((t, data)) if topic == TOPIC_FRAMES else None,
+        log(topic, schema, t, data))
+    schema = ("canfdi.frames.v1", b'{"type":"object"}')
+    row_schema = ("canfdi.test.v1", b'{"type":"object"}')
+    subscribed = threading.Event()
+    stalled = threading.Event()
+
+    async def stall() -> None:
+        ws = await websockets.connect(f"ws://127.0.0.1:{server.port}",
+                                      subprotocols=[SUBPROTOCOL], max_size=None)
+        await ws.recv()  # serverInfo
+        subs: list[dict] = []
+        while len(subs) < 2:
+            op = json.loads(await asyncio.wait_for(ws.recv(), 30))
+            if op["op"] == "advertise":
+                subs += [{"id": len(subs) + i + 1, "channelId": c["id"]}
+                         for i, c in enumerate(op["channels"])]
+        await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+        await asyncio.sleep(0.5)
+        ws.transport.pause_reading()  # and never reads again
+        subscribed.set()
+        await asyncio.to_thread(stalled.wait, 120)
+        ws.transport.abort()
+
+    server(TOPIC_FRAMES, schema, 0, b"{}")
+    server("/test/rows", row_schema, 0, b"{}")
+    thread = threading.Thread(target=lambda: asyncio.run(stall()), daemon=True)
+    thread.start()
+    assert subscribed.wait(60)
+    records = b"".join(pack_frame(i, 0x100 + i % 7, 8, 0, 0, i.to_bytes(8, "little"))
+                       for i in range(4000))
+    block = encode_frame_block(records, 4000, 0, b'["ok"]')
+    assert len(block) > 7 * LIVE_MESSAGE_BYTES
+    for _ in range(200):  # 26 MB of frames and 5 MB of rows to a client that reads nothing
+        server(TOPIC_FRAMES, schema, 0, block)
+        for k in range(20):
+            server("/test/rows", row_schema, k, b'{"x":"' + b"a" * 1000 + b'"}')
+    server("/test/rows", row_schema, 0, b"x" * (LIVE_MESSAGE_BYTES + 1))
+    assert server.oversize == 1
+    assert max(len(d) for _, d in published) <= LIVE_MESSAGE_BYTES
+    pieces = [decode_frames(orjson.loads(d)) for _, d in published[1:1 + 8]]
+    frames = np.concatenate([p.t_ns for p in pieces])
+    assert frames.tolist() == list(range(4000))
+    assert [t for t, _ in published[1:len(pieces) + 1]] == [int(p.t_ns[0]) for p in pieces]
+    start = time.monotonic()
+    with caplog.at_level(logging.WARNING, logger="canfdi.liveserver"):
+        server.close()
+    took = time.monotonic() - start
+    stalled.set()
+    assert "stopped without waiting" in caplog.text
+    assert took < STOP_WAIT_S + 5  # loose: the point is not 28 s

@@ -77,3 +77,25 @@ def test_payload_matrix_gives_the_rows_bytes_cut_or_padded():
     strided = FrameBlock(block.t_ns, block.id, block.dlc, block.flags,
                          np.zeros((n, 16), dtype=np.uint8)[:, ::2])
     assert np.array_equal(strided.payload_matrix(rows, 8), np.zeros((5, 8)))
+
+
+def test_a_frame_block_cut_for_live_keeps_every_frame_once_within_the_size():
+    import orjson
+
+    from canfdi.io.blocks import decode_frames, encode_frame_block, pack_frame, split_frame_block
+
+    records = b"".join(pack_frame(1000 + i, 0x100 + i % 5, 8, 0, i % 2, bytes(8))
+                       for i in range(5000))
+    for long in ({}, {7: bytes(64), 4999: bytes(12)}, {i: bytes(64) for i in range(0, 5000, 2)}):
+        block = encode_frame_block(records, 5000, 1000, b'["ok","crc"]', long)
+        assert split_frame_block(block, 1000, len(block)) == [(1000, block)]
+        pieces = split_frame_block(block, 1000, 16384)
+        assert len(pieces) > 1 and max(len(p) for _, p in pieces) <= 16384
+        blocks = [decode_frames(orjson.loads(p)) for _, p in pieces]
+        assert [t for t, _ in pieces] == [int(b.t_ns[0]) for b in blocks]
+        t = np.concatenate([b.t_ns for b in blocks])
+        assert t.tolist() == list(range(1000, 6000))
+        status = np.concatenate([b.status for b in blocks])
+        assert status.tolist() == ["ok", "crc"] * 2500
+        found = {int(b.t_ns[row]) - 1000: d for b in blocks for row, d in b.long.items()}
+        assert found == long
