@@ -49,6 +49,8 @@ Layout::
       directory: logs
       rotate_mib: 256
       rotate_minutes: 60
+      keep_days: 30                # optional: logs older than this are removed by `canfdi run`
+      keep_mib: 10240              # optional: and the oldest while they weigh more than this
     watchdog:                      # optional; the noise watchdog (canfdi.core.watchdog)
       enabled: true
       factor: 1.5                  # noise std over its calibrated value that is a mismatch
@@ -130,7 +132,8 @@ _IDENTIFICATION = {"min_samples": Option(int, 1, 10**7), "max_samples": Option(i
 _WATCHDOG = {"enabled": Option(bool), "factor": Option(float, 1.01, 100.0),
              "block": Option(int, 10, 10**6), "blocks": Option(int, 1, 1000)}
 _RECORDING = {"directory": Option(str), "rotate_mib": Option(float, 0.01, 1e7),
-              "rotate_minutes": Option(float, 0.01, 1e7)}
+              "rotate_minutes": Option(float, 0.01, 1e7), "keep_days": Option(float, 0.001, 1e5),
+              "keep_mib": Option(float, 1.0, 1e9)}
 MAX_IDENTIFIED_ORDER = 20
 _IDENTIFY = {"unknown_inputs": Option(int, 0, MAX_IDENTIFIED_ORDER - 1),
              "order": Option(int, 1, MAX_IDENTIFIED_ORDER), "delay": Option(int, 1, 10)}

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import logging
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 from canfdi.cli.common import (
@@ -27,7 +29,9 @@ from canfdi.cli.common import (
 HELP = """\
 Monitor a drive's CAN bus: decode its frames with the config's DBC, diagnose faults, send
 FDI_FAULT / FDI_ESTIMATE frames when a fault is accepted and FDI_STATUS every status period,
-and record everything in MCAP logs (rotated by size and age) under the recording directory.
+and record everything in MCAP logs (rotated by size and age) under the recording directory;
+with recording.keep_days or keep_mib, the older logs it wrote there are removed at start and
+every 10 minutes (never the file being written, never a file it did not name).
 With `bus.transmit: false` it is listen-only: it sends nothing at all (diagnoses are printed
 and recorded). The config's bus: section says how the drive talks (its DBC, map, E2E profiles,
 sample clock, drives); docs/bus.md has every key.
@@ -101,6 +105,38 @@ def teacher(config, seconds: float):
     return Teach(config, read_yaml(config.path, ConfigError, "config"), samples)
 
 
+PRUNE_INTERVAL_S = 600.0
+"""How often a running daemon applies recording.keep_days / keep_mib (and at start)."""
+
+
+def prune_run_logs(directory: Path, name: str, keep_days: float | None, keep_bytes: int | None,
+                   log: logging.Logger, current) -> None:
+    """Apply the retention rule (canfdi.io.retention) to the run's logs in ``directory``,
+    sparing the files ``current``; one line per pruning that removed anything, one warning
+    when the directory cannot be pruned (recording goes on)."""
+    from canfdi.io.retention import prune_logs
+
+    try:
+        removed = prune_logs(directory, name, time.time(), keep_days, keep_bytes, current)
+    except OSError as exc:
+        log.warning("cannot remove old logs in %s: %s", directory, exc)
+        return
+    if removed:
+        log.info("removed %d old log file(s) (%.1f MiB) under recording.keep_days/keep_mib: "
+                 "%s", len(removed), sum(f.size for f in removed) / 2**20,
+                 ", ".join(f.path.name for f in removed[:5])
+                 + (", ..." if len(removed) > 5 else ""))
+
+
+async def keep_pruning(prune, recorder, stop: asyncio.Event) -> None:
+    """Prune every PRUNE_INTERVAL_S until ``stop``, sparing the recorder's open segment."""
+    while not stop.is_set():
+        with contextlib.suppress(asyncio.TimeoutError):
+            await asyncio.wait_for(stop.wait(), PRUNE_INTERVAL_S)
+        if not stop.is_set():
+            prune(recorder.paths[-1:])
+
+
 def run(args: argparse.Namespace) -> int:
     from canfdi.monitor import Monitor
     from canfdi.sdnotify import Notifier
@@ -125,10 +161,17 @@ def run(args: argparse.Namespace) -> int:
         return live
     recorder = None
     drive_time = lambda: monitor.last_timestamp_ns or time.time_ns()  # noqa: E731
+    log = logging.getLogger("canfdi.run")
+    prune = None
     if not args.no_record:
         rec = config.recording
-        path = args.output or (args.log_dir or Path(rec.directory)) / (
+        directory = args.log_dir or Path(rec.directory)
+        path = args.output or directory / (
             f"{config.name}-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
+        if args.output is None and (rec.keep_days is not None or rec.keep_mib is not None):
+            prune = partial(prune_run_logs, directory, config.name, rec.keep_days,
+                            None if rec.keep_mib is None else int(rec.keep_mib * 2**20), log)
+            prune(())
         try:
             recorder = open_recorder(path, monitor.metadata(), drive_clock=drive_time, tap=live,
                                      rotate_bytes=int(rec.rotate_mib * 2**20),
@@ -141,7 +184,6 @@ def run(args: argparse.Namespace) -> int:
     elif live is not None:
         recorder = open_recorder(None, monitor.metadata(), drive_clock=drive_time, tap=live)
     monitor.sink = recorder
-    log = logging.getLogger("canfdi.run")
     systemd = Notifier()
 
     def on_ready() -> None:
@@ -165,6 +207,8 @@ def run(args: argparse.Namespace) -> int:
 
     async def main():
         stop = stop_event(args.duration)
+        if prune is not None:
+            pruner = asyncio.create_task(keep_pruning(prune, recorder, stop))
         service = MonitorService(
             monitor, opener, status_period=config.bus.status_period, on_event=on_event,
             on_ready=on_ready, on_tick=systemd.watchdog)
@@ -183,6 +227,8 @@ def run(args: argparse.Namespace) -> int:
                     stop.set()
                     await refresher
         systemd.stopping()
+        if prune is not None:
+            await pruner
         return stats
 
     try:

@@ -365,11 +365,14 @@ class IdentifySpec:
 
 @dataclass(frozen=True)
 class RecordingConfig:
-    """MCAP logging of `canfdi run`."""
+    """MCAP logging of `canfdi run`: where, when a segment is rotated, and how long logs are
+    kept (canfdi.io.retention; None: no bound of that kind)."""
 
     directory: str = "logs"
     rotate_mib: float = 256.0
     rotate_minutes: float = 60.0
+    keep_days: float | None = None
+    keep_mib: float | None = None
 
 
 @dataclass(frozen=True)

@@ -93,3 +93,32 @@ def test_capture_pipeline_records_every_frame_and_sample(tmp_path):
     assert len(read_samples(out).k) == 500
     assert "/canfdi/events" not in topics
     assert os.path.getsize(out) > 0
+
+
+def test_run_removes_its_own_old_logs_and_nothing_else(tmp_path, capfd):
+    """recording.keep_days (issue 27): at start the daemon removes the logs it named itself
+    that are older than the bound, and leaves everything else in the directory."""
+    from canfdi.cli import main
+
+    text = CONFIG.read_text()
+    assert "  rotate_minutes: 60\n" in text
+    config = tmp_path / "dc_motor.yaml"
+    config.write_text(text.replace("  rotate_minutes: 60\n",
+                                   "  rotate_minutes: 60\n  keep_days: 30\n"))
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    old = time.time() - 40 * 86400
+    names = {"dc_motor-20251001-120000.mcap": old, "dc_motor-20251001-120000-0001.mcap": old,
+             "dc_motor-20261120-120000.mcap": time.time() - 5 * 86400,
+             "notes.mcap": old, "other-20251001-120000.mcap": old, "dc_motor-old.mcap": old}
+    for name, mtime in names.items():
+        (logs / name).write_bytes(b"x" * 100)
+        os.utime(logs / name, (mtime, mtime))
+    assert main(["run", "--config", str(config), "--log-dir", str(logs), "--duration", "0.5",
+                 "--channel", "canfdi-keep-test", "--quiet"]) == 0
+    left = sorted(p.name for p in logs.iterdir())
+    new = [n for n in left if n not in names]
+    assert len(new) == 1 and new[0].startswith("dc_motor-2")
+    assert sorted(set(left) - set(new)) == ["dc_motor-20261120-120000.mcap", "dc_motor-old.mcap",
+                                            "notes.mcap", "other-20251001-120000.mcap"]
+    assert "removed 2 old log file(s)" in capfd.readouterr().err
