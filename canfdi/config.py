@@ -160,7 +160,10 @@ def _names(value: Any, field: str, count: int | None) -> list[str]:
 def _stds(value: Any, field: str, size: int, default: float | None) -> np.ndarray | None:
     if value is None:
         return None if default is None else np.full(size, default)
-    arr = np.array(value, dtype=float) if not isinstance(value, bool) else None
+    try:
+        arr = np.array(value, dtype=float) if not isinstance(value, bool) else None
+    except (TypeError, ValueError):
+        arr = None
     if arr is None or arr.ndim > 1:
         raise ConfigError(field, f"expected a number or a list of {size} numbers")
     arr = np.full(size, float(arr)) if arr.ndim == 0 else arr
@@ -483,6 +486,24 @@ def _drives(value: Any, bus: BusConfig) -> tuple[DriveConfig, ...]:
     return tuple(drives)
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a key given twice in one mapping (YAML says keys are
+    unique; PyYAML keeps the last silently, so a second ``name:`` pasted at the end of a file
+    would win unseen). Keys merged in with ``<<`` may be overridden, as YAML intends."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: set[tuple[str, str]] = set()
+        for key_node, _ in node.value:
+            if isinstance(key_node, yaml.ScalarNode) and key_node.tag != "tag:yaml.org,2002:merge":
+                key = (key_node.tag, key_node.value)
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"the key {brief(key_node.value)} is given twice",
+                        key_node.start_mark)
+                seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
 def read_yaml(path: Path, error: type[ValueError], field: str) -> Any:
     """A YAML file's document; ``error(field, message)`` for a missing, unreadable or invalid
     file (the position of a YAML error included)."""
@@ -493,11 +514,11 @@ def read_yaml(path: Path, error: type[ValueError], field: str) -> Any:
     except OSError as exc:
         raise error(field, f"cannot read {path}: {exc.strerror}") from None
     try:
-        document = yaml.safe_load(text)
+        document = yaml.load(text, Loader=_UniqueKeyLoader)  # a SafeLoader
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(exc, "problem", exc)
+        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
         raise error(field, f"invalid YAML{where}: {problem}") from None
     except RecursionError:
         raise error(field, "invalid YAML: nested too deeply") from None

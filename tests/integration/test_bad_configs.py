@@ -96,7 +96,191 @@ CASES: dict[str, tuple] = {
     "missing DBC": (re.sub(r"dbc: motor_drive\b", "dbc: nowhere.dbc", SINGLE, count=1),
                     "bus.dbc"),
 }
-BUS_ONLY = {"DBC: two messages of one ID", "missing DBC"}  # `design` reads no DBC
+
+
+def _sub(old: str, new: str, text: str = SINGLE) -> str:
+    assert old in text, f"the shipped config changed: {old!r} is gone"
+    return text.replace(old, new, 1)
+
+
+_MATRIX_A = r"  A: \[\[0.8825, 0, 0\],\n      \[0, 0.6839, 0\],\n      \[0, 0, 0.9948\]\]"
+CASES.update(
+    {
+        # Every section's keys: a wrong type, a value out of range, an unknown key, a shape.
+        "dt zero": (_sub("  dt: 0.01 ", "  dt: 0 "), "model.dt"),
+        "dt negative": (_sub("  dt: 0.01 ", "  dt: -0.01 "), "model.dt"),
+        "dt text": (_sub("  dt: 0.01 ", "  dt: fast "), "model.dt"),
+        "time continuous unknown": (_sub("  time: discrete", "  time: sideways"), "model.time"),
+        "B wrong rows": (
+            _sub(
+                "  B: [[0.002235],\n      [0.0823],\n      [0]]",
+                "  B: [[0.002235],\n      [0.0823]]",
+            ),
+            "model.B",
+        ),
+        "C wrong columns": (_sub("  C: [[1, 0, 0],", "  C: [[1, 0],"), "model.C"),
+        "F wrong rows": (
+            _sub("  F: [[0, 0],\n      [1, 0],\n      [0, 1]]", "  F: [[0, 0],\n      [1, 0]]"),
+            "model.F",
+        ),
+        "A missing": (re.sub(_MATRIX_A + "\n", "", SINGLE), "model.A"),
+        "A a scalar": (re.sub(_MATRIX_A, "  A: 3", SINGLE), "model.A"),
+        "A empty": (re.sub(_MATRIX_A, "  A: []", SINGLE), "model.A"),
+        "B entry nan": (_sub("  B: [[0.002235],", "  B: [[.nan],"), "model.B[0][0]"),
+        "C entry 1e300": (_sub("  C: [[1, 0, 0],", "  C: [[1e300, 0, 0],"), "model.C[0][0]"),
+        "F entry -inf": (_sub("  F: [[0, 0],", "  F: [[-.inf, 0],"), "model.F[0][0]"),
+        "model not a mapping": (
+            re.sub(r"model:\n(  .*\n|      .*\n)+", "model: 7\n", SINGLE),
+            "model",
+        ),
+        "inputs count wrong": (_sub("  inputs: [V]", "  inputs: [V, W]"), "signals.inputs"),
+        "outputs count wrong": (
+            _sub("  outputs: [i_f, i_a, i_f_plus_i_a, omega_r]", "  outputs: [i_f, i_a]"),
+            "signals.outputs",
+        ),
+        "duplicate output names": (
+            _sub(
+                "  outputs: [i_f, i_a, i_f_plus_i_a, omega_r]",
+                "  outputs: [i_f, i_a, i_a, omega_r]",
+            ),
+            "signals.outputs",
+        ),
+        "unknown inputs count wrong": (
+            _sub("  unknown_inputs: [phi1, phi2]", "  unknown_inputs: [phi1]"),
+            "signals.unknown_inputs",
+        ),
+        "output not in the DBC": (
+            _sub(
+                "  outputs: [i_f, i_a, i_f_plus_i_a, omega_r]",
+                "  outputs: [i_f, i_a, i_f_plus_i_a, speed]",
+            ),
+            "speed",
+        ),
+        "input name a number": (_sub("  inputs: [V]", "  inputs: [3]"), "signals.inputs"),
+        "signals unknown key": (
+            _sub("  inputs: [V]", "  inputs: [V]\n  extras: [x]"),
+            "signals.extras",
+        ),
+        "noise negative": (
+            _sub("  measurement: 0.01 ", "  measurement: -0.01 "),
+            "noise.measurement",
+        ),
+        "noise text": (_sub("  measurement: 0.01 ", "  measurement: loud "), "noise.measurement"),
+        "noise wrong length": (
+            _sub("  measurement: 0.01 ", "  measurement: [0.01, 0.01] "),
+            "noise.measurement",
+        ),
+        "noise nan": (_sub("  measurement: 0.01 ", "  measurement: .nan "), "noise.measurement"),
+        "noise unknown key": (
+            _sub("  process: 0.0", "  process: 0.0\n  quantum: 1"),
+            "noise.quantum",
+        ),
+        "actuator window float": (
+            _sub("actuator_window: 8 ", "actuator_window: 2.5 "),
+            "design.actuator_window",
+        ),
+        "design unknown key": (
+            _sub("  max_window: 10", "  max_window: 10\n  horizon: 5"),
+            "design.horizon",
+        ),
+        "drift negative": (_sub("  drift: 0.5 ", "  drift: -0.5 "), "detection.drift"),
+        "false alarm interval zero": (
+            _sub("  false_alarm_interval: 1.0e9 ", "  false_alarm_interval: 0 "),
+            "detection.false_alarm_interval",
+        ),
+        "detection a list": (
+            _sub("detection:\n  drift: 0.5 ", "detection: [1]\nxdetection:\n  drift: 0.5 "),
+            "detection",
+        ),
+        "min samples above max": (
+            _sub("  min_samples: 200", "  min_samples: 5000"),
+            "identification",
+        ),
+        "max samples huge": (
+            _sub("  max_samples: 2000", "  max_samples: 1000000000000"),
+            "identification.max_samples",
+        ),
+        "settle rel std negative": (
+            _sub("  settle_rel_std: 0.01", "  settle_rel_std: -1"),
+            "identification.settle_rel_std",
+        ),
+        "identification unknown key": (
+            _sub("  isolation_margin: 50.0", "  isolation_margin: 50.0\n  patience: 3"),
+            "identification.patience",
+        ),
+        "rotate mib zero": (_sub("  rotate_mib: 256", "  rotate_mib: 0"), "recording.rotate_mib"),
+        "keep days negative": (
+            _sub("  rotate_minutes: 60", "  rotate_minutes: 60\n  keep_days: -3"),
+            "recording.keep_days",
+        ),
+        "keep mib text": (
+            _sub("  rotate_minutes: 60", "  rotate_minutes: 60\n  keep_mib: lots"),
+            "recording.keep_mib",
+        ),
+        "recording unknown key": (
+            _sub("  rotate_minutes: 60", "  rotate_minutes: 60\n  rotate_hours: 1"),
+            "recording.rotate_hours",
+        ),
+        "watchdog factor below 1": (SINGLE + "watchdog:\n  factor: 0.5\n", "watchdog.factor"),
+        "watchdog enabled text": (SINGLE + "watchdog:\n  enabled: maybe\n", "watchdog.enabled"),
+        "status period negative": (
+            _sub("  status_period: 1.0", "  status_period: -1"),
+            "bus.status_period",
+        ),
+        "bitrate text": (
+            _sub("  status_period: 1.0", "  status_period: 1.0\n  bitrate: fast"),
+            "bus.bitrate",
+        ),
+        "bus unknown key": (
+            _sub("  status_period: 1.0", "  status_period: 1.0\n  baud: 500000"),
+            "bus.baud",
+        ),
+        "bus a string": (re.sub(r"bus:\n(  .*\n)+", "bus: can0\n", SINGLE), "bus"),
+        "method unknown": (SINGLE + "method: telepathy\n", "method"),
+        "name empty": (_sub("name: dc_motor", "name: ''"), "name"),
+        "name a list": (_sub("name: dc_motor", "name: [a]"), "name"),
+        "description a number": (
+            _sub("description: Shunt", "description: 5\nxdescription: Shunt"),
+            "description",
+        ),
+        "document a list": ("- 1\n- 2\n", "config"),
+        "empty document": ("", "config"),
+        "a binary file": ("\x00\x01\x02\xff", "config"),
+        "tabs in YAML": (SINGLE.replace("  drift: 0.5", "\tdrift: 0.5"), "config"),
+        "duplicate key": (SINGLE + "name: again\n", "name"),
+        "map of an unknown signal": (
+            _sub("  status_period: 1.0", "  status_period: 1.0\n  map:\n    nosuch: {signal: X}"),
+            "bus.map",
+        ),
+        "range inverted": (
+            _sub(
+                "  status_period: 1.0",
+                "  status_period: 1.0\n  map:\n"
+                "    V: {message: DRIVE_CMD, signal: V, range: [5, -5]}",
+            ),
+            "bus.map.V.range",
+        ),
+        "transmit text": (
+            _sub("  status_period: 1.0", "  status_period: 1.0\n  transmit: perhaps"),
+            "bus.transmit",
+        ),
+        "two drives without a template": (
+            _sub("bus:", "drives: [{name: a, node: 1}, {name: b, node: 2}]\nbus:"),
+            "bus.node.id",
+        ),
+        "node id negative": (
+            TWO.replace("{name: right, node: 2}", "{name: right, node: -2}"),
+            "drives[1].node",
+        ),
+        "node id huge": (
+            TWO.replace("{name: right, node: 2}", "{name: right, node: 100000000000}"),
+            "drives[1].node",
+        ),
+        "template unknown name": (TWO.replace(TEMPLATE, '"(id & ~0x7F) | nod"'), "bus.node.id"),
+    }
+)
+BUS_ONLY = {"DBC: two messages of one ID", "missing DBC",  # `design` reads no DBC
+            "output not in the DBC"}
 
 
 def _write(tmp_path, name: str):
