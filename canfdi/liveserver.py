@@ -14,7 +14,10 @@ A client that does not keep up costs bounded memory: the SDK queues at most
 `BACKLOG_MESSAGES` messages per client and drops its oldest beyond, and no message published
 here is larger than `LIVE_MESSAGE_BYTES` (a frame block is cut into blocks that small; another
 message that large is not published, and counted), so a client's queue holds at most
-`BACKLOG_BYTES`. Stopping waits `STOP_WAIT_S` at most for the clients, whatever they do.
+`BACKLOG_BYTES`. When the SDK starts dropping a client's messages it says so on its logger
+``foxglove.websocket.connected_client.send_lossy``; the server counts that client in
+`lagging` and says it once. Stopping waits `STOP_WAIT_S` at most for the clients, whatever
+they do.
 """
 
 from __future__ import annotations
@@ -43,6 +46,30 @@ BACKLOG_MESSAGES = BACKLOG_BYTES // LIVE_MESSAGE_BYTES
 STOP_WAIT_S = 0.5
 """How long stopping waits for the server to close its clients (the SDK's stop waits for each
 client's queue to drain: 44 s with one that stopped reading)."""
+
+
+_LOSSY_LOGGER = "foxglove.websocket.connected_client.send_lossy"
+"""Where foxglove-sdk (through pyo3-log) says "outbox for client ADDRESS full": from then on
+it drops that client's oldest messages."""
+
+
+class _LaggingClients(logging.Handler):
+    """Counts the clients whose outbox the SDK found full, and says each once."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.clients: set[str] = set()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        text = record.getMessage()
+        if not text.startswith("outbox for client ") or not text.endswith(" full"):
+            return
+        client = text[len("outbox for client "):-len(" full")]
+        if client not in self.clients:
+            self.clients.add(client)
+            log.warning("Foxglove: client %s does not keep up: its oldest messages are dropped "
+                        "(it may queue %d messages, %d MiB)", client, BACKLOG_MESSAGES,
+                        BACKLOG_BYTES // 2**20)
 
 
 class FoxgloveUnavailable(RuntimeError):
@@ -93,6 +120,11 @@ class FoxgloveServer:
         self._foxglove = foxglove
         # A context of its own: channels reach this server only, not the SDK's global sinks.
         self._context = foxglove.Context()
+        self._lagging = _LaggingClients()
+        lossy = logging.getLogger(_LOSSY_LOGGER)
+        lossy.setLevel(logging.INFO)  # the SDK's line is at INFO: kept from the root handlers
+        lossy.propagate = False
+        lossy.addHandler(self._lagging)
         try:
             # The SDK keeps a queue per client, bounded in messages, and drops its oldest when
             # a client falls behind: with our messages bounded in size, a bound in bytes.
@@ -100,11 +132,17 @@ class FoxgloveServer:
                                                  context=self._context,
                                                  message_backlog_size=BACKLOG_MESSAGES)
         except RuntimeError as exc:  # the SDK reports a failed bind as a RuntimeError
+            lossy.removeHandler(self._lagging)
             raise OSError(f"cannot serve Foxglove on {host}:{port}: {exc}") from None
         self.host = host
         self._channels: dict[str, tuple[tuple[str, bytes], Any]] = {}
         self.oversize = 0
         """Messages not published live for their size (`LIVE_MESSAGE_BYTES`)."""
+
+    @property
+    def lagging(self) -> int:
+        """Clients that fell behind so far (the SDK dropped their oldest messages)."""
+        return len(self._lagging.clients)
 
     @property
     def port(self) -> int:
@@ -153,3 +191,4 @@ class FoxgloveServer:
         if stopping.is_alive():
             log.warning("Foxglove: a client still had messages queued; stopped without "
                         "waiting for it")
+        logging.getLogger(_LOSSY_LOGGER).removeHandler(self._lagging)

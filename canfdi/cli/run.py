@@ -41,7 +41,9 @@ A lost bus is reopened with backoff. A log that cannot be written (a full disk) 
 monitoring: the error is logged once, records are dropped and counted, FDI_STATUS says
 "degraded", and recording resumes in a new segment when space returns. SIGTERM or SIGINT
 stops it in order: the bus is closed, the log flushed and closed, a "stopped:" line gives the
-counters (with "recording": segments, written, dropped, write_errors), exit status 0. A bad
+counters (with "recording": segments, written, dropped, write_errors; with --foxglove,
+"foxglove": lagging viewers, whose oldest messages were dropped, and oversize messages not
+shown live), exit status 0. A bad
 config exits with status 2. In a terminal a live view shows each residual's Page-Hinkley
 statistic against its threshold, the detector state, the active faults and the frame counters,
 with diagnoses and log lines printed above it (--no-live, --quiet or a non-terminal stdout turn
@@ -243,5 +245,7 @@ def run(args: argparse.Namespace) -> int:
                "faults": len(summary["faults"])}
     if recorder is not None and not args.no_record:
         stopped["recording"] = recording_counts(recorder)
+    if live is not None:  # viewers that fell behind, messages too large to show live
+        stopped["foxglove"] = {"lagging": live.lagging, "oversize": live.oversize}
     log.info("stopped: %s", json.dumps(stopped))
     return 0

@@ -192,6 +192,10 @@ def test_a_client_that_stops_reading_costs_bounded_memory_and_does_not_hold_the_
     frames = np.concatenate([p.t_ns for p in pieces])
     assert frames.tolist() == list(range(4000))
     assert [t for t, _ in published[1:len(pieces) + 1]] == [int(p.t_ns[0]) for p in pieces]
+    deadline = time.monotonic() + 30  # the SDK says so from its own thread
+    while not server.lagging and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert server.lagging == 1 and "does not keep up" in caplog.text
     start = time.monotonic()
     with caplog.at_level(logging.WARNING, logger="canfdi.liveserver"):
         server.close()
