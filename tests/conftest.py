@@ -28,7 +28,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 def feed_frame_log(monitor, log, block: int = 4096):
-    """A scenario's frames (firmware_sim.emitter.frame_log) through ``monitor`` in blocks, as
+    """A scenario's frames (canfdi.firmware_sim.emitter.frame_log) through ``monitor`` in blocks, as
     a live service hands them over, then end of stream. Returns the monitor."""
     for i in range(0, log.frames.size, block):
         monitor.on_frames(log.frames.slice(i, i + block))

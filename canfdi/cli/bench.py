@@ -104,8 +104,8 @@ def run(args: argparse.Namespace) -> int:
     if frames < 1000:
         print("canfdi bench: --frames: at least 1000", file=sys.stderr)
         return 2
+    from canfdi.firmware_sim.scenario import SCENARIO_DIR, ScenarioError, load_scenario
     from canfdi.tools.pairing import NoPairing, scenario_for, without_faults
-    from firmware_sim.scenario import SCENARIO_DIR, ScenarioError, load_scenario
 
     try:
         if args.scenario is not None:

@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from canfdi.config import ConfigError, MonitorConfig, load_config
+from canfdi.configs import CONFIG_DIR
 from canfdi.core.eventtext import estimates_text
 from canfdi.core.eventtext import event_line as format_event
 
@@ -29,7 +30,8 @@ __all__ = [
     "stop_event",
 ]
 
-DEFAULT_CONFIG_DIR = Path(__file__).resolve().parents[2] / "deploy" / "config"
+DEFAULT_CONFIG_DIR = CONFIG_DIR
+"""The shipped monitor configs (canfdi.configs: deploy/config/ in a checkout)."""
 
 
 def load_config_or_exit(path: Path | str, verb: str) -> MonitorConfig | int:

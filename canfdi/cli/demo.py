@@ -23,7 +23,7 @@ from canfdi.cli.common import (
 )
 
 HELP = """\
-Run a scenario's drive (firmware_sim) and the canfdi monitor together on python-can's
+Run a scenario's drive (canfdi.firmware_sim) and the canfdi monitor together on python-can's
 in-process virtual bus: the emulator publishes the drive's frames, the monitor decodes them,
 diagnoses each fault as it happens (printed live), sends its fault frames back on the bus, and
 at the end prints the injected faults against the diagnosed ones. In a terminal a live view
@@ -31,9 +31,10 @@ shows each residual's Page-Hinkley statistic against its threshold, the detector
 active (compensated) faults and the frame counters (--no-live turns it off; it is off when
 stdout is not a terminal).
 
-Defaults: scenario dc_motor_consecutive; the monitor config in deploy/config/ that reads the
-scenario's bus (its bus profile's DBC, as many drives): the plant's own config
-(deploy/config/<plant>.yaml) on canfdi's bus, dc_motor_cia402.yaml for a CiA 402 scenario, and
+Defaults: scenario dc_motor_consecutive; the shipped monitor config (canfdi.configs, which is
+deploy/config/ in a checkout) that reads the scenario's bus (its bus profile's DBC, as many
+drives): the plant's own config (<plant>.yaml) on canfdi's bus, dc_motor_cia402.yaml for a CiA
+402 scenario, and
 so on; as fast as the monitor keeps up (--speed 0: each frame carries its time in the drive's
 run, so every sample clock sees the drive's timing).
 Exit status: 0 done, 2 bad scenario, config or arguments."""
@@ -69,9 +70,9 @@ async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canf
     ``live``: a callable monitor -> canfdi.liveview.LiveView, shown while the demo runs."""
     import can
 
+    from canfdi.firmware_sim.emitter import emit
     from canfdi.monitor import Monitor
     from canfdi.service import MonitorService
-    from firmware_sim.emitter import emit
 
     plant = scenario.make_plant()
     names = {"actuator": plant.input_names, "sensor": plant.output_names}
@@ -127,7 +128,7 @@ async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canf
 
 
 def run(args: argparse.Namespace) -> int:
-    from firmware_sim.scenario import ScenarioError, load_scenario
+    from canfdi.firmware_sim.scenario import ScenarioError, load_scenario
 
     try:
         scenario = load_scenario(args.scenario)

@@ -53,8 +53,9 @@ nonzero and for a sensor bias; a fault's error is its largest; over correctly is
 False alarms per hour count over fault-free samples: from the first residual to the first
 onset (the whole run without faults) and from each acceptance to the next onset.
 
---method chooses the default config deploy/config/<plant>.yaml (parity), <plant>_oe.yaml
-(output_error) or <plant>_uio.yaml (uio); --config gives any. --faults-from TRUE.yaml draws
+--method chooses the default config among the shipped ones (canfdi.configs, deploy/config/ in
+a checkout): <plant>.yaml (parity), <plant>_oe.yaml (output_error) or <plant>_uio.yaml (uio);
+--config gives any. --faults-from TRUE.yaml draws
 the faults, their sizes and the drive's noise from TRUE.yaml's design (the drive's true model)
 and evaluates the --config monitor on them: an identified model (`canfdi identify`) and the
 true one, evaluated with the same --faults-from and --seed, see the same runs. -o DIR writes
@@ -68,7 +69,7 @@ of the serial run for the same --seed (each run is seeded on its own, the outcom
 back in run order)."""
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    from firmware_sim.plants import PLANTS
+    from canfdi.firmware_sim.plants import PLANTS
 
     p = sub.add_parser("evaluate", help="Monte Carlo evaluation: detection, isolation, delays",
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -137,8 +138,8 @@ def _config_path(args: argparse.Namespace) -> Path | int:
 
 
 def _check_args(args: argparse.Namespace) -> str | None:
+    from canfdi.firmware_sim.plants import PLANTS
     from canfdi.methods import FAULT_KINDS
-    from firmware_sim.plants import PLANTS
 
     if args.plant not in PLANTS:
         return f"--plant: unknown plant {args.plant!r} (known: {', '.join(PLANTS)})"
@@ -202,9 +203,9 @@ def _calibrated(config, plant: str, noise_scale: float, seconds: float, seed: in
     import numpy as np
 
     from canfdi.config import read_yaml
+    from canfdi.firmware_sim.plants import make_plant
+    from canfdi.firmware_sim.scenario import parse_scenario
     from canfdi.tools.calibrate import calibrate_records, scenario_records
-    from firmware_sim.plants import make_plant
-    from firmware_sim.scenario import parse_scenario
 
     std = config.design.measurement_std
     if std is None:
@@ -229,7 +230,7 @@ def run(args: argparse.Namespace) -> int:
         return config
     if args.method is not None and config.method != args.method:
         return _fail(f"--method {args.method}, but {path} is a {config.method} config")
-    from firmware_sim.plants import make_plant
+    from canfdi.firmware_sim.plants import make_plant
 
     plant = make_plant(args.plant)
     if (tuple(config.inputs), tuple(config.outputs)) != (plant.input_names, plant.output_names):

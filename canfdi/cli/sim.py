@@ -11,7 +11,7 @@ from pathlib import Path
 from canfdi.cli.common import stop_event
 
 HELP = """\
-Run the plant emulator (firmware_sim) for a scenario and publish its drives' frames on a
+Run the plant emulator (canfdi.firmware_sim) for a scenario and publish its drives' frames on a
 python-can bus, in the scenario's bus profile (bus.profile): canfdi (the plant's DBC, alive
 counter and CRC-8 in every frame; the default), cia402 (a CANopen drive and its master: SYNC,
 PDOs, heartbeat) or float_node (node-ID float protocol, currents polled by RTR).
@@ -23,7 +23,7 @@ log file in the format its suffix names (.log candump, .asc, .blf, .trc, .csv, .
 that `canfdi export` writes), as fast as they are made: a recording of the drive, as
 `candump -L can0 > FILE.log` would make on the real bus.
 
-Scenarios: a YAML file, or the name of a shipped one (firmware_sim/scenarios/), e.g.
+Scenarios: a YAML file, or the name of a shipped one (canfdi/firmware_sim/scenarios/), e.g.
 dc_motor_consecutive. Exit status: 0 done, 1 bus error, 2 bad scenario or arguments."""
 
 
@@ -71,10 +71,10 @@ def _fail(message: str) -> int:
 def run(args: argparse.Namespace) -> int:
     import can
 
+    from canfdi.firmware_sim.emitter import Disturbance, emit
+    from canfdi.firmware_sim.profiles import get_profile
+    from canfdi.firmware_sim.scenario import ScenarioError, load_scenario
     from canfdi.tools.pairing import without_faults
-    from firmware_sim.emitter import Disturbance, emit
-    from firmware_sim.profiles import get_profile
-    from firmware_sim.scenario import ScenarioError, load_scenario
 
     try:
         scenario = load_scenario(args.scenario)
@@ -150,9 +150,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _to_file(args: argparse.Namespace, scenario, disturbance) -> int:
     """The scenario's frames into a log file (no bus)."""
+    from canfdi.firmware_sim.emitter import frame_log
     from canfdi.io.formats import LogFormatError, format_of
     from canfdi.io.logs import write_frames
-    from firmware_sim.emitter import frame_log
 
     try:
         format_of(args.output)

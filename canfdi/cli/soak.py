@@ -2,9 +2,9 @@
 
 Issue 7 asks for 10^7 fault-free samples at nominal noise and nonlinearity with no false alarm,
 and for the false-alarm rate bound that supports. `Simulator.advance` is too slow for that, so
-the plant runs as K independent closed loops at once (firmware_sim.ensemble) in time chunks,
+the plant runs as K independent closed loops at once (canfdi.firmware_sim.ensemble) in time chunks,
 and each run feeds its own copy of the monitor's diagnoser through ``Diagnoser.update_block``.
-Like the demo verb, this one imports firmware_sim: it needs the emulated drive.
+Like the demo verb, this one imports canfdi.firmware_sim: it needs the emulated drive.
 """
 
 from __future__ import annotations
@@ -101,9 +101,9 @@ def _fail(message: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from canfdi.firmware_sim.plants import make_plant
+    from canfdi.firmware_sim.scenario import ScenarioError, load_scenario
     from canfdi.tools.soak import PLANT, SoakArgumentError, soak
-    from firmware_sim.plants import make_plant
-    from firmware_sim.scenario import ScenarioError, load_scenario
 
     config = load_config_or_exit(args.config, "soak")
     if isinstance(config, int):

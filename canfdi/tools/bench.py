@@ -22,7 +22,7 @@ import numpy as np
 from canfdi.bus.frames import FLAG_EXTENDED, FLAG_REMOTE, FrameBlock
 
 if TYPE_CHECKING:
-    from firmware_sim.scenario import Scenario
+    from canfdi.firmware_sim.scenario import Scenario
 
 __all__ = ["bus_limit", "data_lengths", "make_traffic", "run_bench"]
 
@@ -56,8 +56,8 @@ def data_lengths(traffic: FrameBlock) -> np.ndarray:
 
 def make_traffic(frames: int, scenario: str | Scenario = "dc_motor_nominal") -> FrameBlock:
     """The first ``frames`` frames of a scenario's bus (run past its duration as needed)."""
-    from firmware_sim.emitter import frame_log
-    from firmware_sim.scenario import load_scenario
+    from canfdi.firmware_sim.emitter import frame_log
+    from canfdi.firmware_sim.scenario import load_scenario
 
     sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
     second = frame_log(sc, duration=1.0).frames.size  # frames per second of this bus
@@ -237,9 +237,9 @@ def identify_time(identify: Callable, config_path: Path, workdir: Path, minutes:
     import dataclasses
 
     from canfdi.config import load_config, read_yaml
+    from canfdi.firmware_sim.emitter import frame_log
+    from canfdi.firmware_sim.scenario import load_scenario
     from canfdi.io.logs import write_frames
-    from firmware_sim.emitter import frame_log
-    from firmware_sim.scenario import load_scenario
 
     config = load_config(config_path, allow_unidentified=True)
     doc = read_yaml(config_path, ValueError, "config")
@@ -430,8 +430,8 @@ def loop_traffic(scenario: Scenario | str, samples: int = LOOP_SAMPLES,
         The frames of periods a .. a + samples - 1, stamped as generated, and the time in ns
         to add to them per repeat (``samples * dt``).
     """
-    from firmware_sim.emitter import frame_log
-    from firmware_sim.scenario import load_scenario
+    from canfdi.firmware_sim.emitter import frame_log
+    from canfdi.firmware_sim.scenario import load_scenario
 
     sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
     probe = frame_log(sc, duration=1.0)

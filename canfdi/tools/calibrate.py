@@ -341,7 +341,7 @@ def scenario_records(config: MonitorConfig, scenario: Any, seconds: float, seed:
     """The healthy record `calibrate_records` takes from ``seconds`` of a fault-free emulated
     run of the scenario's drive (seed ``seed``), through the config's bus as a log would be:
     its DBC's resolution, its clock."""
-    from firmware_sim.emitter import frame_log
+    from canfdi.firmware_sim.emitter import frame_log
 
     run = dataclasses.replace(scenario, faults=(), drives=(), seed=seed, duration=seconds)
     name = Path(f"{scenario.name}-seed{seed}-{seconds:g}s")

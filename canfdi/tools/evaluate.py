@@ -110,7 +110,7 @@ class InjectedFault:
         return f"{'a' if self.target == 'actuator' else 's'}:{self.name}"
 
     def scenario_entry(self, dt: float) -> dict[str, Any]:
-        """The fault as firmware_sim.scenario.parse_scenario takes it."""
+        """The fault as canfdi.firmware_sim.scenario.parse_scenario takes it."""
         out: dict[str, Any] = {"target": self.target, "index": self.index,
                                "onset": self.onset_sample * dt}
         if self.target == "actuator":
@@ -138,7 +138,7 @@ class RunSpec:
     faults: tuple[InjectedFault, ...]
 
     def scenario_dict(self, plant: str, dt: float, measurement_std: np.ndarray) -> dict:
-        """The scenario as firmware_sim.scenario.parse_scenario takes it."""
+        """The scenario as canfdi.firmware_sim.scenario.parse_scenario takes it."""
         return {
             "name": f"evaluate_{plant}_{self.run}", "plant": plant,
             "duration": self.samples * dt, "seed": self.seed,
@@ -199,9 +199,9 @@ def setup_from_config(config: MonitorConfig, plant: str, design: Design | None =
     spacing defaults to identification.max_samples + 1000: a fault detected up to 1000 samples
     after its onset can still be decided before the next one."""
     from canfdi.core.design import design_bank
-    from firmware_sim.plants import make_plant
-    from firmware_sim.scenario import parse_scenario
-    from firmware_sim.simulate import simulate
+    from canfdi.firmware_sim.plants import make_plant
+    from canfdi.firmware_sim.scenario import parse_scenario
+    from canfdi.firmware_sim.simulate import simulate
 
     design = design or design_bank(config.model, config.inputs, config.outputs, config.design)
     plant_obj = make_plant(plant)
@@ -631,8 +631,8 @@ def run_one(spec: RunSpec, setup: EvaluationSetup, base, names: dict[str, list[s
     ``update_block`` in blocks of ``block`` samples, match the events to the injected faults.
     A pure function of its arguments (the scenario is seeded): the same outcome in any
     process."""
-    from firmware_sim.scenario import parse_scenario
-    from firmware_sim.simulate import simulate
+    from canfdi.firmware_sim.scenario import parse_scenario
+    from canfdi.firmware_sim.simulate import simulate
 
     design = getattr(base, "design", None)
     memo = {id(design): design} if design is not None else {}
@@ -696,7 +696,7 @@ def run_evaluation(config: MonitorConfig, setup: EvaluationSetup, specs: Sequenc
 def default_config(plant: str, method: str, directory: Path) -> Path | None:
     """The first config (by name) in ``directory`` for the emulated ``plant`` (its signal names)
     and ``method``: what `canfdi evaluate --plant P --method M` runs without --config."""
-    from firmware_sim.plants import make_plant
+    from canfdi.firmware_sim.plants import make_plant
 
     emulated = make_plant(plant)
     for path in sorted(directory.glob("*.yaml"), key=lambda p: (len(p.stem), p.stem)):

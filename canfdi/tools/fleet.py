@@ -772,7 +772,7 @@ _DAY_NS = 86_400 * 10**9
 @dataclass(frozen=True)
 class FleetLogSpec:
     """One generated drive log: ``<drive>/<day>.mcap`` of ``seconds`` of drive time starting
-    at ``start_ns``, emulator seed ``seed``, faults as firmware_sim fault fields (target,
+    at ``start_ns``, emulator seed ``seed``, faults as canfdi.firmware_sim fault fields (target,
     index, kind, onset s, and its parameters), ``truncate``: cut the file there (a fraction of
     its bytes) as a killed writer would."""
 
@@ -842,14 +842,14 @@ def plan_fleet(logs: int, *, seed: int = 18, drives: int | None = None,
 
 def write_drive_log(spec: FleetLogSpec, directory: str, config: str) -> tuple[str, int]:
     """Write one generated log (`FleetLogSpec`) under ``directory``: the emulator's frames
-    (firmware_sim) of the shipped scenario that plays the config's bus, with the spec's
+    (canfdi.firmware_sim) of the shipped scenario that plays the config's bus, with the spec's
     length, seed and faults (on its first drive), at the spec's time, as canfdi's MCAP.
     Returns (path, frames)."""
+    from canfdi.firmware_sim.emitter import frame_log
+    from canfdi.firmware_sim.faults import Fault
+    from canfdi.firmware_sim.scenario import SCENARIO_DIR
     from canfdi.io.logs import write_frames
     from canfdi.tools.pairing import scenario_for
-    from firmware_sim.emitter import frame_log
-    from firmware_sim.faults import Fault
-    from firmware_sim.scenario import SCENARIO_DIR
 
     base = scenario_for(_config(config), SCENARIO_DIR)
     faults = tuple(Fault(**f) for f in spec.faults)

@@ -1,7 +1,7 @@
 """Which shipped monitor config reads a scenario's bus, and which scenario plays a config's.
 
 A scenario's bus is its bus profile's DBC for its plant and its number of drives
-(firmware_sim.profiles); a config's is its ``bus.dbc`` and the length of its ``drives:``. The
+(canfdi.firmware_sim.profiles); a config's is its ``bus.dbc`` and the length of its ``drives:``. The
 demo pairs a scenario with a config this way when the user names no config, and the benchmark
 a config with a scenario when the user names none.
 """
@@ -16,7 +16,7 @@ import yaml
 
 if TYPE_CHECKING:
     from canfdi.core.settings import MonitorConfig
-    from firmware_sim.scenario import Scenario
+    from canfdi.firmware_sim.scenario import Scenario
 
 __all__ = ["NoPairing", "config_bus", "config_for", "scenario_bus", "scenario_for",
            "without_faults"]
@@ -32,7 +32,7 @@ def _stem(dbc: str | Path | None) -> str | None:
 
 def scenario_bus(scenario: Scenario) -> tuple[str | None, int]:
     """(DBC stem, drives) of the bus a scenario plays."""
-    from firmware_sim.profiles import get_profile
+    from canfdi.firmware_sim.profiles import get_profile
 
     return get_profile(scenario.profile).dbc(scenario.plant), len(scenario.drives)
 
@@ -92,7 +92,7 @@ def scenario_for(config: MonitorConfig, scenario_dir: Path, faults: bool = False
     ------
     NoPairing : none does.
     """
-    from firmware_sim.scenario import ScenarioError, load_scenario
+    from canfdi.firmware_sim.scenario import ScenarioError, load_scenario
 
     want = config_bus(config)
     prefer = "consecutive" if faults else "nominal"

@@ -18,11 +18,11 @@ import numpy as np
 
 from canfdi.bus.dbc import BusMap
 from canfdi.core.settings import ConfigError, MonitorConfig
+from canfdi.firmware_sim.ensemble import DcMotorEnsemble
 from canfdi.methods import build_diagnoser
-from firmware_sim.ensemble import DcMotorEnsemble
 
 if TYPE_CHECKING:
-    from firmware_sim.scenario import Scenario
+    from canfdi.firmware_sim.scenario import Scenario
 
 __all__ = ["PLANT", "SoakArgumentError", "rate_lower_bound", "rate_upper_bound", "soak"]
 

@@ -49,8 +49,8 @@ class FlakyBus(can.BusABC):
 def test_lost_bus_is_reopened_and_diagnosis_goes_on(tmp_path):
     # Frames of a demo log: the first half comes on a bus that then dies, the rest on the next.
     from canfdi.cli.demo import run_demo
+    from canfdi.firmware_sim.scenario import load_scenario
     from canfdi.io.writer import McapRecorder
-    from firmware_sim.scenario import load_scenario
 
     log = tmp_path / "src.mcap"
     recs = []

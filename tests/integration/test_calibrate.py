@@ -12,10 +12,10 @@ import pytest
 import yaml
 
 from canfdi.config import load_config, parse_config
+from canfdi.firmware_sim.emitter import frame_log
+from canfdi.firmware_sim.scenario import load_scenario
 from canfdi.io.logs import write_frames
 from canfdi.tools.calibrate import calibrated_document
-from firmware_sim.emitter import frame_log
-from firmware_sim.scenario import load_scenario
 from tests.conftest import REPO
 from tests.unit.test_configdoc import assert_same, comments, hex_lines
 

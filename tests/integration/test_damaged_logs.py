@@ -33,13 +33,13 @@ from mcap.stream_reader import StreamReader
 
 from canfdi.cli import main
 from canfdi.config import load_config
+from canfdi.firmware_sim.emitter import frame_log
+from canfdi.firmware_sim.scenario import load_scenario
 from canfdi.io.blocks import decode_frames
 from canfdi.io.reader import read_frames
 from canfdi.io.schemas import TOPIC_FRAMES
 from canfdi.io.writer import McapRecorder
 from canfdi.monitor import Monitor
-from firmware_sim.emitter import frame_log
-from firmware_sim.scenario import load_scenario
 from tests.conftest import REPO
 
 pytestmark = pytest.mark.slow

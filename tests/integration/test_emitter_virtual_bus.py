@@ -12,10 +12,10 @@ import pytest
 
 from canfdi import dbc as dbc_files
 from canfdi.bus import e2e
-from firmware_sim.emitter import Disturbance, emit, frame_log
-from firmware_sim.profiles import PROFILES
-from firmware_sim.scenario import load_scenario, parse_scenario
-from firmware_sim.simulate import simulate
+from canfdi.firmware_sim.emitter import Disturbance, emit, frame_log
+from canfdi.firmware_sim.profiles import PROFILES
+from canfdi.firmware_sim.scenario import load_scenario, parse_scenario
+from canfdi.firmware_sim.simulate import simulate
 from tests.conftest import REPO
 
 

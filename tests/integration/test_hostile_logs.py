@@ -45,9 +45,9 @@ def test_report_of_a_log_without_samples_is_one_line_exit_1_and_no_page(tmp_path
 def test_a_cut_blf_is_said_with_what_its_header_announces(tmp_path, capsys):
     import json
 
+    from canfdi.firmware_sim.emitter import frame_log
+    from canfdi.firmware_sim.scenario import load_scenario
     from canfdi.io.logs import write_frames
-    from firmware_sim.emitter import frame_log
-    from firmware_sim.scenario import load_scenario
 
     frames = frame_log(load_scenario("dc_motor_actuator"), duration=8.0).frames
     whole = tmp_path / "run.blf"

@@ -3,7 +3,7 @@ model: {identify: {unknown_inputs: 1}}), a candump of its commissioning run, `ca
 then the monitor on the same drive: the sensor biases diagnosed on the right channels, and 300
 s of fault-free operation with the load changing without an alarm. The drive is not linear:
 Coulomb friction, a load torque that steps and drifts, a velocity loop closed by the master on
-the drive's own estimate (firmware_sim/plants/servo_axis.py)."""
+the drive's own estimate (canfdi/firmware_sim/plants/servo_axis.py)."""
 
 from __future__ import annotations
 
@@ -18,9 +18,9 @@ import pytest
 import yaml
 
 from canfdi.config import load_config
+from canfdi.firmware_sim.emitter import frame_log
+from canfdi.firmware_sim.scenario import load_scenario
 from canfdi.io.logs import write_frames
-from firmware_sim.emitter import frame_log
-from firmware_sim.scenario import load_scenario
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = REPO / "deploy" / "config" / "servo_axis_odrive.yaml"

@@ -25,13 +25,13 @@ import pytest
 
 from canfdi.cli.common import recording_counts
 from canfdi.config import load_config
+from canfdi.firmware_sim.emitter import emit
+from canfdi.firmware_sim.scenario import load_scenario
 from canfdi.io.reader import read_frames, read_log, read_metadata, read_samples
 from canfdi.io.segments import log_segments
 from canfdi.io.writer import McapRecorder
 from canfdi.monitor import Monitor
 from canfdi.service import MonitorService
-from firmware_sim.emitter import emit
-from firmware_sim.scenario import load_scenario
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"

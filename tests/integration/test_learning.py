@@ -19,10 +19,10 @@ import pytest
 import yaml
 
 from canfdi.config import load_config
+from canfdi.firmware_sim.scenario import load_scenario
+from canfdi.firmware_sim.simulate import simulate
 from canfdi.monitor import Monitor
 from canfdi.tools.calibrate import Teach
-from firmware_sim.scenario import load_scenario
-from firmware_sim.simulate import simulate
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"

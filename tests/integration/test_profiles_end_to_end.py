@@ -19,9 +19,9 @@ import pytest
 from canfdi import dbc as dbc_files
 from canfdi.cli.demo import run_demo
 from canfdi.config import load_config
+from canfdi.firmware_sim.emitter import frame_log
+from canfdi.firmware_sim.scenario import load_scenario
 from canfdi.tools.samples import log_samples
-from firmware_sim.emitter import frame_log
-from firmware_sim.scenario import load_scenario
 from tests.conftest import REPO
 
 CONFIGS = REPO / "deploy" / "config"

@@ -143,8 +143,8 @@ def test_drops_and_jitter_give_the_same_diagnoses_and_no_false_alarm(seed):
     """dc_motor_consecutive with 5% of frames dropped at random and up to 1 ms of jitter per
     frame (frames of a period reorder): the three faults are diagnosed as on a clean bus, with
     estimates within tolerance, and nothing else is detected."""
-    from firmware_sim.emitter import Disturbance, frame_log
-    from firmware_sim.scenario import load_scenario
+    from canfdi.firmware_sim.emitter import Disturbance, frame_log
+    from canfdi.firmware_sim.scenario import load_scenario
 
     scenario = load_scenario("dc_motor_consecutive")
     clean = _diagnose_log(frame_log(scenario))

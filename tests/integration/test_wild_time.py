@@ -13,10 +13,10 @@ import pytest
 
 from canfdi.bus.frames import FrameBlock
 from canfdi.config import load_config
+from canfdi.firmware_sim.emitter import frame_log
+from canfdi.firmware_sim.scenario import parse_scenario
 from canfdi.monitor import Monitor
 from canfdi.service import MonitorService
-from firmware_sim.emitter import frame_log
-from firmware_sim.scenario import parse_scenario
 from tests.conftest import REPO
 
 CONFIGS = {"counter": "dc_motor.yaml", "trigger": "dc_motor_cia402.yaml",

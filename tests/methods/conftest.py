@@ -22,9 +22,9 @@ import yaml
 from canfdi import methods
 from canfdi.config import parse_config
 from canfdi.core.settings import MonitorConfig
-from firmware_sim.plants import PLANTS, make_plant
-from firmware_sim.scenario import parse_scenario
-from firmware_sim.simulate import simulate
+from canfdi.firmware_sim.plants import PLANTS, make_plant
+from canfdi.firmware_sim.scenario import parse_scenario
+from canfdi.firmware_sim.simulate import simulate
 from tests.conftest import REPO
 from tests.methods import tiny_method
 

@@ -86,8 +86,8 @@ def _diagnoser(settings: OeSettings | None = None) -> OutputErrorDiagnoser:
 
 
 def _run(name: str):
-    from firmware_sim.scenario import load_scenario
-    from firmware_sim.simulate import simulate
+    from canfdi.firmware_sim.scenario import load_scenario
+    from canfdi.firmware_sim.simulate import simulate
 
     return simulate(load_scenario(name))
 

@@ -5,9 +5,9 @@ import pytest
 
 from canfdi.config import load_config
 from canfdi.core.records import Sample, compensated
+from canfdi.firmware_sim.scenario import parse_scenario
+from canfdi.firmware_sim.simulate import simulate
 from canfdi.methods import build_diagnoser
-from firmware_sim.scenario import parse_scenario
-from firmware_sim.simulate import simulate
 from tests.conftest import REPO
 
 CONFIG = load_config(REPO / "deploy" / "config" / "dc_motor.yaml")

@@ -13,10 +13,10 @@ import pytest
 from canfdi import methods
 from canfdi.config import parse_config
 from canfdi.core.records import compensated
+from canfdi.firmware_sim.plants import make_plant
+from canfdi.firmware_sim.scenario import parse_scenario
+from canfdi.firmware_sim.simulate import simulate
 from canfdi.monitor import Monitor
-from firmware_sim.plants import make_plant
-from firmware_sim.scenario import parse_scenario
-from firmware_sim.simulate import simulate
 from tests.conftest import REPO
 from tests.methods.conftest import _plant_of, example_document
 

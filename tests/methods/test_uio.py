@@ -96,8 +96,8 @@ def test_sensor_fault_direction_is_column_i_of_hf0(model, design, i):
 
 
 def _records(config, seed=3):
-    from firmware_sim.scenario import parse_scenario
-    from firmware_sim.simulate import Simulator
+    from canfdi.firmware_sim.scenario import parse_scenario
+    from canfdi.firmware_sim.simulate import Simulator
 
     sc = parse_scenario({"name": "t", "plant": "vtol", "duration": 6.0, "seed": seed,
                          "faults": [{"target": "actuator", "index": 0, "onset": 2.0,

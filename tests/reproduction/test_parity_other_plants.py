@@ -5,9 +5,9 @@ diagnosed (the README's method comparison quotes these runs)."""
 import pytest
 
 from canfdi.config import load_config
+from canfdi.firmware_sim.emitter import frame_log
+from canfdi.firmware_sim.scenario import load_scenario, parse_scenario
 from canfdi.monitor import Monitor
-from firmware_sim.emitter import frame_log
-from firmware_sim.scenario import load_scenario, parse_scenario
 from tests.conftest import REPO, feed_frame_log
 
 

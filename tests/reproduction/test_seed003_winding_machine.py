@@ -1,7 +1,7 @@
 """Seed 003 (output-error residual, Page-Hinkley, step-model isolation, reset) on the emulated
 winding machine, through the monitor: frames -> assembler -> OutputErrorDiagnoser.
 
-The paper's figures (Section 4) are for its machine; the emulator (firmware_sim/plants/
+The paper's figures (Section 4) are for its machine; the emulator (canfdi/firmware_sim/plants/
 winding_machine.py) uses chosen models of the same structure, so the issue's tolerances are
 checked, with the paper's values in the comments.
 """
@@ -43,8 +43,8 @@ class _Residuals:
 
 def diagnose(scenario: str, config: Path = CONFIG, sink=None) -> Monitor:
     """A scenario's frames (firmware_sim.emitter.frame_log) through the monitor, in blocks."""
-    from firmware_sim.emitter import frame_log
-    from firmware_sim.scenario import load_scenario
+    from canfdi.firmware_sim.emitter import frame_log
+    from canfdi.firmware_sim.scenario import load_scenario
 
     return feed_frame_log(Monitor(load_config(config), sink=sink),
                           frame_log(load_scenario(scenario)))

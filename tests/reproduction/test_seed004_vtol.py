@@ -1,5 +1,5 @@
 """Seed 004 (Hwang, Chang, Hsu) through the monitor: the uio method on the VTOL aircraft with
-the airspeed variation dA present (frames from firmware_sim's frame_log, as a bus would carry
+the airspeed variation dA present (frames from canfdi.firmware_sim's frame_log, as a bus would carry
 them, into canfdi.monitor.Monitor)."""
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from canfdi.config import load_config
+from canfdi.firmware_sim.emitter import frame_log
+from canfdi.firmware_sim.scenario import load_scenario, parse_scenario
 from canfdi.monitor import Monitor
-from firmware_sim.emitter import frame_log
-from firmware_sim.scenario import load_scenario, parse_scenario
 from tests.conftest import REPO, feed_frame_log
 
 CONFIG = REPO / "deploy" / "config" / "vtol_uio.yaml"

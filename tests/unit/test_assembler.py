@@ -1,6 +1,6 @@
 """SampleAssembler: the bus contract on clean, damaged and shuffled drive traffic.
 
-Traffic comes from firmware_sim (the dc_motor actuator scenario on motor_drive.dbc: DRIVE_CMD
+Traffic comes from canfdi.firmware_sim (the dc_motor actuator scenario on motor_drive.dbc: DRIVE_CMD
 0x104, DRIVE_CURRENTS 0x105, DRIVE_SPEED 0x106 every 10 ms). Every sample the assembler emits
 must carry exactly the values the drive sent for that k; nothing else may get through. A
 broken sample (some of its messages lost) carries NaN for exactly those messages' signals.

@@ -22,10 +22,10 @@ from canfdi.core.settings import (
     MonitorFramesConfig,
     SignalRef,
 )
+from canfdi.firmware_sim.emitter import FrameEncoder
+from canfdi.firmware_sim.scenario import load_scenario
+from canfdi.firmware_sim.simulate import SimChunk, Simulator
 from canfdi.monitor import Monitor
-from firmware_sim.emitter import FrameEncoder
-from firmware_sim.scenario import load_scenario
-from firmware_sim.simulate import SimChunk, Simulator
 
 REPO = Path(__file__).resolve().parents[2]
 DC_MOTOR_CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
@@ -56,7 +56,7 @@ def dc_motor_map() -> BusMap:
 @functools.cache
 def drive_traffic(n: int, k0: int = 0, scenario: str = "dc_motor_actuator"
                   ) -> tuple[SimChunk, tuple[tuple[int, int, bytes, int], ...]]:
-    """Protected drive frames of samples k0 .. k0+n-1 of a firmware_sim scenario.
+    """Protected drive frames of samples k0 .. k0+n-1 of a canfdi.firmware_sim scenario.
 
     Returns
     -------

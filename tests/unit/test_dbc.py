@@ -42,8 +42,8 @@ DC_MOTOR_CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
 
 def _profile_dbcs() -> dict[str, str]:
     """DBC stem -> the (non-canfdi) bus profile that claims it."""
-    from firmware_sim.plants import PLANTS
-    from firmware_sim.profiles import PROFILES
+    from canfdi.firmware_sim.plants import PLANTS
+    from canfdi.firmware_sim.profiles import PROFILES
 
     return {profile.dbc(plant): name for name, profile in PROFILES.items() if name != "canfdi"
             for plant in PLANTS if profile.dbc(plant) is not None}
@@ -122,8 +122,8 @@ def monitor_db() -> Database:
 
 
 def test_every_plant_has_its_plant_dbc_and_every_plant_dbc_a_plant() -> None:
-    from firmware_sim.plants import PLANTS
-    from firmware_sim.profiles import PROFILES
+    from canfdi.firmware_sim.plants import PLANTS
+    from canfdi.firmware_sim.profiles import PROFILES
 
     plants = {name: factory() for name, factory in PLANTS.items()}
     assert sorted(p.name for p in DBC_FILES) == sorted(p.dbc for p in plants.values()
@@ -306,7 +306,7 @@ def test_a_corrupted_encoded_frame_fails_the_check(db: Database) -> None:
 
 def _plants() -> list:
     """The plants with a DBC of canfdi's own bus (the servo axis has none: float_node only)."""
-    from firmware_sim.plants import PLANTS
+    from canfdi.firmware_sim.plants import PLANTS
 
     return [plant for plant in (factory() for factory in PLANTS.values())
             if plant.dbc is not None]
@@ -335,7 +335,7 @@ def test_drive_signals_are_the_plant_names(plant) -> None:
 
 
 def _scenarios() -> list[Path]:
-    return sorted((REPO / "firmware_sim" / "scenarios").glob("*.yaml"))
+    return sorted((REPO / "canfdi" / "firmware_sim" / "scenarios").glob("*.yaml"))
 
 
 def _scenarios_of(plant: str) -> list[Path]:
@@ -352,8 +352,8 @@ def _scenarios_on_own_bus_dbcs() -> list[Path]:
 
 @pytest.mark.parametrize("scenario_path", sorted(_scenarios_on_own_bus_dbcs()), ids=_stem)
 def test_scenario_values_stay_inside_the_signal_ranges(scenario_path: Path) -> None:
-    from firmware_sim.scenario import load_scenario
-    from firmware_sim.simulate import simulate
+    from canfdi.firmware_sim.scenario import load_scenario
+    from canfdi.firmware_sim.simulate import simulate
 
     scenario = load_scenario(scenario_path)
     plant = scenario.make_plant()
@@ -691,7 +691,7 @@ def _plant_of_config(config: Path) -> str:
     """The emulated plant whose input and output names a config's signals are."""
     import yaml
 
-    from firmware_sim.plants import PLANTS
+    from canfdi.firmware_sim.plants import PLANTS
 
     signals = yaml.safe_load(config.read_text())["signals"]
     for name, factory in PLANTS.items():
@@ -714,8 +714,8 @@ def test_scenario_values_stay_inside_the_mapped_signal_ranges(config: Path,
                                                               scenario_path: Path) -> None:
     """Every shipped scenario's values (faults and noise included), in the signals a profile's
     monitor config for its plant maps them to, stay inside each signal's range."""
-    from firmware_sim.scenario import load_scenario
-    from firmware_sim.simulate import simulate
+    from canfdi.firmware_sim.scenario import load_scenario
+    from canfdi.firmware_sim.simulate import simulate
 
     _, signals = _mapped_signals(config)
     scenario = load_scenario(scenario_path)
@@ -789,7 +789,7 @@ def test_pyproject_ships_dbc_and_lists_every_package() -> None:
     assert {"*.dbc", "*.md"} <= set(config["package-data"]["canfdi.dbc"])
     listed = set(config["packages"])
     found = {
-        p for p in find_namespace_packages(where=str(REPO), include=["canfdi*", "firmware_sim*"])
+        p for p in find_namespace_packages(where=str(REPO), include=["canfdi*"])
         if "__pycache__" not in p.split(".")
     }
     # The list is explicit (find cannot rename dbc/ to canfdi.dbc), so a new subpackage must be
@@ -821,8 +821,8 @@ def test_monitor_config_reads_the_emulated_bus(config: Path) -> None:
     DBC's after bus.node.id), the clock's message, each model signal in the mapped message
     carrying that drive's values; its own frames at IDs no drive uses (nor, on CANopen, a
     predefined function code)."""
-    from firmware_sim.emitter import frame_log
-    from firmware_sim.scenario import load_scenario
+    from canfdi.firmware_sim.emitter import frame_log
+    from canfdi.firmware_sim.scenario import load_scenario
 
     doc, mapped = _mapped(config)
     bus = doc["bus"]

@@ -3,7 +3,7 @@
 import numpy as np
 from scipy.signal import cont2discrete
 
-from firmware_sim.plants.dc_motor import DcMotor
+from canfdi.firmware_sim.plants.dc_motor import DcMotor
 from tests.dc_motor import dc_motor
 
 PRINTED_A = ([0.8825, 0.6839, 0.9948], 4)  # diag, decimals printed

@@ -92,7 +92,7 @@ def test_sensors_of_very_different_noise_get_vectors_per_unit_of_noise():
     of alike noise keep the paper's vectors exactly."""
     from canfdi.config import load_config
     from canfdi.core.model import StateSpace
-    from firmware_sim.plants.servo_axis import ServoAxis
+    from canfdi.firmware_sim.plants.servo_axis import ServoAxis
     from tests.conftest import REPO
 
     m = ServoAxis().linear_model()

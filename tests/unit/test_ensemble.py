@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from firmware_sim.ensemble import PRBS_PERIOD, DcMotorEnsemble, prbs_sequence
-from firmware_sim.plants.dc_motor import DcMotor
-from firmware_sim.scenario import load_scenario, parse_scenario
-from firmware_sim.simulate import Simulator
+from canfdi.firmware_sim.ensemble import PRBS_PERIOD, DcMotorEnsemble, prbs_sequence
+from canfdi.firmware_sim.plants.dc_motor import DcMotor
+from canfdi.firmware_sim.scenario import load_scenario, parse_scenario
+from canfdi.firmware_sim.simulate import Simulator
 
 # Long enough for several reference steps (every 400 samples) and the start-up transient.
 N = 1500

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from firmware_sim.faults import Fault, FaultInjector
-from firmware_sim.scenario import parse_scenario
-from firmware_sim.simulate import Simulator, simulate
+from canfdi.firmware_sim.faults import Fault, FaultInjector
+from canfdi.firmware_sim.scenario import parse_scenario
+from canfdi.firmware_sim.simulate import Simulator, simulate
 
 DT, N, Q = 0.01, 400, 4
 ONSET, END = 1.0, 3.0  # samples 100 and 300

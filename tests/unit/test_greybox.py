@@ -25,9 +25,9 @@ from canfdi.core.greybox import (
     simulate_template,
 )
 from canfdi.core.model import StateSpace, zoh
-from firmware_sim.plants.dc_motor import DcMotor, DcMotorParameters
-from firmware_sim.scenario import load_scenario
-from firmware_sim.simulate import simulate
+from canfdi.firmware_sim.plants.dc_motor import DcMotor, DcMotorParameters
+from canfdi.firmware_sim.scenario import load_scenario
+from canfdi.firmware_sim.simulate import simulate
 
 CONFIG = Path(__file__).resolve().parents[2] / "deploy" / "config" / "dc_motor.yaml"
 DC_ROLES = {"field_current": 0, "armature_current": 1, "speed": 3}  # column 2: i_f + i_a

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from canfdi.config import ConfigError, load_config
+from canfdi.firmware_sim.emitter import frame_log
+from canfdi.firmware_sim.scenario import load_scenario
 from canfdi.monitor import Monitor
-from firmware_sim.emitter import frame_log
-from firmware_sim.scenario import load_scenario
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor_two_drives_cia402.yaml"

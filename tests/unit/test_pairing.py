@@ -3,8 +3,8 @@
 import pytest
 
 from canfdi.config import load_config
+from canfdi.firmware_sim.scenario import SCENARIO_DIR, load_scenario, parse_scenario
 from canfdi.tools.pairing import NoPairing, config_for, scenario_for, without_faults
-from firmware_sim.scenario import SCENARIO_DIR, load_scenario, parse_scenario
 from tests.conftest import REPO
 
 CONFIGS = REPO / "deploy" / "config"

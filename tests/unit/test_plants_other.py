@@ -10,8 +10,8 @@ from scipy.signal import cont2discrete, lfilter
 
 from canfdi.config import load_config
 from canfdi.core.design import Design, design_bank
-from firmware_sim.plants import vtol as vtol_module
-from firmware_sim.plants.vtol import (
+from canfdi.firmware_sim.plants import vtol as vtol_module
+from canfdi.firmware_sim.plants.vtol import (
     A_C,
     A_OPEN,
     DA,
@@ -21,7 +21,7 @@ from firmware_sim.plants.vtol import (
     feedback_gain,
     zoh,
 )
-from firmware_sim.plants.winding_machine import (
+from canfdi.firmware_sim.plants.winding_machine import (
     CHANNELS,
     U_OP,
     WindingMachine,

@@ -11,13 +11,13 @@ import pytest
 
 from canfdi import dbc as dbc_files
 from canfdi.bus.frames import FLAG_REMOTE, FrameBlock
-from firmware_sim.emitter import Disturbance, EmitStats, FrameEncoder, FrameLog, frame_log
-from firmware_sim.plants import PLANTS
-from firmware_sim.profiles import PROFILES, get_profile
-from firmware_sim.profiles.base import Field, Slot, pack
-from firmware_sim.profiles.cia402 import read_device
-from firmware_sim.scenario import SCENARIO_DIR, Scenario, load_scenario, parse_scenario
-from firmware_sim.simulate import Simulator
+from canfdi.firmware_sim.emitter import Disturbance, EmitStats, FrameEncoder, FrameLog, frame_log
+from canfdi.firmware_sim.plants import PLANTS
+from canfdi.firmware_sim.profiles import PROFILES, get_profile
+from canfdi.firmware_sim.profiles.base import Field, Slot, pack
+from canfdi.firmware_sim.profiles.cia402 import read_device
+from canfdi.firmware_sim.scenario import SCENARIO_DIR, Scenario, load_scenario, parse_scenario
+from canfdi.firmware_sim.simulate import Simulator
 
 DT_NS = 10_000_000
 

@@ -2,7 +2,7 @@
 
 import pytest
 
-from firmware_sim.scenario import SCENARIO_DIR, ScenarioError, load_scenario, parse_scenario
+from canfdi.firmware_sim.scenario import SCENARIO_DIR, ScenarioError, load_scenario, parse_scenario
 
 BASE = {"plant": "dc_motor", "duration": 20.0, "seed": 1}
 
@@ -178,7 +178,7 @@ def test_issue_example_with_two_drives():
     assert (right.name, right.node, right.seed_offset, right.faults) == ("right", 2, 1, ())
     assert sc.drive_scenario(1).seed == 2 and sc.drive_scenario(1).faults == ()
     assert sc.drive_scenario(0).faults == left.faults
-    from firmware_sim.simulate import Simulator
+    from canfdi.firmware_sim.simulate import Simulator
 
     with pytest.raises(ValueError, match=r"drive_scenario"):
         Simulator(sc)

@@ -1,6 +1,6 @@
 """The servo axis on its node-ID float bus, read with ODrive's own published DBC.
 
-The emulator's frames of a servo axis run (firmware_sim profile float_node) decode, through
+The emulator's frames of a servo axis run (canfdi.firmware_sim profile float_node) decode, through
 canfdi's decoder (BusMap and the config's grid clock, as the monitor and the log tools
 assemble samples) with the monitor config
 deploy/config/servo_axis_odrive.yaml pointed at ODrive's odrive-cansimple.dbc as published
@@ -28,9 +28,9 @@ from canfdi.bus.dbc import BusMap
 from canfdi.bus.frames import FLAG_REMOTE, STATUS_NAMES
 from canfdi.config import parse_config
 from canfdi.core.settings import MonitorConfig
-from firmware_sim.emitter import FrameLog, frame_log
-from firmware_sim.plants import make_plant
-from firmware_sim.scenario import load_scenario, parse_scenario
+from canfdi.firmware_sim.emitter import FrameLog, frame_log
+from canfdi.firmware_sim.plants import make_plant
+from canfdi.firmware_sim.scenario import load_scenario, parse_scenario
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = REPO / "deploy" / "config" / "servo_axis_odrive.yaml"

@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from firmware_sim.plants import PlantOptionError, make_plant
-from firmware_sim.plants.servo_axis import ServoAxis, ServoAxisParameters
-from firmware_sim.scenario import ScenarioError, parse_scenario
-from firmware_sim.simulate import simulate
+from canfdi.firmware_sim.plants import PlantOptionError, make_plant
+from canfdi.firmware_sim.plants.servo_axis import ServoAxis, ServoAxisParameters
+from canfdi.firmware_sim.scenario import ScenarioError, parse_scenario
+from canfdi.firmware_sim.simulate import simulate
 
 TWO_PI = 2.0 * math.pi
 

@@ -187,8 +187,8 @@ def test_twin_sensors_and_an_unseen_one_keep_their_structure():
     """The DC motor of seed 001 (nonlinear, closed loop): learned with two unknown inputs, its
     design is the true one: i_a and i_f + i_a have the same signature and omega_r is not
     detectable, because coefficients the data cannot tell from zero are zero."""
-    from firmware_sim.scenario import load_scenario
-    from firmware_sim.simulate import simulate
+    from canfdi.firmware_sim.scenario import load_scenario
+    from canfdi.firmware_sim.simulate import simulate
 
     sc = dataclasses.replace(load_scenario("dc_motor_nominal"), duration=120.0)
     ch = simulate(sc)
@@ -261,7 +261,7 @@ def test_output_error_paths_realised_keep_their_zeros():
     """The winding machine's five paths (seed 003), realised block by block: its Markov
     parameters exactly, and a zero wherever a path is absent (T1 does not see u3)."""
     from canfdi.core.sysid import realise_paths
-    from firmware_sim.plants.winding_machine import CHANNELS, WindingMachine
+    from canfdi.firmware_sim.plants.winding_machine import CHANNELS, WindingMachine
 
     plant = WindingMachine()
     paths = [(c.output, c.input, c.b, c.f, 1) for c in CHANNELS]

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_sim.plants.dc_motor import DcMotor, PiSpeedController
-from firmware_sim.scenario import Scenario
+from canfdi.firmware_sim.plants.dc_motor import DcMotor, PiSpeedController
+from canfdi.firmware_sim.scenario import Scenario
 
 __all__ = ["PRBS_PERIOD", "PRBS_START", "DcMotorEnsemble", "EnsembleChunk", "prbs_sequence"]
 

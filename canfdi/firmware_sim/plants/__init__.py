@@ -11,7 +11,7 @@ Examples
 >>> make_plant("dc_motor", {"load": False})
 Traceback (most recent call last):
 ...
-firmware_sim.plants.PlantOptionError: load: not an option of plant dc_motor (it takes none)
+canfdi.firmware_sim.plants.PlantOptionError: load: not an option of plant dc_motor (it takes none)
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from firmware_sim.plants.base import Controller, NoiseDefaults, Plant
+from canfdi.firmware_sim.plants.base import Controller, NoiseDefaults, Plant
 
 __all__ = ["PLANTS", "Controller", "NoiseDefaults", "Plant", "PlantOptionError", "make_plant"]
 
@@ -39,28 +39,28 @@ def _no_options(name: str, options: Mapping[str, Any]) -> None:
 
 
 def _dc_motor(**options: Any) -> Plant:
-    from firmware_sim.plants.dc_motor import DcMotor
+    from canfdi.firmware_sim.plants.dc_motor import DcMotor
 
     _no_options("dc_motor", options)
     return DcMotor()
 
 
 def _winding_machine(**options: Any) -> Plant:
-    from firmware_sim.plants.winding_machine import WindingMachine
+    from canfdi.firmware_sim.plants.winding_machine import WindingMachine
 
     _no_options("winding_machine", options)
     return WindingMachine()
 
 
 def _vtol(**options: Any) -> Plant:
-    from firmware_sim.plants.vtol import Vtol
+    from canfdi.firmware_sim.plants.vtol import Vtol
 
     _no_options("vtol", options)
     return Vtol()
 
 
 def _servo_axis(**options: Any) -> Plant:
-    from firmware_sim.plants.servo_axis import OPTIONS, ServoAxis
+    from canfdi.firmware_sim.plants.servo_axis import OPTIONS, ServoAxis
 
     for key in options:
         if key not in OPTIONS:

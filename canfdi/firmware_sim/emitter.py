@@ -1,6 +1,6 @@
 """The drives on a bus: a scenario's frames, published through python-can.
 
-The scenario's bus profile (firmware_sim/profiles: canfdi by default, cia402, float_node) says
+The scenario's bus profile (profiles/: canfdi by default, cia402, float_node) says
 which frames each control period carries, when within the period, and what each holds: on
 canfdi's own bus, every DBC message of the drive once per period with the alive counter
 k mod 256 and the E2E CRC (dbc/README.md); on a CANopen bus, SYNC, the master's RPDOs, the
@@ -29,15 +29,15 @@ import can
 import numpy as np
 
 from canfdi.bus.frames import FLAG_REMOTE, FrameBlock
-from firmware_sim.profiles import BusProfile, Slot, get_profile
-from firmware_sim.profiles.canfdi import FrameEncoder
-from firmware_sim.scenario import Scenario
-from firmware_sim.simulate import SimChunk, Simulator
+from canfdi.firmware_sim.profiles import BusProfile, Slot, get_profile
+from canfdi.firmware_sim.profiles.canfdi import FrameEncoder
+from canfdi.firmware_sim.scenario import Scenario
+from canfdi.firmware_sim.simulate import SimChunk, Simulator
 
 __all__ = ["Disturbance", "DriveLog", "EmitStats", "FrameEncoder", "FrameLog", "emit",
            "frame_log"]
 
-log = logging.getLogger("firmware_sim.emitter")
+log = logging.getLogger("canfdi.firmware_sim.emitter")
 
 FRAME_SPACING = 130e-6
 """Seconds between frames sent back to back (one 8-byte frame at 1 Mbit/s)."""
@@ -284,7 +284,7 @@ class FrameLog:
     with the requested DLC and zero data), sample k's from k dt on; stats : what was
     injected; truth : the (first) drive's injected faults; chunk : its simulated run;
     drives : every drive's (name, node, truth, chunk), in the scenario's order; profile : the
-    bus profile's name; slots : the profile's frames of one period (firmware_sim.profiles).
+    bus profile's name; slots : the profile's frames of one period (canfdi.firmware_sim.profiles).
     """
 
     frames: FrameBlock

@@ -24,11 +24,11 @@ import numpy as np
 from canfdi import dbc as dbc_files
 from canfdi.bus.codec import MessageLayout, compile_layout
 from canfdi.bus.e2e import protect_batch
-from firmware_sim.profiles.base import BusEncoder, BusProfile, Slot
+from canfdi.firmware_sim.profiles.base import BusEncoder, BusProfile, Slot
 
 if TYPE_CHECKING:
-    from firmware_sim.plants import Plant
-    from firmware_sim.simulate import SimChunk
+    from canfdi.firmware_sim.plants import Plant
+    from canfdi.firmware_sim.simulate import SimChunk
 
 __all__ = ["CanfdiEncoder", "CanfdiProfile", "FrameEncoder"]
 
@@ -116,7 +116,7 @@ class CanfdiProfile(BusProfile):
     has_crc = True
 
     def dbc(self, plant: str) -> str | None:
-        from firmware_sim.plants import PLANTS, make_plant
+        from canfdi.firmware_sim.plants import PLANTS, make_plant
 
         if plant not in PLANTS:
             return None

@@ -40,7 +40,7 @@ import math
 
 import numpy as np
 
-from firmware_sim.plants.base import Controller, NoiseDefaults, Plant
+from canfdi.firmware_sim.plants.base import Controller, NoiseDefaults, Plant
 
 __all__ = ["DcMotor", "DcMotorParameters", "PiSpeedController"]
 

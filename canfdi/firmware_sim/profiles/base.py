@@ -7,12 +7,12 @@ period), each with its arbitration ID, DLC, sender, the drive it belongs to and 
 offset within the period. Its encoder fills every slot's payload for a whole block of
 samples at once (numpy, no per-frame Python), from the simulated runs of the bus's drives.
 
-The emitter (firmware_sim.emitter) does the rest the same way for every profile: pacing on a
+The emitter (canfdi.firmware_sim.emitter) does the rest the same way for every profile: pacing on a
 real bus or arrival times in a FrameBlock, disturbances (drops, jitter, a corrupted CRC where a
 slot has one, a wrong DLC), the interleaving of several drives.
 
-Writing a profile: a module in firmware_sim/profiles/ with a `BusProfile` subclass and a
-`BusEncoder`, one line in the registry (firmware_sim/profiles/__init__.py), a DBC in dbc/ for
+Writing a profile: a module in canfdi/firmware_sim/profiles/ with a `BusProfile` subclass and a
+`BusEncoder`, one line in the registry (canfdi/firmware_sim/profiles/__init__.py), a DBC in dbc/ for
 each plant it covers, and its timing written down in the module docstring.
 """
 
@@ -26,8 +26,8 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 if TYPE_CHECKING:
-    from firmware_sim.plants import Plant
-    from firmware_sim.simulate import SimChunk
+    from canfdi.firmware_sim.plants import Plant
+    from canfdi.firmware_sim.simulate import SimChunk
 
 __all__ = ["BusEncoder", "BusProfile", "Field", "Slot", "check_nodes", "pack", "source_values"]
 
@@ -121,7 +121,7 @@ class BusProfile(ABC):
 
     def plants(self) -> list[str]:
         """The plants this profile covers."""
-        from firmware_sim.plants import PLANTS
+        from canfdi.firmware_sim.plants import PLANTS
 
         return [name for name in PLANTS if self.dbc(name) is not None]
 

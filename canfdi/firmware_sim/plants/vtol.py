@@ -61,7 +61,7 @@ import math
 import numpy as np
 from scipy.linalg import expm
 
-from firmware_sim.plants.base import Controller, NoiseDefaults, Plant
+from canfdi.firmware_sim.plants.base import Controller, NoiseDefaults, Plant
 
 __all__ = [
     "A_C",

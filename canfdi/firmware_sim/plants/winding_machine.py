@@ -59,7 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import max_len_seq
 
-from firmware_sim.plants.base import Controller, NoiseDefaults, Plant
+from canfdi.firmware_sim.plants.base import Controller, NoiseDefaults, Plant
 
 __all__ = [
     "CHANNELS",

@@ -72,7 +72,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from firmware_sim.profiles.base import (
+from canfdi.firmware_sim.profiles.base import (
     BusEncoder,
     BusProfile,
     Field,
@@ -83,8 +83,8 @@ from firmware_sim.profiles.base import (
 )
 
 if TYPE_CHECKING:
-    from firmware_sim.plants import Plant
-    from firmware_sim.simulate import SimChunk
+    from canfdi.firmware_sim.plants import Plant
+    from canfdi.firmware_sim.simulate import SimChunk
 
 __all__ = ["CMD_MASK", "MASTER_DELAY", "FloatBusSpec", "FloatNodeEncoder", "FloatNodeProfile",
            "frame_id"]

@@ -10,7 +10,7 @@ float_node  node-ID float protocol (ODrive-like): node << 5 | cmd, float32, RTR 
 
 This registry is the only place that branches on a profile's name; everything else asks the
 profile (`BusProfile`: its DBC per plant, its node IDs, whether it has a CRC, its encoder).
-A new profile is one module here and one line below (firmware_sim/profiles/base.py says what
+A new profile is one module here and one line below (canfdi/firmware_sim/profiles/base.py says what
 it provides).
 
 Examples
@@ -25,10 +25,10 @@ from __future__ import annotations
 
 import difflib
 
-from firmware_sim.profiles.base import BusEncoder, BusProfile, Slot
-from firmware_sim.profiles.canfdi import CanfdiProfile
-from firmware_sim.profiles.cia402 import Cia402Profile
-from firmware_sim.profiles.float_node import FloatNodeProfile
+from canfdi.firmware_sim.profiles.base import BusEncoder, BusProfile, Slot
+from canfdi.firmware_sim.profiles.canfdi import CanfdiProfile
+from canfdi.firmware_sim.profiles.cia402 import Cia402Profile
+from canfdi.firmware_sim.profiles.float_node import FloatNodeProfile
 
 __all__ = ["DEFAULT_PROFILE", "PROFILES", "BusEncoder", "BusProfile", "Slot", "get_profile"]
 

@@ -19,7 +19,7 @@ its constructor; an unknown option or a bad value is an error naming ``plant_opt
     plant: servo_axis
     plant_options: {reference: commissioning, load_seed: 1}
 
-The bus (optional): which bus profile the drive speaks (firmware_sim/profiles: canfdi by
+The bus (optional): which bus profile the drive speaks (canfdi/firmware_sim/profiles: canfdi by
 default, cia402, float_node) and its node ID (default: the profile's; canfdi has none):
 
     bus: {profile: cia402, node: 1}
@@ -47,9 +47,9 @@ from typing import Any
 import numpy as np
 
 from canfdi.config import read_yaml
-from firmware_sim.faults import ACTUATOR_KINDS, SENSOR_KINDS, Fault
-from firmware_sim.plants import PLANTS, Plant, PlantOptionError, make_plant
-from firmware_sim.profiles import DEFAULT_PROFILE, PROFILES, BusProfile, get_profile
+from canfdi.firmware_sim.faults import ACTUATOR_KINDS, SENSOR_KINDS, Fault
+from canfdi.firmware_sim.plants import PLANTS, Plant, PlantOptionError, make_plant
+from canfdi.firmware_sim.profiles import DEFAULT_PROFILE, PROFILES, BusProfile, get_profile
 
 __all__ = ["MAX_DRIVES", "SCENARIO_DIR", "Drive", "Scenario", "ScenarioError", "load_scenario",
            "parse_scenario"]
@@ -343,7 +343,7 @@ def _drives(data: Any, profile: BusProfile, plant: Plant, duration: float
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario file; a bare name is looked up in firmware_sim/scenarios."""
+    """Read and validate a scenario file; a bare name is looked up in the shipped scenarios/."""
     path = Path(path)
     if not path.exists() and not path.suffix and (SCENARIO_DIR / f"{path}.yaml").exists():
         path = SCENARIO_DIR / f"{path}.yaml"

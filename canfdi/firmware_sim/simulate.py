@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from firmware_sim.faults import FaultInjector, onset_sample
-from firmware_sim.plants import Plant
-from firmware_sim.scenario import Scenario
+from canfdi.firmware_sim.faults import FaultInjector, onset_sample
+from canfdi.firmware_sim.plants import Plant
+from canfdi.firmware_sim.scenario import Scenario
 
 __all__ = ["SimChunk", "Simulator", "simulate"]
 

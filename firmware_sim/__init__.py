@@ -1,1 +1,0 @@
-"""firmware_sim: the plant emulator that plays a motor drive on a CAN bus."""
