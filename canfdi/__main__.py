@@ -1,5 +1,44 @@
+"""The `canfdi` and `canfdi-sim` commands (and ``python -m canfdi``).
+
+The console scripts start here rather than in canfdi.cli so that Ctrl-C at any moment, even
+while the verbs' modules are still being imported, ends with one line and exit status 130
+(128 + SIGINT, as a shell reports it), never a traceback. The daemon-like verbs (run, capture,
+sim) catch SIGINT themselves, stop in order and return 130 too.
+"""
+
+from __future__ import annotations
+
 import sys
 
-from canfdi.cli import main
+INTERRUPTED = 130
 
-sys.exit(main())
+
+def _interrupted(prog: str) -> int:
+    print(f"{prog}: interrupted", file=sys.stderr)
+    return INTERRUPTED
+
+
+def console() -> None:
+    """`canfdi`: canfdi.cli.main, with Ctrl-C as one line and exit 130."""
+    try:
+        from canfdi.cli import main
+
+        code = main()
+    except KeyboardInterrupt:
+        code = _interrupted("canfdi")
+    sys.exit(code)
+
+
+def console_sim() -> None:
+    """`canfdi-sim`: canfdi.cli.sim.main, with Ctrl-C as one line and exit 130."""
+    try:
+        from canfdi.cli.sim import main
+
+        code = main()
+    except KeyboardInterrupt:
+        code = _interrupted("canfdi-sim")
+    sys.exit(code)
+
+
+if __name__ == "__main__":
+    console()

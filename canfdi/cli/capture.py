@@ -8,13 +8,13 @@ import sys
 from pathlib import Path
 
 from canfdi.cli.common import (
+    StopEvent,
     add_bus_overrides,
     bus_factory,
     config_error,
     load_config_or_exit,
     open_recorder,
     recording_counts,
-    stop_event,
 )
 
 HELP = """\
@@ -60,10 +60,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"canfdi capture: recording {interface} {channel} to {args.output}",
               file=sys.stderr, flush=True)
 
+    stop = StopEvent()
+
     async def main():
-        stop = stop_event(args.duration)
         service = MonitorService(monitor, opener, status_period=0, on_ready=on_ready)
-        return await service.run(stop)
+        return await service.run(stop.arm(args.duration))
 
     try:
         stats = asyncio.run(main())
@@ -76,4 +77,4 @@ def run(args: argparse.Namespace) -> int:
         print(f"canfdi capture: {counts['write_errors']} log write errors (last: "
               f"{counts['last_error']}), {counts['dropped']} records dropped; segments: "
               f"{', '.join(counts['segments'])}", file=sys.stderr)
-    return 0
+    return stop.exit_status

@@ -16,6 +16,7 @@ from canfdi.core.eventtext import event_line as format_event
 
 __all__ = [
     "DEFAULT_CONFIG_DIR",
+    "StopEvent",
     "add_bus_overrides",
     "add_foxglove_option",
     "bus_factory",
@@ -59,16 +60,43 @@ def bus_factory(args: argparse.Namespace, bus) -> tuple[str, str, object]:
     return interface, channel, lambda: open_bus(interface, channel, bitrate)
 
 
-def stop_event(duration: float | None = None) -> asyncio.Event:
-    """An event set by SIGINT, SIGTERM or, when given, after ``duration`` seconds (call it from
-    the running event loop)."""
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, stop.set)
-    if duration:
-        loop.call_later(duration, stop.set)
-    return stop
+class StopEvent(asyncio.Event):
+    """The event a long-running verb stops on: set by SIGINT, SIGTERM or after a duration
+    (`arm`). ``interrupted`` says SIGINT (Ctrl-C) set it: the verb then stops in order as for
+    SIGTERM and exits with `exit_status` 130, as a shell reports an interrupted command."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.interrupted = False
+
+    def arm(self, duration: float | None = None) -> StopEvent:
+        """Install the signal handlers on the running event loop (and the timer)."""
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, self._signalled, sig)
+        if duration:
+            loop.call_later(duration, self.set)
+        return self
+
+    def disarm(self) -> None:
+        """Remove the signal handlers again (from the same running loop)."""
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.remove_signal_handler(sig)
+
+    def _signalled(self, sig: int) -> None:
+        self.interrupted = self.interrupted or sig == signal.SIGINT
+        self.set()
+
+    @property
+    def exit_status(self) -> int:
+        """130 after Ctrl-C, else 0."""
+        return 130 if self.interrupted else 0
+
+
+def stop_event(duration: float | None = None) -> StopEvent:
+    """A `StopEvent` armed on the running event loop."""
+    return StopEvent().arm(duration)
 
 
 def config_error(exc: Exception, verb: str) -> int:

@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import signal
 import sys
 import time
 from pathlib import Path
 
 from canfdi.cli.common import (
     DEFAULT_CONFIG_DIR,
+    StopEvent,
     add_foxglove_option,
     close_recorder,
     config_error,
@@ -61,8 +61,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canfdi-demo",
-                   recorder=None, on_event=None, announce=None, live=None):
+                   recorder=None, on_event=None, announce=None, live=None,
+                   stop: StopEvent | None = None):
     """Emulator and monitor on one virtual bus; returns (monitor, emitter stats, truth).
+
+    ``stop``: the event SIGINT and SIGTERM set while the demo runs (its ``interrupted`` says
+    whether Ctrl-C did); a private one when None.
 
     ``recorder``: a callable (metadata, drive_time) -> record sink, where drive_time() is the
     drive's time now (ns), for the sink's log lines.
@@ -83,10 +87,7 @@ async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canf
     if recorder is not None:
         monitor.sink = recorder(monitor.metadata(truth),
                                 lambda: monitor.last_timestamp_ns or time.time_ns())
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, stop.set)
+    stop = (stop if stop is not None else StopEvent()).arm()
     # The drive's time is the emulator's (the frames carry it): what the monitor's own frames
     # are recorded at too, so that the log's time is the drive's throughout.
     service = MonitorService(monitor, lambda: can.Bus(interface="virtual", channel=channel),
@@ -122,8 +123,7 @@ async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canf
             if view is not None:
                 await view_task
                 view.__exit__(None, None, None)
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.remove_signal_handler(sig)
+        stop.disarm()
     return monitor, stats, truth
 
 
@@ -177,12 +177,14 @@ def run(args: argparse.Namespace) -> int:
         if not quiet:
             say(format_event(event, plant.dt, len(config.drive_list) > 1))
 
+    stop = StopEvent()
     try:
         monitor, stats, truth = asyncio.run(run_demo(
             scenario, config, speed=args.speed, channel=args.channel,
             recorder=make_recorder if args.output or live else None, on_event=on_event,
             announce=None if quiet else say,
-            live=make_view if not quiet and not args.no_live and sys.stdout.isatty() else None))
+            live=make_view if not quiet and not args.no_live and sys.stdout.isatty() else None,
+            stop=stop))
     except ValueError as exc:
         return config_error(exc, "demo")
     except OSError as exc:
@@ -201,4 +203,4 @@ def run(args: argparse.Namespace) -> int:
         print_comparison(result, truth)
         if args.output:
             print(f"log: {args.output}")
-    return 0
+    return stop.exit_status

@@ -13,6 +13,7 @@ from functools import partial
 from pathlib import Path
 
 from canfdi.cli.common import (
+    StopEvent,
     add_bus_overrides,
     add_foxglove_option,
     bus_factory,
@@ -23,7 +24,6 @@ from canfdi.cli.common import (
     open_foxglove,
     open_recorder,
     recording_counts,
-    stop_event,
 )
 
 HELP = """\
@@ -43,11 +43,11 @@ monitoring: the error is logged once, records are dropped and counted, FDI_STATU
 stops it in order: the bus is closed, the log flushed and closed, a "stopped:" line gives the
 counters (with "recording": segments, written, dropped, write_errors; with --foxglove,
 "foxglove": lagging viewers, whose oldest messages were dropped, and oversize messages not
-shown live), exit status 0. A bad
-config exits with status 2. In a terminal a live view shows each residual's Page-Hinkley
-statistic against its threshold, the detector state, the active faults and the frame counters,
-with diagnoses and log lines printed above it (--no-live, --quiet or a non-terminal stdout turn
-it off: a daemon's journal gets plain lines)."""
+shown live), exit status 0 (130 after SIGINT, Ctrl-C). A bad config exits with status 2. In
+a terminal a live view shows each residual's Page-Hinkley statistic against its threshold,
+the detector state, the active faults and the frame counters, with diagnoses and log lines
+printed above it (--no-live, --quiet or a non-terminal stdout turn it off: a daemon's journal
+gets plain lines)."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -207,8 +207,10 @@ def run(args: argparse.Namespace) -> int:
             else:
                 print(line, flush=True)
 
+    stop = StopEvent()
+
     async def main():
-        stop = stop_event(args.duration)
+        stop.arm(args.duration)
         if prune is not None:
             pruner = asyncio.create_task(keep_pruning(prune, recorder, stop))
         service = MonitorService(
@@ -248,4 +250,4 @@ def run(args: argparse.Namespace) -> int:
     if live is not None:  # viewers that fell behind, messages too large to show live
         stopped["foxglove"] = {"lagging": live.lagging, "oversize": live.oversize}
     log.info("stopped: %s", json.dumps(stopped))
-    return 0
+    return stop.exit_status

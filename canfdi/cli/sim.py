@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from canfdi.cli.common import stop_event
+from canfdi.cli.common import StopEvent
 
 HELP = """\
 Run the plant emulator (canfdi.firmware_sim) for a scenario and publish its drives' frames on a
@@ -129,10 +129,11 @@ def run(args: argparse.Namespace) -> int:
                   f"({100 * stats.samples / total:.0f}%), {stats.frames_sent} frames",
                   end="", file=sys.stderr, flush=True)
 
+    stop = StopEvent()
+
     async def main() -> object:
-        stop = stop_event()
         return await emit(bus, scenario, speed=args.speed, duration=args.duration,
-                          disturbance=disturbance, on_block=progress, stop=stop,
+                          disturbance=disturbance, on_block=progress, stop=stop.arm(),
                           reopen=lambda: can.Bus(**kwargs))
 
     try:
@@ -145,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(file=sys.stderr)
     print(json.dumps({"scenario": scenario.name, **stats.as_dict()}))
-    return 0
+    return stop.exit_status
 
 
 def _to_file(args: argparse.Namespace, scenario, disturbance) -> int:
