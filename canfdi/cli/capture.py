@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import json
 import sys
 from pathlib import Path
 
@@ -35,6 +36,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, type=Path, metavar="OUT.mcap")
     add_bus_overrides(p)
     p.add_argument("--duration", type=float, metavar="T", help="stop after T seconds")
+    p.add_argument("--json", action="store_true",
+                   help="print the outcome as one JSON object on stdout: output, frames, "
+                        "samples, bus_errors, recording")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,4 +81,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"canfdi capture: {counts['write_errors']} log write errors (last: "
               f"{counts['last_error']}), {counts['dropped']} records dropped; segments: "
               f"{', '.join(counts['segments'])}", file=sys.stderr)
+    if args.json:
+        print(json.dumps({"output": str(args.output), "frames": stats.frames,
+                          "samples": monitor.samples, "bus_errors": stats.bus_errors,
+                          "recording": counts}))
     return stop.exit_status

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -48,6 +49,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", type=Path, metavar="OUT",
                    help="output file (default: the log's name with the format's suffix)")
     p.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
+    p.add_argument("--json", action="store_true",
+                   help="print the outcome as one JSON object on stdout: output, format, frames, "
+                        "skipped, seconds, damage")
 
 
 def _counted(blocks: Iterator, progress: Callable[[int], None] | None) -> Iterator:
@@ -128,8 +132,13 @@ def run(args: argparse.Namespace) -> int:
         return 1
     skipped = (f", {written.skipped:,} left out ({target.suffix} cannot hold them)"
                if written.skipped else "")
-    print(f"canfdi export: {written.frames:,} frames -> {out}{skipped} "
-          f"({time.monotonic() - start:.1f} s)", file=sys.stderr)
+    seconds = time.monotonic() - start
+    print(f"canfdi export: {written.frames:,} frames -> {out}{skipped} ({seconds:.1f} s)",
+          file=sys.stderr)
+    if args.json:
+        print(json.dumps({"output": str(out), "format": target.name, "frames": written.frames,
+                          "skipped": written.skipped, "seconds": round(seconds, 3),
+                          "damage": damage.as_dict()}))
     for line in damage.lines():
         print(f"canfdi export: {line}", file=sys.stderr)
     return 0

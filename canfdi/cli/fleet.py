@@ -7,6 +7,7 @@ canfdi.tools.fleetreport; this module parses arguments, shows progress and print
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
@@ -82,6 +83,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        help="a running Dask scheduler (tcp://host:8786) to run on instead")
     p.add_argument("--no-report", action="store_true", help="write the tables only")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--json", action="store_true",
+                   help="print the summary as one JSON object on stdout (the summary's numbers, "
+                        "the errors and the files written) instead of the table")
 
 
 def _fail(message: str) -> int:
@@ -169,7 +173,14 @@ def _run(args: argparse.Namespace, tasks: list) -> int:
             written += write_fleet_report(faults, logs, report_dir(args.output))[:1]
         except OSError as exc:
             return _fail(f"cannot write the report: {exc.strerror or exc}")
-    _print_summary(fleet_summary([r.log for r in results], wall, workers), results, written)
+    summary = fleet_summary([r.log for r in results], wall, workers)
+    if args.json:
+        print(json.dumps({**summary, "errors_by_log": {r.log["log"]: r.log["error"]
+                                                       for r in results
+                                                       if r.log["error"] is not None},
+                          "written": [str(p) for p in written]}))
+    else:
+        _print_summary(summary, results, written)
     return 0
 
 

@@ -62,6 +62,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-record", action="store_true", help="do not write MCAP logs")
     add_foxglove_option(p)
     p.add_argument("--duration", type=float, metavar="T", help="stop after T seconds")
+    p.add_argument("--json", action="store_true",
+                   help="at the end, print the stopped: counters as one JSON object on stdout "
+                        "(frames, sent, bus_errors, faults, recording, foxglove)")
     p.add_argument("--log-format", choices=("text", "json"), default="text",
                    help="format of the service's log lines on stderr (default: text)")
     p.add_argument("--quiet", action="store_true", help="do not print diagnoses on stdout")
@@ -250,4 +253,6 @@ def run(args: argparse.Namespace) -> int:
     if live is not None:  # viewers that fell behind, messages too large to show live
         stopped["foxglove"] = {"lagging": live.lagging, "oversize": live.oversize}
     log.info("stopped: %s", json.dumps(stopped))
+    if args.json:
+        print(json.dumps(stopped))
     return stop.exit_status

@@ -55,6 +55,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", type=Path, metavar="FILE",
                    help="write the frames to this log file instead of a bus (format by suffix)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--json", action="store_true",
+                   help="print the outcome as one JSON object on stdout (scenario, samples, "
+                        "frames_sent, ...) instead of a line of words")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -145,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         bus.shutdown()
     if not args.quiet:
         print(file=sys.stderr)
-    print(json.dumps({"scenario": scenario.name, **stats.as_dict()}))
+    _report(args, {"scenario": scenario.name, **stats.as_dict()})
     return stop.exit_status
 
 
@@ -170,10 +173,20 @@ def _to_file(args: argparse.Namespace, scenario, disturbance) -> int:
     except (OSError, LogFormatError) as exc:
         print(f"canfdi sim: cannot write {args.output}: {exc}", file=sys.stderr)
         return 1
-    print(json.dumps({"scenario": scenario.name, "output": str(args.output),
-                      "frames": written.frames, "skipped": written.skipped,
-                      **log.stats.as_dict()}))
+    _report(args, {"scenario": scenario.name, "output": str(args.output),
+                   "frames": written.frames, "skipped": written.skipped, **log.stats.as_dict()})
     return 0
+
+
+def _report(args: argparse.Namespace, outcome: dict) -> None:
+    """The outcome on stdout: one JSON object with --json, else a line of words."""
+    if args.json:
+        print(json.dumps(outcome))
+        return
+    where = f" -> {outcome['output']}" if "output" in outcome else ""
+    sent = outcome.get("frames", outcome.get("frames_sent", 0))
+    print(f"canfdi sim: {outcome['scenario']}: {outcome.get('samples', 0):,} samples, "
+          f"{sent:,} frames{where}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -102,7 +102,7 @@ def test_cli_writes_truth_and_reports(tmp_path):
     truth = tmp_path / "truth.json"
     res = subprocess.run(
         [sys.executable, "-m", "canfdi", "sim", "--scenario", "dc_motor_actuator", "--speed", "0",
-         "--duration", "2", "--truth", str(truth), "--quiet"],
+         "--duration", "2", "--truth", str(truth), "--quiet", "--json"],
         capture_output=True, text=True, cwd=REPO, timeout=120)
     assert res.returncode == 0, res.stderr
     report = json.loads(res.stdout)
@@ -274,7 +274,7 @@ def test_cli_plays_a_profile_scenario_and_writes_per_drive_truth(tmp_path):
     truth = tmp_path / "truth.json"
     res = subprocess.run(
         [sys.executable, "-m", "canfdi", "sim", "--scenario", "dc_motor_two_drives_cia402",
-         "--speed", "0", "--duration", "1", "--truth", str(truth), "--quiet"],
+         "--speed", "0", "--duration", "1", "--truth", str(truth), "--quiet", "--json"],
         capture_output=True, text=True, cwd=REPO, timeout=120)
     assert res.returncode == 0, res.stderr
     report = json.loads(res.stdout)
@@ -300,7 +300,7 @@ def test_cli_records_a_healthy_run_to_a_candump_log(tmp_path):
     log, truth = tmp_path / "drive.log", tmp_path / "truth.json"
     res = subprocess.run(
         [sys.executable, "-m", "canfdi", "sim", "--scenario", "dc_motor_consecutive", "--healthy",
-         "--duration", "2", "--truth", str(truth), "-o", str(log), "--quiet"],
+         "--duration", "2", "--truth", str(truth), "-o", str(log), "--quiet", "--json"],
         capture_output=True, text=True, cwd=REPO, timeout=120)
     assert res.returncode == 0, res.stderr
     report = json.loads(res.stdout)

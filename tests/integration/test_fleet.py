@@ -70,12 +70,13 @@ def fleet(tmp_path_factory) -> dict:
     mapping = root / "map.yaml"
     mapping.write_text(f'"*/pair/*": {TWO}\n"*": {os.path.relpath(ONE, root)}\n')  # relative
     out = root / "out" / "fleet.parquet"
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err):
+    err, said = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(said):
         rc = main(["fleet", str(logs), "--config-map", str(mapping), "-o", str(out),
-                   "--jobs", "2", "--no-progress"])
+                   "--jobs", "2", "--no-progress", "--json"])
     assert rc == 0, err.getvalue()
     return {"root": root, "logs": logs, "mapping": mapping, "out": out,
+            "summary": json.loads(said.getvalue()),
             "faults": pq.read_table(out), "table": pq.read_table(
                 out.with_name("fleet.logs.parquet"))}
 
@@ -173,3 +174,13 @@ def test_the_report_is_written_beside_the_tables(fleet):
     report = fleet["out"].with_name("fleet-report")
     assert (report / "index.html").is_file()
     assert len(list(report.glob("*.html"))) == 1 + 4  # index and one page per drive
+
+
+def test_the_json_summary_is_one_object_that_agrees_with_the_tables(fleet):
+    summary, logs = fleet["summary"], fleet["table"].to_pylist()
+    assert summary["logs"] == len(logs) == 8
+    assert summary["faults"] == sum(r["faults"] for r in logs)  # (a row per parameter there)
+    assert summary["errors"] == len(summary["errors_by_log"]) == sum(
+        r["error"] is not None for r in logs)
+    assert str(fleet["out"]) in summary["written"]
+    assert all(Path(p).exists() for p in summary["written"])

@@ -70,7 +70,7 @@ class Monitor:
 
 def sim(scenario: str, *extra: str, truth: Path | None = None) -> subprocess.CompletedProcess:
     cmd = [*CANFDI, "sim", "--scenario", scenario, "--interface", "socketcan",
-           "--channel", "vcan0", "--quiet", *extra]
+           "--channel", "vcan0", "--quiet", "--json", *extra]
     if truth is not None:
         cmd += ["--truth", str(truth)]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=REPO)
