@@ -5,10 +5,18 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
-from canfdi.cli.common import config_error, format_event, load_config_or_exit, print_comparison
+from canfdi.cli.common import (
+    close_recorder,
+    config_error,
+    format_event,
+    load_config_or_exit,
+    open_recorder,
+    print_comparison,
+)
 
 HELP = """\
 Run the monitor offline over a log: an MCAP written by canfdi (run, demo, capture), whose raw
@@ -26,33 +34,81 @@ not a log of its suffix, or a damaged log of which nothing made a sample (one li
 
 Prints each diagnosis and a summary table, or with --json one object: {"faults": [...],
 "frames": {...}, "samples": N, "truth": [...] when the log holds it, "damage": [...] (one
-entry per damaged file, [] when none)}."""
+entry per damaged file, [] when none)}.
+
+-o OUT.mcap writes what was diagnosed as a live run writes it (frames, samples, residuals and
+their statistics, events, the log lines), whatever the input's format, for `canfdi report` and
+Foxglove. Without --config, a canfdi MCAP is replayed with the config recorded in it (said on
+stderr); a config whose DBC is a relative path then needs --config."""
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="diagnose a recorded log offline", description=HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("log", type=Path,
                    help="MCAP log, or a python-can log (.asc .blf .log .trc .csv .db .mf4 .gz)")
-    p.add_argument("--config", required=True, type=Path, metavar="FILE", help="monitor config")
+    p.add_argument("--config", type=Path, metavar="FILE",
+                   help="monitor config (default for a canfdi MCAP: the one recorded in it)")
+    p.add_argument("-o", "--output", type=Path, metavar="OUT.mcap",
+                   help="write the diagnosis as a live run's MCAP (for report and Foxglove)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
 
 
 def run(args: argparse.Namespace) -> int:
-    from canfdi.io.formats import LogFormatError
     from canfdi.monitor import Monitor
-    from canfdi.tools.replay import replay_log
 
-    config = load_config_or_exit(args.config, "replay")
-    if isinstance(config, int):
-        return config
     if not args.log.exists():
         print(f"canfdi replay: no such log: {args.log}", file=sys.stderr)
         return 2
+    if args.output is not None and (args.output.exists() or args.output.resolve()
+                                    == args.log.resolve()):
+        print(f"canfdi replay: -o {args.output}: exists (not overwritten)", file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory(prefix="canfdi-replay-") as scratch:
+        config = (load_config_or_exit(args.config, "replay") if args.config is not None
+                  else recorded_config(args.log, Path(scratch)))
+        if isinstance(config, int):
+            return config
+        try:
+            monitor = Monitor(config, record_residuals=args.output is not None)
+        except ValueError as exc:
+            return config_error(exc, "replay")
+        return _replay(args, monitor)
+
+
+def recorded_config(log: Path, scratch: Path):
+    """The monitor config recorded in a canfdi MCAP (its ``config_yaml`` metadata), loaded
+    from a copy in ``scratch``; 2 after one line when there is none."""
+    from canfdi.config import ConfigError, load_config
+    from canfdi.io.reader import read_metadata
+    from canfdi.io.scan import NotMcap
+
     try:
-        monitor = Monitor(config, record_residuals=False)
-    except ValueError as exc:
-        return config_error(exc, "replay")
+        meta = read_metadata(log) if log.suffix == ".mcap" else {}
+    except (NotMcap, OSError):
+        meta = {}
+    text = meta.get("config_yaml", "")
+    if not text:
+        print(f"canfdi replay: give --config: {log} holds no monitor config (only a canfdi "
+              "MCAP does)", file=sys.stderr)
+        return 2
+    copy = scratch / f"{meta.get('config_name') or 'recorded'}.yaml"
+    copy.write_text(text)
+    try:
+        config = load_config(copy)
+    except ConfigError as exc:
+        print(f"canfdi replay: the config recorded in {log} does not load here ({exc}); give "
+              "--config", file=sys.stderr)
+        return 2
+    print(f"canfdi replay: using the config recorded in {log} ({config.name}); --config "
+          "gives another", file=sys.stderr)
+    return config
+
+
+def _replay(args: argparse.Namespace, monitor) -> int:
+    """The replay into ``monitor``, recorded with -o; the exit status."""
+    from canfdi.io.logs import truth_of
+
     progress = not args.no_progress and sys.stderr.isatty()
     start = time.monotonic()
     seen = {"frames": 0, "events": 0}
@@ -68,6 +124,34 @@ def run(args: argparse.Namespace) -> int:
             rate = monitor.samples / max(time.monotonic() - start, 1e-9)
             print(f"\rcanfdi replay: {count:,} frames, {monitor.samples:,} samples, "
                   f"{rate:,.0f} samples/s", end="", file=sys.stderr)
+
+    recorder = None
+    if args.output is not None:
+        try:
+            recorder = open_recorder(args.output, monitor.metadata(truth_of(args.log)),
+                                     drive_clock=lambda: monitor.last_timestamp_ns or 0)
+        except (OSError, ValueError) as exc:
+            print(f"canfdi replay: cannot write {args.output}: {exc}", file=sys.stderr)
+            return 1
+        monitor.sink = recorder
+    status = 2
+    try:
+        status = _diagnose(args, monitor, on_block, progress, seen)
+    finally:
+        if recorder is not None:
+            close_recorder(recorder)
+            if status != 0:  # nothing diagnosed: no log that looks like a diagnosis
+                for path in recorder.paths:
+                    path.unlink(missing_ok=True)
+            elif not args.json:
+                print(f"log: {args.output}")
+    return status
+
+
+def _diagnose(args: argparse.Namespace, monitor, on_block, progress: bool, seen: dict) -> int:
+    """Replay the log into ``monitor`` and print the outcome; the exit status."""
+    from canfdi.io.formats import LogFormatError
+    from canfdi.tools.replay import replay_log
 
     try:
         replayed = replay_log(monitor, args.log, on_block)

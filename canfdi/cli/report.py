@@ -25,8 +25,9 @@ and in the page; the rest is made anyway. A damaged log is read around its damag
 fail their CRC are skipped): what was lost is said on stderr (one line per damaged file), in
 the page and in the JSON's "damage".
 Exit status: 0 report written (also of a damaged log, its loss said), 1 the log holds no
-sample, residual or event (nothing to report: one line), 2 bad input (no such file, not an
-MCAP, bad --config: one line)."""
+sample, residual or event (nothing to report: one line), or no residuals (a capture, another
+tool's log: its samples are drawn, and a line says to run `canfdi replay LOG -o
+diagnosed.mcap` first), 2 bad input (no such file, not an MCAP, bad --config: one line)."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -63,10 +64,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"canfdi report: missing: {note}", file=sys.stderr)
     for line in report.damage.lines() if report.damage is not None else []:
         print(f"canfdi report: {line}", file=sys.stderr)
+    # A log without residuals (a capture, another tool's log) gets its samples drawn, but it
+    # is not a report of a diagnosis: 1, with the note above saying how to get one.
+    status = 0 if report.residuals else 1
     if args.json:
         print(json.dumps(report.as_dict(), indent=2))
-        return 0
+        return status
     for path in report.figures:
         print(path)
     print(report.html)
-    return 0
+    return status

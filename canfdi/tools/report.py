@@ -235,7 +235,8 @@ def read_log_contents(path: str | Path, config_path: Path | None = None,
     if len(residuals.k) == 0:
         notes.append("the log holds no residuals (/canfdi/residuals; a capture log, or "
                      "recorded without residuals): no residual figures, no estimate "
-                     "trajectories (canfdi replay re-runs the diagnosis)")
+                     "trajectories (`canfdi replay LOG -o diagnosed.mcap` writes them; then "
+                     "report diagnosed.mcap)")
         residuals = None
     if not any(e.kind == "accepted" for e in events):
         notes.append("the log holds no accepted fault: no fault figures")
@@ -868,13 +869,15 @@ def write_html(contents: LogContents, rows: list[dict], figures: list[tuple[str,
 class Report:
     """What `make_report` wrote: ``html``, ``figures`` (paths, overview first), ``rows`` (the
     diagnosis table, `diagnosis_rows` plus ``figure``), ``notes`` (what the log lacked),
-    ``damage`` (what a damaged log lost: canfdi.io.damage.Damage, false when nothing)."""
+    ``damage`` (what a damaged log lost: canfdi.io.damage.Damage, false when nothing),
+    ``residuals`` (whether the log held residuals: without, the page shows the samples only)."""
 
     html: Path
     figures: list[Path]
     rows: list[dict]
     notes: list[str]
     damage: Any = None
+    residuals: bool = True
 
     def as_dict(self) -> dict:
         return {"html": str(self.html), "figures": [str(p) for p in self.figures],
@@ -935,4 +938,5 @@ def make_report(log: str | Path, out_dir: str | Path, config_path: Path | None =
     say("index.html")
     page = write_html(contents, rows, figures, out / "index.html")
     return Report(html=page, figures=[out / f for f, _ in figures], rows=rows,
-                  notes=list(contents.notes), damage=contents.damage)
+                  notes=list(contents.notes), damage=contents.damage,
+                  residuals=contents.residuals is not None)

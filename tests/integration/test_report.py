@@ -78,9 +78,10 @@ def test_report_of_a_log_without_residuals_says_what_is_missing(tmp_path, capsys
         monitor.sink = recorder
         monitor.on_frames(frames.frames)
     out = tmp_path / "rep"
-    assert main(["report", str(log), "-o", str(out), "--no-progress"]) == 0
+    assert main(["report", str(log), "-o", str(out), "--no-progress"]) == 1
     err = capsys.readouterr().err
     assert "no residuals" in err and "no accepted fault" in err
+    assert "canfdi replay LOG -o diagnosed.mcap" in err
     assert (out / "overview.png").read_bytes().startswith(PNG)
     assert not (out / "residuals.png").exists()
     page = (out / "index.html").read_text()
