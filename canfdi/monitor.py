@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import copy
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
@@ -70,6 +71,8 @@ class RecordSink(Protocol):
                         normalized: np.ndarray, statistic: np.ndarray,
                         drive: str | None = None) -> None: ...
     def write_event(self, event: FaultEvent) -> None: ...
+    def write_status(self, timestamp_ns: int, state: str, samples: int,
+                     frames: Mapping[str, Any], active_faults: int) -> None: ...
     def write_frames(self, block: FrameBlock, statuses: np.ndarray,
                      status_names: tuple[str, ...]) -> None: ...
     def write_samples(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
@@ -590,8 +593,18 @@ class Monitor:
                     "Index": event.index, "Value": float(np.sqrt(max(var, 0.0)))}))
         return [f for f in frames if f is not None]
 
-    def status_frames(self, state: str | None = None) -> list[OutFrame]:
-        """The periodic FDI_STATUS heartbeat, one per drive (none when listen-only)."""
+    def status_frames(self, state: str | None = None,
+                      timestamp_ns: int | None = None) -> list[OutFrame]:
+        """The periodic FDI_STATUS heartbeat, one per drive (none when listen-only); recorded
+        on the sink's ``/canfdi/status`` too, at ``timestamp_ns`` (default: the drive's time
+        last seen), with the state of each drive (``name=state``, comma-separated)."""
+        if self.sink is not None:
+            states = ",".join(f"{d.name}={state or d.state}" for d in self.drives)
+            active = sum(len({(c.target, c.index) for c in d.diagnoser.compensation})
+                         for d in self.drives if d.diagnoser is not None)
+            self.sink.write_status(timestamp_ns if timestamp_ns is not None
+                                   else self.last_timestamp_ns or 0, states, self.samples,
+                                   self.frame_stats, active)
         out = []
         for drive in self.drives:
             dg = drive.diagnoser

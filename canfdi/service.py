@@ -349,7 +349,7 @@ class MonitorService:
         "degraded" while the monitor's record sink says it is failing (the MCAP log is not
         being written: a full disk), else the monitor's own state."""
         failing = getattr(self.monitor.sink, "failing", False)
-        return self.monitor.status_frames("degraded" if failing else None)
+        return self.monitor.status_frames("degraded" if failing else None, self.clock())
 
     async def _status_loop(self, stop: asyncio.Event) -> None:
         if self.status_period <= 0:

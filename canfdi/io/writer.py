@@ -942,10 +942,16 @@ class McapRecorder:
 
     def write_event(self, event: FaultEvent) -> None:
         """Record a diagnoser conclusion on `TOPIC_EVENTS` (at ``event.timestamp_ns``; fields
-        that are None are left out, so that each has one JSON type)."""
+        that are None are left out, so that each has one JSON type). An accepted or refined
+        fault's estimates go on `TOPIC_ESTIMATES` too (hypothesis ``drive/target:name``)."""
         message = {"timestamp": stamp(event.timestamp_ns),
                    **{k: v for k, v in event.as_dict().items() if v is not None}}
         self._write_now(TOPIC_EVENTS, event.timestamp_ns, encode_message(message))
+        if event.kind in ("accepted", "refined") and event.estimates:
+            who = f"{event.drive}/" if event.drive else ""
+            self.write_estimates(event.timestamp_ns, event.sample,
+                                 f"{who}{event.target}:{event.name}", event.estimates,
+                                 event.variances or {})
 
     def write_log(self, timestamp_ns: int, level: str, message: str, name: str = "canfdi",
                   file: str = "", line: int = 0) -> None:

@@ -38,7 +38,7 @@ import functools
 import math
 import re
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -401,6 +401,10 @@ class LogStats:
         pass
 
     def write_event(self, event: FaultEvent) -> None:
+        pass
+
+    def write_status(self, timestamp_ns: int, state: str, samples: int,
+                     frames: Mapping[str, Any], active_faults: int) -> None:
         pass
 
     def write_metadata(self, name: str, values: dict[str, str]) -> None:

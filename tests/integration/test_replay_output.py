@@ -53,3 +53,26 @@ def test_without_a_config_to_use_and_over_a_file_it_is_one_line_and_2(tmp_path, 
     assert main(["replay", str(log), "--config", str(CONFIG), "-o", str(taken),
                  "--no-progress"]) == 2
     assert "exists" in capsys.readouterr().err and taken.read_bytes() == b"someone's"
+
+
+def test_every_documented_topic_is_in_a_demo_log(tmp_path, capsys):
+    """docs/mcap.md's topics, each read back from a demo's log (issue 28: /canfdi/status and
+    /canfdi/estimates were documented and never written)."""
+    import re
+
+    documented = set(re.findall(r"^\| `(/[a-z/]+)` \|", (REPO / "docs" / "mcap.md").read_text(),
+                                re.MULTILINE))
+    assert {"/canfdi/status", "/canfdi/estimates", "/can/frames"} <= documented
+    log = tmp_path / "demo.mcap"
+    assert main(["demo", "--no-live", "--json", "-o", str(log)]) == 0
+    demo = json.loads(capsys.readouterr().out)
+    messages: dict[str, list] = {}
+    for topic, _, message in read_log(log):
+        messages.setdefault(topic, []).append(message)
+    assert documented <= set(messages), documented - set(messages)
+    estimates = messages["/canfdi/estimates"]
+    accepted = demo["faults"]
+    assert len(estimates) >= len(accepted) == 3
+    assert {e["hypothesis"] for e in estimates} >= {
+        f"dc_motor/{f['kind']}:{f['name']}" for f in accepted}
+    assert all(m["state"].startswith("dc_motor=") for m in messages["/canfdi/status"])

@@ -142,7 +142,9 @@ def test_every_signal_is_a_plottable_field_for_the_parser(logs, node_tools) -> N
     assert "s:i_a" in types["/canfdi/residuals"]["canfdi.Residuals.statistic"]
     assert got["schemas"]["/canfdi/log"]["name"] == "foxglove.Log"
     assert set(got["schemas"]) == {"/can/frames", "/canfdi/samples", "/canfdi/residuals",
-                                   "/canfdi/events", "/canfdi/log"}
+                                   "/canfdi/events", "/canfdi/log", "/canfdi/estimates",
+                                   "/canfdi/status"}
+    assert "canfdi.Estimates.estimates" in types["/canfdi/estimates"]
 
 
 def test_the_parser_rejects_what_issue_17_found(tmp_path, node_tools) -> None:

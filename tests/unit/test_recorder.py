@@ -199,9 +199,9 @@ def test_round_trip_every_topic(tmp_path: Path) -> None:
         rec.write_log(T0 + 12, "warning", "bus error: reopening", "canfdi.service",
                       "service.py", 7)
         assert rec.buffered == 15 + 3 + 3
-        # 5 single messages (estimates, event, status, custom, log line)
-        assert rec.messages_written == 5
-    assert rec.messages_written == 5 + 15 + 3 + 3 and rec.buffered == 0
+        # 6 single messages (estimates, event and its estimates, status, custom, log line)
+        assert rec.messages_written == 6
+    assert rec.messages_written == 6 + 15 + 3 + 3 and rec.buffered == 0
 
     frames = read_frames(path)
     assert frames.t_ns.tolist() == [T0 + i for i in range(6)] + (
@@ -298,6 +298,11 @@ def test_round_trip_every_topic(tmp_path: Path) -> None:
                                    "hypothesis": "actuator:voltage",
                                    "estimates": {"eta": 0.9}, "variances": {"eta": 0.1}}),
         (TOPIC_EVENTS, T0 + 9, {"timestamp": stamp(T0 + 9), **event_fields}),
+        # an accepted fault's estimates, on their own topic too
+        (TOPIC_ESTIMATES, T0 + 9, {"timestamp": stamp(T0 + 9), "k": 310,
+                                   "hypothesis": "actuator:voltage",
+                                   "estimates": {"eta": 0.8, "lambda": 0.01},
+                                   "variances": {"eta": 1e-4, "lambda": 1e-6}}),
         (TOPIC_STATUS, T0 + 10, {"timestamp": stamp(T0 + 10), "state": "running",
                                  "samples": 311, "frames": {"ok": 1000, "crc": 2},
                                  "active_faults": 1}),
@@ -314,7 +319,7 @@ def test_round_trip_every_topic(tmp_path: Path) -> None:
     assert reader.complete and not reader.truncated
     assert reader.messages_read == len(singles) + 1 + 3 + 3
     assert stamp(T0) == {"sec": 1_700_000_000, "nsec": 123_456_789}
-    assert list(read_log(path, topics=[TOPIC_STATUS])) == [singles[2]]
+    assert list(read_log(path, topics=[TOPIC_STATUS])) == [singles[3]]
     assert read_metadata(path) == METADATA
 
     with open(path, "rb") as f:
