@@ -66,6 +66,9 @@ class McapReader(MessageReader):
     ------
     FileNotFoundError
         No segment of the log exists.
+    ValueError
+        An MCAP file that canfdi did not write (no channel of its topics): its topics are
+        named, where reading would give no frame.
     TypeError
         ``file`` is a file object: the reader needs names, to find the segments.
 
@@ -90,8 +93,15 @@ class McapReader(MessageReader):
 
     def __init__(self, file: Any, channel: Any = None, **kwargs: Any) -> None:
         self.path = _path_of(file, "McapReader")
-        if not log_segments(self.path):
+        segments = log_segments(self.path)
+        if not segments:
             raise FileNotFoundError(2, "no such log", str(self.path))
+        foreign = _foreign_topics(segments[0])
+        if foreign is not None:
+            shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
+            raise ValueError(f"{self.path}: an MCAP file canfdi did not write (its topics: "
+                             f"{shown or 'none'}): python-can reads CAN frames from a canfdi "
+                             "log's /can/frames only")
         self.channel = channel
         self._iterators: list[Iterator[Message]] = []
 
@@ -115,6 +125,25 @@ class McapReader(MessageReader):
         for iterator in self._iterators:
             iterator.close()  # type: ignore[attr-defined]
         self._iterators.clear()
+
+
+def _foreign_topics(path: Path) -> list[str] | None:
+    """The topics of an MCAP file none of whose channels is canfdi's (``/can/...`` or
+    ``/canfdi/...``), sorted; None for a canfdi log, or a file whose channels are not known
+    (damaged before its first channel: the reader then says what it lost)."""
+    from canfdi.io.scan import McapFile, NotMcap
+
+    try:
+        with McapFile(path) as f:
+            if not f.channels:  # no intact summary: the first chunks define them
+                for _ in f.messages(["/can/frames"]):
+                    return None
+            topics = sorted(set(f.channels.values()))
+    except (NotMcap, OSError):
+        return None  # the reader's own errors say it
+    if not topics or any(t.startswith(("/can/", "/canfdi/")) for t in topics):
+        return None
+    return topics
 
 
 class McapWriter(SizedMessageWriter):

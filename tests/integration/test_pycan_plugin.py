@@ -261,3 +261,25 @@ def test_the_writer_records_directions_and_refuses_what_it_cannot(tmp_path):
         McapWriter(tmp_path / "a.mcap", append=True)
     with pytest.raises(TypeError, match="file name"), open(tmp_path / "f.mcap", "wb") as file:
         McapWriter(file)
+
+
+def test_a_foreign_mcap_is_a_clear_error_not_zero_frames(tmp_path):
+    """Issue 28: python-can's LogReader on an MCAP canfdi did not write (a robot's poses, by
+    the mcap package's own writer) read as 0 frames; it now names the file's topics."""
+    import json
+
+    import can
+    import pytest
+    from mcap.writer import Writer
+
+    path = tmp_path / "robot.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        schema = writer.register_schema("pose", "jsonschema", b'{"type": "object"}')
+        channel = writer.register_channel("/robot/pose", "json", schema)
+        for i in range(10):
+            writer.add_message(channel, i, json.dumps({"x": i}).encode(), i)
+        writer.finish()
+    with pytest.raises(ValueError, match=r"did not write \(its topics: /robot/pose\)"):
+        can.LogReader(str(path))
