@@ -450,7 +450,8 @@ def _bus(data: dict, names: list[str]) -> BusConfig:
         **mon, ids=dict(ids),
         e2e=_e2e_spec(monitor_data.get("e2e", "canfdi"), "bus.monitor.e2e"))
     return BusConfig(**values, map=signal_map, e2e=e2e, clock=clock, node_id=node_id,
-                     node_shared=node_shared, monitor=monitor)
+                     node_shared=node_shared, monitor=monitor,
+                     stated=frozenset({"interface", "channel", "bitrate"} & set(values)))
 
 
 def _drives(value: Any, bus: BusConfig) -> tuple[DriveConfig, ...]:

@@ -19,6 +19,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import can
 
@@ -31,9 +32,11 @@ log = logging.getLogger("canfdi.service")
 
 
 def open_bus(interface: str, channel: str, bitrate: int | None = None,
-             receive_own_messages: bool = False) -> can.BusABC:
-    """A python-can bus from explicit arguments (no python-can config files are consulted)."""
-    kwargs: dict = {"interface": interface, "channel": channel}
+             receive_own_messages: bool = False, **extra: Any) -> can.BusABC:
+    """A python-can bus (``extra``: further keyword arguments of its interface, such as
+    ``fd`` and ``data_bitrate``). python-can adds what its own configuration (``CAN_CONFIG``,
+    can.conf) gives for the keys not passed here."""
+    kwargs: dict = {"interface": interface, "channel": channel, **extra}
     if bitrate is not None:
         kwargs["bitrate"] = bitrate
     if receive_own_messages:

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from canfdi.cli.common import (
+    BusArgumentError,
     StopEvent,
     add_bus_overrides,
     bus_factory,
@@ -58,7 +59,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"canfdi capture: cannot write {args.output}: {exc}", file=sys.stderr)
         return 1
     monitor.sink = recorder
-    interface, channel, opener = bus_factory(args, config.bus)
+    try:
+        interface, channel, opener = bus_factory(args, config.bus)
+    except BusArgumentError as exc:
+        recorder.close()
+        print(f"canfdi capture: {exc}", file=sys.stderr)
+        return 2
 
     def on_ready() -> None:
         print(f"canfdi capture: recording {interface} {channel} to {args.output}",

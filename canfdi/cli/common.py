@@ -8,6 +8,7 @@ import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from canfdi.config import ConfigError, MonitorConfig, load_config
 from canfdi.configs import CONFIG_DIR
@@ -15,11 +16,15 @@ from canfdi.core.eventtext import estimates_text
 from canfdi.core.eventtext import event_line as format_event
 
 __all__ = [
+    "BUS_PRECEDENCE",
     "DEFAULT_CONFIG_DIR",
+    "BusArgumentError",
     "StopEvent",
     "add_bus_overrides",
     "add_foxglove_option",
     "bus_factory",
+    "bus_kwargs",
+    "bus_settings",
     "close_recorder",
     "config_error",
     "format_event",
@@ -43,21 +48,96 @@ def load_config_or_exit(path: Path | str, verb: str) -> MonitorConfig | int:
         return config_error(exc, verb)
 
 
-def add_bus_overrides(p: argparse.ArgumentParser) -> None:
-    """--interface, --channel, --bitrate overriding the config's bus: section."""
-    p.add_argument("--interface", help="override bus.interface")
-    p.add_argument("--channel", help="override bus.channel")
-    p.add_argument("--bitrate", type=int, help="override bus.bitrate")
+def add_bus_overrides(p: argparse.ArgumentParser, config: bool = True) -> None:
+    """python-can's bus options, as its own tools spell them: -i/--interface, -c/--channel,
+    -b/--bitrate, --fd, --data-bitrate and --bus-kwargs KEY=VALUE... (`BUS_PRECEDENCE`:
+    over the config's bus: section when the verb reads a ``config``)."""
+    def said(key: str) -> str:
+        return (f"overrides the config's bus.{key}" if config else
+                "default: python-can's configuration, else " + {"interface": "virtual",
+                "channel": "canfdi", "bitrate": "none"}[key])
+
+    p.add_argument("-i", "--interface", help=f"python-can interface ({said('interface')})")
+    p.add_argument("-c", "--channel", help=f"bus channel ({said('channel')})")
+    p.add_argument("-b", "--bitrate", type=int, help=f"bit rate ({said('bitrate')})")
+    p.add_argument("--fd", action="store_true", help="open the bus in CAN FD mode")
+    p.add_argument("--data-bitrate", type=int, metavar="BITRATE",
+                   help="CAN FD data phase bit rate")
+    p.add_argument("--bus-kwargs", nargs="+", metavar="KEY=VALUE", default=[],
+                   help="further keyword arguments of the python-can interface (values read "
+                        "as YAML: 1, 1.5, true, text), e.g. --bus-kwargs receive_own_messages=true")
+
+
+BUS_PRECEDENCE = ("the command line", "the config file's bus: section",
+                  "python-can's configuration (CAN_INTERFACE, CAN_CHANNEL, CAN_BITRATE, "
+                  "CAN_CONFIG, can.conf)", "canfdi's defaults (virtual, canfdi)")
+"""Where interface, channel and bitrate come from, the first that gives one winning."""
+
+
+def python_can_config() -> dict[str, Any]:
+    """What python-can's own configuration gives (its environment variables and config files,
+    through can.util.load_config), or {} when it configures no interface."""
+    import can
+
+    try:
+        found = can.util.load_config()
+    except (can.CanInterfaceNotImplementedError, ValueError, OSError):
+        return {}
+    return {k: v for k, v in found.items() if v is not None}
+
+
+class BusArgumentError(ValueError):
+    """A bad --bus-kwargs entry."""
+
+
+def bus_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """--fd, --data-bitrate and --bus-kwargs as keyword arguments of can.Bus."""
+    import yaml
+
+    extra: dict[str, Any] = {}
+    if getattr(args, "fd", False):
+        extra["fd"] = True
+    if getattr(args, "data_bitrate", None) is not None:
+        extra["data_bitrate"] = args.data_bitrate
+    for item in getattr(args, "bus_kwargs", []) or []:
+        key, sep, text = item.partition("=")
+        if not sep or not key.isidentifier():
+            raise BusArgumentError(f"--bus-kwargs: expected KEY=VALUE, got {item!r}")
+        try:
+            extra[key] = yaml.safe_load(text) if text else ""
+        except yaml.YAMLError:
+            extra[key] = text
+    return extra
+
+
+def bus_settings(args: argparse.Namespace, bus=None) -> tuple[str, str, int | None]:
+    """(interface, channel, bitrate) by `BUS_PRECEDENCE` (``bus``: the config's BusConfig, or
+    None for a verb without a config)."""
+    stated = bus.stated if bus is not None else frozenset()
+    fallback = python_can_config()
+    defaults = {"interface": "virtual", "channel": "canfdi", "bitrate": None}
+    chosen = {}
+    for key in ("interface", "channel", "bitrate"):
+        given = getattr(args, key, None)
+        if given is None and key in stated:
+            given = getattr(bus, key)
+        if given is None:
+            given = fallback.get(key, defaults[key])
+        chosen[key] = given
+    bitrate = chosen["bitrate"]
+    return (str(chosen["interface"]), str(chosen["channel"]),
+            int(bitrate) if bitrate is not None else None)
 
 
 def bus_factory(args: argparse.Namespace, bus) -> tuple[str, str, object]:
-    """(interface, channel, opener) from the config's BusConfig and the overrides."""
+    """(interface, channel, opener) from the command line, the config's BusConfig and
+    python-can's configuration (`BUS_PRECEDENCE`); raises BusArgumentError for a bad
+    --bus-kwargs."""
     from canfdi.service import open_bus
 
-    interface = args.interface or bus.interface
-    channel = args.channel or bus.channel
-    bitrate = args.bitrate if args.bitrate is not None else bus.bitrate
-    return interface, channel, lambda: open_bus(interface, channel, bitrate)
+    interface, channel, bitrate = bus_settings(args, bus)
+    extra = bus_kwargs(args)
+    return interface, channel, lambda: open_bus(interface, channel, bitrate, **extra)
 
 
 class StopEvent(asyncio.Event):

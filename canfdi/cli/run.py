@@ -13,6 +13,7 @@ from functools import partial
 from pathlib import Path
 
 from canfdi.cli.common import (
+    BusArgumentError,
     StopEvent,
     add_bus_overrides,
     add_foxglove_option,
@@ -151,7 +152,11 @@ def run(args: argparse.Namespace) -> int:
     config = load_config_or_exit(args.config, "run")
     if isinstance(config, int):
         return config
-    interface, channel, opener = bus_factory(args, config.bus)
+    try:
+        interface, channel, opener = bus_factory(args, config.bus)
+    except BusArgumentError as exc:
+        print(f"canfdi run: {exc}", file=sys.stderr)
+        return 2
     teach = None
     if args.teach is not None:
         teach = teacher(config, args.teach)

@@ -8,7 +8,13 @@ import json
 import sys
 from pathlib import Path
 
-from canfdi.cli.common import StopEvent
+from canfdi.cli.common import (
+    BusArgumentError,
+    StopEvent,
+    add_bus_overrides,
+    bus_kwargs,
+    bus_settings,
+)
 
 HELP = """\
 Run the plant emulator (canfdi.firmware_sim) for a scenario and publish its drives' frames on a
@@ -30,11 +36,7 @@ dc_motor_consecutive. Exit status: 0 done, 1 bus error, 2 bad scenario or argume
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", required=True, metavar="FILE",
                    help="scenario YAML, or a shipped scenario's name")
-    p.add_argument("--interface", default="virtual",
-                   help="python-can interface (default: virtual)")
-    p.add_argument("--channel", default="canfdi", help="bus channel (default: canfdi)")
-    p.add_argument("--bitrate", type=int, default=None,
-                   help="bitrate in bit/s, passed to interfaces that take one")
+    add_bus_overrides(p, config=False)
     p.add_argument("--speed", type=float, default=1.0, metavar="N",
                    help="N times real time; 0 = as fast as the bus takes frames (default: 1)")
     p.add_argument("--duration", type=float, default=None, metavar="T",
@@ -113,14 +115,18 @@ def run(args: argparse.Namespace) -> int:
         args.truth.write_text(json.dumps(truth, indent=2) + "\n")
     if args.output is not None:
         return _to_file(args, scenario, disturbance)
-    kwargs = {"interface": args.interface, "channel": args.channel}
-    if args.bitrate is not None:
-        kwargs["bitrate"] = args.bitrate
+    interface, channel, bitrate = bus_settings(args)
+    try:
+        kwargs = {"interface": interface, "channel": channel, **bus_kwargs(args)}
+    except BusArgumentError as exc:
+        print(f"canfdi sim: {exc}", file=sys.stderr)
+        return 2
+    if bitrate is not None:
+        kwargs["bitrate"] = bitrate
     try:
         bus = can.Bus(**kwargs)
     except (can.CanError, OSError, ValueError, ImportError) as exc:
-        print(f"canfdi sim: cannot open {args.interface} bus {args.channel!r}: {exc}",
-              file=sys.stderr)
+        print(f"canfdi sim: cannot open {interface} bus {channel!r}: {exc}", file=sys.stderr)
         return 1
     total = round((args.duration or scenario.duration) / plant.dt)
 

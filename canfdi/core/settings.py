@@ -290,6 +290,9 @@ class BusConfig:
     node_id: str | None = None
     node_shared: tuple[str | int, ...] = ()
     monitor: MonitorFramesConfig = MonitorFramesConfig()
+    stated: frozenset[str] = frozenset()
+    """Which of interface, channel and bitrate the config file states (the others may come
+    from python-can's own configuration: canfdi.cli.common.bus_factory)."""
 
 
 @dataclass(frozen=True)
