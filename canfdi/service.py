@@ -107,6 +107,7 @@ class ServiceStats:
     send_errors: int = 0
     bus_errors: int = 0
     reopen_attempts: int = 0
+    gave_up: bool = False  # the bus could not be opened for retry_for seconds
     started: float = field(default_factory=time.monotonic)
 
 
@@ -122,6 +123,8 @@ class MonitorService:
     on_ready : called once the bus is open and frames can flow (systemd READY=1).
     on_tick : called at least every second from the loop (systemd watchdog pings).
     max_backoff : longest wait between attempts to reopen a lost bus.
+    retry_for : give up (``stats.gave_up``, `run` returns) when the bus cannot be opened for
+        this many seconds in a row, at start or after a loss; None: retry forever.
     block : at most this many queued frames are handled as one block.
     small_block : fewer queued frames than this go through the per-frame path (lower
         latency); more through the block path (throughput).
@@ -136,6 +139,7 @@ class MonitorService:
                  status_period: float = 1.0, on_event: Callable | None = None,
                  on_ready: Callable[[], None] | None = None,
                  on_tick: Callable[[], None] | None = None, max_backoff: float = 10.0,
+                 retry_for: float | None = None,
                  block: int = 4096, small_block: int = 16,
                  latencies: list[int] | None = None,
                  clock: Callable[[], int] = time.time_ns) -> None:
@@ -147,6 +151,7 @@ class MonitorService:
         self.on_ready = on_ready
         self.on_tick = on_tick
         self.max_backoff = max_backoff
+        self.retry_for = retry_for
         self.block = block
         self.small_block = small_block
         self.latencies = latencies
@@ -160,6 +165,7 @@ class MonitorService:
     # -- bus lifecycle ----------------------------------------------------------------------
     async def _open(self, stop: asyncio.Event) -> bool:
         delay = 0.1
+        first_failure: float | None = None
         while not stop.is_set():
             self.stats.reopen_attempts += 1
             try:
@@ -173,6 +179,15 @@ class MonitorService:
                 self._ready_sent = True
                 return True
             except (can.CanError, OSError, ValueError) as exc:
+                now = time.monotonic()
+                first_failure = now if first_failure is None else first_failure
+                if self.retry_for is not None and now - first_failure >= self.retry_for:
+                    log.error("cannot open bus (%s) for %.0f s: giving up", exc,
+                              now - first_failure)
+                    self.stats.gave_up = True
+                    return False
+                if self.retry_for is not None:  # the last wait ends at the deadline
+                    delay = min(delay, max(self.retry_for - (now - first_failure), 0.01))
                 log.warning("cannot open bus (%s); retrying in %.1f s", exc, delay)
                 if self.on_tick is not None:
                     self.on_tick()

@@ -12,6 +12,7 @@ from canfdi.cli.common import (
     BusArgumentError,
     StopEvent,
     add_bus_overrides,
+    add_retry_option,
     bus_factory,
     config_error,
     load_config_or_exit,
@@ -36,6 +37,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", required=True, type=Path, metavar="FILE", help="monitor config")
     p.add_argument("-o", "--output", required=True, type=Path, metavar="OUT.mcap")
     add_bus_overrides(p)
+    add_retry_option(p)
     p.add_argument("--duration", type=float, metavar="T", help="stop after T seconds")
     p.add_argument("--json", action="store_true",
                    help="print the outcome as one JSON object on stdout: output, frames, "
@@ -73,16 +75,29 @@ def run(args: argparse.Namespace) -> int:
     stop = StopEvent()
 
     async def main():
-        service = MonitorService(monitor, opener, status_period=0, on_ready=on_ready)
+        service = MonitorService(monitor, opener, status_period=0, on_ready=on_ready,
+                                 retry_for=args.retry_for or None)
         return await service.run(stop.arm(args.duration))
 
     try:
         stats = asyncio.run(main())
     finally:
         recorder.close()
+    counts = recording_counts(recorder)
+    if stats.frames == 0:
+        # Nothing was recorded: no empty log that looks like a capture, and a status that says
+        # so (a dead or silent bus, a wrong channel).
+        for path in recorder.paths:
+            path.unlink(missing_ok=True)
+        why = "the bus could not be opened" if stats.gave_up else "no frame was received"
+        print(f"canfdi capture: {why} on {interface} {channel}; nothing recorded",
+              file=sys.stderr)
+        if args.json:
+            print(json.dumps({"output": None, "frames": 0, "samples": 0,
+                              "bus_errors": stats.bus_errors, "recording": counts}))
+        return 1
     print(f"canfdi capture: {stats.frames} frames, {monitor.samples} samples -> {args.output}",
           file=sys.stderr)
-    counts = recording_counts(recorder)
     if counts["write_errors"]:
         print(f"canfdi capture: {counts['write_errors']} log write errors (last: "
               f"{counts['last_error']}), {counts['dropped']} records dropped; segments: "

@@ -18,10 +18,12 @@ from canfdi.core.eventtext import event_line as format_event
 __all__ = [
     "BUS_PRECEDENCE",
     "DEFAULT_CONFIG_DIR",
+    "RETRY_FOR_S",
     "BusArgumentError",
     "StopEvent",
     "add_bus_overrides",
     "add_foxglove_option",
+    "add_retry_option",
     "bus_factory",
     "bus_kwargs",
     "bus_settings",
@@ -66,6 +68,18 @@ def add_bus_overrides(p: argparse.ArgumentParser, config: bool = True) -> None:
     p.add_argument("--bus-kwargs", nargs="+", metavar="KEY=VALUE", default=[],
                    help="further keyword arguments of the python-can interface (values read "
                         "as YAML: 1, 1.5, true, text), e.g. --bus-kwargs receive_own_messages=true")
+
+
+RETRY_FOR_S = 60.0
+"""How long run and capture try to open a bus that cannot be opened before they exit 1 (a
+supervisor such as systemd then restarts them): --retry-for."""
+
+
+def add_retry_option(p: argparse.ArgumentParser) -> None:
+    """--retry-for SECONDS: give up on a bus that cannot be opened (exit 1)."""
+    p.add_argument("--retry-for", type=float, default=RETRY_FOR_S, metavar="SECONDS",
+                   help="exit 1 when the bus cannot be opened for this long, at start or after "
+                        f"a loss (default {RETRY_FOR_S:g}; 0: retry forever)")
 
 
 BUS_PRECEDENCE = ("the command line", "the config file's bus: section",

@@ -17,6 +17,7 @@ from canfdi.cli.common import (
     StopEvent,
     add_bus_overrides,
     add_foxglove_option,
+    add_retry_option,
     bus_factory,
     close_recorder,
     config_error,
@@ -38,7 +39,9 @@ and recorded). The config's bus: section says how the drive talks (its DBC, map,
 sample clock, drives); docs/bus.md has every key.
 
 The bus comes from the config's bus: section (interface, channel, bitrate), overridable here.
-A lost bus is reopened with backoff. A log that cannot be written (a full disk) never stops the
+A lost bus is reopened with backoff; one that cannot be opened for --retry-for seconds (default
+60) ends the run with exit status 1, so that a supervisor restarts it, and a run that heard no
+frame says so when it stops. A log that cannot be written (a full disk) never stops the
 monitoring: the error is logged once, records are dropped and counted, FDI_STATUS says
 "degraded", and recording resumes in a new segment when space returns. SIGTERM or SIGINT
 stops it in order: the bus is closed, the log flushed and closed, a "stopped:" line gives the
@@ -56,6 +59,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", required=True, type=Path, metavar="FILE", help="monitor config")
     add_bus_overrides(p)
+    add_retry_option(p)
     p.add_argument("--log-dir", type=Path, metavar="DIR",
                    help="where MCAP logs go (default: recording.directory of the config)")
     p.add_argument("-o", "--output", type=Path, metavar="FILE.mcap",
@@ -223,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
             pruner = asyncio.create_task(keep_pruning(prune, recorder, stop))
         service = MonitorService(
             monitor, opener, status_period=config.bus.status_period, on_event=on_event,
-            on_ready=on_ready, on_tick=systemd.watchdog)
+            on_ready=on_ready, on_tick=systemd.watchdog, retry_for=args.retry_for or None)
         if view is None:
             stats = await service.run(stop)
         else:
@@ -252,12 +256,16 @@ def run(args: argparse.Namespace) -> int:
             live.close()
     summary = monitor.summary()
     stopped = {"frames": stats.frames, "sent": stats.sent, "bus_errors": stats.bus_errors,
-               "faults": len(summary["faults"])}
+               "faults": len(summary["faults"]), "gave_up": stats.gave_up}
     if recorder is not None and not args.no_record:
         stopped["recording"] = recording_counts(recorder)
     if live is not None:  # viewers that fell behind, messages too large to show live
         stopped["foxglove"] = {"lagging": live.lagging, "oversize": live.oversize}
     log.info("stopped: %s", json.dumps(stopped))
+    if stats.frames == 0 and not stats.gave_up:
+        log.warning("no frame was received on %s %s", interface, channel)
     if args.json:
         print(json.dumps(stopped))
+    if stats.gave_up:
+        return 1
     return stop.exit_status

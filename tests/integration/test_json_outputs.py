@@ -33,11 +33,25 @@ def test_export_run_capture_and_sim_print_one_object_with_json(tmp_path, capsys)
     run = _json(capsys)
     assert {"frames", "sent", "bus_errors", "faults"} <= set(run) and run["frames"] == 0
     out = tmp_path / "capture.mcap"
+    # A silent bus: nothing recorded, said, and exit 1 (issue 28: an empty .mcap and 0 before).
     assert main(["capture", "--config", str(CONFIG), "-o", str(out), "--duration", "0.3",
-                 "--json", "--channel", "canfdi-json-test"]) == 0
-    capture = _json(capsys)
-    assert capture["output"] == str(out) and capture["frames"] == 0
-    assert capture["recording"]["segments"] == [str(out)]
+                 "--json", "--channel", "canfdi-json-test"]) == 1
+    captured = capsys.readouterr()
+    capture = json.loads(captured.out)
+    assert capture["output"] is None and capture["frames"] == 0 and not out.exists()
+    assert "no frame was received on virtual canfdi-json-test; nothing recorded" in captured.err
+
+
+def test_a_bus_that_cannot_be_opened_ends_run_and_capture_with_1(tmp_path, capsys):
+    """--retry-for (issue 28): a daemon on a bus that does not exist used to retry forever and
+    exit 0; now it gives up after the bound, says so, and exits 1 (systemd restarts it)."""
+    bad = ["-i", "socketcan", "-c", "canfdi-nonexistent0", "--retry-for", "0.5"]
+    assert main(["run", "--config", str(CONFIG), "--no-record", "--quiet", "--json", *bad]) == 1
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["gave_up"] is True and "giving up" in captured.err
+    out = tmp_path / "c.mcap"
+    assert main(["capture", "--config", str(CONFIG), "-o", str(out), *bad]) == 1
+    assert "the bus could not be opened" in capsys.readouterr().err and not out.exists()
 
 
 def test_sim_says_words_without_json(tmp_path, capsys):
