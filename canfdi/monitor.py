@@ -593,18 +593,19 @@ class Monitor:
                     "Index": event.index, "Value": float(np.sqrt(max(var, 0.0)))}))
         return [f for f in frames if f is not None]
 
-    def status_frames(self, state: str | None = None,
-                      timestamp_ns: int | None = None) -> list[OutFrame]:
-        """The periodic FDI_STATUS heartbeat, one per drive (none when listen-only); recorded
-        on the sink's ``/canfdi/status`` too, at ``timestamp_ns`` (default: the drive's time
-        last seen), with the state of each drive (``name=state``, comma-separated)."""
-        if self.sink is not None:
-            states = ",".join(f"{d.name}={state or d.state}" for d in self.drives)
-            active = sum(len({(c.target, c.index) for c in d.diagnoser.compensation})
-                         for d in self.drives if d.diagnoser is not None)
-            self.sink.write_status(timestamp_ns if timestamp_ns is not None
-                                   else self.last_timestamp_ns or 0, states, self.samples,
-                                   self.frame_stats, active)
+    def record_status(self, timestamp_ns: int, state: str | None = None) -> None:
+        """Record the status the heartbeat reports on the sink's ``/canfdi/status``: the
+        state of each drive (``name=state``, comma-separated), samples, the assembler's
+        counters and the active faults."""
+        if self.sink is None:
+            return
+        states = ",".join(f"{d.name}={state or d.state}" for d in self.drives)
+        active = sum(len({(c.target, c.index) for c in d.diagnoser.compensation})
+                     for d in self.drives if d.diagnoser is not None)
+        self.sink.write_status(timestamp_ns, states, self.samples, self.frame_stats, active)
+
+    def status_frames(self, state: str | None = None) -> list[OutFrame]:
+        """The periodic FDI_STATUS heartbeat, one per drive (none when listen-only)."""
         out = []
         for drive in self.drives:
             dg = drive.diagnoser

@@ -366,8 +366,18 @@ class MonitorService:
         """The FDI_STATUS frames to send now (one per drive; none when listen-only): state
         "degraded" while the monitor's record sink says it is failing (the MCAP log is not
         being written: a full disk), else the monitor's own state."""
-        failing = getattr(self.monitor.sink, "failing", False)
-        return self.monitor.status_frames("degraded" if failing else None, self.clock())
+        return self.monitor.status_frames(self._state())
+
+    def _state(self) -> str | None:
+        return "degraded" if getattr(self.monitor.sink, "failing", False) else None
+
+    def _heartbeat(self) -> None:
+        """Send the FDI_STATUS frames, then record the status (after them: at a time no
+        earlier than theirs)."""
+        frames = self.status_frames()
+        if frames and self.bus is not None:
+            self.send(frames)
+        self.monitor.record_status(self.clock(), self._state())
 
     async def _status_loop(self, stop: asyncio.Event) -> None:
         if self.status_period <= 0:
@@ -376,14 +386,10 @@ class MonitorService:
         # that a monitor is there, not a status period later.
         while self.bus is None and not stop.is_set():
             await asyncio.sleep(0.01)
-        frames = self.status_frames()
-        if frames and self.bus is not None:
-            self.send(frames)
+        self._heartbeat()
         while not stop.is_set():
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(stop.wait(), timeout=self.status_period)
             if stop.is_set():
                 return
-            frames = self.status_frames()
-            if frames and self.bus is not None:
-                self.send(frames)
+            self._heartbeat()
