@@ -390,6 +390,7 @@ class McapFile:
         if self._order is not None:
             return self._order
         buf, seen, last = self._buf, [], None
+        by_times = self._listed_chunks is None  # the indexes' times: only without a summary
         pos = self._first
         while pos < self.size:
             found = self._sound(pos)
@@ -403,7 +404,8 @@ class McapFile:
                 t0, t1, size, _, _, (a, b) = _parse(buf, start, stop, _SPECS[OP_CHUNK]) or ()
                 last = ChunkSeen(pos, (stop - pos, t0, t1, size, b - a))
                 seen.append(last)
-            elif op == OP_MESSAGE_INDEX and last is not None and stop - start > 6:
+            elif op == OP_MESSAGE_INDEX and by_times and last is not None \
+                    and stop - start > 6:
                 (channel,) = _U16.unpack_from(buf, start)
                 times = np.frombuffer(buf, dtype="<u8", offset=start + 6,
                                       count=(stop - start - 6) // 8)[0::2]
