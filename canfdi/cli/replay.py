@@ -92,7 +92,8 @@ def recorded_config(log: Path, scratch: Path):
         print(f"canfdi replay: give --config: {log} holds no monitor config (only a canfdi "
               "MCAP does)", file=sys.stderr)
         return 2
-    copy = scratch / f"{meta.get('config_name') or 'recorded'}.yaml"
+    # (the name is the log's to say: its last part only, so the copy stays in scratch)
+    copy = scratch / f"{Path(meta.get('config_name') or 'recorded').name or 'recorded'}.yaml"
     copy.write_text(text)
     try:
         config = load_config(copy)
