@@ -8,36 +8,31 @@ sim) catch SIGINT themselves, stop in order and return 130 too.
 
 from __future__ import annotations
 
+import importlib
 import sys
 
 INTERRUPTED = 130
 
 
-def _interrupted(prog: str) -> int:
-    print(f"{prog}: interrupted", file=sys.stderr)
-    return INTERRUPTED
+def _guarded(prog: str, module: str) -> None:
+    """Exit with ``module``'s ``main()``, imported and run inside the guard: Ctrl-C is one
+    line and exit 130."""
+    try:
+        code = importlib.import_module(module).main()
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        code = INTERRUPTED
+    sys.exit(code)
 
 
 def console() -> None:
     """`canfdi`: canfdi.cli.main, with Ctrl-C as one line and exit 130."""
-    try:
-        from canfdi.cli import main
-
-        code = main()
-    except KeyboardInterrupt:
-        code = _interrupted("canfdi")
-    sys.exit(code)
+    _guarded("canfdi", "canfdi.cli")
 
 
 def console_sim() -> None:
     """`canfdi-sim`: canfdi.cli.sim.main, with Ctrl-C as one line and exit 130."""
-    try:
-        from canfdi.cli.sim import main
-
-        code = main()
-    except KeyboardInterrupt:
-        code = _interrupted("canfdi-sim")
-    sys.exit(code)
+    _guarded("canfdi-sim", "canfdi.cli.sim")
 
 
 if __name__ == "__main__":

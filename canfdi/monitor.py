@@ -600,21 +600,18 @@ class Monitor:
         if self.sink is None:
             return
         states = ",".join(f"{d.name}={state or d.state}" for d in self.drives)
-        active = sum(len({(c.target, c.index) for c in d.diagnoser.compensation})
-                     for d in self.drives if d.diagnoser is not None)
+        active = sum(_active_faults(d) for d in self.drives)
         self.sink.write_status(timestamp_ns, states, self.samples, self.frame_stats, active)
 
     def status_frames(self, state: str | None = None) -> list[OutFrame]:
         """The periodic FDI_STATUS heartbeat, one per drive (none when listen-only)."""
         out = []
         for drive in self.drives:
-            dg = drive.diagnoser
             now = state or drive.state
             stats = drive.clock.stats
             frame = self._encode("FDI_STATUS", {
                 "State": _STATUS[now], "Drive": drive.index,
-                "ActiveFaults": min(len({(c.target, c.index) for c in dg.compensation}), 15)
-                if dg is not None else 0,
+                "ActiveFaults": min(_active_faults(drive), 15),
                 "Samples": drive.samples & 0x3FFFFF,
                 "InvalidFrames": stats["frames_invalid"] & 0xFFFF,
             })
@@ -639,6 +636,12 @@ class Monitor:
             out["drives"] = {d.name: {"samples": d.samples, "frames": d.clock.stats}
                              for d in self.drives}
         return out
+
+
+def _active_faults(drive: Drive) -> int:
+    """The channels a drive's diagnoser compensates now (0 without a diagnoser)."""
+    dg = drive.diagnoser
+    return len({(c.target, c.index) for c in dg.compensation}) if dg is not None else 0
 
 
 # A diagnoser's parts its update never changes (the design, the models): an undo shares them.

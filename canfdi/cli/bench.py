@@ -10,7 +10,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from canfdi.cli.common import DEFAULT_CONFIG_DIR, config_error, load_config_or_exit
+from canfdi.cli.common import config_error, load_config_or_exit
+from canfdi.configs import CONFIG_DIR
 
 HELP = """\
 Measure, on this machine and in one run, side by side:
@@ -64,7 +65,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true", help="a short run (about 10^5 frames)")
     p.add_argument("--frames", type=int, metavar="N",
                    help="frames for the throughput run (default 10^6, 10^5 with --quick)")
-    p.add_argument("--config", type=Path, default=DEFAULT_CONFIG_DIR / "dc_motor.yaml",
+    p.add_argument("--config", type=Path, default=CONFIG_DIR / "dc_motor.yaml",
                    metavar="FILE", help="monitor config (default: the DC motor)")
     p.add_argument("--scenario", metavar="FILE",
                    help="scenario whose frames to use (YAML or shipped name; its faults are "
@@ -127,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         result = run_bench(config, frames=frames, quick=args.quick, progress=progress,
                            scenario=scenario, faulty=faulty, identify=identify,
-                           identify_config=DEFAULT_CONFIG_DIR / "servo_axis_odrive.yaml")
+                           identify_config=CONFIG_DIR / "servo_axis_odrive.yaml")
     except ValueError as exc:
         return config_error(exc, "bench")
     result["elapsed_s"] = time.monotonic() - start

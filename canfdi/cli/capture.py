@@ -56,17 +56,16 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         return config_error(exc, "capture")
     try:
+        interface, channel, opener = bus_factory(args, config.bus)
+    except BusArgumentError as exc:
+        print(f"canfdi capture: {exc}", file=sys.stderr)
+        return 2
+    try:
         recorder = open_recorder(args.output, monitor.metadata())
     except OSError as exc:
         print(f"canfdi capture: cannot write {args.output}: {exc}", file=sys.stderr)
         return 1
     monitor.sink = recorder
-    try:
-        interface, channel, opener = bus_factory(args, config.bus)
-    except BusArgumentError as exc:
-        recorder.close()
-        print(f"canfdi capture: {exc}", file=sys.stderr)
-        return 2
 
     def on_ready() -> None:
         print(f"canfdi capture: recording {interface} {channel} to {args.output}",

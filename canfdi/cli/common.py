@@ -11,13 +11,11 @@ from pathlib import Path
 from typing import Any
 
 from canfdi.config import ConfigError, MonitorConfig, load_config
-from canfdi.configs import CONFIG_DIR
 from canfdi.core.eventtext import estimates_text
 from canfdi.core.eventtext import event_line as format_event
 
 __all__ = [
     "BUS_PRECEDENCE",
-    "DEFAULT_CONFIG_DIR",
     "RETRY_FOR_S",
     "BusArgumentError",
     "StopEvent",
@@ -35,11 +33,8 @@ __all__ = [
     "open_recorder",
     "print_comparison",
     "recording_counts",
-    "stop_event",
 ]
 
-DEFAULT_CONFIG_DIR = CONFIG_DIR
-"""The shipped monitor configs (canfdi.configs: deploy/config/ in a checkout)."""
 
 
 def load_config_or_exit(path: Path | str, verb: str) -> MonitorConfig | int:
@@ -128,14 +123,15 @@ def bus_settings(args: argparse.Namespace, bus=None) -> tuple[str, str, int | No
     """(interface, channel, bitrate) by `BUS_PRECEDENCE` (``bus``: the config's BusConfig, or
     None for a verb without a config)."""
     stated = bus.stated if bus is not None else frozenset()
-    fallback = python_can_config()
     defaults = {"interface": "virtual", "channel": "canfdi", "bitrate": None}
-    chosen = {}
+    chosen: dict[str, Any] = {}
+    fallback: dict[str, Any] | None = None  # python-can's, read only when it is needed
     for key in ("interface", "channel", "bitrate"):
         given = getattr(args, key, None)
         if given is None and key in stated:
             given = getattr(bus, key)
         if given is None:
+            fallback = python_can_config() if fallback is None else fallback
             given = fallback.get(key, defaults[key])
         chosen[key] = given
     bitrate = chosen["bitrate"]
@@ -187,10 +183,6 @@ class StopEvent(asyncio.Event):
         """130 after Ctrl-C, else 0."""
         return 130 if self.interrupted else 0
 
-
-def stop_event(duration: float | None = None) -> StopEvent:
-    """A `StopEvent` armed on the running event loop."""
-    return StopEvent().arm(duration)
 
 
 def config_error(exc: Exception, verb: str) -> int:

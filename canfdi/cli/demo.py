@@ -10,7 +10,6 @@ import time
 from pathlib import Path
 
 from canfdi.cli.common import (
-    DEFAULT_CONFIG_DIR,
     StopEvent,
     add_foxglove_option,
     close_recorder,
@@ -21,6 +20,7 @@ from canfdi.cli.common import (
     open_recorder,
     print_comparison,
 )
+from canfdi.configs import CONFIG_DIR
 
 HELP = """\
 Run a scenario's drive (canfdi.firmware_sim) and the canfdi monitor together on python-can's
@@ -143,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
         from canfdi.tools.pairing import NoPairing, config_for
 
         try:
-            args.config = config_for(scenario, DEFAULT_CONFIG_DIR)
+            args.config = config_for(scenario, CONFIG_DIR)
         except NoPairing as exc:
             print(f"canfdi demo: {exc}", file=sys.stderr)
             return 2

@@ -17,8 +17,9 @@ from pathlib import Path
 from typing import Any
 
 from canfdi import methods
-from canfdi.cli.common import DEFAULT_CONFIG_DIR, config_error, load_config_or_exit
+from canfdi.cli.common import config_error, load_config_or_exit
 from canfdi.config import ConfigError
+from canfdi.configs import CONFIG_DIR
 
 HELP = """\
 Monte Carlo evaluation of the diagnosis: generate --runs fault scenarios for --plant, run each
@@ -130,9 +131,9 @@ def _config_path(args: argparse.Namespace) -> Path | int:
     if args.config is not None:
         return args.config
     method = args.method or methods.DEFAULT
-    path = default_config(args.plant, method, DEFAULT_CONFIG_DIR)
+    path = default_config(args.plant, method, CONFIG_DIR)
     if path is None:
-        return _fail(f"no {method} config for the {args.plant} plant in {DEFAULT_CONFIG_DIR} "
+        return _fail(f"no {method} config for the {args.plant} plant in {CONFIG_DIR} "
                      "(give one with --config)")
     return path
 

@@ -12,8 +12,7 @@ from canfdi.cli.common import (
     BusArgumentError,
     StopEvent,
     add_bus_overrides,
-    bus_kwargs,
-    bus_settings,
+    bus_factory,
 )
 
 HELP = """\
@@ -115,16 +114,13 @@ def run(args: argparse.Namespace) -> int:
         args.truth.write_text(json.dumps(truth, indent=2) + "\n")
     if args.output is not None:
         return _to_file(args, scenario, disturbance)
-    interface, channel, bitrate = bus_settings(args)
     try:
-        kwargs = {"interface": interface, "channel": channel, **bus_kwargs(args)}
+        interface, channel, opener = bus_factory(args, None)
     except BusArgumentError as exc:
         print(f"canfdi sim: {exc}", file=sys.stderr)
         return 2
-    if bitrate is not None:
-        kwargs["bitrate"] = bitrate
     try:
-        bus = can.Bus(**kwargs)
+        bus = opener()
     except (can.CanError, OSError, ValueError, ImportError) as exc:
         print(f"canfdi sim: cannot open {interface} bus {channel!r}: {exc}", file=sys.stderr)
         return 1
@@ -143,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
     async def main() -> object:
         return await emit(bus, scenario, speed=args.speed, duration=args.duration,
                           disturbance=disturbance, on_block=progress, stop=stop.arm(),
-                          reopen=lambda: can.Bus(**kwargs))
+                          reopen=opener)
 
     try:
         stats = asyncio.run(main())

@@ -18,8 +18,9 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from canfdi.cli.common import DEFAULT_CONFIG_DIR, config_error, load_config_or_exit
+from canfdi.cli.common import config_error, load_config_or_exit
 from canfdi.config import ConfigError
+from canfdi.configs import CONFIG_DIR
 
 if TYPE_CHECKING:
     pass
@@ -69,7 +70,7 @@ DETAILS_SHOWN = 20  # detections listed in the text report (all of them in --jso
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("soak", help="fault-free soak: count false alarms, bound their rate",
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--config", type=Path, default=DEFAULT_CONFIG_DIR / "dc_motor.yaml",
+    p.add_argument("--config", type=Path, default=CONFIG_DIR / "dc_motor.yaml",
                    metavar="FILE", help="monitor config (default: the DC motor's)")
     p.add_argument("--scenario", default=DEFAULT_SCENARIO, metavar="FILE",
                    help="fault-free dc_motor scenario giving the noise and seed "

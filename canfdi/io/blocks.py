@@ -291,14 +291,11 @@ def split_frame_block(data: bytes, t_ns: int, max_bytes: int) -> list[tuple[int,
     for row, payload in long.items():
         if 0 <= row < count:
             cost[row] += 2 * len(payload) + 16
-    ends = np.unique(np.searchsorted(np.cumsum(cost), room * np.arange(1, cost.sum() // room
-                                                                       + 2), side="right"))
-    ends = [int(e) for e in ends if 0 < e < count] + [count]
+    cuts = np.searchsorted(np.cumsum(cost), room * np.arange(1, cost.sum() // room + 2),
+                           side="right")
     pieces = []
     start = 0
-    for stop in ends:
-        if stop <= start:
-            continue
+    for stop in sorted({int(c) for c in cuts if 0 < c < count} | {count}):
         (t0,) = first_time(records, start * FRAME_SIZE)
         mine = {row - start: d for row, d in long.items() if start <= row < stop}
         pieces.append((t0, encode_frame_block(records[start * FRAME_SIZE: stop * FRAME_SIZE],

@@ -132,11 +132,12 @@ def _foreign_topics(path: Path) -> list[str] | None:
     ``/canfdi/...``), sorted; None for a canfdi log, or a file whose channels are not known
     (damaged before its first channel: the reader then says what it lost)."""
     from canfdi.io.scan import McapFile, NotMcap
+    from canfdi.io.schemas import TOPIC_FRAMES
 
     try:
         with McapFile(path) as f:
             if not f.channels:  # no intact summary: the first chunks define them
-                for _ in f.messages(["/can/frames"]):
+                for _ in f.messages([TOPIC_FRAMES]):
                     return None
             topics = sorted(set(f.channels.values()))
     except (NotMcap, OSError):

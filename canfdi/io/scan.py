@@ -332,9 +332,8 @@ class McapFile:
         end = self._raw.rfind(_DATA_END_PATTERN, self._first, footer)
         if crc and end >= 0 and end + 13 != declared \
                 and self._summary_at(end + 13, footer, crc, moved=True):
-            self.damage.notes.append(f"the summary is at byte {end + 13}, not at byte "
-                                     f"{declared} where the footer says: bytes were inserted "
-                                     "into or cut from the data section")
+            self._note(f"the summary is at byte {end + 13}, not at byte {declared} where the "
+                       "footer says: bytes were inserted into or cut from the data section")
 
     def _summary_at(self, summary_start: int, footer: int, crc: int, moved: bool) -> bool:
         """Read the summary from ``summary_start`` when it checks (see `_read_summary`);
@@ -401,7 +400,7 @@ class McapFile:
                 continue
             op, start, stop = found
             if op == OP_CHUNK:
-                t0, t1, size, _, _, (a, b) = _parse(buf, start, stop, _SPECS[OP_CHUNK]) or ()
+                t0, t1, size, _, _, (a, b) = self.fields(OP_CHUNK, start, stop)
                 last = ChunkSeen(pos, (stop - pos, t0, t1, size, b - a))
                 seen.append(last)
             elif op == OP_MESSAGE_INDEX and by_times and last is not None \
@@ -726,8 +725,7 @@ class McapFile:
                 elif held is not None and pos in order.rank:
                     clean = False  # the data CRC is over file order: it cannot match
                     held.hold(pos, start, stop)
-                    for at, a, b in held.ready(stop):
-                        yield from self._held_chunk(at, a, b, skip, seen)
+                    yield from self._release(held, stop, skip, seen)
                 else:
                     give, inner, region = self._take_chunk(pos, start, stop, skip, seen)
                     if region is not None:
@@ -739,8 +737,7 @@ class McapFile:
                 pos = stop
                 continue
             if held is not None and op == OP_DATA_END:
-                for at, a, b in held.ready(None):
-                    yield from self._held_chunk(at, a, b, skip, seen)
+                yield from self._release(held, None, skip, seen)
             if op == OP_DATA_END:
                 self._past_data = True
                 (stored,) = _U32.unpack_from(buf, start)
@@ -759,8 +756,7 @@ class McapFile:
                     self._lose(pos, None)
                 break
         if held is not None:  # a file cut short before its DataEnd
-            for at, a, b in held.ready(None):
-                yield from self._held_chunk(at, a, b, skip, seen)
+            yield from self._release(held, None, skip, seen)
         self.truncated = not self.complete
 
     def _note(self, text: str) -> None:
@@ -796,19 +792,21 @@ class McapFile:
         self._intact(start)
         return True, inner, None
 
-    def _held_chunk(self, pos: int, start: int, stop: int,
-                    skip: Callable[[int, int], bool] | None, seen: dict[bytes, int]
-                    ) -> Iterator[tuple[int, int, int, Any]]:
-        """A chunk held back to be read in log-time order, as `records` gives it: the walk
-        is past its MessageIndex records, so a lost one is counted from the summary's."""
-        give, inner, region = self._take_chunk(pos, start, stop, skip, seen)
-        if give:
-            yield OP_CHUNK, start, stop, inner
-        elif region is not None:
-            listed = self._listed(start, stop)
-            offsets = listed.index_offsets if listed is not None else ()
-            counted = [self._count_index(region, at) for at in offsets]
-            region.indexed = bool(offsets) and all(counted) and region.chunks == 1
+    def _release(self, held: HeldChunks, walked: int | None,
+                 skip: Callable[[int, int], bool] | None, seen: dict[bytes, int]
+                 ) -> Iterator[tuple[int, int, int, Any]]:
+        """The held chunks whose turn has come once the walk reached ``walked`` (None: its
+        end), as `records` gives them: the walk is past their MessageIndex records, so a lost
+        one is counted from the summary's."""
+        for pos, start, stop in held.ready(walked):
+            give, inner, region = self._take_chunk(pos, start, stop, skip, seen)
+            if give:
+                yield OP_CHUNK, start, stop, inner
+            elif region is not None:
+                listed = self._listed(start, stop)
+                offsets = listed.index_offsets if listed is not None else ()
+                counted = [self._count_index(region, at) for at in offsets]
+                region.indexed = bool(offsets) and all(counted) and region.chunks == 1
 
     def messages(self, topics: Iterable[str] | None = None
                  ) -> Iterator[tuple[str, int, Any]]:
