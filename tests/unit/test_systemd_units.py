@@ -153,7 +153,10 @@ def test_the_template_runs_the_monitor_on_its_instance():
 
 def test_the_single_unit_and_the_emulator_unit_parse_as_canfdi_commands():
     monitor = build_parser().parse_args(exec_args(MONITOR, "canfdi"))
-    assert (monitor.verb, monitor.interface, monitor.channel) == ("run", "socketcan", "vcan0")
+    # The single unit's bus is its config's: no interface or channel on its command line.
+    assert (monitor.verb, monitor.interface, monitor.channel) == ("run", None, None)
+    assert "vcan0" not in " ".join(v for _, _, v in parse_unit(
+        (UNITS / MONITOR).read_text()))
     assert monitor.log_dir == Path("/var/log/canfdi")
     sim = build_parser().parse_args(["sim", *exec_args(SIM, "canfdi-sim")])
     assert (sim.interface, sim.channel) == ("socketcan", "vcan0")
