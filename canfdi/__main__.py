@@ -27,6 +27,13 @@ def _guarded(prog: str, module: str) -> None:
 
 def console() -> None:
     """`canfdi`: canfdi.cli.main, with Ctrl-C as one line and exit 130."""
+    if sys.argv[1:] == ["--version"]:
+        # Answered before the verbs' modules (numpy, scipy, python-can) are imported: a
+        # supervisor's or a packager's version check takes milliseconds, not a second.
+        from canfdi import __version__
+
+        print(f"canfdi {__version__}")
+        sys.exit(0)
     _guarded("canfdi", "canfdi.cli")
 
 

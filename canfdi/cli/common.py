@@ -8,11 +8,13 @@ import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from canfdi.config import ConfigError, MonitorConfig, load_config
 from canfdi.core.eventtext import estimates_text
 from canfdi.core.eventtext import event_line as format_event
+
+if TYPE_CHECKING:
+    from canfdi.config import MonitorConfig
 
 __all__ = [
     "BUS_PRECEDENCE",
@@ -39,6 +41,8 @@ __all__ = [
 
 def load_config_or_exit(path: Path | str, verb: str) -> MonitorConfig | int:
     """The config, or 2 after printing one line naming the bad field."""
+    from canfdi.config import ConfigError, load_config
+
     try:
         return load_config(path)
     except ConfigError as exc:

@@ -77,7 +77,6 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import lfilter
 
 from canfdi.core.blockrun import BlockRows, continuity_breaks, run_block
 from canfdi.core.calibrate import threshold_for_long_run_variance
@@ -93,7 +92,13 @@ from canfdi.core.records import (
     compensated,
     fold,
 )
-from canfdi.methods.output_error.model import OeModel, fit_step, pair_initial_state, simulate
+from canfdi.methods.output_error.model import (
+    OeModel,
+    fit_step,
+    lfilter,
+    pair_initial_state,
+    simulate,
+)
 
 __all__ = ["HypothesisTest", "OeDiagnosis", "OeSettings", "OutputErrorDiagnoser",
            "oe_thresholds", "settling_samples"]

@@ -37,13 +37,27 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize
-from scipy.signal import lfilter, lfilter_zi
 
 from canfdi.core.identify import least_squares
 
 __all__ = ["MisoFit", "OeModel", "OePair", "StepFit", "fit_miso", "fit_step", "long_run_ratio",
            "pair_initial_state", "simulate"]
+
+
+# scipy.signal (and scipy.optimize) take ~0.7 s to import, pulling in scipy.stats: imported on
+# first use, so that a monitor of another method, and `canfdi --help`, never pay for them.
+def lfilter(b: np.ndarray, a: np.ndarray, x: np.ndarray, zi: np.ndarray | None = None):
+    """scipy.signal.lfilter (y, or (y, zf) with ``zi``)."""
+    from scipy.signal import lfilter as scipy_lfilter
+
+    return scipy_lfilter(b, a, x, zi=zi)
+
+
+def lfilter_zi(b: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """scipy.signal.lfilter_zi."""
+    from scipy.signal import lfilter_zi as scipy_lfilter_zi
+
+    return scipy_lfilter_zi(b, a)
 
 
 @dataclass(frozen=True)
@@ -293,6 +307,8 @@ def _prediction_error_fit(U, y, structure, offset, weight, x0):
         return x0, y * weight, np.zeros((len(y), 0))
     method = "lm" if int(weight.astype(bool).sum()) > len(x0) else "trf"
     try:
+        from scipy import optimize
+
         sol = optimize.least_squares(fun, x0, jac=jac, method=method, xtol=1e-12, ftol=1e-12,
                                      gtol=1e-12, max_nfev=200)
         theta = sol.x
