@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -19,13 +20,15 @@ __all__ = ["LiveView", "render", "snapshot"]
 _BAR = 24  # characters of a statistic / threshold bar
 
 
-def snapshot(monitor: Any) -> dict[str, Any]:
-    """The monitor's state now, as plain numbers.
+def snapshot(monitor: Any, condition: str | None = None) -> dict[str, Any]:
+    """The monitor's state now, as plain numbers (``condition``: what the bus or the log
+    imposes on the state, canfdi.service.MonitorService.condition, e.g. "no_traffic").
 
     Returns
     -------
     dict with ``state`` ("monitoring" / "diagnosing" / "teaching" / "mismatch" (the noise
-    watchdog's) / "capturing"), ``residuals`` (one dict per
+    watchdog's) / "capturing", or the condition: "no_traffic" / "bus_error" / "degraded"),
+    ``residuals`` (one dict per
     residual: name, value (latest normalised residual or None), statistic, threshold),
     ``faults`` (the accepted faults being compensated), ``frames`` (the assembler's counters),
     ``samples`` and ``events`` (the last five, newest last).
@@ -39,7 +42,7 @@ def snapshot(monitor: Any) -> dict[str, Any]:
             value = None if last is None or np.isnan(last[i]) else float(last[i])
             residuals.append({"name": name, "value": value, "statistic": float(stats[i]),
                               "threshold": float(dg.thresholds[i])})
-    state = "capturing" if dg is None else monitor.drives[0].state
+    state = condition or ("capturing" if dg is None else monitor.drives[0].state)
     faults = [c.as_dict() for c in (dg.compensation if dg is not None else [])]
     events = [e.as_dict() for e in monitor.events[-5:]]
     return {"state": state, "residuals": residuals, "faults": faults,
@@ -59,7 +62,8 @@ def render(snap: dict[str, Any], title: str = "canfdi") -> Any:
     from rich.text import Text
 
     style = {"monitoring": "green", "diagnosing": "yellow", "capturing": "cyan",
-             "teaching": "cyan", "mismatch": "magenta"}[snap["state"]]
+             "teaching": "cyan", "mismatch": "magenta", "no_traffic": "red",
+             "bus_error": "red", "degraded": "red"}[snap["state"]]
     head = Text.assemble((f"{title}  ", "bold"), (snap["state"], f"bold {style}"),
                          f"   samples {snap['samples']:,}")
     parts: list[Any] = [head]
@@ -111,6 +115,8 @@ class LiveView:
         self.console = console or Console()
         self._live = Live(console=self.console, auto_refresh=False, transient=False)
         self._last = 0.0
+        self.condition: Callable[[], str | None] = lambda: None
+        """What the bus or the log imposes on the state now (the service's `condition`)."""
 
     def __enter__(self) -> LiveView:
         self._live.start()
@@ -133,7 +139,8 @@ class LiveView:
         now = time.monotonic()
         if force or now - self._last >= self.period:
             self._last = now
-            self._live.update(render(snapshot(self.monitor), self.title), refresh=True)
+            self._live.update(render(snapshot(self.monitor, self.condition()), self.title),
+                              refresh=True)
 
     async def run(self, stop: asyncio.Event) -> None:
         """Refresh every ``period`` seconds until ``stop`` is set."""

@@ -57,7 +57,7 @@ _KIND = {"actuator": 1, "sensor": 2}
 _STATE = {"detected": 1, "accepted": 3}
 _PARAM = {"eta": 0, "lambda": 1, "bias": 2}
 _STATUS = {"starting": 0, "monitoring": 1, "diagnosing": 2, "degraded": 3, "bus_error": 4,
-           "teaching": 5, "mismatch": 6}
+           "teaching": 5, "mismatch": 6, "no_traffic": 7}
 
 
 class RecordSink(Protocol):
@@ -245,6 +245,20 @@ class Monitor:
         clocks = [d.clock.stats for d in self.drives]
         return frame_counters(self._frame_counts, *(sum(c[key] for c in clocks) for key in (
             "samples_complete", "samples_broken", "samples_missing", "clock_steps")))
+
+    def receive_filters(self) -> list[dict[str, int | bool]]:
+        """python-can ``can_filters`` passing exactly the frames the drives' bus maps and
+        sample clocks read (each ID with a full mask, standard and extended kept apart): on
+        SocketCAN the kernel drops the rest before they wake the monitor."""
+        return [{"can_id": fid, "can_mask": 0x1FFFFFFF if extended else 0x7FF,
+                 "extended": extended} for fid, extended in sorted(self._owners_of)]
+
+    @property
+    def mapped_frames(self) -> int:
+        """Frames received whose ID a drive's bus map or sample clock reads, valid or not: the
+        drives' traffic, without the bus's foreign IDs (canfdi.bus.traffic watches it)."""
+        stats = self.frame_stats
+        return stats["frames_received"] - stats["invalid_by_reason"].get("unknown_id", 0)
 
     def clock_notices(self) -> list[str]:
         """One line for each step of a drive's clock not said yet (canfdi.bus.timegate): the

@@ -46,6 +46,10 @@ class Notifier:
     def ready(self, status: str = "") -> None:
         self.notify("READY=1" + (f"\nSTATUS={status}" if status else ""))
 
+    def status(self, text: str) -> None:
+        """STATUS=: the one line `systemctl status` shows."""
+        self.notify(f"STATUS={text}")
+
     def stopping(self) -> None:
         self.notify("STOPPING=1")
 

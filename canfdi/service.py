@@ -24,6 +24,7 @@ from typing import Any
 import can
 
 from canfdi.bus.frames import FrameBlock
+from canfdi.bus.traffic import TrafficChange, TrafficWatch
 from canfdi.monitor import Monitor, OutFrame
 
 __all__ = ["BusBridge", "MonitorService", "ServiceStats", "open_bus"]
@@ -106,6 +107,7 @@ class ServiceStats:
     sent: int = 0
     send_errors: int = 0
     bus_errors: int = 0
+    bus_down_s: float = 0.0  # seconds the bus was lost, reopening (after it had been open)
     reopen_attempts: int = 0
     gave_up: bool = False  # the bus could not be opened for retry_for seconds
     started: float = field(default_factory=time.monotonic)
@@ -133,6 +135,10 @@ class MonitorService:
     clock : the drive's time now, integer ns, which the frames the monitor sends are recorded
         at: the wall clock live (the bus stamps received frames with it too); a demo passes
         the emulated time, so that the log's time is the drive's throughout.
+    no_traffic : seconds without a mapped frame (canfdi.bus.traffic) after which the state is
+        "no_traffic" (0: never).
+    on_status : called with a line for systemd's STATUS= when the state changes (the bus
+        lost, silent, monitoring again).
     """
 
     def __init__(self, monitor: Monitor, bus_factory: Callable[[], can.BusABC], *,
@@ -142,7 +148,8 @@ class MonitorService:
                  retry_for: float | None = None,
                  block: int = 4096, small_block: int = 16,
                  latencies: list[int] | None = None,
-                 clock: Callable[[], int] = time.time_ns) -> None:
+                 clock: Callable[[], int] = time.time_ns, no_traffic: float = 0.0,
+                 on_status: Callable[[str], None] | None = None) -> None:
         self.monitor = monitor
         self.clock = clock
         self.bus_factory = bus_factory
@@ -156,7 +163,10 @@ class MonitorService:
         self.small_block = small_block
         self.latencies = latencies
         self.stats = ServiceStats()
+        self.traffic = TrafficWatch(no_traffic, time.monotonic())
+        self.on_status = on_status
         self.bus: can.BusABC | None = None
+        self._lost_at: float | None = None  # monotonic time the bus was lost, while reopening
         self._notifier: can.Notifier | None = None
         self._queue: asyncio.Queue | None = None
         self._ready_sent = False
@@ -177,6 +187,16 @@ class MonitorService:
                 if not self._ready_sent and self.on_ready is not None:
                     self.on_ready()
                 self._ready_sent = True
+                now = time.monotonic()
+                self.traffic.restart(now)
+                if self._lost_at is not None:
+                    down = now - self._lost_at
+                    self.stats.bus_down_s += down
+                    self._lost_at = None
+                    log.warning("bus reopened after %.1f s down (about %d control periods "
+                                "lost)", down, round(down / self.monitor.dt)
+                                if self.monitor.dt else 0)
+                    self._say(f"monitoring again after {down:.1f} s without the bus")
                 return True
             except (can.CanError, OSError, ValueError) as exc:
                 now = time.monotonic()
@@ -242,6 +262,8 @@ class MonitorService:
                 lost = await self._consume(stop)
                 if lost:
                     self.stats.bus_errors += 1
+                    self._lost_at = time.monotonic()
+                    self._say("bus lost: reopening")
                     self._close()
         finally:
             status_task.cancel()
@@ -316,12 +338,11 @@ class MonitorService:
             while not stop.is_set():
                 if queue.empty():
                     get = asyncio.create_task(queue.get())
-                    done, _ = await asyncio.wait({get, stop_wait}, timeout=1.0,
+                    done, _ = await asyncio.wait({get, stop_wait}, timeout=self._idle_wait,
                                                  return_when=asyncio.FIRST_COMPLETED)
                     if get not in done:
                         get.cancel()
-                        if self.on_tick is not None:
-                            self.on_tick()
+                        self._tick()
                         continue
                     entries = [get.result()]
                 else:
@@ -330,6 +351,8 @@ class MonitorService:
                 while len(entries) < self.block and not queue.empty():
                     entries.append(queue.get_nowait())
                 lost = self._handle_block(entries)
+                if self.traffic.waiting or self.traffic.silent:  # said at once, not at a tick
+                    self._check_traffic()
                 if len(self.monitor.events) != n_events:
                     if self.on_event is not None:
                         for event in self.monitor.events[n_events:]:
@@ -341,12 +364,40 @@ class MonitorService:
                 if now - last_tick >= 0.25:
                     # Proof of life from the loop itself, and a chance for other tasks.
                     last_tick = now
-                    if self.on_tick is not None:
-                        self.on_tick()
+                    self._tick()
                 await asyncio.sleep(0)
         finally:
             stop_wait.cancel()
         return False
+
+    def _tick(self) -> None:
+        """Proof of life (systemd's watchdog) and the traffic check."""
+        if self.on_tick is not None:
+            self.on_tick()
+        self._check_traffic()
+
+    def _check_traffic(self) -> None:
+        change = self.traffic.update(time.monotonic(), self.monitor.mapped_frames)
+        if change is not None:
+            self._traffic_changed(change)
+
+    def _traffic_changed(self, change: TrafficChange) -> None:
+        if change.kind == "first":
+            log.info("receiving the drives' frames (the first %.2f s after the bus opened)",
+                     change.seconds)
+            self._say("monitoring")
+        elif change.kind == "silent":
+            log.warning("no traffic: no frame of the drives for %.1f s (FDI_STATUS says "
+                        "no_traffic); check the drive, the wiring, the bit rate and the "
+                        "config's bus map", change.seconds)
+            self._say(f"no traffic for {change.seconds:.1f} s")
+        else:
+            log.warning("traffic resumed after %.1f s of silence", change.seconds)
+            self._say("monitoring")
+
+    def _say(self, status: str) -> None:
+        if self.on_status is not None:
+            self.on_status(status)
 
     def _drain(self) -> None:
         queue = self._queue
@@ -362,14 +413,29 @@ class MonitorService:
             for event in self.monitor.events[n_events:]:
                 self.on_event(event)
 
-    def status_frames(self) -> list[OutFrame]:
-        """The FDI_STATUS frames to send now (one per drive; none when listen-only): state
-        "degraded" while the monitor's record sink says it is failing (the MCAP log is not
-        being written: a full disk), else the monitor's own state."""
-        return self.monitor.status_frames(self._state())
+    @property
+    def _idle_wait(self) -> float:
+        """How long an idle loop waits for a frame before its tick: 1 s, or sooner so that
+        silence is said within a fifth of --no-traffic."""
+        timeout = self.traffic.timeout
+        return min(1.0, timeout / 5) if timeout > 0 else 1.0
 
-    def _state(self) -> str | None:
-        return "degraded" if getattr(self.monitor.sink, "failing", False) else None
+    def status_frames(self) -> list[OutFrame]:
+        """The FDI_STATUS frames to send now (one per drive; none when listen-only), in the
+        state `condition` says, else the monitor's own."""
+        return self.monitor.status_frames(self.condition)
+
+    @property
+    def condition(self) -> str | None:
+        """What the bus and the log impose on the monitor's state, or None: "bus_error" while
+        a lost bus is being reopened, "degraded" while the monitor's record sink is failing
+        (the MCAP log is not being written: a full disk), "no_traffic" while no frame of the
+        drives arrives."""
+        if self._lost_at is not None:
+            return "bus_error"
+        if getattr(self.monitor.sink, "failing", False):
+            return "degraded"
+        return "no_traffic" if self.traffic.silent else None
 
     def _heartbeat(self) -> None:
         """Send the FDI_STATUS frames, then record the status (after them: at a time no
@@ -377,7 +443,7 @@ class MonitorService:
         frames = self.status_frames()
         if frames and self.bus is not None:
             self.send(frames)
-        self.monitor.record_status(self.clock(), self._state())
+        self.monitor.record_status(self.clock(), self.condition)
 
     async def _status_loop(self, stop: asyncio.Event) -> None:
         if self.status_period <= 0:

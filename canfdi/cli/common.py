@@ -143,14 +143,17 @@ def bus_settings(args: argparse.Namespace, bus=None) -> tuple[str, str, int | No
             int(bitrate) if bitrate is not None else None)
 
 
-def bus_factory(args: argparse.Namespace, bus) -> tuple[str, str, object]:
+def bus_factory(args: argparse.Namespace, bus, can_filters: list[dict] | None = None
+                ) -> tuple[str, str, object]:
     """(interface, channel, opener) from the command line, the config's BusConfig and
-    python-can's configuration (`BUS_PRECEDENCE`); raises BusArgumentError for a bad
-    --bus-kwargs."""
+    python-can's configuration (`BUS_PRECEDENCE`), with receive filters ``can_filters``
+    unless --bus-kwargs gives its own; raises BusArgumentError for a bad --bus-kwargs."""
     from canfdi.service import open_bus
 
     interface, channel, bitrate = bus_settings(args, bus)
     extra = bus_kwargs(args)
+    if can_filters is not None:
+        extra.setdefault("can_filters", can_filters)
     return interface, channel, lambda: open_bus(interface, channel, bitrate, **extra)
 
 

@@ -12,6 +12,7 @@ import time
 from functools import partial
 from pathlib import Path
 
+from canfdi.bus.traffic import NO_TRAFFIC_MIN_S, NO_TRAFFIC_PERIODS, no_traffic_default
 from canfdi.cli.common import (
     BusArgumentError,
     StopEvent,
@@ -33,25 +34,29 @@ Monitor a drive's CAN bus: decode its frames with the config's DBC, diagnose fau
 FDI_FAULT / FDI_ESTIMATE frames when a fault is accepted and FDI_STATUS every status period,
 and record everything in MCAP logs (rotated by size and age) under the recording directory;
 with recording.keep_days or keep_mib, the older logs it wrote there are removed at start and
-every 10 minutes (never the file being written, never a file it did not name).
-With `bus.transmit: false` it is listen-only: it sends nothing at all (diagnoses are printed
-and recorded). The config's bus: section says how the drive talks (its DBC, map, E2E profiles,
+every 10 minutes (never the file being written, never a file it did not name). With
+`bus.transmit: false` it is listen-only: it sends nothing at all (diagnoses are printed and
+recorded). The config's bus: section says how the drive talks (its DBC, map, E2E profiles,
 sample clock, drives); docs/bus.md has every key.
 
-The bus comes from the config's bus: section (interface, channel, bitrate), overridable here.
-A lost bus is reopened with backoff; one that cannot be opened for --retry-for seconds (default
-60) ends the run with exit status 1, so that a supervisor restarts it, and a run that heard no
-frame says so when it stops. A log that cannot be written (a full disk) never stops the
-monitoring: the error is logged once, records are dropped and counted, FDI_STATUS says
-"degraded", and recording resumes in a new segment when space returns. SIGTERM or SIGINT
-stops it in order: the bus is closed, the log flushed and closed, a "stopped:" line gives the
-counters (with "recording": segments, written, dropped, write_errors; with --foxglove,
-"foxglove": lagging viewers, whose oldest messages were dropped, and oversize messages not
-shown live), exit status 0 (130 after SIGINT, Ctrl-C). A bad config exits with status 2. In
-a terminal a live view shows each residual's Page-Hinkley statistic against its threshold,
-the detector state, the active faults and the frame counters, with diagnoses and log lines
-printed above it (--no-live, --quiet or a non-terminal stdout turn it off: a daemon's journal
-gets plain lines)."""
+The bus comes from the config's bus: section (interface, channel, bitrate), overridable here. A
+lost bus is reopened with backoff (the recorded status says bus_error meanwhile, the log and
+the stopped: line how long it was down); one that cannot be opened for --retry-for seconds
+(default 60) ends the run with exit status 1, so that a supervisor restarts it. A bus on which
+no frame of the drives arrives for --no-traffic seconds (default 50 control periods, at least 1
+s) is said: a warning in the log, state no_traffic on FDI_STATUS, in systemd's STATUS= and in
+the live view, until the frames resume (said too). A log that cannot be written (a full disk)
+never stops the monitoring: the error is logged once, records are dropped and counted,
+FDI_STATUS says "degraded", and recording resumes in a new segment when space returns. SIGTERM
+or SIGINT stops it in order: the bus is closed, the log flushed and closed, a "stopped:" line
+gives the counters (frames, sent, bus_errors, bus_down_s, faults, gave_up; with "recording":
+segments, written, dropped, write_errors; with
+--foxglove, "foxglove": lagging viewers, whose oldest messages were dropped, and oversize
+messages not shown live), exit status 0 (130 after SIGINT, Ctrl-C). A bad config exits with
+status 2. In a terminal a live view shows each residual's Page-Hinkley statistic against its
+threshold, the detector state, the active faults and the frame counters, with diagnoses and log
+lines printed above it (--no-live, --quiet or a non-terminal stdout turn it off: a daemon's
+journal gets plain lines)."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -60,6 +65,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", required=True, type=Path, metavar="FILE", help="monitor config")
     add_bus_overrides(p)
     add_retry_option(p)
+    p.add_argument("--no-traffic", type=float, metavar="SECONDS",
+                   help="say no_traffic after this many seconds without a frame of the drives "
+                        f"(default: {NO_TRAFFIC_PERIODS} control periods, at least "
+                        f"{NO_TRAFFIC_MIN_S:g} s; 0: never)")
+    p.add_argument("--no-filters", action="store_true",
+                   help="receive every frame of the bus: no receive filters (by default the "
+                        "bus passes only the IDs the config's bus map and sample clock read, "
+                        "in the kernel on SocketCAN; frames of other IDs are then neither "
+                        "seen nor counted as unknown_id)")
     p.add_argument("--log-dir", type=Path, metavar="DIR",
                    help="where MCAP logs go (default: recording.directory of the config)")
     p.add_argument("-o", "--output", type=Path, metavar="FILE.mcap",
@@ -69,7 +83,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, metavar="T", help="stop after T seconds")
     p.add_argument("--json", action="store_true",
                    help="at the end, print the stopped: counters as one JSON object on stdout "
-                        "(frames, sent, bus_errors, faults, recording, foxglove)")
+                        "(frames, sent, bus_errors, bus_down_s, faults, gave_up, recording, "
+                        "foxglove)")
     p.add_argument("--log-format", choices=("text", "json"), default="text",
                    help="format of the service's log lines on stderr (default: text)")
     p.add_argument("--quiet", action="store_true", help="do not print diagnoses on stdout")
@@ -156,11 +171,6 @@ def run(args: argparse.Namespace) -> int:
     config = load_config_or_exit(args.config, "run")
     if isinstance(config, int):
         return config
-    try:
-        interface, channel, opener = bus_factory(args, config.bus)
-    except BusArgumentError as exc:
-        print(f"canfdi run: {exc}", file=sys.stderr)
-        return 2
     teach = None
     if args.teach is not None:
         teach = teacher(config, args.teach)
@@ -170,6 +180,12 @@ def run(args: argparse.Namespace) -> int:
         monitor = Monitor(config, teach=teach)
     except ValueError as exc:
         return config_error(exc, "run")
+    try:
+        interface, channel, opener = bus_factory(
+            args, config.bus, None if args.no_filters else monitor.receive_filters())
+    except BusArgumentError as exc:
+        print(f"canfdi run: {exc}", file=sys.stderr)
+        return 2
     live = open_foxglove(args.foxglove, "run")
     if isinstance(live, int):
         return live
@@ -199,6 +215,8 @@ def run(args: argparse.Namespace) -> int:
         recorder = open_recorder(None, monitor.metadata(), drive_clock=drive_time, tap=live)
     monitor.sink = recorder
     systemd = Notifier()
+    no_traffic = no_traffic_default(config.model.dt) if args.no_traffic is None else max(
+        args.no_traffic, 0.0)
 
     def on_ready() -> None:
         log.info("monitoring %s %s", interface, channel)
@@ -227,7 +245,10 @@ def run(args: argparse.Namespace) -> int:
             pruner = asyncio.create_task(keep_pruning(prune, recorder, stop))
         service = MonitorService(
             monitor, opener, status_period=config.bus.status_period, on_event=on_event,
-            on_ready=on_ready, on_tick=systemd.watchdog, retry_for=args.retry_for or None)
+            on_ready=on_ready, on_tick=systemd.watchdog, retry_for=args.retry_for or None,
+            no_traffic=no_traffic, on_status=systemd.status)
+        if view is not None:
+            view.condition = lambda: service.condition
         if view is None:
             stats = await service.run(stop)
         else:
@@ -256,7 +277,8 @@ def run(args: argparse.Namespace) -> int:
             live.close()
     summary = monitor.summary()
     stopped = {"frames": stats.frames, "sent": stats.sent, "bus_errors": stats.bus_errors,
-               "faults": len(summary["faults"]), "gave_up": stats.gave_up}
+               "bus_down_s": round(stats.bus_down_s, 3), "faults": len(summary["faults"]),
+               "gave_up": stats.gave_up}
     if recorder is not None and not args.no_record:
         stopped["recording"] = recording_counts(recorder)
     if live is not None:  # viewers that fell behind, messages too large to show live

@@ -91,6 +91,7 @@ def test_lost_bus_is_reopened_and_diagnosis_goes_on(tmp_path):
 
     stats = asyncio.run(main())
     assert len(opened) == 2 and stats.bus_errors == 1 and stats.reopen_attempts >= 3
+    assert stats.bus_down_s > 0  # one failed reopen and its backoff
     assert stats.frames == len(frames)
     (fault,) = monitor.summary()["faults"]
     assert fault["kind"] == "actuator"
