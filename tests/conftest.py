@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 import pytest
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# `canfdi run` keeps its designs in a cache directory (canfdi.io.memostore): the tests' runs,
+# in this process and the ones it starts, keep theirs in one of their own, not the user's.
+os.environ.setdefault("CANFDI_CACHE_DIR", tempfile.mkdtemp(prefix="canfdi-test-cache-"))
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -13,6 +13,9 @@ from pathlib import Path
 from canfdi.cli.common import config_error, load_config_or_exit
 from canfdi.configs import CONFIG_DIR
 
+DAEMON_BUS = ("udp_multicast", "239.74.163.2")
+"""canfdi.tools.daemonbench.DAEMON_BUS (not imported: the parser must stay light)."""
+
 HELP = """\
 Measure, on this machine and in one run, side by side:
   bus limit        frames/s of a saturated 1 Mbit/s classic CAN bus for the DBC's frame sizes,
@@ -32,6 +35,13 @@ Measure, on this machine and in one run, side by side:
                    grid clock, which samples by time, then sees the drive's periods
                    compressed, and the figure is the handling time alone)
   memory           RSS growth over the throughput run, per 10^6 frames
+  daemon           `canfdi run` as its own process on a bus shared with the bench
+                   (--daemon-bus, default python-can's udp_multicast on this host; socketcan
+                   vcan0 in deploy/vcan-harness): `canfdi --version`'s time; from the
+                   process's start to its first frame of the drive handled, at a first start
+                   (the design computed) and at a restart (remembered); its RSS while
+                   monitoring and recording; its CPU share on a bus of 90% foreign frames
+                   with its receive filters and with --no-filters
   identify         canfdi identify's whole path (read a candump, assemble, fit with the unknown
                    input, validate, learn the noise, design) on 10 minutes of the servo axis's
                    commissioning run at 100 Hz (2 with --quick), confined to one core
@@ -71,6 +81,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="scenario whose frames to use (YAML or shipped name; its faults are "
                         "dropped for the throughput run; default: the one playing the "
                         "config's bus)")
+    p.add_argument("--daemon-bus", nargs=2, metavar=("INTERFACE", "CHANNEL"),
+                   default=list(DAEMON_BUS),
+                   help="the bus the daemon measurement shares with its `canfdi run` (default: "
+                        f"{' '.join(DAEMON_BUS)}; python-can's udp_multicast needs msgpack)")
+    p.add_argument("--no-daemon", action="store_true",
+                   help="skip the measurement of `canfdi run` as its own process")
     p.add_argument("--daemon-frames", type=int, metavar="N",
                    help="run the daemon soak instead: N frames through `canfdi run`'s path, "
                         "RSS and every rotated segment checked (e.g. 100000000)")
@@ -128,7 +144,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         result = run_bench(config, frames=frames, quick=args.quick, progress=progress,
                            scenario=scenario, faulty=faulty, identify=identify,
-                           identify_config=CONFIG_DIR / "servo_axis_odrive.yaml")
+                           identify_config=CONFIG_DIR / "servo_axis_odrive.yaml",
+                           daemon_bus=None if args.no_daemon else tuple(args.daemon_bus))
     except ValueError as exc:
         return config_error(exc, "bench")
     result["elapsed_s"] = time.monotonic() - start
@@ -163,10 +180,31 @@ def run(args: argparse.Namespace) -> int:
                      f"{' on one core' if r['identify_one_core'] else ''} "
                      f"({r['identify_cpu_s']:.1f} CPU s; {r['identify_path']})"),
     ]
+    rows += _daemon_rows(r)
     for name, value in rows:
         print(f"{name:<26}{value}")
     print(f"({r['frames']:,} frames of {r['scenario']}, {r['elapsed_s']:.0f} s)")
     return 0
+
+
+def _daemon_rows(r: dict) -> list[tuple[str, str]]:
+    """The daemon measurement's lines (none when skipped; one saying why when it failed)."""
+    if "daemon_error" in r:
+        return [("daemon", f"not measured on {r['daemon_bus']}: {r['daemon_error']} "
+                           "(udp_multicast needs pip install msgpack; or --daemon-bus socketcan "
+                           "vcan0 on a machine with vcan)")]
+    if "daemon_rss_mib" not in r:
+        return []
+    return [
+        ("daemon start", f"canfdi --version {r['daemon_version_s']:.3f} s; first frame "
+                         f"handled {r['daemon_first_frame_first_start_s']:.2f} s after a first "
+                         f"start, {r['daemon_first_frame_s']:.2f} s after a restart"),
+        ("daemon RSS", f"{r['daemon_rss_mib']:.1f} MiB monitoring and recording"),
+        ("daemon CPU", f"{r['daemon_cpu_filtered']:.1%} with receive filters, "
+                       f"{r['daemon_cpu_unfiltered']:.1%} without, on {r['daemon_bus']} at "
+                       f"{r['daemon_bus_fps']:,.0f} frames/s, "
+                       f"{r['daemon_foreign_share']:.0%} not the drive's"),
+    ]
 
 
 def _soak(config, args: argparse.Namespace, scenario, progress, start: float) -> int:

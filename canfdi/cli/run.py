@@ -56,7 +56,9 @@ messages not shown live), exit status 0 (130 after SIGINT, Ctrl-C). A bad config
 status 2. In a terminal a live view shows each residual's Page-Hinkley statistic against its
 threshold, the detector state, the active faults and the frame counters, with diagnoses and log
 lines printed above it (--no-live, --quiet or a non-terminal stdout turn it off: a daemon's
-journal gets plain lines)."""
+journal gets plain lines). What the monitor computes at start from the config (the parity
+thresholds' calibration, a second or more) is kept in a cache directory ($CANFDI_CACHE_DIR,
+else systemd's $CACHE_DIRECTORY, else ~/.cache/canfdi): a restarted daemon monitors sooner."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -110,6 +112,17 @@ def setup_logging(fmt: str) -> None:
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(logging.INFO)
+
+
+def remember_designs() -> None:
+    """Keep what the monitor computes at start (canfdi.core.memo: the parity thresholds) in
+    the cache directory (canfdi.io.memostore), so that a restarted daemon starts sooner."""
+    from canfdi.core import memo
+    from canfdi.io.memostore import DirectoryStore, cache_directory
+
+    directory = cache_directory()
+    if directory is not None:
+        memo.install(DirectoryStore(directory))
 
 
 def teacher(config, seconds: float):
@@ -176,6 +189,7 @@ def run(args: argparse.Namespace) -> int:
         teach = teacher(config, args.teach)
         if isinstance(teach, int):
             return teach
+    remember_designs()
     try:
         monitor = Monitor(config, teach=teach)
     except ValueError as exc:

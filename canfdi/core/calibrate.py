@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import optimize
 
 from canfdi.core.detect import (
     _as_2d,
@@ -231,6 +230,8 @@ def threshold_for_false_alarm_interval(delta: float, arl0: float) -> float:
     hi = 1.0
     while excess(hi) < 0:
         hi *= 2.0
+    from scipy import optimize  # here: ~0.1 s to import, on every daemon's start
+
     return float(optimize.brentq(excess, 0.0, hi, xtol=1e-12, rtol=1e-12))
 
 

@@ -26,7 +26,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import stats
 
 from canfdi.core._check import check_shape
 
@@ -215,6 +214,8 @@ def threshold_from_false_alarm(sigma: ArrayLike, p_fa: float) -> NDArray[np.floa
     if not 0.0 < p < 1.0:
         raise ValueError(f"p_fa: must be in (0, 1), got {p_fa!r}")
     # isf(p/2) rather than ppf(1 - p/2): no loss of the small tail probability to rounding.
+    from scipy import stats  # here: scipy.stats takes ~0.2 s to import, a daemon's start
+
     return _scalar_or_array(s * stats.norm.isf(p / 2.0))
 
 

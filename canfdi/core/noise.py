@@ -20,7 +20,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
-from scipy.optimize import nnls
 
 from canfdi.core.model import StateSpace
 from canfdi.core.parity import left_null_space, parity_matrices
@@ -192,4 +191,6 @@ def _fit(G: np.ndarray, target: np.ndarray, prior_var: np.ndarray, seen: np.ndar
     b = np.concatenate([target, weight * anchor])
     if full:
         return np.linalg.lstsq(A, b, rcond=None)[0]
+    from scipy.optimize import nnls  # here: ~0.2 s to import, on every daemon's start
+
     return nnls(A, b)[0]

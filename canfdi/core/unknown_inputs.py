@@ -45,7 +45,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import f as f_dist
 
 from canfdi.core._check import check_shape
 from canfdi.core.identify import least_squares
@@ -344,6 +343,8 @@ def _pruned_row(Phi: np.ndarray, t: np.ndarray, noise: np.ndarray, target_noise:
         trial = [c for j, c in enumerate(active) if j != worst]
         k = len(zeroed) + 1
         stat = ((rss(trial) - rss_full) / k) / max(rss_full / max(n_rows - d, 1), 1e-300)
+        from scipy.stats import f as f_dist  # here: scipy.stats takes ~0.2 s to import
+
         if stat > f_dist.ppf(0.99, k, max(n_rows - d, 1)):
             break
         zeroed.append(active.pop(worst))

@@ -94,14 +94,16 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
               progress: Callable[[str], None] | None = None, workdir: Path | None = None,
               scenario: Scenario | str = "dc_motor_nominal",
               faulty: Scenario | str = "dc_motor_consecutive",
-              identify: Callable | None = None, identify_config: Path | None = None) -> dict:
+              identify: Callable | None = None, identify_config: Path | None = None,
+              daemon_bus: tuple[str, str] | None = None) -> dict:
     """Measure everything; returns the JSON-ready result.
 
     ``scenario`` plays the config's bus fault-free (throughput, decode, capture, replay);
     ``faulty`` plays it with faults (latency, diagnoses included). ``identify``:
     canfdi.tools.identify.identify, handed in by the verb (one verb's library does not import
     another's), timed with ``identify_config`` (the servo axis's) on a commissioning log of
-    the servo axis (`identify_time`)."""
+    the servo axis (`identify_time`). ``daemon_bus`` (interface, channel): measure `canfdi
+    run` as its own process on that bus too (canfdi.tools.daemonbench)."""
     from canfdi.io.writer import McapRecorder
     from canfdi.monitor import Monitor
 
@@ -222,6 +224,14 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
         minutes = 2.0 if quick else 10.0
         say(f"identify: {minutes:g} minutes of a 100 Hz drive, on one core")
         out.update(identify_time(identify, identify_config, tmp, minutes))
+    if daemon_bus is not None:
+        from canfdi.tools.daemonbench import daemon_figures
+
+        seconds = 2.0 if quick else 5.0
+        # The drive's frames for the daemon's start, its warm-up and the measured stretch.
+        end = np.searchsorted(traffic.t_ns, traffic.t_ns[0] + int((seconds + 20.0) * 1e9))
+        out.update(daemon_figures(config, traffic.slice(0, int(end)), *daemon_bus,
+                                  seconds=seconds, progress=say))
     return out
 
 

@@ -119,8 +119,8 @@ def test_the_block_keeps_the_original_hardening_and_the_sandbox():
 
 def test_the_template_and_the_single_unit_run_the_same_service_but_for_the_bus():
     """Type=notify, watchdog, restart policy, environment: identical; only the command line
-    and the logs directory name the bus."""
-    per_bus = {"ExecStart", "LogsDirectory"}
+    and the logs and cache directories name the bus."""
+    per_bus = {"ExecStart", "LogsDirectory", "CacheDirectory"}
     single = [(k, v) for k, v in service(MONITOR) if k not in per_bus]
     template = [(k, v) for k, v in service(TEMPLATE) if k not in per_bus]
     assert template == single

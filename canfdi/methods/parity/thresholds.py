@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from canfdi.core.calibrate import calibrate_threshold, threshold_for_long_run_variance
+from canfdi.core.memo import digest, remembered
 from canfdi.core.residuals import ResidualBank
 
 __all__ = ["calibrate_thresholds", "long_run_covariance"]
@@ -25,18 +26,19 @@ def calibrate_thresholds(bank: ResidualBank, measurement_std: np.ndarray,
     (seeded, so the design is reproducible) at two false-alarm intervals the record can show
     (n/20 and n/200), and extrapolated log-linearly to ``interval``, as the run length of the
     test grows exponentially with its threshold. Never below the white-noise (Siegmund) value.
-    Results are cached for the process (the same design calibrates once).
+    Results are remembered (canfdi.core.memo: for the process, and in the store the shell
+    installed): the same design calibrates once.
     """
-    key = (bank.M.tobytes(), bank.sigma.tobytes(), np.asarray(measurement_std).tobytes(),
-           None if process_std is None else np.asarray(process_std).tobytes(),
-           model.A.tobytes(), model.C.tobytes(), drift, interval, n, seed)
-    if key not in _THRESHOLD_CACHE:
-        _THRESHOLD_CACHE[key] = _calibrate(bank, measurement_std, process_std, model, drift,
-                                           interval, n, seed)
-    return _THRESHOLD_CACHE[key].copy()
+    key = digest(CALIBRATION, bank.M, bank.sigma, np.asarray(measurement_std, dtype=float),
+                 None if process_std is None else np.asarray(process_std, dtype=float),
+                 model.A, model.C, float(drift), float(interval), n, seed)
+    return remembered(key, lambda: _calibrate(bank, measurement_std, process_std, model, drift,
+                                              interval, n, seed), (bank.m,))
 
 
-_THRESHOLD_CACHE: dict[tuple, np.ndarray] = {}
+CALIBRATION = "parity thresholds 1"
+"""Names the calibration below in the digest of its results: change it with the algorithm,
+so that results remembered by an older one are not used."""
 
 
 def _calibrate(bank: ResidualBank, measurement_std: np.ndarray, process_std: np.ndarray | None,

@@ -47,7 +47,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import place_poles
 
 __all__ = [
     "DEADBEAT_EPS",
@@ -126,6 +125,8 @@ def deadbeat_gain(Abar: np.ndarray, C: np.ndarray) -> np.ndarray:
         return Abar @ np.linalg.pinv(C)
     poles = [0.0] * rank + [DEADBEAT_EPS * (i + 1) for i in range(n - rank)]
     try:
+        from scipy.signal import place_poles  # here: scipy.signal takes ~0.6 s to import
+
         return place_poles(Abar.T, C.T, poles).gain_matrix.T
     except ValueError as exc:
         raise ValueError(f"no deadbeat observer for (Abar, C): {exc}") from None
