@@ -146,3 +146,44 @@ def _check_collisions(keys: Mapping[str, MessageKey], bus_keys: set[MessageKey],
             raise ConfigError("bus.monitor", f"on a CANopen bus these IDs are CANopen's: "
                                              f"{', '.join(used)}; choose IDs outside its "
                                              "predefined connection set (e.g. 0x6E0)")
+
+
+def monitor_database(config: MonitorConfig, merge: bool = False):
+    """The DBC of the monitor's frames as ``config`` sends them (a cantools Database): the
+    monitor DBC's messages at the config's IDs (``bus.monitor.base``/``ids``, standard or
+    extended), each message's comment naming its E2E profile (``bus.monitor.e2e``). With
+    ``merge``, they are added to a copy of the bus's DBC (the drives' messages as written
+    there) and its node list gains the monitor's. ConfigError when a message of the bus's DBC
+    has a monitor message's ID (a decoder could not tell them apart)."""
+    import copy
+
+    from canfdi.bus.dbc import keys_of
+
+    database, label = load_dbc(config.bus.dbc, config.path)
+    frames = MonitorFrames.from_config(config, keys_of(database, config))
+    monitor_db, _ = load_dbc(config.bus.monitor.dbc, config.path, "bus.monitor.dbc")
+    monitor_db = copy.deepcopy(monitor_db)  # the shipped ones are shared, cached
+    ours = []
+    for name in MONITOR_MESSAGES:
+        message = monitor_db.get_message_by_name(name)
+        message.frame_id, message.is_extended_frame = frames.keys[name]
+        profile = frames._profiles[name].name
+        said = f"E2E profile {profile} (bus.monitor.e2e)."
+        message.comment = f"{message.comment} {said}" if message.comment else said
+        ours.append(message)
+    if not merge:
+        monitor_db.refresh()
+        return monitor_db
+    merged = copy.deepcopy(database)
+    taken = {message_key(m.frame_id, m.is_extended_frame): m.name for m in merged.messages}
+    clashes = [f"{m.name} 0x{m.frame_id:X} with {taken[key]}" for m in ours
+               if (key := message_key(m.frame_id, m.is_extended_frame)) in taken]
+    if clashes:
+        raise ConfigError("bus.monitor", f"{label} has messages at the monitor's IDs: "
+                                         f"{', '.join(clashes)}; choose others "
+                                         "(bus.monitor.base or bus.monitor.ids)")
+    merged.messages.extend(ours)
+    have = {node.name for node in merged.nodes}
+    merged.nodes.extend(node for node in monitor_db.nodes if node.name not in have)
+    merged.refresh()
+    return merged

@@ -11,7 +11,7 @@ import sys
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from canfdi import __version__
-from canfdi.cli import bench, capture, demo, design, export, replay, report, run, sim, soak
+from canfdi.cli import bench, capture, dbc, demo, design, export, replay, report, run, sim, soak
 
 # isort: split
 from canfdi.cli import identify  # the output_error method's model fitting (seed 003)
@@ -29,6 +29,7 @@ VERBS = {
     "run": run, "demo": demo, "design": design, "sim": sim, "capture": capture, "replay": replay,
     "bench": bench, "soak": soak, "export": export,
     "report": report,
+    "dbc": dbc,
     "identify": identify,
     "evaluate": evaluate,
     "calibrate": calibrate,
