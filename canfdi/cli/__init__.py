@@ -14,7 +14,7 @@ from canfdi import __version__
 from canfdi.cli import bench, capture, dbc, demo, design, export, replay, report, run, sim, soak
 
 # isort: split
-from canfdi.cli import identify  # the output_error method's model fitting (seed 003)
+from canfdi.cli import identify  # the output_error method's model fitting (the output-error paper)
 
 # isort: split
 from canfdi.cli import evaluate  # issue 10: Monte Carlo evaluation of the diagnosis

@@ -15,14 +15,14 @@ from canfdi.core.design import Design, design_bank, design_to_dict
 HELP = """\
 Design the fully decoupled parity residuals of a monitor config and analyse them.
 
-For each actuator: the parity vector that sees that actuator only (seed 001 eq. 13, Theorems
-1 and 3); for each sensor: the vector blind to that sensor (eq. 20, Theorem 2); windows are the
-smallest admissible unless the config fixes them. For each fault: detectable and strongly
-detectable with the unknown inputs decoupled (seed 002 Theorems 2, 3), which residuals respond
-(isolability; faults with the same signature cannot be told apart), whether a sensor bias can
-be estimated jointly with all the others from the sensor bank (eq. 41), and the fault-to-noise gap
-(response to a unit constant fault over the residual's noise standard deviation) at several
-window orders so they can be compared.
+For each actuator: the parity vector that sees that actuator only (Chan et al. 2006 eq. 13,
+Theorems 1 and 3); for each sensor: the vector blind to that sensor (eq. 20, Theorem 2);
+windows are the smallest admissible unless the config fixes them. For each fault: detectable
+and strongly detectable with the unknown inputs decoupled (Nyberg and Nielsen, Theorems 2, 3),
+which residuals respond (isolability; faults with the same signature cannot be told apart),
+whether a sensor bias can be estimated jointly with all the others from the sensor bank (eq.
+41), and the fault-to-noise gap (response to a unit constant fault over the residual's noise
+standard deviation) at several window orders so they can be compared.
 
 Exit status: 0 on success, 2 on a bad config (the message names the field)."""
 
@@ -89,7 +89,7 @@ def render_text(name: str, design: Design) -> str:
             else:
                 lines.append(f"  {label:<24}{e['window']:>3}{_fmt(e['min_window'], 'd'):>7}"
                              f"  NO VECTOR: {e['reason']}")
-    lines += ["", "Faults (unknown inputs decoupled; seed 002 Theorems 2 and 3)"]
+    lines += ["", "Faults (unknown inputs decoupled; Nyberg and Nielsen Theorems 2 and 3)"]
     lines.append(f"  {'fault':<24}{'detect':>8}{'strong':>8}{'isolable':>10}{'joint est':>11}"
                  f"{'best f/n':>10}  residuals / notes")
     for e in d["detectability"]:

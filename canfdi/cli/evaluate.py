@@ -104,7 +104,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="fault kinds to draw, comma-separated, among actuator_bias, "
                         "actuator_scale, sensor_bias (default: the method's fault model: all "
                         "three for parity; the additive ones, actuator_bias and sensor_bias, "
-                        "for output_error (seed 003) and uio (seed 004))")
+                        "for output_error (the output-error paper) and uio (Hwang, Chang and Hsu))")
     p.add_argument("--spacing", type=int, default=None, metavar="SAMPLES",
                    help="samples between onsets (default identification.max_samples + 1000)")
     p.add_argument("--no-quantize", action="store_true",

@@ -34,7 +34,7 @@ What is learned, by the config's method:
                 unknown inputs' directions F from what the noise does not explain; or a
                 PBSID subspace fit, consistent in closed loop, when the outputs show less
                 than the data hold), or the template's parameters fitted by prediction error;
-  output_error  seed 003's OE models (--orders, --oe-delay, --min-gain-snr, --skip).
+  output_error  the output-error paper's OE models (--orders, --oe-delay, --min-gain-snr, --skip).
 The last 30 % of each log (--holdout) or the --validate logs are left out of the fit and
 judge it: one-step and simulation fits per output (NRMSE %, as MATLAB's compare), the
 one-step errors' whiteness and correlation with the inputs, stability, minimality; then the
@@ -203,7 +203,7 @@ def _jsonable(value):
 
 def _print_report(report: dict) -> None:
     if report["path"].startswith("output error"):
-        print(f"{report['samples']['fit']} samples; output-error models (seed 003)")
+        print(f"{report['samples']['fit']} samples; output-error models (the output-error paper)")
         for rep in report["outputs"]:
             print(f"  {rep['output']}: residual std {rep['residual_std']:.4g}, long-run "
                   f"variance ratio {rep['long_run_variance']:.3g}")

@@ -8,8 +8,8 @@ import sys
 from pathlib import Path
 
 HELP = """\
-Figures of a canfdi MCAP log (canfdi run or demo), in the manner of seed 001 Figs. 1-6, and an
-index.html that shows them with the diagnosis table:
+Figures of a canfdi MCAP log (canfdi run or demo), in the manner of Chan et al. 2006, Figs.
+1-6, and an index.html that shows them with the diagnosis table:
 
   overview.png          inputs u, outputs z, normalised residuals, Page-Hinkley statistics over
                         their thresholds, with injected onsets, detections and acceptances
