@@ -214,6 +214,10 @@ class OutputErrorDiagnoser(DetectorBacked):
 
     def __init__(self, model: OeModel, sigma: np.ndarray, thresholds: np.ndarray,
                  settings: OeSettings, input_names: list[str], output_names: list[str]) -> None:
+        # scipy.signal (lfilter) imported now, at start, not at the first diagnosis: its 0.6 s
+        # would stall the live path there.
+        import scipy.signal  # noqa: F401
+
         self.model = model
         self.p, self.q = model.p, model.q
         if len(input_names) != self.p or len(output_names) != self.q:

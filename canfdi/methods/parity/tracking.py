@@ -30,6 +30,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import special  # quantiles: 30 ms to import where scipy.stats takes 0.6 s
 
 from canfdi.core.residuals import ResidualBank
 from canfdi.methods.parity.hypotheses import Hypothesis, row_regressors
@@ -64,9 +65,7 @@ class Correction:
 
 def _chi2_3sigma(d: int) -> float:
     """The chi-square quantile of d degrees of freedom at the two-sided 3-sigma level."""
-    from scipy.stats import chi2
-
-    return float(chi2.isf(0.0027, d))
+    return float(special.chdtri(d, 0.0027))  # chi2.isf, as scipy.stats computes it
 
 
 class AcceptedFaultTracker:

@@ -32,6 +32,7 @@ from collections import deque
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy import special  # quantiles: 30 ms to import where scipy.stats takes 0.6 s
 
 from canfdi.core.blockrun import run_block
 from canfdi.core.identify import least_squares
@@ -116,9 +117,7 @@ def uio_thresholds(count: int, interval: float) -> np.ndarray:
     test's own memory), while the fault gives 25 to 100 noise stds: a plain threshold loses
     little delay and its false-alarm rate needs no extrapolation.
     """
-    from scipy.stats import norm  # here: scipy.stats takes ~0.2 s to import
-
-    return np.full(count, float(norm.isf(0.5 / float(interval))))
+    return np.full(count, float(-special.ndtri(0.5 / float(interval))))  # norm.isf
 
 
 class UioDiagnoser:
