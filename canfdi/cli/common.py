@@ -27,6 +27,7 @@ __all__ = [
     "bus_factory",
     "bus_kwargs",
     "bus_settings",
+    "check_bus",
     "close_recorder",
     "config_error",
     "format_event",
@@ -143,6 +144,30 @@ def bus_settings(args: argparse.Namespace, bus=None) -> tuple[str, str, int | No
             int(bitrate) if bitrate is not None else None)
 
 
+def check_bus(interface: str, channel: str) -> None:
+    """BusArgumentError (the verb exits 2) for an interface python-can does not know, or a
+    SocketCAN channel that is no network interface of this machine: a typo, not a bus to
+    wait for (a bus that exists and fails to open is retried for --retry-for seconds)."""
+    import difflib
+    import socket
+
+    import can
+
+    known = sorted(can.interfaces.VALID_INTERFACES)
+    if interface not in known:
+        near = difflib.get_close_matches(interface, known, n=1)
+        raise BusArgumentError(
+            f"unknown interface {interface!r}" + (f" (did you mean {near[0]!r}?)" if near
+                                                  else "") + f"; python-can's: {', '.join(known)}")
+    if interface == "socketcan":
+        try:
+            socket.if_nametoindex(channel)
+        except OSError:
+            raise BusArgumentError(
+                f"no network interface {channel!r} on this machine (`ip link` lists them; a "
+                f"virtual one: deploy/vcan-setup {channel})") from None
+
+
 def bus_factory(args: argparse.Namespace, bus, can_filters: list[dict] | None = None
                 ) -> tuple[str, str, object]:
     """(interface, channel, opener) from the command line, the config's BusConfig and
@@ -151,6 +176,7 @@ def bus_factory(args: argparse.Namespace, bus, can_filters: list[dict] | None = 
     from canfdi.service import open_bus
 
     interface, channel, bitrate = bus_settings(args, bus)
+    check_bus(interface, channel)
     extra = bus_kwargs(args)
     if can_filters is not None:
         extra.setdefault("can_filters", can_filters)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from canfdi.cli import main
 from tests.conftest import REPO
 
@@ -46,7 +48,9 @@ def test_export_run_capture_and_sim_print_one_object_with_json(tmp_path, capsys)
 def test_a_bus_that_cannot_be_opened_ends_run_and_capture_with_1(tmp_path, capsys):
     """--retry-for (issue 28): a daemon on a bus that does not exist used to retry forever and
     exit 0; now it gives up after the bound, says so, and exits 1 (systemd restarts it)."""
-    bad = ["-i", "socketcan", "-c", "canfdi-nonexistent0", "--retry-for", "0.5"]
+    # lo exists but is no CAN interface: opening a CAN socket on it fails (or this kernel
+    # has no SocketCAN at all), as a bus that is down does.
+    bad = ["-i", "socketcan", "-c", "lo", "--retry-for", "0.5"]
     assert main(["run", "--config", str(CONFIG), "--no-record", "--quiet", "--json", *bad]) == 1
     captured = capsys.readouterr()
     assert json.loads(captured.out)["gave_up"] is True and "giving up" in captured.err
@@ -60,3 +64,17 @@ def test_sim_says_words_without_json(tmp_path, capsys):
                  str(tmp_path / "d.log"), "--quiet"]) == 0
     out = capsys.readouterr().out.strip()
     assert out == f"canfdi sim: dc_motor_actuator: 100 samples, 300 frames -> {tmp_path / 'd.log'}"
+
+
+@pytest.mark.parametrize("verb", ["run", "capture", "sim"])
+@pytest.mark.parametrize("bus", [["-i", "socketcn"], ["-i", "socketcan", "-c", "canfdi-nosuch0"]])
+def test_an_unknown_interface_or_a_channel_that_is_not_there_is_one_line_and_2(
+        tmp_path, capsys, verb, bus):
+    args = {"run": ["run", "--config", str(CONFIG), "--no-record"],
+            "capture": ["capture", "--config", str(CONFIG), "-o", str(tmp_path / "c.mcap")],
+            "sim": ["sim", "--scenario", "dc_motor_actuator", "--duration", "1"]}[verb]
+    assert main([*args, *bus]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert ("did you mean 'socketcan'?" in err if bus[1] == "socketcn"
+            else "no network interface 'canfdi-nosuch0'" in err)
