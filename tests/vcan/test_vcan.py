@@ -112,9 +112,15 @@ def test_consecutive_faults_across_processes_seen_by_candump(tmp_path):
     assert "State: accepted" in decoded.stdout or "State: 3" in decoded.stdout
 
 
-def test_frames_injected_with_cansend_are_counted_and_logged(tmp_path):
-    monitor = Monitor(tmp_path / "bad.mcap")
+@pytest.mark.parametrize("filters", [True, False], ids=["kernel-filters", "no-filters"])
+def test_frames_injected_with_cansend_are_counted_and_logged(tmp_path, filters):
+    """Malformed frames of the drive's IDs are counted by reason; foreign IDs never reach the
+    monitor through the kernel's receive filters (the default), and are counted with
+    --no-filters. The silence before them is said, and the drive's frames' arrival too."""
+    monitor = Monitor(tmp_path / "bad.mcap", "--no-traffic", "1",
+                      *(() if filters else ("--no-filters",)))
     try:
+        time.sleep(2.0)  # silent for longer than --no-traffic
         injected = [
             "104#0011",                 # DRIVE_CMD with DLC 2 instead of 8
             "105#0000000000000000",     # DRIVE_CURRENTS with a wrong CRC
@@ -129,7 +135,11 @@ def test_frames_injected_with_cansend_are_counted_and_logged(tmp_path):
         if monitor.proc.poll() is None:
             monitor.proc.kill()
     statuses = [s for s in read_frames(monitor.log).status.tolist() if s != "sent"]
-    assert sorted(statuses) == sorted(["dlc", "crc", "unknown_id", "extended"])
+    foreign = [] if filters else ["unknown_id", "extended"]
+    assert sorted(statuses) == sorted(["dlc", "crc", *foreign])
+    log = "".join(monitor.stderr)
+    assert "no traffic: no frame of the drives for" in log
+    assert "receiving the drives' frames" in log
 
 
 def _ip(*args: str) -> None:
