@@ -87,6 +87,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         f"{' '.join(DAEMON_BUS)}; python-can's udp_multicast needs msgpack)")
     p.add_argument("--no-daemon", action="store_true",
                    help="skip the measurement of `canfdi run` as its own process")
+    p.add_argument("--daemon-only", action="store_true",
+                   help="run only that measurement (e.g. in deploy/vcan-harness with "
+                        "--daemon-bus socketcan vcan0: the kernel's receive filters)")
     p.add_argument("--daemon-frames", type=int, metavar="N",
                    help="run the daemon soak instead: N frames through `canfdi run`'s path, "
                         "RSS and every rotated segment checked (e.g. 100000000)")
@@ -139,6 +142,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.daemon_frames is not None:
         return _soak(config, args, scenario, progress, start)
+    if args.daemon_only:
+        return _daemon_only(config, args, scenario, progress, start)
     from canfdi.tools.identify import identify
 
     try:
@@ -185,6 +190,26 @@ def run(args: argparse.Namespace) -> int:
         print(f"{name:<26}{value}")
     print(f"({r['frames']:,} frames of {r['scenario']}, {r['elapsed_s']:.0f} s)")
     return 0
+
+
+def _daemon_only(config, args: argparse.Namespace, scenario, progress, start: float) -> int:
+    """``--daemon-only``: canfdi.tools.daemonbench on 30 s of the drive, printed."""
+    from canfdi.tools.bench import make_traffic
+    from canfdi.tools.daemonbench import daemon_figures
+
+    seconds = 2.0 if args.quick else 5.0
+    progress("generating the drive's frames")
+    traffic = make_traffic(100_000, scenario)
+    end = int(traffic.t_ns.searchsorted(traffic.t_ns[0] + int((seconds + 20.0) * 1e9)))
+    r = daemon_figures(config, traffic.slice(0, end), *args.daemon_bus, seconds=seconds,
+                       progress=progress)
+    r["elapsed_s"] = time.monotonic() - start
+    if args.json:
+        print(json.dumps(r, indent=2))
+    else:
+        for name, value in _daemon_rows(r):
+            print(f"{name:<26}{value}")
+    return 1 if "daemon_error" in r else 0
 
 
 def _daemon_rows(r: dict) -> list[tuple[str, str]]:
