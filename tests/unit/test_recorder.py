@@ -1166,3 +1166,29 @@ def test_message_json_beyond_strict_json_still_reads(tmp_path: Path) -> None:
         writer.finish()
     ((_, a),) = topic_messages(path, "/x")
     assert math.isnan(a["a"]) and a["b"] == -math.inf and a["c"] == 1
+
+
+def test_chunks_are_zstd_at_the_recorders_level(tmp_path):
+    """mcap's Writer has no compression level: the recorder's chunks are zstd at ZSTD_LEVEL
+    (each recompresses to the very bytes written), and every reader inflates them."""
+    import zstandard
+    from mcap.records import Chunk
+
+    from canfdi.io.writer import ZSTD_LEVEL
+
+    path = tmp_path / "level.mcap"
+    n = 5000
+    block = FrameBlock(1_700_000_000_000_000_000 + np.arange(n) * 1_000_000,
+                       np.arange(n) % 0x7FF, np.full(n, 8), np.zeros(n, np.uint8),
+                       np.random.default_rng(3).integers(0, 256, (n, 8)).astype(np.uint8))
+    with McapRecorder(path) as rec:
+        rec.write_frames(block, "ok")
+    with open(path, "rb") as f:
+        chunks = [r for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)]
+    assert chunks and all(c.compression == "zstd" for c in chunks)
+    for c in chunks:
+        raw = zstandard.decompress(c.data, c.uncompressed_size)
+        assert zstandard.compress(raw, ZSTD_LEVEL) == c.data
+    assert ZSTD_LEVEL == 1 and zstandard.compress(raw, 3) != c.data  # the level is seen
+    with open(path, "rb") as f:
+        assert len(list(make_reader(f).iter_messages())) > 0
