@@ -194,8 +194,7 @@ class MonitorService:
                     self.stats.bus_down_s += down
                     self._lost_at = None
                     log.warning("bus reopened after %.1f s down (about %d control periods "
-                                "lost)", down, round(down / self.monitor.dt)
-                                if self.monitor.dt else 0)
+                                "lost)", down, round(down / self.monitor.dt))
                     self._say(f"monitoring again after {down:.1f} s without the bus")
                 return True
             except (can.CanError, OSError, ValueError) as exc:

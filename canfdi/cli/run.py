@@ -50,15 +50,15 @@ never stops the monitoring: the error is logged once, records are dropped and co
 FDI_STATUS says "degraded", and recording resumes in a new segment when space returns. SIGTERM
 or SIGINT stops it in order: the bus is closed, the log flushed and closed, a "stopped:" line
 gives the counters (frames, sent, bus_errors, bus_down_s, faults, gave_up; with "recording":
-segments, written, dropped, write_errors; with
---foxglove, "foxglove": lagging viewers, whose oldest messages were dropped, and oversize
-messages not shown live), exit status 0 (130 after SIGINT, Ctrl-C). A bad config exits with
-status 2. In a terminal a live view shows each residual's Page-Hinkley statistic against its
-threshold, the detector state, the active faults and the frame counters, with diagnoses and log
-lines printed above it (--no-live, --quiet or a non-terminal stdout turn it off: a daemon's
-journal gets plain lines). What the monitor computes at start from the config (the parity
-thresholds' calibration, a second or more) is kept in a cache directory ($CANFDI_CACHE_DIR,
-else systemd's $CACHE_DIRECTORY, else ~/.cache/canfdi): a restarted daemon monitors sooner."""
+segments, written, dropped, write_errors; with --foxglove, "foxglove": lagging viewers, whose
+oldest messages were dropped, and oversize messages not shown live), exit status 0 (130 after
+SIGINT, Ctrl-C). A bad config exits with status 2. In a terminal a live view shows each
+residual's Page-Hinkley statistic against its threshold, the detector state, the active faults
+and the frame counters, with diagnoses and log lines printed above it (--no-live, --quiet or a
+non-terminal stdout turn it off: a daemon's journal gets plain lines). What the monitor
+computes at start from the config (the parity thresholds' calibration, a second or more) is
+kept in a cache directory ($CANFDI_CACHE_DIR, else systemd's $CACHE_DIRECTORY, else
+~/.cache/canfdi): a restarted daemon monitors sooner."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

@@ -227,11 +227,7 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     if daemon_bus is not None:
         from canfdi.tools.daemonbench import daemon_figures
 
-        seconds = 2.0 if quick else 5.0
-        # The drive's frames for the daemon's start, its warm-up and the measured stretch.
-        end = np.searchsorted(traffic.t_ns, traffic.t_ns[0] + int((seconds + 20.0) * 1e9))
-        out.update(daemon_figures(config, traffic.slice(0, int(end)), *daemon_bus,
-                                  seconds=seconds, progress=say))
+        out.update(daemon_figures(config, traffic, *daemon_bus, quick=quick, progress=say))
     return out
 
 

@@ -186,18 +186,24 @@ def _one_daemon(config_path: Path, interface: str, channel: str, schedule, secon
 
 
 def daemon_figures(config, traffic: FrameBlock, interface: str = DAEMON_BUS[0],
-                   channel: str = DAEMON_BUS[1], seconds: float = 5.0,
+                   channel: str = DAEMON_BUS[1], quick: bool = False,
                    progress: Callable[[str], None] | None = None) -> dict:
     """`canfdi run` as its own process: --version time, first frame, RSS, CPU with and
     without receive filters on a bus of ``FOREIGN_SHARE`` foreign frames (``config``: the
-    monitor config, run from its file; ``traffic``: the drive's frames, a few seconds or
-    more). A bus that cannot be shared gives {"daemon_error": why}."""
+    monitor config, run from its file; ``traffic``: the drive's frames, of which the first
+    20 s plus the measured stretch are played: 5 s, 2 with ``quick``). A bus that cannot be
+    shared gives {"daemon_error": why}."""
     from canfdi.monitor import Monitor
 
     say = progress or (lambda msg: None)
+    seconds = 2.0 if quick else 5.0
+    # The drive's frames for the daemon's start, its warm-up and the measured stretch.
+    end = np.searchsorted(traffic.t_ns, traffic.t_ns[0] + int((seconds + 20.0) * 1e9))
+    traffic = traffic.slice(0, int(end))
     say("the daemon: canfdi --version")
     out: dict = {"daemon_version_s": version_time()}
-    avoid = {f["can_id"] for f in Monitor(config).receive_filters()}
+    # Only the bus map is needed: no diagnoser, so no threshold calibration here.
+    avoid = {f["can_id"] for f in Monitor(config, diagnose=False).receive_filters()}
     schedule = foreign_traffic(traffic, avoid=avoid)
     out["daemon_bus"] = f"{interface} {channel}"
     out["daemon_foreign_share"] = FOREIGN_SHARE
