@@ -25,9 +25,11 @@ HELP = """\
 Monte Carlo evaluation of the diagnosis: generate --runs fault scenarios for --plant, run each
 through the emulated plant and a fresh copy of the diagnoser the config describes (built and
 calibrated once; its batch path, update_block), match the events to the injected faults and
-report detection rate, detection delay (mean, 95th percentile, in samples), isolation
-accuracy with a confusion matrix, false alarms per hour of fault-free time, missed faults and
-relative estimate errors, overall, per fault-to-noise bin, per fault kind and per channel.
+report detection rate, detection delay (mean, 95th percentile, in samples) and how far it
+is from the fastest possible (the CUSUM bound below), the delay from detection and from onset
+to the accepted diagnosis, isolation accuracy with a confusion matrix, false alarms per hour
+of fault-free time, missed faults and relative estimate errors, overall, per fault-to-noise
+bin, per fault kind and per channel.
 
 Scenarios (seeded: run i draws from SeedSequence(--seed).spawn(runs)[i]): 0..--max-faults
 consecutive faults, never repaired, on distinct channels the parity design says are
@@ -53,6 +55,10 @@ Relative estimate error: |estimate - true| / |true| for eta, for lambda when the
 nonzero and for a sensor bias; a fault's error is its largest; over correctly isolated faults.
 False alarms per hour count over fault-free samples: from the first residual to the first
 onset (the whole run without faults) and from each acceptance to the next onset.
+CUSUM bound: no detector of a fault's mean change, at the config's false-alarm interval T
+(detection.false_alarm_interval), detects it in fewer than ln(T) / (FNR^2 / 2) samples on
+average (Lorden; Basseville and Nikiforov ch. 5); "delay / bound" is each detection's delay
+over its fault's bound (1 is optimal; the bound counts the most sensitive residual alone).
 
 --method chooses the default config among the shipped ones (canfdi.configs, deploy/config/ in
 a checkout): <plant>.yaml (parity), <plant>_oe.yaml (output_error) or <plant>_uio.yaml (uio);
@@ -333,6 +339,13 @@ def print_report(r: dict[str, Any]) -> None:
         ("delay (samples)", f"mean {_f(r['delay_mean_samples'])}, median "
                             f"{_f(r['delay_median_samples'])}, p95 {_f(r['delay_p95_samples'])}"
                             f", max {_f(r['delay_max_samples'])}"),
+        ("CUSUM bound", f"delay / bound median {_f(r['delay_over_bound_median'])}, p95 "
+                        f"{_f(r['delay_over_bound_p95'])} (bound: ln(false-alarm interval) / "
+                        "(FNR^2 / 2) samples)"),
+        ("to acceptance", f"from detection median {_f(r['acceptance_delay_median_samples'])},"
+                          f" p95 {_f(r['acceptance_delay_p95_samples'])}; from onset median "
+                          f"{_f(r['diagnosis_delay_median_samples'])}, p95 "
+                          f"{_f(r['diagnosis_delay_p95_samples'])} (samples)"),
         ("decisions", f"{r['accepted']} accepted, {r['unexplained']} unexplained, "
                       f"{r['undecided']} undecided"),
         ("isolation", f"{_pct(r['isolation_accuracy'])} of accepted ({iso['exact']} exact, "
@@ -352,12 +365,13 @@ def print_report(r: dict[str, Any]) -> None:
         print(f"  {name:<17}{value}")
     print("\nby fault-to-noise ratio:")
     print(f"  {'FNR':<11}{'faults':>7}{'detected':>10}{'delay mean':>12}{'delay p95':>11}"
-          f"{'isolated':>10}{'est. err':>10}")
+          f"{'/ bound':>9}{'to accept':>11}{'isolated':>10}{'est. err':>10}")
     for b in r["by_fnr"]:
         print(f"  {b['fnr_lo']:>4g}-{b['fnr_hi']:<5g}{b['faults']:>7}"
               f"{_pct(b['detection_rate']):>10}{_f(b['delay_mean_samples']):>12}"
-              f"{_f(b['delay_p95_samples']):>11}{_pct(b['isolation_accuracy']):>10}"
-              f"{_pct(b['estimate_error_median']):>10}")
+              f"{_f(b['delay_p95_samples']):>11}{_f(b['delay_over_bound_median']):>9}"
+              f"{_f(b['acceptance_delay_median_samples']):>11}"
+              f"{_pct(b['isolation_accuracy']):>10}{_pct(b['estimate_error_median']):>10}")
     print("\nby kind / channel:")
     for name, b in list(r["by_kind"].items()) + list(r["by_channel"].items()):
         print(f"  {name:<28}{b['faults']:>4} faults, detected {_pct(b['detection_rate'])}, "

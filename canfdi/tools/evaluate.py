@@ -59,6 +59,7 @@ __all__ = [
     "RunOutcome",
     "RunSpec",
     "aggregate",
+    "cusum_bound",
     "default_config",
     "evaluate",
     "label",
@@ -343,10 +344,15 @@ class FaultOutcome:
 
     def as_dict(self) -> dict[str, Any]:
         out = self.fault.as_dict()
+        accepted = self.accepted_sample
         out.update(detected_sample=self.detected_sample, delay=self.delay,
                    decision=self.decision, diagnosed=self.diagnosed, isolation=self.isolation,
-                   accepted_sample=self.accepted_sample, estimate=dict(self.estimate),
-                   errors=dict(self.errors), error=self.error,
+                   accepted_sample=accepted,
+                   acceptance_delay=(accepted - self.detected_sample
+                                     if accepted is not None else None),
+                   diagnosis_delay=(accepted - self.fault.onset_sample
+                                    if accepted is not None else None),
+                   estimate=dict(self.estimate), errors=dict(self.errors), error=self.error,
                    extra_channels=self.extra_channels)
         return out
 
@@ -524,11 +530,31 @@ def _ratio(num: int, den: int) -> float | None:
     return num / den if den else None
 
 
-def _summary(outs: Sequence[FaultOutcome]) -> dict[str, Any]:
-    """Detection, delay, isolation and error figures of a set of fault outcomes."""
+def cusum_bound(fnr: float, false_alarm_interval: float) -> float:
+    """Samples a CUSUM tuned to a fault's mean change needs to detect it with false alarms
+    ``false_alarm_interval`` samples apart: ln(interval) / (fnr^2 / 2), Lorden's asymptotic
+    bound (Basseville and Nikiforov, ch. 5), the information a change of ``fnr`` noise standard
+    deviations in white Gaussian noise brings per sample being fnr^2 / 2. No detector of that
+    change at that interval is faster on average; NaN for a fault of no size."""
+    if not (fnr > 0.0 and false_alarm_interval > 1.0):
+        return math.nan
+    return math.log(false_alarm_interval) / (fnr * fnr / 2.0)
+
+
+def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = None
+             ) -> dict[str, Any]:
+    """Detection, delay, isolation and error figures of a set of fault outcomes; with the
+    detectors' ``false_alarm_interval``, each detection delay over its fault's `cusum_bound`."""
     n = len(outs)
     detected = [o for o in outs if o.detected]
     accepted = [o for o in outs if o.decision == "accepted"]
+    timed = [o for o in accepted if o.accepted_sample is not None]
+    to_accept = _stats([o.accepted_sample - o.detected_sample for o in timed])
+    to_diagnose = _stats([o.accepted_sample - o.fault.onset_sample for o in timed])
+    bounds = ([(o.delay, cusum_bound(o.fault.fnr, false_alarm_interval)) for o in detected]
+              if false_alarm_interval else [])
+    bounds = [(d, b) for d, b in bounds if math.isfinite(b)]
+    over = _stats([max(d, 0) / b for d, b in bounds])
     iso = {k: sum(o.isolation == k for o in accepted)
            for k in ("exact", "candidate", "design_twin", "wrong")}
     correct = iso["exact"] + iso["candidate"]
@@ -539,6 +565,12 @@ def _summary(outs: Sequence[FaultOutcome]) -> dict[str, Any]:
         "detection_rate": _ratio(len(detected), n),
         "delay_mean_samples": delays["mean"], "delay_median_samples": delays["median"],
         "delay_p95_samples": delays["p95"], "delay_max_samples": delays["max"],
+        "cusum_bound_median_samples": _stats([b for _, b in bounds])["median"],
+        "delay_over_bound_median": over["median"], "delay_over_bound_p95": over["p95"],
+        "acceptance_delay_median_samples": to_accept["median"],
+        "acceptance_delay_p95_samples": to_accept["p95"],
+        "diagnosis_delay_median_samples": to_diagnose["median"],
+        "diagnosis_delay_p95_samples": to_diagnose["p95"],
         "accepted": len(accepted),
         "unexplained": sum(o.decision == "unexplained" for o in outs),
         "undecided": sum(o.detected and o.decision == "none" for o in outs),
@@ -552,7 +584,8 @@ def _summary(outs: Sequence[FaultOutcome]) -> dict[str, Any]:
 
 
 def aggregate(runs: Sequence[RunOutcome], dt: float,
-              bins: Sequence[float] = FNR_BINS) -> dict[str, Any]:
+              bins: Sequence[float] = FNR_BINS, false_alarm_interval: float | None = None
+              ) -> dict[str, Any]:
     """The metrics of matched runs.
 
     detection_rate = detected / faults; delays over detected faults (numpy percentile, linear
@@ -567,7 +600,7 @@ def aggregate(runs: Sequence[RunOutcome], dt: float,
     outs = [o for r in runs for o in r.faults]
     out: dict[str, Any] = {"runs": len(runs),
                            "runs_fault_free": sum(not r.faults for r in runs)}
-    out.update(_summary(outs))
+    out.update(_summary(outs, false_alarm_interval))
     params: dict[str, list[float]] = {}
     for o in outs:
         for k, v in o.errors.items():
@@ -600,12 +633,13 @@ def aggregate(runs: Sequence[RunOutcome], dt: float,
                if (lo <= o.fault.fnr < hi) or (b == 0 and o.fault.fnr < lo)
                or (b == len(edges) - 2 and o.fault.fnr >= hi)]
         entry = {"fnr_lo": lo, "fnr_hi": hi}
-        entry.update(_summary(sel))
+        entry.update(_summary(sel, false_alarm_interval))
         by_fnr.append(entry)
     out["by_fnr"] = by_fnr
-    out["by_kind"] = {k: _summary([o for o in outs if o.fault.kind == k])
+    out["by_kind"] = {k: _summary([o for o in outs if o.fault.kind == k], false_alarm_interval)
                       for k in FAULT_KINDS if any(o.fault.kind == k for o in outs)}
-    out["by_channel"] = {c: _summary([o for o in outs if o.fault.label == c]) for c in rows}
+    out["by_channel"] = {c: _summary([o for o in outs if o.fault.label == c],
+                                     false_alarm_interval) for c in rows}
     return out
 
 
@@ -747,7 +781,8 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
              f"{total:,} samples")
     outcomes = run_evaluation(config, setup, specs, preprocess=preprocess, progress=progress,
                               diagnoser=base, mapper=mapper)
-    metrics = aggregate(outcomes, setup.dt)
+    interval = (monitor or config).detection.false_alarm_interval
+    metrics = aggregate(outcomes, setup.dt, false_alarm_interval=interval)
     result: dict[str, Any] = {
         "plant": plant, "method": config.method, "seed": seed,
         "settings": {"max_faults": max_faults, "fnr_range": list(fnr),
@@ -761,7 +796,8 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
         "undetectable": [c.label for c in setup.channels if not c.detectable],
     }
     result.update(metrics)
-    result["fault_list"] = [dict(f.as_dict(), run=o.run, noise_scale=o.noise_scale)
+    result["fault_list"] = [dict(f.as_dict(), run=o.run, noise_scale=o.noise_scale,
+                                 cusum_bound=cusum_bound(f.fault.fnr, interval))
                             for o in outcomes for f in o.faults]
     result["false_alarm_list"] = [dict(a, run=o.run) for o in outcomes for a in o.false_alarms]
     return result

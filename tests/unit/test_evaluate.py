@@ -12,6 +12,7 @@ from canfdi.tools.evaluate import (
     EvaluationSetup,
     InjectedFault,
     aggregate,
+    cusum_bound,
     match_run,
     plan_runs,
     relative_errors,
@@ -140,6 +141,30 @@ def test_metrics_by_hand():
     assert m["by_kind"]["actuator_scale"]["isolation"]["wrong"] == 1
     assert m["by_channel"]["a:V"]["missed"] == 1
     assert m["estimate_error_by_parameter"]["bias"]["median"] == pytest.approx(0.15)
+
+
+def test_acceptance_and_diagnosis_delays_and_the_cusum_bound_by_hand():
+    # A, B, C accepted 200 samples after their detections (delays 2, 10, 20 after onset).
+    m = aggregate(_runs(), DT, false_alarm_interval=1e6)
+    assert m["acceptance_delay_median_samples"] == 200
+    assert m["acceptance_delay_p95_samples"] == 200
+    assert m["diagnosis_delay_median_samples"] == 210
+    assert m["diagnosis_delay_p95_samples"] == pytest.approx(219.0)  # 210 + 0.9 (220 - 210)
+    # ln(1e6) / (fnr^2 / 2): FNR 30, 3 and 1.5 give 0.0307, 3.07 and 12.28 samples.
+    assert cusum_bound(3.0, 1e6) == pytest.approx(np.log(1e6) / 4.5)
+    ratios = sorted([2 / cusum_bound(30.0, 1e6), 10 / cusum_bound(3.0, 1e6),
+                     20 / cusum_bound(1.5, 1e6)])
+    assert m["delay_over_bound_median"] == pytest.approx(ratios[1])
+    assert m["cusum_bound_median_samples"] == pytest.approx(cusum_bound(3.0, 1e6))
+    bins = {(b["fnr_lo"], b["fnr_hi"]): b for b in m["by_fnr"]}
+    assert bins[(1.0, 2.0)]["delay_over_bound_median"] == pytest.approx(ratios[0])
+    assert bins[(0.5, 1.0)]["delay_over_bound_median"] is None  # its fault was missed
+    a, *_ = _runs()
+    assert a.faults[0].as_dict()["acceptance_delay"] == 200
+    assert a.faults[0].as_dict()["diagnosis_delay"] == 202
+    # Without the interval there is no bound to compare with.
+    assert aggregate(_runs(), DT)["delay_over_bound_median"] is None
+    assert np.isnan(cusum_bound(0.0, 1e6))
 
 
 def test_fnr_outside_the_bins_goes_to_the_end_bins():
