@@ -317,6 +317,8 @@ class FaultOutcome:
         "wrong", or None when nothing was accepted.
     estimate : the estimates of the accepted (or candidate) channel that matched the truth.
     errors : relative estimate error per parameter (relative_errors); error : their maximum.
+    final_estimate, final_errors : the same after the refinements of the accepted channel
+        before the next onset (its last "refined" total; a twin candidate's scaled alike).
     """
 
     fault: InjectedFault
@@ -329,6 +331,8 @@ class FaultOutcome:
     estimate: dict[str, float] = field(default_factory=dict)
     errors: dict[str, float] = field(default_factory=dict)
     extra_channels: int = 0
+    final_estimate: dict[str, float] = field(default_factory=dict)
+    final_errors: dict[str, float] = field(default_factory=dict)
 
     @property
     def detected(self) -> bool:
@@ -342,6 +346,10 @@ class FaultOutcome:
     def error(self) -> float | None:
         return max(self.errors.values()) if self.errors else None
 
+    @property
+    def final_error(self) -> float | None:
+        return max(self.final_errors.values()) if self.final_errors else None
+
     def as_dict(self) -> dict[str, Any]:
         out = self.fault.as_dict()
         accepted = self.accepted_sample
@@ -353,6 +361,7 @@ class FaultOutcome:
                    diagnosis_delay=(accepted - self.fault.onset_sample
                                     if accepted is not None else None),
                    estimate=dict(self.estimate), errors=dict(self.errors), error=self.error,
+                   final_estimate=dict(self.final_estimate), final_error=self.final_error,
                    extra_channels=self.extra_channels)
         return out
 
@@ -391,8 +400,9 @@ def relative_errors(fault: InjectedFault, estimates: dict[str, float]) -> dict[s
 
 def _isolate(fault: InjectedFault, accepted: list[FaultEvent],
              twins: dict[str, frozenset[str]] | None, names: dict | None
-             ) -> tuple[str, str, dict[str, float], int]:
-    """(isolation, diagnosed label, matching estimates, extra channels) of one decision."""
+             ) -> tuple[str, str, dict[str, float], int, FaultEvent | None]:
+    """(isolation, diagnosed label, matching estimates, extra channels, the accepted event
+    that matched) of one decision."""
     def lab(e: FaultEvent) -> str:
         if e.name is not None:
             return f"{'a' if e.target == 'actuator' else 's'}:{e.name}"
@@ -401,15 +411,35 @@ def _isolate(fault: InjectedFault, accepted: list[FaultEvent],
     extra = len(accepted) - 1
     for e in accepted:
         if e.target == fault.target and e.index == fault.index:
-            return "exact", lab(e), dict(e.estimates), extra
+            return "exact", lab(e), dict(e.estimates), extra, e
     for e in accepted:
         for c in e.candidates:
             if c.get("target") == fault.target and c.get("index") == fault.index:
-                return "candidate", lab(e), dict(c.get("estimates", {})), extra
+                return "candidate", lab(e), dict(c.get("estimates", {})), extra, e
     first = accepted[0]
     if twins is not None and lab(first) in twins.get(fault.label, frozenset()):
-        return "design_twin", lab(first), {}, extra
-    return "wrong", lab(first), {}, extra
+        return "design_twin", lab(first), {}, extra, None
+    return "wrong", lab(first), {}, extra, None
+
+
+def _refined(estimate: dict[str, float], matched: FaultEvent, later: Sequence[FaultEvent]
+             ) -> dict[str, float]:
+    """The estimate of a fault after the refinements of its accepted channel that follow
+    (``later``: "refined" events, in order, each with the channel's total): the last total
+    for the channel itself; for a twin candidate (whose size is the named channel's times a
+    fixed ratio) its estimate scaled as the named channel's own size moved."""
+    mine = [e for e in later if (e.target, e.index) == (matched.target, matched.index)]
+    if not mine:
+        return dict(estimate)
+    last = mine[-1].estimates
+    if estimate == matched.estimates:
+        return dict(last)
+    key = next((k for k in ("bias", "lambda") if k in matched.estimates and k in last
+                and matched.estimates[k] != 0.0), None)
+    if key is None:
+        return dict(estimate)
+    ratio = float(last[key]) / float(matched.estimates[key])
+    return {k: float(v) * ratio for k, v in estimate.items()}
 
 
 def _explains(fault: InjectedFault, decided: list[FaultEvent]) -> bool:
@@ -501,10 +531,17 @@ def match_run(faults: Sequence[InjectedFault], events: Sequence[FaultEvent], sam
                                          None))
             continue
         acc = accepted_by[decided.sample]
-        isolation, diagnosed, est, extra = _isolate(f, acc, twins, names)
+        isolation, diagnosed, est, extra, matched = _isolate(f, acc, twins, names)
         errors = relative_errors(f, est) if isolation in ("exact", "candidate") else {}
+        final, final_errors = dict(est), dict(errors)
+        if matched is not None and accepted_at[i] is not None:
+            later = [e for e in events if e.kind == "refined"
+                     and accepted_at[i] < e.sample < ends[i]]
+            final = _refined(est, matched, later)
+            final_errors = relative_errors(f, final)
         outcomes.append(FaultOutcome(f, first, first - f.onset_sample, "accepted", diagnosed,
-                                     isolation, accepted_at[i], est, errors, extra))
+                                     isolation, accepted_at[i], est, errors, extra, final,
+                                     final_errors))
     if faults:
         free = max(0, onsets[0] - first_monitored)
         for i in range(len(faults)):
@@ -560,6 +597,7 @@ def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = 
     correct = iso["exact"] + iso["candidate"]
     delays = _stats([o.delay for o in detected])
     errors = _stats([o.error for o in outs if o.error is not None])
+    final = _stats([o.final_error for o in outs if o.final_error is not None])
     return {
         "faults": n, "detected": len(detected), "missed": n - len(detected),
         "detection_rate": _ratio(len(detected), n),
@@ -579,6 +617,8 @@ def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = 
         "isolation_accuracy_exact": _ratio(iso["exact"], len(accepted)),
         "isolated_correctly_of_all": _ratio(correct, n),
         "estimate_error_median": errors["median"], "estimate_error_p95": errors["p95"],
+        "final_estimate_error_median": final["median"],
+        "final_estimate_error_p95": final["p95"],
         "estimate_errors": sum(o.error is not None for o in outs),
     }
 

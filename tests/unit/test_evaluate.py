@@ -167,6 +167,47 @@ def test_acceptance_and_diagnosis_delays_and_the_cusum_bound_by_hand():
     assert np.isnan(cusum_bound(0.0, 1e6))
 
 
+def refined(k, target, index, estimates):
+    return FaultEvent(kind="refined", sample=k, timestamp_ns=k, target=target, index=index,
+                      name=NAMES[target][index], estimates=estimates, accepted_sample=k)
+
+
+def test_the_final_estimate_follows_the_refinements_of_the_accepted_channel():
+    # A's i_f refined from 0.55 to 0.51 (error 0.1 -> 0.02); a refinement after the end of
+    # the run's only segment cannot happen, one of another channel does not count.
+    f, e, n = RUN_A
+    r = match_run(f, [*e, refined(1500, "sensor", 0, {"bias": 0.51}),
+                      refined(1600, "sensor", 3, {"bias": 9.0})], n, first_monitored=8)
+    (o,) = r.faults
+    assert o.error == pytest.approx(0.1) and o.final_error == pytest.approx(0.02)
+    assert o.final_estimate == {"bias": 0.51}
+    # B's twin candidate i_a (-1.2 for a true -1) moves as the named i_f_plus_i_a does:
+    # 1.2 -> 1.02 makes it -1.02. A refinement of that channel in a later segment would not
+    # count; here the run ends at 6500.
+    f, e, n = RUN_B
+    r = match_run(f, [*e, refined(4000, "sensor", 2, {"bias": 1.02})], n, first_monitored=8,
+                  twins=TWINS, names=NAMES)
+    twin = r.faults[1]
+    assert twin.isolation == "candidate"
+    assert twin.final_estimate == pytest.approx({"bias": -1.02})
+    assert twin.final_error == pytest.approx(0.02)
+    m = aggregate([r], DT)
+    assert m["final_estimate_error_median"] == pytest.approx(0.02)
+    assert m["estimate_error_median"] == pytest.approx(0.2)
+    # Without refinements the final estimate is the accepted one.
+    (a,) = _runs()[0].faults
+    assert a.final_errors == a.errors
+
+
+def test_a_refinement_after_the_next_onset_is_not_the_earlier_faults():
+    f = [fault("sensor", 0, "sensor_bias", 100, 5.0, bias=1.0),
+         fault("sensor", 1, "sensor_bias", 3000, 5.0, bias=1.0)]
+    events = [det(105), acc(300, 105, "sensor", 0, {"bias": 1.1}),
+              refined(3100, "sensor", 0, {"bias": 1.0})]
+    first, _ = match_run(f, events, 5000, first_monitored=8).faults
+    assert first.final_error == pytest.approx(0.1)
+
+
 def test_fnr_outside_the_bins_goes_to_the_end_bins():
     runs = [match_run([fault("sensor", 0, "sensor_bias", 100, fnr, bias=1.0)],
                       [det(101), acc(301, 101, "sensor", 0, {"bias": 1.0})], 3000)
