@@ -38,11 +38,13 @@ Layout::
       drift: 0.5                   # delta, in residual noise standard deviations
       false_alarm_interval: 1.0e7  # samples between false alarms per residual (calibration)
     identification:                # optional; the parity method's (canfdi.methods.parity)
-      min_samples: 200
+      min_samples: 10
       max_samples: 2000
-      settle_rel_std: 0.01
+      settle_rel_std: 0.005        # accept once each estimate's std is below this part of it
+      settle_noise: 0.2            # or below this many of its noise units (0: relative only)
       isolation_margin: 50.0
-      max_fit_variance: 4.0        # accept only fits leaving about noise (a spike: no)
+      max_fit_variance: 2.25       # accept only fits leaving about noise (a spike or a
+                                   # noisier drive: no; the watchdog's factor squared)
     output_error: {...}            # the output_error method's own section
     uio: {...}                     # the uio method's own section
     recording:                     # optional; MCAP logs of `canfdi run`
@@ -127,6 +129,7 @@ _DETECTION = {"drift": Option(float, 0.0, 100.0),
               "false_alarm_interval": Option(float, 10.0, 1e15)}
 _IDENTIFICATION = {"min_samples": Option(int, 1, 10**7), "max_samples": Option(int, 1, 10**7),
                    "settle_rel_std": Option(float, 1e-9, 1.0),
+                   "settle_noise": Option(float, 0.0, 10.0),
                    "isolation_margin": Option(float, 0.0, 1e12),
                    "max_fit_variance": Option(float, 1.0, 1e12)}
 _WATCHDOG = {"enabled": Option(bool), "factor": Option(float, 1.01, 100.0),

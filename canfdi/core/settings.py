@@ -330,11 +330,12 @@ class IdentificationConfig:
     """When the parity method accepts a hypothesis (canfdi.methods.parity); its max_samples is
     also `canfdi evaluate`'s default spacing between faults, whatever the method."""
 
-    min_samples: int = 200
+    min_samples: int = 10
     max_samples: int = 2000
-    settle_rel_std: float = 0.01
+    settle_rel_std: float = 0.005
+    settle_noise: float = 0.2
     isolation_margin: float = 50.0
-    max_fit_variance: float = 4.0
+    max_fit_variance: float = 2.25
 
 
 @dataclass(frozen=True)

@@ -193,7 +193,7 @@ CASES.update(
             "detection",
         ),
         "min samples above max": (
-            _sub("  min_samples: 200", "  min_samples: 5000"),
+            _sub("  min_samples: 10", "  min_samples: 5000"),
             "identification",
         ),
         "max samples huge": (
@@ -201,8 +201,12 @@ CASES.update(
             "identification.max_samples",
         ),
         "settle rel std negative": (
-            _sub("  settle_rel_std: 0.01", "  settle_rel_std: -1"),
+            _sub("  settle_rel_std: 0.005", "  settle_rel_std: -1"),
             "identification.settle_rel_std",
+        ),
+        "settle noise negative": (
+            _sub("  settle_noise: 0.2", "  settle_noise: -0.2"),
+            "identification.settle_noise",
         ),
         "identification unknown key": (
             _sub("  isolation_margin: 50.0", "  isolation_margin: 50.0\n  patience: 3"),

@@ -79,4 +79,5 @@ def test_demo_log_time_is_the_drive_time(tmp_path: Path) -> None:
         assert start <= min(ts) and max(ts) <= end, topic
     samples = times["/canfdi/samples"]
     assert len(samples) == 4000 and 39.9e9 < samples[-1] - samples[0] < 40.1e9
-    assert len(times["/canfdi/log"]) == len(times["/canfdi/events"]) == 6
+    # Three faults detected and accepted, and the refinements of their estimates.
+    assert len(times["/canfdi/log"]) == len(times["/canfdi/events"]) >= 6

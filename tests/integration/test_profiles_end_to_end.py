@@ -55,7 +55,11 @@ def test_demo_diagnoses_each_profile_as_on_canfdis_own_bus(own_bus, scenario, tm
     log = tmp_path / "run.mcap"
     result = demo_json(scenario, "-o", log)
     got, want = result["faults"], own_bus["faults"]
-    assert [f[1:] for f in indices(got)] == [f[1:] for f in indices(want)]
+    # The same faults, onsets and detections; the acceptance within a few samples (it comes as
+    # soon as an estimate's spread crosses its bound, which the bus's quantisation moves).
+    assert [f[1:-1] for f in indices(got)] == [f[1:-1] for f in indices(want)]
+    assert all(abs(a[-1] - b[-1]) <= 5 for a, b in zip(indices(got), indices(want),
+                                                          strict=True))
     assert len(want) == 3 and result["frames"]["invalid"] == 0
     for a, b in zip(got, want, strict=True):
         # The buses quantise differently (mV and 0.01 rpm against 0.01 V and 0.01 rad/s).

@@ -35,7 +35,9 @@ def test_winding_machine_parity(scenario, expected):
         assert abs(e.onset_sample - onset) <= 1
         assert e.detected_sample - onset <= 5
         assert e.estimates[key] == pytest.approx(value, rel=0.05)
-    assert [e.kind for e in events] == ["detected", "accepted"] * len(expected)
+    # (Refinements of an accepted fault may follow: its channel's estimate made more exact.)
+    assert [e.kind for e in events if e.kind != "refined"] == \
+        ["detected", "accepted"] * len(expected)
 
 
 def test_vtol_parity_isolates_each_actuator_bias_in_turn():

@@ -34,7 +34,8 @@ def parse_options(section: Mapping[str, Any] | None, config: MonitorConfig) -> P
         drift=config.detection.drift,
         false_alarm_interval=config.detection.false_alarm_interval,
         min_samples=ident.min_samples, max_samples=ident.max_samples,
-        settle_rel_std=ident.settle_rel_std, isolation_margin=ident.isolation_margin,
+        settle_rel_std=ident.settle_rel_std, settle_noise=ident.settle_noise,
+        isolation_margin=ident.isolation_margin,
         max_fit_variance=ident.max_fit_variance,
     )
 

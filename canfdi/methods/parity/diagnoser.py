@@ -56,6 +56,7 @@ from canfdi.core.residuals import ResidualBank
 from canfdi.methods.parity.hypotheses import (
     Hypothesis,
     independent_sensors,
+    noise_units,
     proportional,
     regressors,
 )
@@ -72,7 +73,12 @@ class ParitySettings:
     false_alarm_interval : samples between false alarms per residual the thresholds target.
     min_samples, max_samples : samples after the alarm before a decision / before giving up.
     settle_rel_std : accept when each estimate's standard deviation is below this fraction of
-        its size (an actuator's lambda: of max(|lambda|, 0.1 |eta - 1| mean|u_c|)).
+        its size (an actuator's lambda: of max(|lambda|, 0.1 |eta - 1| mean|u_c|)),
+    settle_noise : or below this many of its noise units (the size whose steady change in the
+        most sensitive residual is one noise standard deviation: 1 / the channel's
+        fault-to-noise ratio per unit): a small fault is then known well enough that what its
+        compensation leaves is far below what detection sees, and the accepted fault's
+        tracker refines it (0: the relative test alone).
     isolation_margin : cost margin over every hypothesis outside the best one's group.
     onset_before : onsets tried before the Page-Hinkley change point (all up to the alarm
         after it), at most max_onsets in all.
@@ -83,14 +89,15 @@ class ParitySettings:
 
     drift: float = 0.5
     false_alarm_interval: float = 1.0e7
-    min_samples: int = 200
+    min_samples: int = 10
     max_samples: int = 2000
-    settle_rel_std: float = 0.01
+    settle_rel_std: float = 0.005
+    settle_noise: float = 0.2
     isolation_margin: float = 50.0
     onset_before: int = 3
     max_onsets: int = 16
     prior_precision: float = 1e-8
-    max_fit_variance: float = 4.0
+    max_fit_variance: float = 2.25
 
 
 @dataclass(frozen=True)
@@ -98,14 +105,16 @@ class Diagnosis:
     """A diagnosis in progress: what the alarm at ``k_d`` started.
 
     onsets : (K,) candidate fault onsets; info : the information of every hypothesis and onset,
-    batch shape (H, K) (canfdi.core.identify, P reset at the alarm); u_abs, n_u : (p,) sum of
-    |u_c| and count of known commands since the alarm (the scale an actuator's lambda is
-    judged against).
+    batch shape (H, K) (canfdi.core.identify, P reset at the alarm); meat : (H, K, d, d) sum of
+    phi^T Gamma phi, Gamma the residuals' long-run covariance: the middle of the estimates'
+    sandwich covariance P meat P; u_abs, n_u : (p,) sum of |u_c| and count of known commands
+    since the alarm (the scale an actuator's lambda is judged against).
     """
 
     k_d: int
     onsets: np.ndarray
     info: RlsState
+    meat: np.ndarray
     u_abs: np.ndarray
     n_u: np.ndarray
 
@@ -173,7 +182,8 @@ class ParityDiagnoser(DetectorBacked):
         self.compensation: list[Compensation] = []
         self.events: list[FaultEvent] = []
         self._diag: Diagnosis | None = None
-        self.tracker = AcceptedFaultTracker(self.bank, long_run)
+        # Tracking ends once the compensation is known to a quarter of what acceptance needed.
+        self.tracker = AcceptedFaultTracker(self.bank, long_run, settings.settle_noise / 4.0)
         self.reset()
 
     # -- state ---------------------------------------------------------------------------
@@ -346,6 +356,7 @@ class ParityDiagnoser(DetectorBacked):
         self.mode = DIAGNOSE
         self._diag = Diagnosis(k_d=k, onsets=np.array(onsets),
                                info=rls_init(self.d, self.settings.prior_precision, shape=(H, K)),
+                               meat=np.zeros((H, K, self.d, self.d)),
                                u_abs=np.zeros(self.p), n_u=np.zeros(self.p))
 
     def _accumulate(self, k: int, window: np.ndarray, rn: np.ndarray) -> None:
@@ -355,7 +366,9 @@ class ParityDiagnoser(DetectorBacked):
         phi = regressors(self.bank, self.hypotheses, self.d, k, d.onsets, window[:, self.q:])
         u_now = window[-1, self.q :]
         seen = ~np.isnan(u_now)
-        self._diag = replace(d, info=rls_update(d.info, phi, rn),
+        rows = phi * (~np.isnan(rn))[:, None]  # a missing residual: no equation
+        meat = d.meat + np.swapaxes(rows, -1, -2) @ (self.tracker.gamma @ rows)
+        self._diag = replace(d, info=rls_update(d.info, phi, rn), meat=meat,
                              u_abs=d.u_abs + np.where(seen, np.abs(np.nan_to_num(u_now)), 0.0),
                              n_u=d.n_u + seen)
 
@@ -384,24 +397,61 @@ class ParityDiagnoser(DetectorBacked):
         P = fit.P[best, kb]
         dof = max(d.info.n_eq - h_best.n_params, 1)
         scale = max(float(cost[best, kb]) / dof, 1e-300)
-        var = np.diag(P) * scale
+        # The sandwich: least squares takes the residuals for white and independent, but
+        # parity residuals over a window are correlated in time (and with each other), so a
+        # sum of them varies as the long-run covariance says, not as P alone.
+        var = np.diag(P @ d.meat[best, kb] @ P) * scale
         th = theta[best, kb]
+        n_b = h_best.n_params
+        sd = np.sqrt(var[:n_b])
+        u_mean = None
         if h_best.target == "actuator":
             # A pure scale fault has lambda = 0: judge lambda against a tenth of the offset the
             # scale puts on the mean command when that is larger than lambda itself.
             u_mean = d.u_abs[h_best.index] / max(d.n_u[h_best.index], 1.0)
             lam_scale = max(abs(th[1]), 0.1 * abs(th[0]) * u_mean)
-            settled = (np.sqrt(var[0]) <= s.settle_rel_std * abs(1.0 + th[0])
-                       and np.sqrt(var[1]) <= s.settle_rel_std * lam_scale)
+            size = np.array([abs(1.0 + th[0]), lam_scale])
         else:
-            n_b = h_best.n_params
-            settled = bool(np.all(np.sqrt(var[:n_b]) <= s.settle_rel_std * np.abs(th[:n_b])))
-        fits = scale <= s.max_fit_variance
+            size = np.abs(th[:n_b])
+        unit = noise_units(self.bank, h_best, u_mean)
+        settled = bool(np.all((sd <= s.settle_rel_std * size) | _within(sd, s.settle_noise, unit)))
+        if settled and h_best.target == "actuator_bias":
+            settled = self._scale_ruled_out(fit, best_onset, cost, d, h_best.index)
+        # The fault against no fault at all, by the same margin in the fit's own noise (an F
+        # test): a burst of noise (a drive gone noisier) trips Page-Hinkley too, and a step
+        # fitted to it explains little of what it leaves.
+        rr = float(np.broadcast_to(d.info.rr, cost.shape)[best, kb])
+        fits = (scale <= s.max_fit_variance
+                and (rr - float(cost[best, kb])) / scale >= s.isolation_margin)
         if margin_ok and fits and (settled or since >= s.max_samples):
             return self._accept(k, t, best, kb, theta, var, scale, best_onset, cost_h)
         if since >= s.max_samples:
             return self._unexplained(k, t, theta, best_onset, order)
         return []
+
+    def _scale_ruled_out(self, fit, best_onset: np.ndarray, cost: np.ndarray, d: Diagnosis,
+                         j: int) -> bool:
+        """Whether the data rule a scale out for actuator j: a bias alone (eta = 1) is the
+        full hypothesis with one parameter fixed, and a scale fault under a command that has
+        not yet varied enough looks like a bias. So the bias is accepted only once the full
+        fit knows eta - 1 as the settling test asks of any parameter, and finds it within 3
+        standard deviations of 0 (a scale that is there but has not yet earned its parameter's
+        penalty is waited for, not taken for a bias)."""
+        s = self.settings
+        full = next((i for i, h in enumerate(self.hypotheses)
+                     if h.target == "actuator" and h.index == j), None)
+        if full is None:
+            return True
+        kb = int(best_onset[full])
+        P = fit.P[full, kb]
+        dof = max(d.info.n_eq - 2, 1)
+        scale = max(float(cost[full, kb]) / dof, 1e-300)
+        sd_eta = float(np.sqrt((P @ d.meat[full, kb] @ P)[0, 0] * scale))
+        u_mean = d.u_abs[j] / max(d.n_u[j], 1.0)
+        unit = noise_units(self.bank, self.hypotheses[full], u_mean)[0]
+        eta_minus_1 = float(fit.theta[full, kb, 0])
+        return bool((sd_eta <= s.settle_rel_std or _within(sd_eta, s.settle_noise, unit))
+                    and abs(eta_minus_1) <= 3.0 * sd_eta)
 
     def _named(self, best: int, cost_h: np.ndarray) -> int:
         """The hypothesis that names the best fit's ambiguity group: twins (proportional
@@ -574,3 +624,11 @@ class ParityDiagnoser(DetectorBacked):
             self._reload_window()
             self.events.extend(events)
         return events
+
+
+def _within(sd: np.ndarray | float, fraction: float, unit: np.ndarray | float) -> np.ndarray:
+    """Whether standard deviations are within ``fraction`` of their noise units (never, for a
+    fraction of 0: no noise-unit test)."""
+    if fraction <= 0.0:
+        return np.zeros(np.shape(sd), dtype=bool)
+    return np.asarray(sd) <= fraction * np.asarray(unit)

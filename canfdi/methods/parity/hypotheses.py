@@ -15,7 +15,8 @@ import numpy as np
 
 from canfdi.core.residuals import ResidualBank
 
-__all__ = ["Hypothesis", "independent_sensors", "proportional", "regressors", "row_regressors"]
+__all__ = ["Hypothesis", "independent_sensors", "noise_units", "proportional", "regressors",
+           "row_regressors"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,30 @@ class Hypothesis:
     def n_params(self) -> int:
         return {"actuator": 2, "actuator_bias": 1, "sensor": 1}.get(self.target,
                                                                      len(self.members))
+
+
+def noise_units(bank: ResidualBank, h: Hypothesis, u_mean: float | None = None) -> np.ndarray:
+    """(n_params,) each parameter's noise unit: the size whose steady change in the residual
+    most sensitive to it is one noise standard deviation (the configured noise; inf where no
+    residual sees it). An actuator's eta - 1 moves its command by (eta - 1) u: its unit is
+    lambda's over the command's mean size ``u_mean`` (inf without one).
+
+    A fault known to within a small part of its noise units leaves, once compensated, a change
+    far below what detection sees, however large the fault.
+    """
+    def unit(G: np.ndarray, j: int) -> float:
+        gain = float(np.max(np.abs(G[j].sum(axis=-1) / bank.sigma)))
+        return 1.0 / gain if gain > 0.0 else np.inf
+
+    if h.target == "sensors":
+        return np.array([unit(bank.Gz, j) for j in h.members])
+    if h.target == "sensor":
+        return np.array([unit(bank.Gz, h.index)])
+    lam = unit(bank.Gu, h.index)
+    if h.target == "actuator_bias":
+        return np.array([lam])
+    eta = lam / u_mean if u_mean else np.inf
+    return np.array([eta, lam])
 
 
 def proportional(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> bool:
