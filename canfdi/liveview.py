@@ -26,8 +26,9 @@ def snapshot(monitor: Any, condition: str | None = None) -> dict[str, Any]:
 
     Returns
     -------
-    dict with ``state`` ("monitoring" / "diagnosing" / "teaching" / "mismatch" (the noise
-    watchdog's) / "capturing", or the condition: "no_traffic" / "bus_error" / "degraded"),
+    dict with ``state`` ("monitoring" / "diagnosing" / "teaching" / "checking" / "mismatch" /
+    "quiet" (the noise watchdog's) / "capturing", or the condition: "no_traffic" /
+    "bus_error" / "degraded"),
     ``residuals`` (one dict per
     residual: name, value (latest normalised residual or None), statistic, threshold),
     ``faults`` (the accepted faults being compensated), ``frames`` (the assembler's counters),
@@ -62,7 +63,8 @@ def render(snap: dict[str, Any], title: str = "canfdi") -> Any:
     from rich.text import Text
 
     style = {"monitoring": "green", "diagnosing": "yellow", "capturing": "cyan",
-             "teaching": "cyan", "mismatch": "magenta", "no_traffic": "red",
+             "teaching": "cyan", "checking": "cyan", "mismatch": "magenta",
+             "quiet": "blue", "no_traffic": "red",
              "bus_error": "red", "degraded": "red"}[snap["state"]]
     head = Text.assemble((f"{title}  ", "bold"), (snap["state"], f"bold {style}"),
                          f"   samples {snap['samples']:,}")

@@ -39,7 +39,7 @@ from canfdi.bus.frames import (
 from canfdi.bus.monitorframes import MonitorFrames
 from canfdi.core.eventtext import event_level, event_line
 from canfdi.core.protocol import DIAGNOSE, Diagnoser
-from canfdi.core.records import FaultEvent, Sample
+from canfdi.core.records import BlockResult, FaultEvent, Sample
 from canfdi.core.settings import MonitorConfig
 from canfdi.core.watchdog import (
     DECISIONS,
@@ -57,7 +57,7 @@ _KIND = {"actuator": 1, "sensor": 2}
 _STATE = {"detected": 1, "accepted": 3}
 _PARAM = {"eta": 0, "lambda": 1, "bias": 2}
 _STATUS = {"starting": 0, "monitoring": 1, "diagnosing": 2, "degraded": 3, "bus_error": 4,
-           "teaching": 5, "mismatch": 6, "no_traffic": 7}
+           "teaching": 5, "mismatch": 6, "no_traffic": 7, "checking": 8, "quiet": 9}
 
 
 class RecordSink(Protocol):
@@ -120,20 +120,47 @@ class Drive:
     samples: int = 0
     held: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     teaching: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+    check: NoiseCheck | None = None
 
     @property
     def mismatch(self) -> bool:
-        """Whether the watchdog says a residual's noise left its calibrated value."""
+        """Whether the watchdog says a residual's noise left its calibrated value (either
+        way)."""
         return self.watchdog is not None and bool(self.watchdog.mismatch.any())
 
     @property
     def state(self) -> str:
-        """"teaching", "diagnosing", "mismatch" or "monitoring" (FDI_STATUS's State names)."""
+        """"teaching", "checking", "diagnosing", "mismatch", "quiet" or "monitoring"
+        (FDI_STATUS's State names)."""
         if self.teaching is not None:
             return "teaching"
+        if self.check is not None:
+            return "checking"
         if self.diagnoser is not None and self.diagnoser.mode == DIAGNOSE:
             return "diagnosing"
-        return "mismatch" if self.mismatch else "monitoring"
+        if not self.mismatch:
+            return "monitoring"
+        return "quiet" if bool(self.watchdog.quiet[self.watchdog.mismatch].all()) else "mismatch"
+
+
+@dataclass
+class NoiseCheck:
+    """A drive's first samples, held while the noise watchdog checks the configured noise on
+    them (FDI_STATUS "checking"), so that no detection made against a wrong noise reaches the
+    bus: ``probe`` (a copy of the fresh diagnoser) gives the watchdog their residuals, ``kept``
+    holds them (k, t_ns, U, Z, gap) for the real diagnoser once the check is over, ``changes``
+    the watchdog's verdicts meanwhile, said when it is. The check is over at the first block
+    end from block ``end`` on (``blocks`` whole blocks from the first sample, after the first
+    sample's block when the drive started inside one) where the watchdog has a whole window
+    to judge (`NoiseWatchdog.judged`: none of its blocks mostly lost or held back under a
+    diagnosis), or at block ``cap`` whatever it has (a diagnosis of the probe's may hold
+    samples back up to identification.max_samples); None before the first sample."""
+
+    probe: Diagnoser
+    kept: list[tuple[np.ndarray, ...]] = field(default_factory=list)
+    changes: list[WatchdogChange | None] = field(default_factory=list)
+    end: int | None = None
+    cap: int | None = None
 
 
 class Monitor:
@@ -179,6 +206,8 @@ class Monitor:
             self.drives[-1].watchdog = self._watchdog(self.drives[-1].diagnoser)
             if teach is not None and diagnose:
                 self.drives[-1].teaching = []
+            elif self.drives[-1].watchdog is not None:
+                self.drives[-1].check = NoiseCheck(_copy(self.drives[-1].diagnoser))
         self.teach = teach
         self.taught: dict[str, dict[str, str]] = {}
         # Which drives a frame goes to: (ID, extended) -> bit mask of drive indices. A message
@@ -383,9 +412,14 @@ class Monitor:
         dg = drive.diagnoser
         if dg is None:
             return []
-        if drive.watchdog is None:
-            return self._diagnose_span(drive, k, t_ns, U, Z, gap)
         out: list[OutFrame] = []
+        if drive.check is not None:
+            n, out = self._check(drive, k, t_ns, U, Z, gap)
+            if n == len(k):
+                return out
+            k, t_ns, U, Z, gap = k[n:], t_ns[n:], U[n:], Z[n:], gap[n:]
+        if drive.watchdog is None:
+            return out + self._diagnose_span(drive, k, t_ns, U, Z, gap)
         lo = 0
         while lo < len(k):
             out += self._watch_before(drive, int(k[lo]), int(t_ns[lo]))
@@ -400,8 +434,7 @@ class Monitor:
             # Not in mismatch, the scale stays 1 until a block ends in one (rare): run the rest
             # at once; should a block end in mismatch inside it, undo and stop there.
             dg = drive.diagnoser
-            shared = {id(v): v for v in (getattr(dg, a, None) for a in _READ_ONLY) if v is not None}
-            saved = copy.deepcopy((dg, drive.watchdog, drive.held), shared)
+            saved = _copy(dg), copy.deepcopy(drive.watchdog), copy.deepcopy(drive.held)
             got = self._diagnose_span(drive, k[lo:], t_ns[lo:], U[lo:], Z[lo:], gap[lo:],
                                       stop_on_mismatch=True)
             if isinstance(got, list):
@@ -443,12 +476,7 @@ class Monitor:
                     # caller cut it there, or it is one block long).
                 self._watch(drive, k[a:b], raw[a:b], quiet[a:b],
                             [e for e in result.events if k[a] <= e.sample <= k[b - 1]])
-        if self.sink is not None and self.record_residuals:
-            have = ~np.isnan(result.residuals).all(axis=1)
-            if have.any():
-                self.sink.write_residual_rows(k[have], t_ns[have], dg.residual_names,
-                                              result.residuals[have], result.normalized[have],
-                                              result.statistic[have], drive.name)
+        self._record_residuals(drive, k, t_ns, result, dg)
         return self._announce(result.events, drive)
 
     def on_sample(self, sample: Sample, drive: Drive | None = None) -> list[OutFrame]:
@@ -463,7 +491,18 @@ class Monitor:
                         np.asarray(sample.u, float)[None, :], np.asarray(sample.z, float)[None, :])
             return []
         dg = drive.diagnoser
-        out = self._watch_before(drive, sample.k, sample.timestamp_ns)
+        out: list[OutFrame] = []
+        if drive.check is not None:
+            row = (np.array([sample.k]), np.array([sample.timestamp_ns]),
+                   np.asarray(sample.u, float)[None, :], np.asarray(sample.z, float)[None, :],
+                   np.array([sample.gap]))
+            n, out = self._check(drive, *row)
+            if n == 1:
+                if self.sink is not None:
+                    self.sink.write_sample(sample, self.config.inputs, self.config.outputs,
+                                           drive.name)
+                return out
+        out += self._watch_before(drive, sample.k, sample.timestamp_ns)
         before = dg is not None and dg.mode == DIAGNOSE
         events = dg.update(sample) if dg is not None else []
         if self.sink is not None:
@@ -534,6 +573,93 @@ class Monitor:
         """Whether a drive is still being taught."""
         return any(d.teaching is not None for d in self.drives)
 
+    def _check(self, drive: Drive, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray,
+               Z: np.ndarray, gap: np.ndarray) -> tuple[int, list[OutFrame]]:
+        """While the drive's noise is being checked (`NoiseCheck`): the samples go to the
+        probe and are kept, their residuals to the watchdog as the monitor feeds it (those of
+        the probe's diagnoses held back until they end: dropped if a fault explained them,
+        noise if not or if still running when the window ends; a mismatch sets the probe's
+        noise), block by block; the check ends (`_arm`) at the first block end from ``end`` on
+        where the watchdog has a whole window to judge, or at ``cap`` whatever it has. Returns
+        how many of these samples the check took and the frames its end sent."""
+        check, wd, probe = drive.check, drive.watchdog, drive.check.probe
+        if check.end is None:
+            first = int(k[0])
+            check.end = first // wd.block + wd.blocks + (1 if first % wd.block else 0)
+            check.cap = check.end + wd.blocks + -(-self.config.identification.max_samples
+                                                   // wd.block)
+        before = probe.mode == DIAGNOSE
+        result = probe.update_block(k, t_ns, U, Z, gap)
+        raw = result.normalized * _noise_scale(probe)
+        quiet = monitoring_rows(k, result.events, before)
+        taken = self._checked(drive, k, t_ns, U, Z, gap, result, raw, quiet)
+        self._record_residuals(drive, k[:taken], t_ns[:taken], result, probe, taken)
+        if taken < len(k):
+            return taken, self._arm(drive, t_ns[taken])
+        return taken, []
+
+    def _checked(self, drive: Drive, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray,
+                 Z: np.ndarray, gap: np.ndarray, result: BlockResult, raw: np.ndarray,
+                 quiet: np.ndarray) -> int:
+        """The watchdog's part of `_check`: how many of the samples the check takes (all, or
+        those before the block end at which it is over)."""
+        check, wd, probe = drive.check, drive.watchdog, drive.check.probe
+        for a, b in block_runs(k, wd.block):
+            if wd.due(int(k[a])):
+                if int(k[a]) // wd.block >= check.end and drive.held:
+                    # A diagnosis of the probe's still running at the end of the window: its
+                    # samples count as noise (a drive far noisier than configured alarms at
+                    # once and would hold them all back; a real fault's step shows in one
+                    # block only, and the quietest block sets the scale).
+                    wd.add_late(np.concatenate([h[0] for h in drive.held]),
+                                np.concatenate([h[1] for h in drive.held]))
+                    drive.held = []
+                check.changes.append(wd.close(int(k[a])))
+                if hasattr(probe, "noise_scale"):
+                    probe.noise_scale = wd.scale
+                block = int(k[a]) // wd.block
+                if block >= check.cap or (block >= check.end and wd.judged):
+                    if a:
+                        check.kept.append((k[:a], t_ns[:a], U[:a], Z[:a], gap[:a]))
+                    return a
+            self._watch(drive, k[a:b], raw[a:b], quiet[a:b],
+                        [e for e in result.events if k[a] <= e.sample <= k[b - 1]])
+        check.kept.append((k, t_ns, U, Z, gap))
+        return len(k)
+
+    def _record_residuals(self, drive: Drive, k: np.ndarray, t_ns: np.ndarray,
+                          result: BlockResult, dg: Diagnoser, rows: int | None = None) -> None:
+        """A block's residual rows (its first ``rows``) to the sink, those with any value."""
+        if self.sink is None or not self.record_residuals or not len(k):
+            return
+        n = len(k) if rows is None else rows
+        R, Rn, stat = result.residuals[:n], result.normalized[:n], result.statistic[:n]
+        have = ~np.isnan(R).all(axis=1)
+        if have.any():
+            self.sink.write_residual_rows(k[have], t_ns[have], dg.residual_names, R[have],
+                                          Rn[have], stat[have], drive.name)
+
+    def _arm(self, drive: Drive, t_ns: int) -> list[OutFrame]:
+        """End a drive's noise check (the watchdog has just closed the block it ended with):
+        what the watchdog found is said and sets the noise the diagnoser detects against, then
+        the diagnoser takes the kept samples, its events announced now."""
+        check, wd, dg = drive.check, drive.watchdog, drive.diagnoser
+        drive.check = None
+        drive.held = []  # what the probe's diagnoses held back: the diagnoser's own now
+        if hasattr(dg, "noise_scale"):
+            dg.noise_scale = wd.scale
+        out: list[OutFrame] = []
+        for change in check.changes:
+            if change is not None:
+                out += self._announce(self._watch_events(change, int(t_ns), dg), drive)
+        if not check.kept:
+            return out
+        kk, tt, UU, ZZ, gg = (np.concatenate(c) for c in zip(*check.kept, strict=True))
+        # (Their residual rows were recorded as the check saw them, in time order: the log's
+        # chunks keep increasing times, which is how a reader finds swapped ones.)
+        result = dg.update_block(kk, tt, UU, ZZ, gg)
+        return out + self._announce(result.events, drive)
+
     def _watch_before(self, drive: Drive, k: int, t_ns: int) -> list[OutFrame]:
         """Before sample k: close the watchdog's block if k ends it; a change of the residuals
         in mismatch is an event, and sets the noise the diagnoser detects against."""
@@ -551,7 +677,9 @@ class Monitor:
     def _watch_events(change: WatchdogChange, t_ns: int, dg: Diagnoser) -> list[FaultEvent]:
         names = dg.residual_names
         out = []
-        for kind, which in (("mismatch", change.entered), ("matched", change.left)):
+        quieter = change.ratio < 1.0
+        for kind, which in (("mismatch", change.entered & ~quieter),
+                            ("quiet", change.entered & quieter), ("matched", change.left)):
             if which.any():
                 idx = np.flatnonzero(which)
                 out.append(FaultEvent(kind=kind, sample=change.k, timestamp_ns=t_ns,
@@ -626,7 +754,7 @@ class Monitor:
             frame = self._encode("FDI_STATUS", {
                 "State": _STATUS[now], "Drive": drive.index,
                 "ActiveFaults": min(_active_faults(drive), 15),
-                "Samples": drive.samples & 0x3FFFFF,
+                "Samples": drive.samples & 0x1FFFFF,
                 "InvalidFrames": stats["frames_invalid"] & 0xFFFF,
             })
             if frame is not None:
@@ -662,6 +790,12 @@ def _active_faults(drive: Drive) -> int:
 _READ_ONLY = ("design", "_design0", "model")
 
 
+def _copy(dg: Diagnoser) -> Diagnoser:
+    """A copy of a diagnoser to run apart from it, its read-only design shared."""
+    shared = {id(v): v for v in (getattr(dg, a, None) for a in _READ_ONLY) if v is not None}
+    return copy.deepcopy(dg, shared)
+
+
 def _noise_scale(dg: Diagnoser) -> np.ndarray | float:
     """The noise scale a diagnoser normalises with (1 for a method without the setting): its
     normalised residuals times this are the residuals against the calibrated noise."""
@@ -671,7 +805,8 @@ def _noise_scale(dg: Diagnoser) -> np.ndarray | float:
 def summary_json(events: list[FaultEvent], frame_stats: dict, dt: float,
                  truth: list[dict] | None, samples: int) -> dict[str, Any]:
     """{"faults": [...], "unexplained": [...], "refined": [...] (updates of a fault's estimate),
-    "mismatches": [...] (the noise watchdog's), "detections": N, "frames": {...},
+    "mismatches": [...] (the noise watchdog's: noisier than configured), "quiet": [...]
+    (quieter than configured), "detections": N, "frames": {...},
     "samples": N, "truth": [...] when known}."""
     detections = {e.sample: e for e in events if e.kind == "detected"}
     faults = []
@@ -693,11 +828,13 @@ def summary_json(events: list[FaultEvent], frame_stats: dict, dt: float,
                 "accepted_sample": e.accepted_sample, "estimate": dict(e.estimates)}
                for e in events if e.kind == "refined"]
     mismatches = [e.as_dict() for e in events if e.kind == "mismatch"]
+    quiet = [e.as_dict() for e in events if e.kind == "quiet"]
     out: dict[str, Any] = {
         "faults": faults,
         "unexplained": unexplained,
         "refined": refined,
         "mismatches": mismatches,
+        "quiet": quiet,
         "detections": len(detections),
         "samples": samples,
         "frames": {

@@ -42,7 +42,11 @@ sample clock, drives); docs/bus.md has every key.
 The bus comes from the config's bus: section (interface, channel, bitrate), overridable here. A
 lost bus is reopened with backoff (the recorded status says bus_error meanwhile, the log and
 the stopped: line how long it was down); one that cannot be opened for --retry-for seconds
-(default 60) ends the run with exit status 1, so that a supervisor restarts it. A bus on which
+(default 60) ends the run with exit status 1, so that a supervisor restarts it. Unless taught
+(--teach), each drive is first checked: its first 5 s or so (the noise watchdog's first window)
+are diagnosed only once the watchdog has judged the configured noise on them (FDI_STATUS says
+"checking"), so that a drive noisier than its config announces no alarm; a residual quieter
+than configured is said ("quiet") but detection keeps the configured noise. A bus on which
 no frame of the drives arrives for --no-traffic seconds (default 50 control periods, at least 1
 s) is said: a warning in the log, state no_traffic on FDI_STATUS, in systemd's STATUS= and in
 the live view, until the frames resume (said too). A log that cannot be written (a full disk)

@@ -12,13 +12,14 @@ from canfdi.core.records import FaultEvent
 
 __all__ = ["estimates_text", "event_level", "event_line"]
 
-_LEVELS = {"detected": "info", "matched": "info", "taught": "info"}
+_LEVELS = {"detected": "info", "matched": "info", "taught": "info", "quiet": "info"}
 
 
 def event_level(event: FaultEvent) -> str:
     """How loud a diagnosis is, as a log level: a change detected, noise back at its value or
-    the noise taught are news ("info"); a fault, a refinement, an unexplained change, a noise
-    mismatch or a failed teach-in need someone's attention ("warning")."""
+    quieter than configured, or the noise taught are news ("info"); a fault, a refinement, an
+    unexplained change, a noise mismatch or a failed teach-in need someone's attention
+    ("warning")."""
     return _LEVELS.get(event.kind, "warning")
 
 
@@ -56,11 +57,16 @@ def event_line(event: FaultEvent, dt: float, show_drive: bool = False) -> str:
         reason = event.candidates[0]["reason"] if event.candidates else "?"
         return (f"  t={t:8.2f} s  k={event.sample:<7d} {who}TEACH-IN FAILED: {reason}; "
                 "monitoring with the config's noise")
-    if event.kind in ("mismatch", "matched"):
+    if event.kind in ("mismatch", "quiet", "matched"):
         ratios = ", ".join(f"{n} {v:.2f}x" for n, v in event.estimates.items())
-        what = ("MISMATCH   residual noise left its calibrated value (noise or model changed; "
-                "recalibrate: canfdi calibrate, run --teach): " if event.kind == "mismatch"
-                else "MATCHED    residual noise back at its calibrated value: ")
+        what = {
+            "mismatch": "MISMATCH   residual noise above its calibrated value (noise or model "
+                        "changed; detection widened to it; recalibrate: canfdi calibrate, "
+                        "run --teach): ",
+            "quiet": "QUIET      residual quieter than configured (detection keeps the "
+                     "configured noise; canfdi calibrate would make it more sensitive): ",
+            "matched": "MATCHED    residual noise back at its calibrated value: ",
+        }[event.kind]
         return f"  t={t:8.2f} s  k={event.sample:<7d} {who}{what}{ratios}"
     return f"  t={t:8.2f} s  k={event.sample:<7d} {who}UNEXPLAINED change detected at k=" \
            f"{event.detected_sample}: no single fault fits"

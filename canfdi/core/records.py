@@ -36,9 +36,10 @@ class FaultEvent:
     kind : "detected" (a residual changed), "accepted" (a fault isolated and identified, folded
         into the compensation), "refined" (a re-detection explained by a channel already
         compensated: its estimates are the channel's updated total, see `fold`), or
-        "unexplained" (no hypothesis fitted within max_samples). The monitor adds "mismatch"
-        and "matched" (canfdi.core.watchdog: a residual's noise left its calibrated value,
-        or came back; estimates then hold each residual's std ratio), "taught" (teach-in
+        "unexplained" (no hypothesis fitted within max_samples). The monitor adds "mismatch",
+        "quiet" and "matched" (canfdi.core.watchdog: a residual's noise rose above its
+        calibrated value, fell below it, or came back; estimates then hold each residual's std
+        ratio), "taught" (teach-in
         learned the noise: estimates hold each sensor's std) and "teach_failed" (it could
         not: the reason in candidates).
     target : "actuator" or "sensor" for accepted faults, None otherwise.

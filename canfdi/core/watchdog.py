@@ -18,9 +18,11 @@ counted (`add_late`) when it ends with none, for that alarm was the noise.
 A residual enters mismatch when each of its last ``blocks`` blocks is out of
 [1/factor, factor] (in std; one block may hold a fault's step, several in a row are no step),
 and leaves it when each is back within [1/sqrt(factor), sqrt(factor)] (hysteresis: no flapping
-at the edge). While in mismatch its ratio is the scale by which the monitor widens (or narrows)
-that residual's noise for detection (`scale`), so the Page-Hinkley tests keep their
-false-alarm interval and a real fault, a change of mean, is still detected.
+at the edge). While in mismatch its ratio (from the window's quietest block: a fault's step
+inflates one block, noise all) is the scale by which the monitor widens that residual's noise
+for detection (`scale`), so the Page-Hinkley tests keep their false-alarm interval and a real
+fault, a change of mean, is still detected. A residual quieter than calibrated is in mismatch
+too ("quiet": the monitor says so) but is never detected against a narrower noise.
 """
 
 from __future__ import annotations
@@ -43,8 +45,8 @@ class WatchdogChange:
     """The set of residuals in mismatch changed at the block that ended before sample ``k``.
 
     entered, left : (m,) bool, the residuals that entered / left mismatch; ratio : (m,) each
-    residual's noise std over its calibrated value (recent for those in mismatch, the window's
-    median for the others; NaN while unknown).
+    residual's noise std over its calibrated value (the window's quietest block; NaN while
+    unknown).
     """
 
     k: int
@@ -103,6 +105,19 @@ class NoiseWatchdog:
         resolution, which it includes) allow; rounding noise that shrinks with the values
         comes back when they grow."""
         return np.where(self.mismatch, np.maximum(self.ratio, 1.0), 1.0)
+
+    @property
+    def judged(self) -> bool:
+        """Whether the last window had a verdict on every residual: ``blocks`` blocks, none
+        mostly lost or held back (NaN)."""
+        return len(self._variances) == self.blocks and not bool(
+            np.isnan(np.array(self._variances)).any())
+
+    @property
+    def quiet(self) -> NDArray[np.bool_]:
+        """(m,) the residuals in mismatch because they are quieter than calibrated: said, but
+        never detected against a narrower noise (`scale`)."""
+        return self.mismatch & (self.ratio < 1.0)
 
     def due(self, k: int) -> bool:
         """Whether sample k closes the open block (call `close` before diagnosing it)."""
@@ -178,7 +193,8 @@ class NoiseWatchdog:
         from that change's ``k`` on are not taken.
 
         Vectorised over the blocks: their sums, variances, windows and verdicts are whole-array
-        operations (the same arithmetic as `close` and `add`, so the same bits), and the set of
+        operations (the same arithmetic as `close` and `add` over whole blocks; samples added one
+        at a time are summed in another order, equal to rounding), and the set of
         residuals in mismatch is a latch each verdict sets or resets.
         """
         k = np.asarray(k, dtype=np.int64)
@@ -241,13 +257,12 @@ class NoiseWatchdog:
 
 def _ratio(recent: NDArray[np.float64]) -> NDArray[np.float64]:
     """recent.shape[1:]: each residual's noise std over its calibrated value from windows of
-    block variances ``recent`` (blocks, ..., m), NaN (unknown) blocks left out; NaN when all
-    are. The sum runs block after block (one order for `close` and `update`)."""
-    seen = (~np.isnan(recent)).sum(axis=0)
-    total = np.zeros(recent.shape[1:])
-    for v in recent:
-        total += np.where(np.isnan(v), 0.0, v)
-    return np.where(seen > 0, np.sqrt(total / np.maximum(seen, 1)), np.nan)
+    block variances ``recent`` (blocks, ..., m): the smallest block's, NaN (unknown) blocks
+    left out; NaN when all are. A fault's step (or an actuator fault's transient) inflates the
+    block it falls in, a change of the noise every block: the smallest is the noise (a fault in
+    the window would otherwise widen detection many times, the fault itself then unseen)."""
+    low = np.where(np.isnan(recent), np.inf, recent).min(axis=0)
+    return np.where(np.isfinite(low), np.sqrt(low), np.nan)
 
 
 def _run_sums(rn: NDArray[np.float64], runs: list[tuple[int, int]], block: int

@@ -395,7 +395,7 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
             "canfdi.FaultEvent",
             {
                 "kind": {"type": "string", "enum": ["detected", "accepted", "refined",
-                                                    "unexplained", "mismatch", "matched",
+                                                    "unexplained", "mismatch", "quiet", "matched",
                                                     "taught", "teach_failed"]},
                 "sample": _INT,
                 "timestamp_ns": _INT,

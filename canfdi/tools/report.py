@@ -442,6 +442,8 @@ def _marks(contents: LogContents, lo: float | None = None, hi: float | None = No
             out.append((e.sample, "unexplained", "tab:orange", "-."))
         elif e.kind == "mismatch":
             out.append((e.sample, "noise mismatch", "tab:purple", "-."))
+        elif e.kind == "quiet":
+            out.append((e.sample, "quieter than configured", "tab:blue", "-."))
     return [m for m in out if (lo is None or m[0] >= lo) and (hi is None or m[0] <= hi)]
 
 

@@ -124,7 +124,12 @@ def test_the_watchdog_flags_a_doubled_noise_and_raises_no_fault(seed):
     assert not [e for e in events if e.kind in ("accepted", "refined", "unexplained")]
     assert not [e for e in events if e.kind == "detected"]  # nor after: no storm
     assert all(s == 6 for k, s in states.items() if k > first.sample)  # "mismatch"
-    assert all(s == 1 for k, s in states.items() if k < k0)  # "monitoring"
+    # "checking" while the watchdog checks the config's noise on its first two blocks (the
+    # run starts at k = 0, a block's start), then "monitoring".
+    assert int(run.k[0]) % config.watchdog.block == 0
+    armed = config.watchdog.blocks * config.watchdog.block
+    assert all(s == (8 if k < armed else 1) for k, s in states.items() if k < k0)
+    assert any(k < armed for k in states) and any(armed <= k < k0 for k in states)
 
 
 def test_run_refuses_a_teach_in_too_short_to_learn_from():
@@ -145,9 +150,14 @@ def test_the_live_view_says_mismatch_and_teaching():
     teach = Teach(config, yaml.safe_load(CONFIG.read_text()), samples=1000)
     assert snapshot(Monitor(config, teach=teach))["state"] == "teaching"
     monitor = Monitor(config, record_residuals=False)
+    assert snapshot(monitor)["state"] == "checking"
+    monitor.drives[0].check = None  # what the first watchdog window ends
     assert snapshot(monitor)["state"] == "monitoring"
     monitor.drives[0].watchdog.mismatch[1] = True  # what the watchdog test above reaches
+    monitor.drives[0].watchdog.ratio[:] = 2.0
     assert snapshot(monitor)["state"] == "mismatch"
+    monitor.drives[0].watchdog.ratio[:] = 0.5
+    assert snapshot(monitor)["state"] == "quiet"
 
 
 def test_the_watchdog_gives_the_same_verdicts_sample_by_sample_and_in_blocks():

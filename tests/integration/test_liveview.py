@@ -59,12 +59,13 @@ def test_render_shows_each_residual_against_its_threshold_and_the_counters():
     console = Console(file=io.StringIO(), width=100, force_terminal=False)
     console.print(render(snapshot(monitor), "test"))
     out = console.file.getvalue()
-    assert "test  monitoring" in out and "frames 0 received" in out
+    # A fresh monitor checks the configured noise on its first samples before it announces.
+    assert "test  checking" in out and "frames 0 received" in out
     for name, h in zip(monitor.diagnoser.residual_names, monitor.diagnoser.thresholds,
                        strict=True):
         assert re.search(rf"{re.escape(name)}\s+-\s+\.+\s+0\.0/{h:.1f}", out), name
     snap = snapshot(monitor)
-    assert snap["state"] == "monitoring" and snap["faults"] == [] and snap["samples"] == 0
+    assert snap["state"] == "checking" and snap["faults"] == [] and snap["samples"] == 0
 
 
 def test_run_renders_the_live_view_with_its_log_lines_above_it():

@@ -400,12 +400,13 @@ MONITOR = {
     }),
     "FDI_STATUS": (0x082, 8, 1000, {
         **HEADER,
-        "State": (16, 3, False, False, 0, 7, {0: "starting", 1: "monitoring", 2: "diagnosing",
-                                             3: "degraded", 4: "bus_error", 5: "teaching",
-                                             6: "mismatch", 7: "no_traffic"}),
-        "Drive": (19, 3, False, False, 0, 7, None),
-        "ActiveFaults": (22, 4, False, False, 0, 15, None),
-        "Samples": (26, 22, False, False, 0, 2**22 - 1, None),
+        "State": (16, 4, False, False, 0, 15, {0: "starting", 1: "monitoring", 2: "diagnosing",
+                                              3: "degraded", 4: "bus_error", 5: "teaching",
+                                              6: "mismatch", 7: "no_traffic", 8: "checking",
+                                              9: "quiet"}),
+        "Drive": (20, 3, False, False, 0, 7, None),
+        "ActiveFaults": (23, 4, False, False, 0, 15, None),
+        "Samples": (27, 21, False, False, 0, 2**21 - 1, None),
         "InvalidFrames": (48, 16, False, False, 0, 2**16 - 1, None),
     }),
     "FDI_RESIDUAL": (0x083, 8, None, {
@@ -430,7 +431,7 @@ def test_cantools_dump_cli_accepts_the_monitor_dbc() -> None:
 def test_monitor_dbc_has_the_monitor_node_and_its_four_messages(monitor_db: Database) -> None:
     assert [node.name for node in monitor_db.nodes] == ["FDI"]
     assert monitor_db.nodes[0].comment
-    assert monitor_db.version == "canfdi monitor 4"
+    assert monitor_db.version == "canfdi monitor 5"
     # In the order bus.monitor.base numbers them: base, base + 1, ... (the defaults from 0x080).
     assert [m.name for m in monitor_db.messages] == list(MONITOR) == list(MONITOR_MESSAGES)
     assert [m.frame_id for m in monitor_db.messages] == [0x080, 0x081, 0x082, 0x083]
