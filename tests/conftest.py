@@ -38,3 +38,30 @@ def feed_frame_log(monitor, log, block: int = 4096):
         monitor.on_frames(log.frames.slice(i, i + block))
     monitor.finish()
     return monitor
+
+
+def events_by_chunking(config, k, U, Z, blocks=(1, 333, 4096)) -> list[list[tuple]]:
+    """The events of a fresh monitor of ``config`` over the same samples (k (N,), U (N, p), Z
+    (N, q), 10 ms apart) fed one at a time (a block of 1: ``on_sample``) and in blocks of each
+    other size (``on_samples``): per block size, (kind, sample, name, estimates rounded to 9
+    digits: sums in another order are rounding apart) of each event."""
+    import numpy as np
+
+    from canfdi.core.records import Sample
+    from canfdi.monitor import Monitor
+
+    out = []
+    for block in blocks:
+        monitor = Monitor(config, record_residuals=False)
+        if block == 1:
+            for i in range(len(k)):
+                monitor.on_sample(Sample(int(k[i]), int(k[i]) * 10**7, U[i], Z[i]))
+        else:
+            for i in range(0, len(k), block):
+                s = slice(i, i + block)
+                monitor.on_samples(k[s], k[s] * 10**7, U[s], Z[s],
+                                   np.zeros(len(k[s]), dtype=np.int64))
+        out.append([(e.kind, e.sample, e.name, tuple((n, round(v, 9))
+                                                     for n, v in sorted(e.estimates.items())))
+                    for e in monitor.events])
+    return out

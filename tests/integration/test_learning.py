@@ -23,7 +23,7 @@ from canfdi.firmware_sim.scenario import load_scenario
 from canfdi.firmware_sim.simulate import simulate
 from canfdi.monitor import Monitor
 from canfdi.tools.calibrate import Teach
-from tests.conftest import REPO
+from tests.conftest import REPO, events_by_chunking
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
 STATUS = cantools.database.load_file(REPO / "dbc" / "canfdi_monitor.dbc")
@@ -161,25 +161,12 @@ def test_the_live_view_says_mismatch_and_teaching():
 
 
 def test_the_watchdog_gives_the_same_verdicts_sample_by_sample_and_in_blocks():
-    from canfdi.core.records import Sample
-
     scenario = dataclasses.replace(load_scenario("dc_motor_nominal"), seed=2, duration=60.0)
     run = simulate(scenario)
     Z = run.z.copy()
     Z[2000:] += np.random.default_rng(2).standard_normal(Z[2000:].shape) * 0.02
     Z[4500:] = run.z[4500:]  # and back
-    config = load_config(CONFIG)
-    results = []
-    for block in (1, 333, 4096):
-        monitor = Monitor(config, record_residuals=False)
-        if block == 1:
-            for i in range(len(run.k)):
-                monitor.on_sample(Sample(int(run.k[i]), int(run.k[i]) * 10**7, run.u_c[i], Z[i]))
-        else:
-            list(_feed(monitor, run.k, run.u_c, Z, block))
-        results.append([(e.kind, e.sample, tuple((n, round(v, 9))
-                                                 for n, v in sorted(e.estimates.items())))
-                        for e in monitor.events])  # sums in another order: rounding apart
-    kinds = [kind for kind, _, _ in results[0]]
+    results = events_by_chunking(load_config(CONFIG), run.k, run.u_c, Z)
+    kinds = [kind for kind, *_ in results[0]]
     assert "mismatch" in kinds and "matched" in kinds
     assert results[1] == results[0] and results[2] == results[0]

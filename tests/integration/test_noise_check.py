@@ -22,7 +22,7 @@ from canfdi.config import load_config
 from canfdi.firmware_sim.scenario import load_scenario
 from canfdi.firmware_sim.simulate import simulate
 from canfdi.monitor import Monitor
-from tests.conftest import REPO
+from tests.conftest import REPO, events_by_chunking
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
 DBC = cantools.database.load_file(REPO / "dbc" / "canfdi_monitor.dbc")
@@ -94,22 +94,10 @@ def test_a_fault_in_the_check_window_is_diagnosed_and_announced_once_armed():
 
 
 def test_the_same_check_sample_by_sample_and_in_blocks():
-    from canfdi.core.records import Sample
-
     run, scenario = _run(30.0, 2.0, seed=6)
     Z = run.z.copy()
     Z[300:, 1] += 15.0 * scenario.measurement_std[1]
-    config = load_config(CONFIG)
-    results = []
-    for block in (1, 257, 5000):
-        monitor = Monitor(config, record_residuals=False)
-        if block == 1:
-            for i in range(len(run.k)):
-                monitor.on_sample(Sample(int(run.k[i]), int(run.k[i]) * 10**7, run.u_c[i], Z[i]))
-        else:
-            list(_feed(monitor, run.k, run.u_c, Z, block))
-        results.append([(e.kind, e.sample, e.name, tuple(
-            (n, round(v, 9)) for n, v in sorted(e.estimates.items()))) for e in monitor.events])
+    results = events_by_chunking(load_config(CONFIG), run.k, run.u_c, Z, (1, 257, 5000))
     assert [kind for kind, *_ in results[0]][:1] == ["mismatch"]
     assert "accepted" in [kind for kind, *_ in results[0]]
     assert results[1] == results[0] and results[2] == results[0]
