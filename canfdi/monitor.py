@@ -593,7 +593,7 @@ class Monitor:
         raw = result.normalized * _noise_scale(probe)
         quiet = monitoring_rows(k, result.events, before)
         taken = self._checked(drive, k, t_ns, U, Z, gap, result, raw, quiet)
-        self._record_residuals(drive, k[:taken], t_ns[:taken], result, probe, taken)
+        self._record_residuals(drive, k[:taken], t_ns[:taken], result, probe)
         if taken < len(k):
             return taken, self._arm(drive, t_ns[taken])
         return taken, []
@@ -615,8 +615,7 @@ class Monitor:
                                 np.concatenate([h[1] for h in drive.held]))
                     drive.held = []
                 check.changes.append(wd.close(int(k[a])))
-                if hasattr(probe, "noise_scale"):
-                    probe.noise_scale = wd.scale
+                _widen(probe, wd)
                 block = int(k[a]) // wd.block
                 if block >= check.cap or (block >= check.end and wd.judged):
                     if a:
@@ -628,11 +627,12 @@ class Monitor:
         return len(k)
 
     def _record_residuals(self, drive: Drive, k: np.ndarray, t_ns: np.ndarray,
-                          result: BlockResult, dg: Diagnoser, rows: int | None = None) -> None:
-        """A block's residual rows (its first ``rows``) to the sink, those with any value."""
+                          result: BlockResult, dg: Diagnoser) -> None:
+        """The residual rows of samples k (N,) to the sink, those with any value: the first N
+        rows of ``result`` (a block the check took only the start of is longer)."""
         if self.sink is None or not self.record_residuals or not len(k):
             return
-        n = len(k) if rows is None else rows
+        n = len(k)
         R, Rn, stat = result.residuals[:n], result.normalized[:n], result.statistic[:n]
         have = ~np.isnan(R).all(axis=1)
         if have.any():
@@ -646,8 +646,7 @@ class Monitor:
         check, wd, dg = drive.check, drive.watchdog, drive.diagnoser
         drive.check = None
         drive.held = []  # what the probe's diagnoses held back: the diagnoser's own now
-        if hasattr(dg, "noise_scale"):
-            dg.noise_scale = wd.scale
+        _widen(dg, wd)
         out: list[OutFrame] = []
         for change in check.changes:
             if change is not None:
@@ -667,8 +666,7 @@ class Monitor:
         if wd is None or not wd.due(k):
             return []
         change = wd.close(k)
-        if hasattr(drive.diagnoser, "noise_scale"):
-            drive.diagnoser.noise_scale = wd.scale
+        _widen(drive.diagnoser, wd)
         if change is None:
             return []
         return self._announce(self._watch_events(change, t_ns, drive.diagnoser), drive)
@@ -794,6 +792,13 @@ def _copy(dg: Diagnoser) -> Diagnoser:
     """A copy of a diagnoser to run apart from it, its read-only design shared."""
     shared = {id(v): v for v in (getattr(dg, a, None) for a in _READ_ONLY) if v is not None}
     return copy.deepcopy(dg, shared)
+
+
+def _widen(dg: Diagnoser, wd: NoiseWatchdog) -> None:
+    """Give a diagnoser the noise its watchdog says detection should use (a method without
+    the setting keeps its own)."""
+    if hasattr(dg, "noise_scale"):
+        dg.noise_scale = wd.scale
 
 
 def _noise_scale(dg: Diagnoser) -> np.ndarray | float:

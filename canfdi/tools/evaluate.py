@@ -350,16 +350,26 @@ class FaultOutcome:
     def final_error(self) -> float | None:
         return max(self.final_errors.values()) if self.final_errors else None
 
+    @property
+    def acceptance_delay(self) -> int | None:
+        """Samples from the first detection to the accepted diagnosis (None: none)."""
+        if self.accepted_sample is None or self.detected_sample is None:
+            return None
+        return self.accepted_sample - self.detected_sample
+
+    @property
+    def diagnosis_delay(self) -> int | None:
+        """Samples from the onset to the accepted diagnosis (None: none)."""
+        if self.accepted_sample is None:
+            return None
+        return self.accepted_sample - self.fault.onset_sample
+
     def as_dict(self) -> dict[str, Any]:
         out = self.fault.as_dict()
-        accepted = self.accepted_sample
         out.update(detected_sample=self.detected_sample, delay=self.delay,
                    decision=self.decision, diagnosed=self.diagnosed, isolation=self.isolation,
-                   accepted_sample=accepted,
-                   acceptance_delay=(accepted - self.detected_sample
-                                     if accepted is not None else None),
-                   diagnosis_delay=(accepted - self.fault.onset_sample
-                                    if accepted is not None else None),
+                   accepted_sample=self.accepted_sample, acceptance_delay=self.acceptance_delay,
+                   diagnosis_delay=self.diagnosis_delay,
                    estimate=dict(self.estimate), errors=dict(self.errors), error=self.error,
                    final_estimate=dict(self.final_estimate), final_error=self.final_error,
                    extra_channels=self.extra_channels)
@@ -422,17 +432,17 @@ def _isolate(fault: InjectedFault, accepted: list[FaultEvent],
     return "wrong", lab(first), {}, extra, None
 
 
-def _refined(estimate: dict[str, float], matched: FaultEvent, later: Sequence[FaultEvent]
-             ) -> dict[str, float]:
+def _refined(estimate: dict[str, float], matched: FaultEvent, exact: bool,
+             later: Sequence[FaultEvent]) -> dict[str, float]:
     """The estimate of a fault after the refinements of its accepted channel that follow
     (``later``: "refined" events, in order, each with the channel's total): the last total
-    for the channel itself; for a twin candidate (whose size is the named channel's times a
-    fixed ratio) its estimate scaled as the named channel's own size moved."""
+    for the channel itself (``exact``); for a twin candidate (whose size is the named
+    channel's times a fixed ratio) its estimate scaled as the named channel's own size moved."""
     mine = [e for e in later if (e.target, e.index) == (matched.target, matched.index)]
     if not mine:
         return dict(estimate)
     last = mine[-1].estimates
-    if estimate == matched.estimates:
+    if exact:
         return dict(last)
     key = next((k for k in ("bias", "lambda") if k in matched.estimates and k in last
                 and matched.estimates[k] != 0.0), None)
@@ -537,7 +547,7 @@ def match_run(faults: Sequence[InjectedFault], events: Sequence[FaultEvent], sam
         if matched is not None and accepted_at[i] is not None:
             later = [e for e in events if e.kind == "refined"
                      and accepted_at[i] < e.sample < ends[i]]
-            final = _refined(est, matched, later)
+            final = _refined(est, matched, isolation == "exact", later)
             final_errors = relative_errors(f, final)
         outcomes.append(FaultOutcome(f, first, first - f.onset_sample, "accepted", diagnosed,
                                      isolation, accepted_at[i], est, errors, extra, final,
@@ -586,8 +596,8 @@ def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = 
     detected = [o for o in outs if o.detected]
     accepted = [o for o in outs if o.decision == "accepted"]
     timed = [o for o in accepted if o.accepted_sample is not None]
-    to_accept = _stats([o.accepted_sample - o.detected_sample for o in timed])
-    to_diagnose = _stats([o.accepted_sample - o.fault.onset_sample for o in timed])
+    to_accept = _stats([o.acceptance_delay for o in timed])
+    to_diagnose = _stats([o.diagnosis_delay for o in timed])
     bounds = ([(o.delay, cusum_bound(o.fault.fnr, false_alarm_interval)) for o in detected]
               if false_alarm_interval else [])
     bounds = [(d, b) for d, b in bounds if math.isfinite(b)]

@@ -394,13 +394,7 @@ class ParityDiagnoser(DetectorBacked):
         outside = [i for i in order if i != best and self.hypotheses[i] not in twins]
         margin_ok = all(cost_h[i] - cost_h[best] >= s.isolation_margin for i in outside)
         kb = int(best_onset[best])
-        P = fit.P[best, kb]
-        dof = max(d.info.n_eq - h_best.n_params, 1)
-        scale = max(float(cost[best, kb]) / dof, 1e-300)
-        # The sandwich: least squares takes the residuals for white and independent, but
-        # parity residuals over a window are correlated in time (and with each other), so a
-        # sum of them varies as the long-run covariance says, not as P alone.
-        var = np.diag(P @ d.meat[best, kb] @ P) * scale
+        var, scale = _spread(fit, cost, d, best, kb, h_best.n_params)
         th = theta[best, kb]
         n_b = h_best.n_params
         sd = np.sqrt(var[:n_b])
@@ -443,10 +437,7 @@ class ParityDiagnoser(DetectorBacked):
         if full is None:
             return True
         kb = int(best_onset[full])
-        P = fit.P[full, kb]
-        dof = max(d.info.n_eq - 2, 1)
-        scale = max(float(cost[full, kb]) / dof, 1e-300)
-        sd_eta = float(np.sqrt((P @ d.meat[full, kb] @ P)[0, 0] * scale))
+        sd_eta = float(np.sqrt(_spread(fit, cost, d, full, kb, 2)[0][0]))
         u_mean = d.u_abs[j] / max(d.n_u[j], 1.0)
         unit = noise_units(self.bank, self.hypotheses[full], u_mean)[0]
         eta_minus_1 = float(fit.theta[full, kb, 0])
@@ -624,6 +615,17 @@ class ParityDiagnoser(DetectorBacked):
             self._reload_window()
             self.events.extend(events)
         return events
+
+
+def _spread(fit, cost: np.ndarray, d: Diagnosis, h: int, kb: int, n_params: int
+            ) -> tuple[np.ndarray, float]:
+    """(d,) the variances of hypothesis h's estimates at onset kb, and the fit's noise scale
+    (cost per degree of freedom). The sandwich: least squares takes the residuals for white
+    and independent, but parity residuals over a window are correlated in time (and with each
+    other), so a sum of them varies as the long-run covariance says, not as P alone."""
+    P = fit.P[h, kb]
+    scale = max(float(cost[h, kb]) / max(d.info.n_eq - n_params, 1), 1e-300)
+    return np.diag(P @ d.meat[h, kb] @ P) * scale, scale
 
 
 def _within(sd: np.ndarray | float, fraction: float, unit: np.ndarray | float) -> np.ndarray:

@@ -48,9 +48,10 @@ class Hypothesis:
 
 def noise_units(bank: ResidualBank, h: Hypothesis, u_mean: float | None = None) -> np.ndarray:
     """(n_params,) each parameter's noise unit: the size whose steady change in the residual
-    most sensitive to it is one noise standard deviation (the configured noise; inf where no
-    residual sees it). An actuator's eta - 1 moves its command by (eta - 1) u: its unit is
-    lambda's over the command's mean size ``u_mean`` (inf without one).
+    most sensitive to it is one noise standard deviation (the noise the bank normalises with:
+    the configured one, widened where the watchdog found more; inf where no residual sees it).
+    An actuator's eta - 1 moves its command by (eta - 1) u: its unit is lambda's over the
+    command's mean size ``u_mean`` (inf without one).
 
     A fault known to within a small part of its noise units leaves, once compensated, a change
     far below what detection sees, however large the fault.

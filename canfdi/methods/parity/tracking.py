@@ -27,9 +27,9 @@ restarts it over the channels then compensated.
 Tracking ends (with ``precise`` > 0) at the checkpoint where every tracked parameter is known to
 within ``precise`` of its noise units (canfdi.methods.parity.hypotheses.noise_units), folding
 the fit then whatever its significance: what the compensation can still miss is then far below
-what detection sees, and a fit that went on would
-only risk taking a later small fault on a channel of similar signature for more of the old one
-(the contradiction test cannot see a change that is itself below its 3-sigma level).
+what detection sees, and a fit that went on would only risk taking a later small fault on a
+channel of similar signature for more of the old one (the contradiction test cannot see a change
+that is itself below its 3-sigma level).
 """
 
 from __future__ import annotations
