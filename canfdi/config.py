@@ -37,6 +37,9 @@ Layout::
     detection:                     # optional; Page-Hinkley on each normalised residual
       drift: 0.5                   # delta, in residual noise standard deviations
       false_alarm_interval: 1.0e7  # samples between false alarms per residual (calibration)
+      signatures: false            # parity: also a CUSUM per fault signature across the
+                                   # residuals, at several drifts (faster on small faults; it
+                                   # also sees what compensation leaves: docs/methods/parity.md)
     identification:                # optional; the parity method's (canfdi.methods.parity)
       min_samples: 10
       max_samples: 2000
@@ -126,7 +129,8 @@ _CLOCK = {"kind": Option(str, choices=CLOCKS), "period": Option(float, 1e-6, 360
 _MONITOR = {"dbc": Option(str), "base": Option(int, 0, MAX_EXTENDED_ID)}
 MAX_DRIVES = 8  # the Drive signal of the monitor's frames has 3 bits
 _DETECTION = {"drift": Option(float, 0.0, 100.0),
-              "false_alarm_interval": Option(float, 10.0, 1e15)}
+              "false_alarm_interval": Option(float, 10.0, 1e15),
+              "signatures": Option(bool)}
 _IDENTIFICATION = {"min_samples": Option(int, 1, 10**7), "max_samples": Option(int, 1, 10**7),
                    "settle_rel_std": Option(float, 1e-9, 1.0),
                    "settle_noise": Option(float, 0.0, 10.0),

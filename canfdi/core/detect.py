@@ -536,50 +536,97 @@ class ChangePointDetector:
     point is the sample after that. The streaming form (``step``) and the block form (``run``)
     leave the same state. A diagnoser restarts it after each decision.
 
+    Beside the residuals it can run the same test on projections of them (``projection``):
+    column c of the statistics is then residual row @ projection[:, c], with its own drift
+    and threshold (canfdi.methods.parity.signatures: one CUSUM per fault signature and drift).
+    A projection of a row with a missing residual is missing.
+
     Parameters
     ----------
     m : number of residuals; delta : drift; h : (m,) thresholds (noise-std units).
+    projection : (m, c) extra columns; drifts, h_projected : (c,) their drifts and thresholds.
+
+    Examples
+    --------
+    >>> det = ChangePointDetector(2, 0.5, [5.0, 5.0], projection=np.array([[1.0], [1.0]]),
+    ...                           drifts=[0.5], h_projected=[6.0])
+    >>> [det.step(k, np.array([1.2, 1.2])).tolist() for k in range(4)]
+    [[0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 1]]
+    >>> det.columns
+    3
     """
 
-    def __init__(self, m: int, delta: float, h: ArrayLike) -> None:
+    def __init__(self, m: int, delta: float, h: ArrayLike,
+                 projection: ArrayLike | None = None, drifts: ArrayLike = (),
+                 h_projected: ArrayLike = ()) -> None:
         self.m = m
         self.delta = delta
-        self.h = np.asarray(h, dtype=float)
+        self.projection = (None if projection is None
+                           else check_shape("projection", projection, (m, "c")))
+        c = 0 if self.projection is None else self.projection.shape[1]
+        self.columns = m + c
+        self._delta = np.concatenate([np.full(m, float(delta)),
+                                      np.asarray(drifts, dtype=float).reshape(c)])
+        self._h = np.concatenate([np.asarray(h, dtype=float).reshape(m),
+                                  np.asarray(h_projected, dtype=float).reshape(c)])
         self.restart()
+
+    @property
+    def h(self) -> NDArray[np.float64]:
+        """(m,) the residuals' thresholds (settable; the projections' stay)."""
+        return self._h[: self.m]
+
+    @h.setter
+    def h(self, value: ArrayLike) -> None:
+        self._h = np.concatenate([np.asarray(value, dtype=float).reshape(self.m),
+                                  self._h[self.m:]])
+
+    @property
+    def all_thresholds(self) -> NDArray[np.float64]:
+        """(columns,) the thresholds of the residuals, then of the projections."""
+        return self._h.copy()
 
     def restart(self, k: int = -1) -> None:
         """Zero the statistics; a change point cannot predate sample k."""
-        self.state = np.zeros((self.m, 2))
-        self.last_zero = np.full((self.m, 2), k, dtype=np.int64)
+        self.state = np.zeros((self.columns, 2))
+        self.last_zero = np.full((self.columns, 2), k, dtype=np.int64)
 
     @property
     def statistics(self) -> NDArray[np.float64]:
         """(m,) the larger statistic of each residual."""
-        return self.state.max(axis=1)
+        return self.state[: self.m].max(axis=1)
+
+    def _columns(self, rn: NDArray[np.float64]) -> NDArray[np.float64]:
+        """rn (..., m) -> (..., columns): the residuals, then their projections."""
+        if self.projection is None:
+            return rn
+        return np.concatenate([rn, rn @ self.projection], axis=-1)
 
     def step(self, k: int, rn: NDArray[np.float64]) -> NDArray[np.int8]:
-        """Sample k's normalised residuals (m,) (NaN = missing); the (m,) alarm signs."""
+        """Sample k's normalised residuals (m,) (NaN = missing); the (columns,) alarm signs."""
         # page_hinkley_step's arithmetic without its checks of parameters already checked:
         # this runs once per sample on the live path. (x - 0) / 1 is x, bit for bit.
         _check_finite(rn, "x", missing_ok=True)
-        self.state, alarm = _ph_advance(self.state, rn, self.delta, self.h, 0.0, 1.0)
-        self.last_zero[(self.state == 0.0) & ~np.isnan(rn)[:, None]] = k
+        x = self._columns(rn)
+        self.state, alarm = _ph_advance(self.state, x, self._delta, self._h, 0.0, 1.0)
+        self.last_zero[(self.state == 0.0) & ~np.isnan(x)[:, None]] = k
         return alarm
 
     def run(self, k: NDArray[np.int64], rn: NDArray[np.float64]
             ) -> tuple[PageHinkleyResult, int]:
-        """Rows of samples k (N,), residuals rn (N, m): the batch result and ``done``, the rows
-        before the first alarm row (N without one). The state advances over those rows only:
-        the alarm row is left for ``step``."""
-        ph = page_hinkley_batch(rn, self.delta, self.h, state=self.state)
+        """Rows of samples k (N,), residuals rn (N, m): the batch result over the (N, columns)
+        statistics and ``done``, the rows before the first alarm row (N without one). The state
+        advances over those rows only: the alarm row is left for ``step``."""
+        x = self._columns(rn)
+        ph = page_hinkley_batch(x, self._delta, self._h, state=self.state)
         # The first alarm row: the first nonzero of the flat (row-major) alarms (argmax stops
         # there; a reduction along the short axis costs a pass per row).
         flat = ph.alarms.reshape(-1) != 0
         first = int(flat.argmax())
-        done = first // self.m if flat[first] else len(rn)
+        done = first // self.columns if flat[first] else len(rn)
         if done > 0:
-            valid = ~np.isnan(rn[:done])
-            cols = np.arange(self.m)
+            valid = ~np.isnan(x[:done])
+            cols = np.arange(self.columns)
             for d, traj in enumerate((ph.g_up[:done], ph.g_down[:done])):
                 zero = ((traj == 0.0) & valid)[::-1]
                 back = np.argmax(zero, axis=0)  # rows from the end to each one's last zero
@@ -618,12 +665,22 @@ class DetectorBacked:
 
 
 def onset_candidates(change_point: int, k: int, first: int, before: int,
-                     at_most: int) -> list[int]:
+                     at_most: int, keep: str = "latest") -> list[int]:
     """Fault onsets to try after an alarm at k: noise may lift the statistic a little before
     the fault, so from ``before`` samples ahead of the change point up to the alarm itself,
-    none before ``first`` (the oldest sample kept), the latest ``at_most`` of them ([k] when
-    none is left)."""
+    none before ``first`` (the oldest sample kept), ``at_most`` of them ([k] when none is
+    left): the latest (``keep="latest"``), or half from the earliest and half from the
+    latest (``"ends"``, for a caller that keeps the samples back to the change point: a small
+    fault is dated by the change point long before its alarm, and a large one by its alarm,
+    when noise had lifted a statistic before it).
+
+    >>> onset_candidates(100, 150, 0, 3, 4), onset_candidates(100, 150, 0, 3, 4, "ends")
+    ([147, 148, 149, 150], [97, 98, 149, 150])
+    """
     onsets = [kf for kf in range(change_point - before, k + 1) if kf >= first]
+    if keep == "ends" and len(onsets) > at_most:
+        head = at_most // 2
+        return onsets[:head] + onsets[len(onsets) - (at_most - head):]
     return onsets[-at_most:] or [k]
 
 

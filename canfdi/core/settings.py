@@ -306,10 +306,12 @@ class DriveConfig:
 
 @dataclass(frozen=True)
 class DetectionConfig:
-    """Page-Hinkley settings: drift delta (noise stds) and the false-alarm interval (samples)."""
+    """Page-Hinkley settings: drift delta (noise stds), the false-alarm interval (samples) and
+    whether the parity method also runs a CUSUM per fault signature (``signatures``)."""
 
     drift: float = 0.5
     false_alarm_interval: float = 1.0e7
+    signatures: bool = False
 
 
 @dataclass(frozen=True)

@@ -538,3 +538,35 @@ def test_threshold_for_long_run_variance():
     h = threshold_for_long_run_variance(0.5, 1e7, [0.3, 1.0, 5.0])
     assert h[0] == h[1] == white
     assert h[2] == pytest.approx(69.94, abs=0.01) and h[2] > white
+
+
+def test_change_point_detector_with_projections_block_and_stream_agree():
+    """Projected columns (rn @ projection, their own drifts and thresholds) run beside the
+    residuals: block and stream leave the same state and date the change alike; a row with
+    a missing residual leaves the projections' statistics as they were; setting the
+    residuals' thresholds leaves the projections'."""
+    rng = np.random.default_rng(8)
+    rn = rng.standard_normal((600, 3))
+    rn[rng.random(rn.shape) < 0.05] = np.nan
+    rn[400:] += np.array([0.6, 0.6, 0.0])  # small on each residual, larger on their sum
+    k = np.arange(2000, 2600)
+    proj = np.array([[1.0, 1.0], [1.0, 1.0], [0.0, 0.0]]) / np.sqrt(2.0)
+    args = (3, 0.5, np.full(3, 40.0))
+    kw = {"projection": proj, "drifts": [0.25, 0.5], "h_projected": [12.0, 10.0]}
+    block, stream = ChangePointDetector(*args, **kw), ChangePointDetector(*args, **kw)
+    assert block.columns == 5
+    ph, done = block.run(k, rn)
+    assert ph.alarms.shape == (600, 5) and 400 < done < 600
+    assert not ph.alarms[done, :3].any() and ph.alarms[done, 3:].any()  # the sum saw it
+    for r in range(done):
+        stream.step(int(k[r]), rn[r])
+    np.testing.assert_allclose(block.state, stream.state, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(block.last_zero, stream.last_zero)
+    alarm = stream.step(int(k[done]), rn[done])
+    assert abs(stream.change_point(alarm) - 2400) <= 40
+    held = stream.state.copy()
+    stream.step(int(k[done]) + 1, np.array([np.nan, 1.0, 1.0]))
+    np.testing.assert_array_equal(stream.state[3:], held[3:])
+    stream.h = np.full(3, 7.0)
+    np.testing.assert_array_equal(stream.all_thresholds, [7.0, 7.0, 7.0, 12.0, 10.0])
+    assert stream.statistics.shape == (3,)

@@ -21,6 +21,7 @@ from canfdi.core.settings import MonitorConfig
 from canfdi.methods import EstimateHistory, Method
 from canfdi.methods.parity.diagnoser import ParityDiagnoser, ParitySettings
 from canfdi.methods.parity.history import estimate_history
+from canfdi.methods.parity.signatures import DRIFTS, signature_columns
 from canfdi.methods.parity.thresholds import calibrate_thresholds, long_run_covariance
 
 __all__ = ["METHOD", "ParityDiagnoser", "ParitySettings", "build", "calibrate_thresholds"]
@@ -37,6 +38,7 @@ def parse_options(section: Mapping[str, Any] | None, config: MonitorConfig) -> P
         settle_rel_std=ident.settle_rel_std, settle_noise=ident.settle_noise,
         isolation_margin=ident.isolation_margin,
         max_fit_variance=ident.max_fit_variance,
+        signature_drifts=DRIFTS if config.detection.signatures else (),
     )
 
 
@@ -51,9 +53,13 @@ def build(config: MonitorConfig) -> ParityDiagnoser:
     meas = (config.design.measurement_std if config.design.measurement_std is not None
             else np.ones(design.model.q))
     settings = config.method_options or parse_options(None, config)
+    signatures = signature_columns(bank, meas, design.input_names, design.output_names,
+                                   settings.signature_drifts)
     thresholds = calibrate_thresholds(bank, meas, config.design.process_std, design.model,
-                                      settings.drift, settings.false_alarm_interval)
-    return ParityDiagnoser(design, settings, thresholds, long_run_covariance(bank, meas))
+                                      settings.drift, settings.false_alarm_interval,
+                                      signatures=signatures)
+    return ParityDiagnoser(design, settings, thresholds, long_run_covariance(bank, meas),
+                           signatures)
 
 
 def describe(config: MonitorConfig) -> dict:

@@ -46,18 +46,24 @@ class Hypothesis:
                                                                      len(self.members))
 
 
-def noise_units(bank: ResidualBank, h: Hypothesis, u_mean: float | None = None) -> np.ndarray:
-    """(n_params,) each parameter's noise unit: the size whose steady change in the residual
-    most sensitive to it is one noise standard deviation (the noise the bank normalises with:
-    the configured one, widened where the watchdog found more; inf where no residual sees it).
-    An actuator's eta - 1 moves its command by (eta - 1) u: its unit is lambda's over the
-    command's mean size ``u_mean`` (inf without one).
+def noise_units(bank: ResidualBank, h: Hypothesis, u_mean: float | None = None,
+                projection: np.ndarray | None = None) -> np.ndarray:
+    """(n_params,) each parameter's noise unit: the size whose steady change in the statistic
+    most sensitive to it is one noise standard deviation: a residual (normalised with the
+    noise the bank uses: the configured one, widened where the watchdog found more), or one of
+    the detector's signature projections (``projection`` (m, c), canfdi.methods.parity.
+    signatures: unit variance). inf where nothing sees it. An actuator's eta - 1 moves its
+    command by (eta - 1) u: its unit is lambda's over the command's mean size ``u_mean`` (inf
+    without one).
 
     A fault known to within a small part of its noise units leaves, once compensated, a change
     far below what detection sees, however large the fault.
     """
     def unit(G: np.ndarray, j: int) -> float:
-        gain = float(np.max(np.abs(G[j].sum(axis=-1) / bank.sigma)))
+        mu = G[j].sum(axis=-1) / bank.sigma
+        gain = float(np.max(np.abs(mu)))
+        if projection is not None and projection.size:
+            gain = max(gain, float(np.max(np.abs(mu @ projection))))
         return 1.0 / gain if gain > 0.0 else np.inf
 
     if h.target == "sensors":

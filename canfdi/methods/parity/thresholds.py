@@ -7,19 +7,27 @@ config's noise model and bounds it by Siegmund's on the residual's long-run vari
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from canfdi.core.calibrate import calibrate_threshold, threshold_for_long_run_variance
 from canfdi.core.memo import digest, remembered
 from canfdi.core.residuals import ResidualBank
 
+if TYPE_CHECKING:
+    from canfdi.methods.parity.signatures import SignatureColumns
+
 __all__ = ["calibrate_thresholds", "long_run_covariance"]
 
 
 def calibrate_thresholds(bank: ResidualBank, measurement_std: np.ndarray,
                          process_std: np.ndarray | None, model, drift: float,
-                         interval: float, n: int = 100_000, seed: int = 0) -> np.ndarray:
-    """Page-Hinkley thresholds (m,) in noise-std units for a false-alarm interval (samples).
+                         interval: float, n: int = 100_000, seed: int = 0,
+                         signatures: SignatureColumns | None = None) -> np.ndarray:
+    """Page-Hinkley thresholds (m,) in noise-std units for a false-alarm interval (samples);
+    with ``signatures`` (canfdi.methods.parity.signatures), (m + c,): the residuals', then
+    each projection's at its own drift, for ``signatures.rungs`` times the interval.
 
     Parity residuals over a window are correlated in time, so the white-noise formula is wrong;
     the thresholds are calibrated on ``n`` fault-free residuals generated from the model's noise
@@ -29,20 +37,30 @@ def calibrate_thresholds(bank: ResidualBank, measurement_std: np.ndarray,
     Results are remembered (canfdi.core.memo: for the process, and in the store the shell
     installed): the same design calibrates once.
     """
+    m = bank.m
+    if signatures is None:
+        project, drifts, intervals = np.eye(m), np.full(m, float(drift)), np.full(m, interval)
+    else:
+        project = np.hstack([np.eye(m), signatures.projection])
+        drifts = np.concatenate([np.full(m, float(drift)), signatures.drifts])
+        intervals = np.concatenate([np.full(m, float(interval)),
+                                    np.full(signatures.count, interval * signatures.rungs)])
     key = digest(CALIBRATION, bank.M, bank.sigma, np.asarray(measurement_std, dtype=float),
                  None if process_std is None else np.asarray(process_std, dtype=float),
-                 model.A, model.C, float(drift), float(interval), n, seed)
-    return remembered(key, lambda: _calibrate(bank, measurement_std, process_std, model, drift,
-                                              interval, n, seed), (bank.m,))
+                 model.A, model.C, project, drifts, intervals, n, seed)
+    return remembered(key, lambda: _calibrate(bank, measurement_std, process_std, model, project,
+                                              drifts, intervals, n, seed), (project.shape[1],))
 
 
-CALIBRATION = "parity thresholds 1"
+CALIBRATION = "parity thresholds 2"
 """Names the calibration below in the digest of its results: change it with the algorithm,
 so that results remembered by an older one are not used."""
 
 
 def _calibrate(bank: ResidualBank, measurement_std: np.ndarray, process_std: np.ndarray | None,
-               model, drift: float, interval: float, n: int, seed: int) -> np.ndarray:
+               model, project: np.ndarray, drift: np.ndarray, interval: np.ndarray, n: int,
+               seed: int) -> np.ndarray:
+    """Thresholds of the columns rn @ project (m, c) at drifts and intervals (c,)."""
     rng = np.random.default_rng(seed)
     length = n + bank.S
     x = np.zeros((length, bank.q + bank.p))
@@ -53,31 +71,37 @@ def _calibrate(bank: ResidualBank, measurement_std: np.ndarray, process_std: np.
         for k in range(length):
             x[k, : bank.q] += model.C @ state
             state = model.A @ state + noise[k]
-    rn = bank.batch(x) / bank.sigma
+    rn = (bank.batch(x) / bank.sigma) @ project
     arl_hi, arl_lo = n / 20.0, n / 200.0
     # Thresholds are tens of noise stds: 0.02 is far below what matters.
     h_hi = np.asarray(calibrate_threshold(rn, drift, arl_hi, tol=0.02), dtype=float)
     h_lo = np.asarray(calibrate_threshold(rn, drift, arl_lo, tol=0.02), dtype=float)
     slope = np.maximum(h_hi - h_lo, 0.0) / np.log(arl_hi / arl_lo)
-    h = h_hi + slope * np.log(max(interval, arl_hi) / arl_hi)
+    h = h_hi + slope * np.log(np.maximum(interval, arl_hi) / arl_hi)
     # Far beyond the record the extrapolation runs low for strongly correlated residuals (the
     # 10^7-sample soak found s:omega_r, a 5-sample moving sum, alarming every ~1.3e6 samples
     # at a 1e7 target): bound it by Siegmund's threshold on the long-run variance (which is
     # never below the white-noise one).
-    long_run = _long_run_variance(bank, measurement_std, process_std, rn)
-    return np.maximum(h, threshold_for_long_run_variance(drift, interval, long_run))
+    long_run = _long_run_variance(bank, measurement_std, process_std, rn, project)
+    bound = [threshold_for_long_run_variance(float(d), float(t), [lr])[0]
+             for d, t, lr in zip(drift, interval, long_run, strict=True)]
+    return np.maximum(h, bound)
 
 
 def _long_run_variance(bank: ResidualBank, measurement_std: np.ndarray,
-                       process_std: np.ndarray | None, rn: np.ndarray) -> np.ndarray:
-    """(m,) long-run variance (sum of all autocovariances) of each normalised residual.
+                       process_std: np.ndarray | None, rn: np.ndarray,
+                       project: np.ndarray | None = None) -> np.ndarray:
+    """(c,) long-run variance (sum of all autocovariances) of each column rn @ project of the
+    normalised residuals.
 
     For white measurement noise it is exact: r_i = sum_l sum_c M_i[l, c] x_c(k - S + l), so
     sum_tau cov(tau) = sum_c var(x_c) (sum_l M_i[l, c])^2. Process noise adds slowly decaying
     correlation the formula does not see: with process noise, batch means over the
     calibration record (blocks of 50 windows) estimate it too, and the larger value is used.
     """
-    exact = np.diag(long_run_covariance(bank, measurement_std)).copy()
+    project = np.eye(bank.m) if project is None else project
+    exact = np.einsum("ic,ij,jc->c", project, long_run_covariance(bank, measurement_std),
+                      project)
     block = 50 * (bank.S + 1)
     n_blocks = len(rn) // block
     if process_std is None or not np.any(process_std) or n_blocks < 20:

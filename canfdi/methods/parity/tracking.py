@@ -86,6 +86,8 @@ class AcceptedFaultTracker:
     bank : the residual bank.
     precise : end tracking at the checkpoint where every parameter's standard deviation is
         below this many of its noise units (0: track for ever).
+    projection : (m, c) the detector's signature projections, which noise units count
+        (hypotheses.noise_units); None: the residuals alone.
     long_run : (m, m) long-run covariance of the normalised residuals
         (canfdi.methods.parity.thresholds.long_run_covariance); the identity (white,
         independent residuals) when None. Parity residuals over a window are correlated in
@@ -116,8 +118,9 @@ class AcceptedFaultTracker:
     """
 
     def __init__(self, bank: ResidualBank, long_run: np.ndarray | None = None,
-                 precise: float = 0.0) -> None:
+                 precise: float = 0.0, projection: np.ndarray | None = None) -> None:
         self.bank = bank
+        self.projection = projection
         self.gamma = np.eye(bank.m) if long_run is None else np.asarray(long_run, dtype=float)
         self.precise = float(precise)
         self.tracked: list[Tracked] = []
@@ -229,7 +232,7 @@ class AcceptedFaultTracker:
         for t, s in zip(self.tracked, self._slices, strict=True):
             h = t.hypothesis
             unit = noise_units(self.bank, h, float(u_mean[h.index])
-                               if h.target == "actuator" else None)
+                               if h.target == "actuator" else None, self.projection)
             if np.any(np.sqrt(np.diag(P[s, s])) > self.precise * unit):
                 return False
         return True
