@@ -3,7 +3,11 @@
 
 MONITOR. Each sample's residuals (canfdi.core.residuals), normalised by their noise standard
 deviation, feed a two-sided Page-Hinkley test per residual (thresholds calibrated on fault-free
-residuals of the model for a stated false-alarm interval). An alarm at k_d starts a diagnosis.
+residuals of the model for a stated false-alarm interval). With ``signature_drifts`` (the
+config's detection.signatures) a CUSUM per fault signature across all the residuals runs beside
+it (canfdi.methods.parity.signatures). An alarm at k_d starts a diagnosis, from onsets around
+the detector's change point however long before the alarm it lies (the samples back to it are
+kept: canfdi.methods.parity.recent).
 
 DIAGNOSE. Every fault hypothesis (each actuator: u = eta u_c + lambda, eq. 24; each sensor:
 z = y + b, eq. 34) predicts the residuals linearly in its parameters from the fault onset k_f on
