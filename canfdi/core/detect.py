@@ -560,7 +560,6 @@ class ChangePointDetector:
                  projection: ArrayLike | None = None, drifts: ArrayLike = (),
                  h_projected: ArrayLike = ()) -> None:
         self.m = m
-        self.delta = delta
         self.projection = (None if projection is None
                            else check_shape("projection", projection, (m, "c")))
         c = 0 if self.projection is None else self.projection.shape[1]

@@ -15,8 +15,12 @@ from canfdi.core.residuals import ResidualBank
 from canfdi.firmware_sim.scenario import parse_scenario
 from canfdi.firmware_sim.simulate import simulate
 from canfdi.methods import build_diagnoser
-from canfdi.methods.parity.signatures import DRIFTS, instant_covariance, signature_columns
-from canfdi.methods.parity.thresholds import calibrate_thresholds, long_run_covariance
+from canfdi.methods.parity.signatures import DRIFTS, signature_columns
+from canfdi.methods.parity.thresholds import (
+    calibrate_thresholds,
+    instant_covariance,
+    long_run_covariance,
+)
 from tests.conftest import REPO
 
 CONFIG = load_config(REPO / "deploy" / "config" / "dc_motor.yaml")

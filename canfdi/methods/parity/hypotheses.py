@@ -16,7 +16,7 @@ import numpy as np
 from canfdi.core.residuals import ResidualBank
 
 __all__ = ["Hypothesis", "independent_sensors", "noise_units", "proportional", "regressors",
-           "row_regressors"]
+           "row_regressors", "steady_response"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,13 @@ class Hypothesis:
                                                                      len(self.members))
 
 
+def steady_response(bank: ResidualBank, target: str, j: int) -> np.ndarray:
+    """(m,) the steady change of the normalised residuals (the noise the bank uses) under a
+    unit constant fault: sensor j's bias (``target`` "sensor"), or actuator j's lambda."""
+    G = bank.Gz if target == "sensor" else bank.Gu
+    return G[j].sum(axis=-1) / bank.sigma
+
+
 def noise_units(bank: ResidualBank, h: Hypothesis, u_mean: float | None = None,
                 projection: np.ndarray | None = None) -> np.ndarray:
     """(n_params,) each parameter's noise unit: the size whose steady change in the statistic
@@ -59,18 +66,18 @@ def noise_units(bank: ResidualBank, h: Hypothesis, u_mean: float | None = None,
     A fault known to within a small part of its noise units leaves, once compensated, a change
     far below what detection sees, however large the fault.
     """
-    def unit(G: np.ndarray, j: int) -> float:
-        mu = G[j].sum(axis=-1) / bank.sigma
+    def unit(target: str, j: int) -> float:
+        mu = steady_response(bank, target, j)
         gain = float(np.max(np.abs(mu)))
         if projection is not None and projection.size:
             gain = max(gain, float(np.max(np.abs(mu @ projection))))
         return 1.0 / gain if gain > 0.0 else np.inf
 
     if h.target == "sensors":
-        return np.array([unit(bank.Gz, j) for j in h.members])
+        return np.array([unit("sensor", j) for j in h.members])
     if h.target == "sensor":
-        return np.array([unit(bank.Gz, h.index)])
-    lam = unit(bank.Gu, h.index)
+        return np.array([unit("sensor", h.index)])
+    lam = unit("actuator", h.index)
     if h.target == "actuator_bias":
         return np.array([lam])
     eta = lam / u_mean if u_mean else np.inf

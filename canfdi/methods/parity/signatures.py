@@ -27,10 +27,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from canfdi.core.residuals import ResidualBank
-from canfdi.methods.parity.hypotheses import proportional
-from canfdi.methods.parity.thresholds import long_run_covariance
+from canfdi.methods.parity.hypotheses import proportional, steady_response
+from canfdi.methods.parity.thresholds import instant_covariance, long_run_covariance
 
-__all__ = ["DRIFTS", "SignatureColumns", "instant_covariance", "signature_columns"]
+__all__ = ["DRIFTS", "SignatureColumns", "signature_columns"]
 
 DRIFTS = (0.25, 0.5, 1.0, 2.0)
 """The drift ladder (noise stds of the projection): changes of 0.5 to 4 per sample. Larger
@@ -61,15 +61,6 @@ class SignatureColumns:
         return int(self.projection.shape[1])
 
 
-def instant_covariance(bank: ResidualBank, measurement_std: np.ndarray) -> np.ndarray:
-    """(m, m) covariance of the normalised residuals at one sample under white measurement
-    noise: r_i = sum_l sum_c M_i[l, c] x_c(k - S + l)."""
-    coef = bank.M.reshape(bank.m, bank.S + 1, -1)[:, :, : bank.q] / bank.sigma[:, None, None]
-    var = np.asarray(measurement_std, dtype=float) ** 2 * np.ones(bank.q)
-    flat = coef.reshape(bank.m, -1)
-    return (flat * np.tile(var, bank.S + 1)[None, :]) @ flat.T
-
-
 def signature_columns(bank: ResidualBank, measurement_std: np.ndarray,
                       input_names: list[str], output_names: list[str],
                       drifts: tuple[float, ...] = DRIFTS) -> SignatureColumns | None:
@@ -84,9 +75,9 @@ def signature_columns(bank: ResidualBank, measurement_std: np.ndarray,
     sigma0 = instant_covariance(bank, measurement_std)
     weight = np.linalg.pinv(omega + _REGULARISE * sigma0, rcond=1e-10, hermitian=True)
     found: list[tuple[np.ndarray, list[str]]] = []
-    for G, names in ((bank.Gu, input_names), (bank.Gz, output_names)):
+    for target, names in (("actuator", input_names), ("sensor", output_names)):
         for j, name in enumerate(names):
-            mu = G[j].sum(axis=-1) / bank.sigma
+            mu = steady_response(bank, target, j)
             if not np.any(mu):
                 continue
             for seen, labels in found:

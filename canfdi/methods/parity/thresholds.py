@@ -18,7 +18,7 @@ from canfdi.core.residuals import ResidualBank
 if TYPE_CHECKING:
     from canfdi.methods.parity.signatures import SignatureColumns
 
-__all__ = ["calibrate_thresholds", "long_run_covariance"]
+__all__ = ["calibrate_thresholds", "instant_covariance", "long_run_covariance"]
 
 
 def calibrate_thresholds(bank: ResidualBank, measurement_std: np.ndarray,
@@ -110,6 +110,14 @@ def _long_run_variance(bank: ResidualBank, measurement_std: np.ndarray,
     return np.maximum(exact, means.var(axis=0, ddof=1) * block)
 
 
+def _noise_coefficients(bank: ResidualBank, measurement_std: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(m, S+1, q) each residual's coefficients on the measurements of its window
+    (r_i = sum_l sum_c M_i[l, c] x_c(k - S + l)) and (q,) their noise variances."""
+    coef = bank.M.reshape(bank.m, bank.S + 1, -1)[:, :, : bank.q]
+    return coef, np.asarray(measurement_std, dtype=float) ** 2 * np.ones(bank.q)
+
+
 def long_run_covariance(bank: ResidualBank, measurement_std: np.ndarray) -> np.ndarray:
     """(m, m) long-run covariance (sum over all lags) of the normalised residuals under white
     measurement noise: r_i = sum_l sum_c M_i[l, c] x_c(k - S + l), so the sum of r over a
@@ -117,7 +125,14 @@ def long_run_covariance(bank: ResidualBank, measurement_std: np.ndarray) -> np.n
     of residuals (a bias fitted over many samples) really varies by: the white, independent
     residuals that least squares assumes would give the identity. Process noise adds
     correlation this does not count."""
-    coef = bank.M.reshape(bank.m, bank.S + 1, -1)[:, :, : bank.q]
-    var = np.asarray(measurement_std, dtype=float) ** 2 * np.ones(bank.q)
+    coef, var = _noise_coefficients(bank, measurement_std)
     gain = coef.sum(axis=1) / bank.sigma[:, None]  # (m, q)
     return (gain * var[None, :]) @ gain.T
+
+
+def instant_covariance(bank: ResidualBank, measurement_std: np.ndarray) -> np.ndarray:
+    """(m, m) covariance of the normalised residuals at one sample under white measurement
+    noise (the same coefficients, lag by lag)."""
+    coef, var = _noise_coefficients(bank, measurement_std)
+    flat = (coef / bank.sigma[:, None, None]).reshape(bank.m, -1)
+    return (flat * np.tile(var, bank.S + 1)[None, :]) @ flat.T

@@ -40,7 +40,12 @@ import numpy as np
 from scipy import special  # quantiles: 30 ms to import where scipy.stats takes 0.6 s
 
 from canfdi.core.residuals import ResidualBank
-from canfdi.methods.parity.hypotheses import Hypothesis, noise_units, row_regressors
+from canfdi.methods.parity.hypotheses import (
+    Hypothesis,
+    noise_units,
+    row_regressors,
+    steady_response,
+)
 
 __all__ = ["AcceptedFaultTracker", "Correction", "Tracked"]
 
@@ -133,8 +138,7 @@ class AcceptedFaultTracker:
     def _ratio(self, h: Hypothesis) -> float:
         """How much a sum of residuals along the channel's steady bias signature varies over
         what least squares assumes (1: white, independent residuals)."""
-        G = self.bank.Gz if h.target == "sensor" else self.bank.Gu
-        phi = G[h.index].sum(axis=-1) / self.bank.sigma
+        phi = steady_response(self.bank, h.target, h.index)
         norm = float(phi @ phi)
         return float(phi @ self.gamma @ phi) / norm if norm > 0.0 else 1.0
 
