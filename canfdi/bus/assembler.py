@@ -41,6 +41,10 @@ Frame statuses (canfdi.bus.frames ``STATUS_NAMES``, int8 codes in the batch form
 ``implausible`` a mapped value outside its signal's range (the DBC's, or the config's
                 ``bus.map.<name>.range``): data without protection (CANopen has no CRC) that
                 no drive sends
+``saturated``   a mapped value at a limit of what its signal can carry (the DBC's
+                [minimum|maximum] within the raw range; a limit at 0 excepted): the sender
+                clipped it, so it says only that the quantity is at or beyond the limit, and a
+                model fed it sees a fault that is not there
 =============== ============================================================================
 
 The first three are valid; every other status is counted by reason and never enters a sample.
@@ -72,7 +76,7 @@ from canfdi.core.settings import ConfigError
 __all__ = ["AssembledLog", "SampleAssembler", "assemble_batch"]
 
 (_OK, _MONITOR, _UNUSED, _UNKNOWN_ID, _EXTENDED, _REMOTE, _ERROR_FRAME, _FD, _DLC, _CRC,
- _DUPLICATE, _STALE, _JUMP, _TIME_JUMP, _IMPLAUSIBLE) = range(len(STATUS_NAMES))
+ _DUPLICATE, _STALE, _JUMP, _TIME_JUMP, _IMPLAUSIBLE, _SATURATED) = range(len(STATUS_NAMES))
 
 # Fewest accepted drive frames push_batch sends through the state machine at a time (unless a
 # regular run can take over), and fewest periods of a run it assembles with numpy: below these

@@ -14,7 +14,8 @@ with numpy. Statuses are canfdi.bus.frames' ``STATUS_NAMES``: ``error_frame``, `
 request for an ID no message has; one for a known message, as a master polling it, is
 ``unused``), ``unknown_id`` (11-bit) / ``extended`` (29-bit) for an ID no message has, ``fd``
 for a frame whose FD flag is not its message's, ``dlc``, ``crc`` (the E2E check failed),
-``monitor``, ``unused``, ``ok``.
+``monitor``, ``unused``, ``ok``; ``implausible`` for a mapped value outside its range and
+``saturated`` for one at a limit of what its signal can carry (`_clip_limits`).
 """
 
 from __future__ import annotations
@@ -58,6 +59,7 @@ if TYPE_CHECKING:
 __all__ = ["BusMap", "Known", "MessageKey", "find_message", "keys_of", "load_dbc", "message_key"]
 
 _IMPLAUSIBLE = STATUS_CODES["implausible"]
+_SATURATED = STATUS_CODES["saturated"]
 (_OK, _MONITOR, _UNUSED, _UNKNOWN_ID, _EXTENDED, _REMOTE, _ERROR, _FD, _DLC, _CRC) = (
     STATUS_CODES[name] for name in ("ok", "monitor", "unused", "unknown_id", "extended",
                                     "remote", "error_frame", "fd", "dlc", "crc"))
@@ -216,6 +218,28 @@ def _plausible(message: Message, signal: str, ref: SignalRef | None) -> tuple[fl
     return low - slack, high + slack
 
 
+def _clip_limits(sig: SignalLayout) -> tuple[float, float]:
+    """(low, high): a mapped value at or beyond either is *saturated*: the sender clipped it to
+    what the signal can carry (`SignalLayout.physical_limits`: the DBC's [minimum|maximum]
+    within the raw range), so it says only that the quantity is at or beyond the limit. Each
+    limit is moved in by half a step, so that a limit decoded with another rounding still
+    counts. A limit at 0 is none: zero is where a quantity rests (a motor at standstill, no
+    current), and a signal that can go below it has a signed range. A float signal has none:
+    its range is where its type ends, which no drive's value reaches.
+
+    >>> _clip_limits(SignalLayout("v", 0, 16, True, False, 0.002, 0.0, -65.536, 65.534))
+    (-65.535, 65.533)
+    >>> _clip_limits(SignalLayout("n", 0, 16, False, False, 1.0, 0.0, 0.0, 100.0))
+    (-inf, 99.5)
+    """
+    if sig.is_float:
+        return -math.inf, math.inf
+    lo, hi = sig.physical_limits()
+    half = abs(sig.scale) / 2.0
+    return (-math.inf if abs(lo) < half else lo + half,
+            math.inf if abs(hi) < half else hi - half)
+
+
 def _profile(e2e: Any, message: Message, key: MessageKey, explicit_only: bool) -> E2EProfile:
     """The E2E profile of a message on this bus. A slot takes its configured profile (the
     default when not listed); a message that is no slot only a profile configured for it by
@@ -267,6 +291,14 @@ class _Slot:
     low: tuple[float, ...] = ()  # per field, the plausible range (-inf, inf: none)
     high: tuple[float, ...] = ()
     checked: bool = False  # whether any field has a range
+    clip_low: tuple[float, ...] = ()  # per field, where the sender clips (`_clip_limits`)
+    clip_high: tuple[float, ...] = ()
+
+    def saturated(self, values: np.ndarray) -> np.ndarray:
+        """(...) whether a row of decoded field values (..., fields) has one at a limit of
+        what its signal can carry; NaN never is."""
+        v = np.asarray(values, dtype=float)
+        return ((v <= np.array(self.clip_low)) | (v >= np.array(self.clip_high))).any(axis=-1)
 
 
 @dataclass(frozen=True)
@@ -376,15 +408,23 @@ class BusMap:
         return u, z
 
     def quantize(self, U: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(..., p) commands and (..., q) measurements as the bus carries them: each value
-        through its signal's encode and decode (`SignalLayout.quantize`)."""
+        """(..., p) commands and (..., q) measurements as the monitor receives them: each value
+        through its signal's encode and decode (`SignalLayout.quantize`), and NaN for every
+        value of a message one of whose values the encoding clipped (its frame "saturated",
+        as `decode_frames` finds it)."""
         u_sig, z_sig = self.model_signals()
-        U_q, Z_q = np.empty_like(U, dtype=float), np.empty_like(Z, dtype=float)
+        flat = np.empty((*np.shape(U)[:-1], self.p + self.q))
         for j, sig in enumerate(u_sig):
-            U_q[..., j] = sig.quantize(U[..., j])
+            flat[..., j] = sig.quantize(U[..., j])
         for j, sig in enumerate(z_sig):
-            Z_q[..., j] = sig.quantize(Z[..., j])
-        return U_q, Z_q
+            flat[..., self.p + j] = sig.quantize(Z[..., j])
+        for s in self._slots:
+            if s.dests:
+                dests = list(s.dests)
+                values = flat[..., dests]
+                values[s.saturated(values)] = np.nan
+                flat[..., dests] = values
+        return flat[..., :self.p], flat[..., self.p:]
 
     def resolution(self, U: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """((p,), (q,)): the rounding noise each model input and output carries on the bus
@@ -458,8 +498,10 @@ class BusMap:
                       for sig, vec, j in ordered]
             low = tuple(r[0] for r in ranges)
             high = tuple(r[1] for r in ranges)
+            clips = [_clip_limits(layout.signal(sig)) for sig, _, _ in ordered]
             slots.append(_Slot(layout, key, profile, ordered, dests, _program(layout, ordered),
-                               low, high, any(np.isfinite(low + high))))
+                               low, high, any(np.isfinite(low + high)),
+                               tuple(c[0] for c in clips), tuple(c[1] for c in clips)))
         keys = [s.key for s in slots]
         if len(set(keys)) != len(keys):
             raise ConfigError("bus.node.id", f"two mapped messages of drive {drive.name} get "
@@ -522,6 +564,9 @@ class BusMap:
         if s.checked and not all(lo <= v <= hi for v, lo, hi in zip(values, s.low, s.high,
                                                                     strict=True)):
             return "implausible", slot, (), -1
+        if any(v <= lo or v >= hi for v, lo, hi in zip(values, s.clip_low, s.clip_high,
+                                                       strict=True)):
+            return "saturated", slot, (), -1
         return "ok", slot, values, counter
 
     def decode_frames(
@@ -590,6 +635,13 @@ class BusMap:
                 if not inside.all():
                     bad = rows[~inside]
                     status[bad] = _IMPLAUSIBLE
+                    values[bad] = np.nan
+                    counters[bad] = -1
+            if s.fields:
+                clipped = s.saturated(values[rows, :len(s.fields)])
+                if clipped.any():
+                    bad = rows[clipped]
+                    status[bad] = _SATURATED
                     values[bad] = np.nan
                     counters[bad] = -1
         return status, slot, values, counters

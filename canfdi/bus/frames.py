@@ -41,7 +41,7 @@ _GET = {name: operator.attrgetter(name) for name in (
 
 STATUS_NAMES: tuple[str, ...] = (
     "ok", "monitor", "unused", "unknown_id", "extended", "remote", "error_frame", "fd", "dlc",
-    "crc", "duplicate", "stale", "jump", "time_jump", "implausible",
+    "crc", "duplicate", "stale", "jump", "time_jump", "implausible", "saturated",
 )
 """What the assembler found of each received frame (canfdi.bus.assembler explains each)."""
 STATUS_CODES: dict[str, int] = {name: code for code, name in enumerate(STATUS_NAMES)}

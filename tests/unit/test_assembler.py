@@ -163,7 +163,7 @@ def test_clean_traffic_assembles_every_sample_to_the_dbc_resolution():
         "frames_received": 3 * n, "frames_valid": 3 * n, "frames_invalid": 0,
         "invalid_by_reason": dict.fromkeys(
             ("unknown_id", "extended", "remote", "error_frame", "fd", "dlc", "crc",
-             "duplicate", "stale", "jump", "time_jump", "implausible"), 0),
+             "duplicate", "stale", "jump", "time_jump", "implausible", "saturated"), 0),
         "samples_complete": n, "samples_broken": 0, "samples_missing": 0, "duplicates": 0,
         "clock_steps": 0,
     }

@@ -401,3 +401,55 @@ def test_a_value_outside_its_range_is_implausible_frame_by_frame_and_by_the_bloc
     doc["bus"]["map"]["i_f"]["range"] = [5, -5]
     with pytest.raises(ConfigError, match=r"bus\.map\.i_f\.range"):
         parse_config(doc, CONFIGS / "dc_motor_cia402.yaml")
+
+
+def test_a_value_the_sender_clipped_is_saturated_frame_by_frame_by_the_block_and_quantized():
+    """A mapped value at a limit of what its signal carries (the VTOL's v_v at the raw range's
+    end, 65.534 kt) is "saturated": no values, no counter, in decode_frame and decode_frames
+    alike, and `quantize` gives NaN for every value of its message; one step inside it, or a
+    limit at 0, is a value."""
+    config = load_config(CONFIGS / "vtol.yaml")
+    bus_map = BusMap.from_config(config)
+    meas = dbc_files.load("vtol").get_message_by_name("DRIVE_MEAS")
+    rows = [{"v_h": 1.0, "v_v": 65.534, "pitch_rate": 0.5},   # at the top: clipped
+            {"v_h": 1.0, "v_v": 65.532, "pitch_rate": 0.5},   # a step inside
+            {"v_h": -65.536, "v_v": 0.0, "pitch_rate": 0.5},  # at the bottom
+            {"v_h": 0.0, "v_v": 0.0, "pitch_rate": 0.0}]      # zero is no limit of these
+    frames = [protect(meas.frame_id, meas.encode({"CRC": 0, "Counter": 0, **r}), k)
+              for k, r in enumerate(rows)]
+    expected = ["saturated", "ok", "saturated", "ok"]
+    slot = bus_map.slot_of[(meas.frame_id, False)]
+    for frame, status in zip(frames, expected, strict=True):
+        got = bus_map.decode_frame(meas.frame_id, frame)
+        assert got[0] == status
+        if status == "saturated":
+            assert got[1:] == (slot, (), -1)
+    payloads = np.array([list(f) for f in frames], dtype=np.uint8)
+    status, _, values, counters = bus_map.decode_frames(
+        _block([meas.frame_id] * 4, [meas.length] * 4, payloads))
+    assert [STATUS_NAMES[c] for c in status] == expected
+    clipped = np.array([s == "saturated" for s in expected])
+    assert np.isnan(values[clipped]).all() and not np.isnan(values[~clipped, :3]).any()
+    assert (counters[clipped] == -1).all() and (counters[~clipped] >= 0).all()
+    # quantize: what evaluate and soak feed the monitor in place of frames.
+    Z = np.array([[r["v_h"], r["v_v"], r["pitch_rate"], 2.0] for r in rows])
+    U = np.ones((4, 2))
+    U[1, 1] = 40.0  # the command's range ends at 32.767: its message is clipped
+    U_q, Z_q = bus_map.quantize(U, Z)
+    assert np.isnan(Z_q[clipped, :3]).all() and not np.isnan(Z_q[~clipped]).any()
+    assert not np.isnan(Z_q[:, 3]).any()  # v_v_plus_rate_plus_angle: its own message
+    assert np.isnan(U_q[1]).all() and not np.isnan(U_q[[0, 2, 3]]).any()
+
+
+def test_a_limit_at_zero_is_none_and_a_float_signal_has_none():
+    """`_clip_limits`: an unsigned [0|100] signal is saturated at 100 only; a float's range
+    is its type's."""
+    from canfdi.bus.codec import SignalLayout
+    from canfdi.bus.dbc import _clip_limits
+
+    assert _clip_limits(SignalLayout("n", 0, 8, False, False, 1.0, 0.0, 0.0, 100.0)) == (
+        -np.inf, 99.5)
+    assert _clip_limits(SignalLayout("x", 0, 32, True, True, 1.0, 0.0, None, None)) == (
+        -np.inf, np.inf)
+    lo, hi = _clip_limits(SignalLayout("s", 0, 8, True, False, 0.5, 0.0, None, None))
+    assert (lo, hi) == (-63.75, 63.25)  # the raw range -128..127 times 0.5, half a step in

@@ -46,7 +46,18 @@ k_d). ``min_samples`` after the alarm (the paper's L - l0; the window also holds
 * only when no actuator passes, sensor j, each onset: r_j = b U(k - k_f) by least squares
   (the other outputs must stay at zero); the onset of least cost is kept; the one test (eq. 16
   for a gain) is sigma(b) <= gamma |b|, i.e. b differs from zero, plus the fit-variance test.
-  Of several passing sensors the one of least total cost wins.
+  Of several passing sensors the one of least total cost wins. A sensor is not accepted while
+  some actuator's step response (a), at any onset, fits better by more than
+  ``EVIDENCE_MARGIN``: a small actuator fault's free fit is loose, so its kappa test can fail
+  while its model's step response explains the data far better than any sensor's step (a u2
+  bias of FNR 0.8 was accepted as an Omega2 bias with twice u2's cost); the diagnosis waits.
+
+A channel compensated already (a diagnosis of it *refines* it) is tested on its amplitude
+alone, its shape having been established when it was accepted, judged against the channel's
+whole fault, and also from the accepted fault's own onset: what an estimate off by a little
+leaves acts from there, through a slow path still rising when it is detected, which no step
+from inside the new window fits (it was taken for a small bias of another output). Of several
+refinements, the one of least cost.
 
 No hypothesis passing by ``max_samples``: an "unexplained" event and the detector restarts
 (a transient, a multiplicative fault, or a fault outside the abrupt additive model). Tests are
@@ -100,7 +111,12 @@ from canfdi.methods.output_error.model import (
     simulate,
 )
 
-__all__ = ["HypothesisTest", "OeDiagnosis", "OeSettings", "OutputErrorDiagnoser",
+EVIDENCE_MARGIN = 10.83
+"""Least-squares cost (normalised, twice the log-likelihood) by which an actuator's step
+response may fit better than a sensor's step and the sensor still be accepted: chi-square
+with one degree of freedom at 0.001, odds of 225 to 1."""
+
+__all__ = ["EVIDENCE_MARGIN", "HypothesisTest", "OeDiagnosis", "OeSettings", "OutputErrorDiagnoser",
            "oe_thresholds", "settling_samples"]
 
 
@@ -474,32 +490,41 @@ class OutputErrorDiagnoser(DetectorBacked):
         zero_cost = (Rv**2).sum(axis=0)  # (q,) cost of each output if it stays at zero
         tried: list[HypothesisTest] = []
         passing = []
+        actuator_cost = math.inf  # the least cost of any actuator's step response, any onset
         for i in range(self.p):
             outs = np.flatnonzero(self._paths[:, i])
             if len(outs) == 0:
                 continue
+            # A new fault's onset is the one whose step response has the model's shape; a
+            # refinement's, where the rest it measures fits best.
+            rank = ((lambda h: (h.passes, -h.cost)) if self._accepted_onset("actuator", i)
+                    is not None else (lambda h: (h.passes, -h.distance)))
             best_h = None
-            for kf in d.onsets:
+            for kf in self._onsets("actuator", i):
                 res = self._actuator_test(i, outs, kf, kk, Rn, Rv, valid, zero_cost, n_eq)
-                if best_h is None or (res.passes, -res.distance) > (best_h.passes,
-                                                                    -best_h.distance):
+                actuator_cost = min(actuator_cost, res.cost)
+                if best_h is None or rank(res) > rank(best_h):
                     best_h = res
             tried.append(best_h)
             if best_h.passes:
                 passing.append(best_h)
-        found = min(passing, key=lambda h: h.distance) if passing else None
+        # A refinement (its shape taken as known: distance 0) is told from another by its cost.
+        found = min(passing, key=lambda h: (h.distance, h.cost)) if passing else None
         refines = found is not None and self._refines(found)
         if found is not None and not refines:
             return found, tried
         sensors = []
         for j in range(self.q):
             best_h = None
-            for kf in d.onsets:
+            for kf in self._onsets("sensor", j):
                 res = self._sensor_test(j, kf, kk, Rv, valid, zero_cost, n_eq)
                 if best_h is None or res.cost < best_h.cost:
                     best_h = res
             tried.append(best_h)
-            if best_h.passes:
+            # Not a sensor while an actuator's step response fits the data better by the
+            # margin, even one whose shape tests fail: a small fault's free fit is loose,
+            # and its model's step response is the likelihood that counts.
+            if best_h.passes and best_h.cost <= actuator_cost + EVIDENCE_MARGIN:
                 sensors.append(best_h)
         # A refinement of an actuator (shape not retested) competes with the sensors on cost.
         found = min([*sensors, *([found] if refines else [])], key=lambda h: h.cost,
@@ -511,6 +536,23 @@ class OutputErrorDiagnoser(DetectorBacked):
     def _refines(self, h: HypothesisTest) -> bool:
         """Whether h's channel is compensated already (its diagnosis would refine it)."""
         return bool(compensated(self.compensation, h.target, h.index))
+
+    def _accepted_onset(self, target: str, index: int) -> int | None:
+        """The onset of the fault accepted on this channel, None when there is none."""
+        return min((c.onset for c in self.compensation
+                    if c.target == target and c.index == index), default=None)
+
+    def _onsets(self, target: str, index: int) -> list[int]:
+        """The onsets tried for a hypothesis: the diagnosis' candidates and, for a channel
+        compensated already, the accepted fault's own onset. What an estimate off by a little
+        leaves acts from that onset on: through a slow path, a rest still rising when it is
+        detected, which no step from inside the window fits (it was taken for a small bias
+        of another output)."""
+        onsets = list(self._diag.onsets)
+        first = self._accepted_onset(target, index)
+        if first is not None and first not in onsets:
+            onsets.insert(0, first)
+        return onsets
 
     def _actuator_test(self, i, outs, kf, kk, Rn, Rv, valid, zero_cost, n_eq) -> HypothesisTest:
         s = self.settings
@@ -531,6 +573,13 @@ class OutputErrorDiagnoser(DetectorBacked):
             lam, cost, var = 0.0, float((Rv**2).sum()), np.inf
         scale = cost / max(n_eq - 1, 1)
         fits = scale <= s.max_fit_variance
+        total = compensated(self.compensation, "actuator", i)
+        if total:
+            # A refinement: the path's shape was established when the fault was accepted; what
+            # is left is an amplitude, judged against the channel's whole fault.
+            passes = bool(fits and np.sqrt(var) <= s.gamma * max(abs(lam), abs(total["lambda"])))
+            return HypothesisTest("actuator", i, self.input_names[i], int(kf), {"lambda": lam},
+                                  {"lambda": float(var)}, cost, 0.0, True, fits, passes)
         # (b) the free fit of the residual's step response on each output the path reaches.
         gamma_ok, distance = True, 0.0
         for j in outs:
@@ -550,11 +599,6 @@ class OutputErrorDiagnoser(DetectorBacked):
                 g = fit.static_gain
                 gamma_ok &= bool(np.sqrt(np.sum(fit.var_b)) <= s.gamma * abs(g))
         passes = bool(fits and gamma_ok and distance <= s.kappa)
-        total = compensated(self.compensation, "actuator", i)
-        if total:
-            # A refinement: the path's shape was established when the fault was accepted; what
-            # is left is an amplitude, judged against the channel's whole fault.
-            passes = bool(fits and np.sqrt(var) <= s.gamma * max(abs(lam), abs(total["lambda"])))
         return HypothesisTest("actuator", i, self.input_names[i], int(kf), {"lambda": lam},
                               {"lambda": float(var)}, cost, distance, gamma_ok, fits, passes)
 
