@@ -103,20 +103,35 @@ def test_rate_upper_bound():
     assert rate_lower_bound(8, 10**7) == pytest.approx(chi2.ppf(0.05, 16) / 2e7)
 
 
-def test_quantize_is_the_dbc_encode_then_decode():
+def test_quantize_is_what_the_monitor_decodes_from_the_frames():
+    """BusMap.quantize, which soak and evaluate feed the monitor, equals each message encoded,
+    protected, and decoded by the monitor's frame path: rounded to the DBC's resolution, and
+    NaN for every value of a frame with a value clipped at its signal's range ("saturated")."""
+    from canfdi.bus.e2e import protect_batch
+    from canfdi.bus.frames import STATUS_NAMES, FrameBlock
+
     config = load_config(CONFIG)
     bus_map = BusMap.from_config(config)
     rng = np.random.default_rng(1)
-    U = rng.uniform(-400, 400, (200, 1))  # beyond the 16-bit range on purpose: clipped
-    Z = np.column_stack([rng.uniform(0, 3, 200), rng.uniform(0, 20, 200),
-                         rng.uniform(0, 23, 200), rng.uniform(0, 200, 200)])
-    expected_u, expected_z = np.empty_like(U), np.empty_like(Z)
-    for layout, fields in zip(bus_map.layouts, bus_map.fields, strict=True):
+    n = 200
+    U = rng.uniform(-400, 400, (n, 1))  # beyond the 16-bit range on purpose: clipped
+    Z = np.column_stack([rng.uniform(0, 3, n), rng.uniform(0, 20, n),
+                         rng.uniform(0, 23, n), rng.uniform(0, 200, n)])
+    expected_u, expected_z = np.full_like(U, np.nan), np.full_like(Z, np.nan)
+    statuses = []
+    for layout, fields, key in zip(bus_map.layouts, bus_map.fields, bus_map.keys, strict=True):
         values = {name: (U if vec == "u" else Z)[:, j] for name, vec, j in fields}
-        payloads, _ = layout.encode(values, 200)
-        decoded = layout.decode(payloads)
-        for name, vec, j in fields:
-            (expected_u if vec == "u" else expected_z)[:, j] = decoded[name]
+        payloads = np.zeros((n, 8), dtype=np.uint8)
+        payloads[:, :layout.dlc] = protect_batch(key[0], layout.encode(values, n)[0],
+                                                 np.arange(n))
+        block = FrameBlock(np.zeros(n, dtype=np.int64), np.full(n, key[0], dtype=np.uint32),
+                           np.full(n, layout.dlc, dtype=np.uint8), np.zeros(n, dtype=np.uint8),
+                           payloads)
+        status, _, decoded, _ = bus_map.decode_frames(block)
+        statuses += [STATUS_NAMES[c] for c in status]
+        for col, (_, vec, j) in enumerate(fields):
+            (expected_u if vec == "u" else expected_z)[:, j] = decoded[:, col]
+    assert set(statuses) == {"ok", "saturated"} and statuses.count("saturated") > 20
     got_u, got_z = bus_map.quantize(U, Z)
     np.testing.assert_array_equal(got_u, expected_u)
     np.testing.assert_array_equal(got_z, expected_z)
