@@ -417,7 +417,9 @@ class StepFit:
     """The residual's response to a step, fitted as an OE model B/F q^-d of a given structure.
 
     b, f : estimates; var_b, var_f : their variances (sigma^2 (J^T J)^-1, sigma^2 estimated
-    from the fit); cost : sum of squared errors; n : equations used.
+    from the fit); cost : sum of squared errors; n : equations used; held_costs : for each of
+    the fit's ``f_starts``, the cost with F held there and B fitted (a known shape, its gain
+    free: never below ``cost``).
     """
 
     b: np.ndarray
@@ -426,6 +428,7 @@ class StepFit:
     var_f: np.ndarray
     cost: float
     n: int
+    held_costs: tuple[float, ...] = ()
 
     @property
     def static_gain(self) -> float:
@@ -453,11 +456,17 @@ def fit_step(r: np.ndarray, onset: int, nb: int, nf: int, delay: int,
     st = [_Structure(0, nb, nf, delay)]
     best = None
     starts = [np.zeros(nf)] + [np.asarray(f, dtype=float) for f in f_starts]
+    held = []
     for f0 in starts:
         # B given F is linear: start from its least-squares value.
         uf = lfilter([1.0], np.concatenate([[1.0], f0]), u[:, 0])
         X = np.column_stack([_shift(uf, delay + lag) for lag in range(nb)])
-        b0 = least_squares(X, y, weights=weight).theta if nb else np.zeros(0)
+        if nb:
+            gain = least_squares(X, y, weights=weight)
+            b0, held_cost = gain.theta, float(gain.cost)
+        else:
+            b0, held_cost = np.zeros(0), float(np.sum(weight * y**2))
+        held.append(held_cost)
         theta, res_w, J = _prediction_error_fit(u, y, st, False, weight,
                                                  np.concatenate([b0, f0]))
         cost = float(res_w @ res_w)
@@ -467,4 +476,5 @@ def fit_step(r: np.ndarray, onset: int, nb: int, nf: int, delay: int,
     n = int(weight.sum())
     sigma2 = cost / max(n - len(theta), 1)
     var = sigma2 * np.diag(np.linalg.pinv(J.T @ J))
-    return StepFit(b=theta[:nb], f=theta[nb:], var_b=var[:nb], var_f=var[nb:], cost=cost, n=n)
+    return StepFit(b=theta[:nb], f=theta[nb:], var_b=var[:nb], var_f=var[nb:], cost=cost, n=n,
+                   held_costs=tuple(held[1:]))
