@@ -350,7 +350,9 @@ class _Field:
         else:
             x = bits.astype(np.float64)
         if self.conv == _LINEAR:
-            with np.errstate(invalid="ignore"):  # signalling NaNs of float64 fields
+            # Signalling NaNs of float64 fields; a float64 times a large scale is inf, as
+            # cantools decodes it.
+            with np.errstate(invalid="ignore", over="ignore"):
                 x *= self.scale
                 if self.offset:
                     x += self.offset

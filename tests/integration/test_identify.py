@@ -102,7 +102,10 @@ def test_the_written_config_keeps_the_users_file(identified):
 
 def test_the_sensor_biases_are_diagnosed_on_their_channels(identified, logs):
     """Iq_Measured +0.5 A at 40 s and Vel_Estimate +0.1 turn/s at 80 s: each on its channel,
-    within 10 % and 5 samples of its onset."""
+    within 10 % and 5 samples of its onset, accepted within 50 samples of it with no other
+    candidate. (Issue 29's near twin: with the load decoupled, an Iq_Measured bias differed
+    from a current-command offset only in a one-sample transient, and the diagnosis ended "no
+    single fault fits", then accepted the channel 1,999 samples after its onset.)"""
     out, _ = identified
     result = _replay(logs["faults"], out)
     faults = result["faults"]
@@ -112,6 +115,7 @@ def test_the_sensor_biases_are_diagnosed_on_their_channels(identified, logs):
         assert f["estimate"]["bias"] == pytest.approx(bias, rel=0.1)
         assert abs(f["onset_sample"] - onset) <= 5
         assert f["detected_sample"] - onset <= 5
+        assert f["accepted_sample"] - onset <= 50 and f["candidates"] == []
     assert result["unexplained"] == []
 
 
