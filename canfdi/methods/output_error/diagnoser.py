@@ -57,6 +57,11 @@ k_d). ``min_samples`` after the alarm (the paper's L - l0; the window also holds
   while its model's step response explains the data far better than any sensor's step (a u2
   bias of FNR 0.8 was accepted as an Omega2 bias with twice u2's cost); the diagnosis waits.
 
+An accepted new fault names as its candidates (the FaultEvent's, found first) every other
+channel whose hypothesis fits as well, within ``EVIDENCE_MARGIN`` (`alike`): near twins,
+whose responses differ only in a transient the noise hides (a u3 bias and a T3 bias below
+FNR 1), are named together rather than guessed between.
+
 A channel compensated already (a diagnosis of it *refines* it) is tested on its amplitude
 alone, its shape having been established when it was accepted, judged against the channel's
 whole fault, and also from the accepted fault's own onset: what an estimate off by a little
@@ -483,7 +488,7 @@ class OutputErrorDiagnoser(DetectorBacked):
                                      next_check=k + s.check_every, k=d.k, r=d.r)
         found, tried = self.isolate()
         if found is not None:
-            return self._accept(k, t, found)
+            return self._accept(k, t, found, self.alike(found, tried))
         if since >= s.max_samples:
             return self._unexplained(k, t, tried)
         return []
@@ -522,8 +527,8 @@ class OutputErrorDiagnoser(DetectorBacked):
         # A refinement (its shape taken as known: distance 0) is told from another by its cost.
         found = min(passing, key=lambda h: (h.distance, h.cost)) if passing else None
         refines = found is not None and self._refines(found)
-        if found is not None and not refines:
-            return found, tried
+        # The sensors are tried even when an actuator is found: one that fits as well is
+        # named beside it (`alike`).
         sensors = []
         for j in range(self.q):
             best_h = None
@@ -537,6 +542,8 @@ class OutputErrorDiagnoser(DetectorBacked):
             # and its model's step response is the likelihood that counts.
             if best_h.passes and best_h.cost <= actuator_cost + EVIDENCE_MARGIN:
                 sensors.append(best_h)
+        if found is not None and not refines:
+            return found, tried
         # A refinement of an actuator (shape not retested) competes with the sensors on cost,
         # and a new fault must fit better than the rest of an accepted one by the margin: an
         # estimate a little off leaves a rest that a small new bias fits about as well.
@@ -550,6 +557,29 @@ class OutputErrorDiagnoser(DetectorBacked):
         if found is not None:
             return found, tried
         return None, sorted(tried, key=lambda h: h.cost)
+
+    def alike(self, found: HypothesisTest, tried: list[HypothesisTest]
+              ) -> tuple[dict, ...]:
+        """The candidates of a new fault: ``found`` first, then every other channel whose
+        hypothesis fits the data (cost per equation within ``max_fit_variance``, an
+        amplitude that differs from zero by eq. 16) within ``EVIDENCE_MARGIN`` of its cost,
+        by cost; () when there is none, or for a refinement. Two channels whose responses
+        differ only in a transient buried in the noise (a u3 bias and a T3 bias below FNR 1:
+        u3 reaches T3 alone, through a pole of 0.8) are told apart by nothing the data hold,
+        so the diagnosis names both rather than guess."""
+        if self._refines(found):
+            return ()
+        s = self.settings
+
+        def significant(h: HypothesisTest) -> bool:
+            key = "lambda" if h.target == "actuator" else "bias"
+            return bool(np.sqrt(h.variances[key]) <= s.gamma * abs(h.estimates[key]))
+
+        others = sorted((h for h in tried
+                         if (h.target, h.index) != (found.target, found.index) and h.fits
+                         and significant(h) and h.cost <= found.cost + EVIDENCE_MARGIN),
+                        key=lambda h: (h.cost, h.target, h.index))
+        return (found.candidate(), *(h.candidate() for h in others)) if others else ()
 
     def _refines(self, h: HypothesisTest) -> bool:
         """Whether h's channel is compensated already (its diagnosis would refine it)."""
@@ -657,7 +687,8 @@ class OutputErrorDiagnoser(DetectorBacked):
         self._recent.clear()
         return [event]
 
-    def _accept(self, k: int, t: int, h: HypothesisTest) -> list[FaultEvent]:
+    def _accept(self, k: int, t: int, h: HypothesisTest,
+                candidates: tuple[dict, ...] = ()) -> list[FaultEvent]:
         d = self._diag
         onset = h.onset
         kind, total = fold(self.compensation, Compensation(
@@ -667,7 +698,7 @@ class OutputErrorDiagnoser(DetectorBacked):
                            index=h.index, name=h.name,
                            estimates=dict(h.estimates) if kind == "accepted" else total,
                            variances=dict(h.variances), onset_sample=onset,
-                           detected_sample=d.k_d, accepted_sample=k)
+                           detected_sample=d.k_d, accepted_sample=k, candidates=candidates)
         if h.target == "actuator" and self._states is not None:
             # Section 3.3 by superposition: the models' state after sample k moves by lambda
             # times the state a unit step applied from the onset leaves in each path.
