@@ -23,7 +23,10 @@ per equation at most ``max_fit_variance`` times nominal: a transient such as one
 is no persistent fault, and no step fits it). Hypotheses whose bias signatures over the window
 are proportional fit equally well forever (the ambiguity group); the event then lists them all
 as candidates, with the size each would have.
-No acceptance by ``max_samples``: an "unexplained" event and the detector restarts.
+At ``max_samples`` a best hypothesis that fits but whose margin over some others was never
+reached (near twins: signatures that differ only in a transient the noise hides) is accepted
+with those others named as its candidates, each with its estimate; one that does not fit: an
+"unexplained" event, and the detector restarts.
 
 ACCEPT. The estimate is folded into a compensation applied from k_f on (z_j - b, or
 u_j = eta u_cj + lambda), the residual window is rebuilt from compensated samples and the
@@ -451,6 +454,12 @@ class ParityDiagnoser(DetectorBacked):
                 and (rr - float(cost[best, kb])) / scale >= s.isolation_margin)
         if margin_ok and fits and (settled or since >= s.max_samples):
             return self._accept(k, t, best, kb, theta, var, scale, best_onset, cost_h)
+        if fits and since >= s.max_samples:
+            # Near twins: what tells them apart (a transient) is buried in the noise, and
+            # max_samples of data did not decide. The fault is there and fits: name the best
+            # with every channel within the margin as its candidates rather than none.
+            near = [i for i in outside if cost_h[i] - cost_h[best] < s.isolation_margin]
+            return self._accept(k, t, best, kb, theta, var, scale, best_onset, cost_h, near)
         if since >= s.max_samples:
             return self._unexplained(k, t, theta, best_onset, order)
         return []
@@ -552,23 +561,37 @@ class ParityDiagnoser(DetectorBacked):
         return tuple(out)
 
     def _accept(self, k: int, t: int, best: int, kb: int, theta: np.ndarray, var: np.ndarray,
-                scale: float, best_onset: np.ndarray, cost_h: np.ndarray) -> list[FaultEvent]:
+                scale: float, best_onset: np.ndarray, cost_h: np.ndarray,
+                near: list[int] = ()) -> list[FaultEvent]:
         d = self._diag
         h = self.hypotheses[best]
         onset = int(d.onsets[kb])
         th = theta[best, kb]
+        family = "actuator" if h.target == "actuator_bias" else h.target
+        alike = [self._describe(self.hypotheses[i], theta[i, best_onset[i]]) for i in near
+                 if self.hypotheses[i].target != "sensors"]
+        alike = [c for c in alike if (c["target"], c["index"]) != (family, h.index)]
         faults = []  # (target, index, estimates, variances, candidates)
         if h.target in ("actuator", "actuator_bias"):
             desc = self._describe(h, th, var)
-            faults.append(("actuator", h.index, desc["estimates"], desc["variances"], ()))
+            named = (desc, *alike) if alike else ()
+            faults.append(("actuator", h.index, desc["estimates"], desc["variances"],
+                           tuple({k2: c[k2] for k2 in ("target", "index", "name", "estimates")}
+                                 for c in named)))
         else:
             members = h.members if h.target == "sensors" else (h.index,)
             for c, j in enumerate(members):
                 # In a joint fit a member with no significant bias is healthy.
                 if h.target == "sensors" and abs(th[c]) <= 5.0 * np.sqrt(var[c]):
                     continue
+                twins = self._sensor_twins(j, float(th[c]))
+                if alike and h.target == "sensor":
+                    first = twins or ({"target": "sensor", "index": j, "name": h.name,
+                                       "estimates": {"bias": float(th[c])}},)
+                    twins = (*first, *({k2: a[k2] for k2 in ("target", "index", "name",
+                                                            "estimates")} for a in alike))
                 faults.append(("sensor", j, {"bias": float(th[c])}, {"bias": float(var[c])},
-                               self._sensor_twins(j, float(th[c]))))
+                               twins))
         if not faults:
             # The best fit is a joint sensor bias with no member significant: no persistent
             # fault explains the alarm (a transient, such as one corrupt sample).
