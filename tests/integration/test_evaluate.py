@@ -134,25 +134,44 @@ def _simulated(spec, setup):
     return chunk.u_c, chunk.z
 
 
+def _evaluate_run(config_name: str, plant: str, run: int, runs: int = 100,
+                  interval: float | None = None):
+    """(spec, outcome) of run ``run`` of `canfdi evaluate --plant PLANT --config CONFIG --runs
+    RUNS` (seed 1), with the shipped config (its false-alarm interval replaced when given),
+    its values as the bus carries them."""
+    import yaml
+
+    from canfdi.bus.dbc import BusMap
+    from canfdi.config import parse_config
+    from canfdi.methods import build_diagnoser, get
+    from canfdi.tools.evaluate import plan_runs, run_one, setup_from_config
+
+    path = REPO / "deploy" / "config" / config_name
+    doc = yaml.safe_load(path.read_text())
+    if interval is not None:
+        doc["detection"]["false_alarm_interval"] = interval
+    config = parse_config(doc, path)
+    setup = setup_from_config(config, plant)
+    spec = plan_runs(setup, runs, 1, kinds=list(get(config.method).fault_kinds))[run]
+    names = {"actuator": list(config.inputs), "sensor": list(config.outputs)}
+    return spec, run_one(spec, setup, build_diagnoser(config), names,
+                         BusMap.from_config(config).quantize)
+
+
+def _oe_run(run: int, runs: int = 100, interval: float | None = None):
+    """`_evaluate_run` of the winding machine's output_error config."""
+    return _evaluate_run("winding_machine_oe.yaml", "winding_machine", run, runs, interval)
+
+
 def test_the_rest_of_an_actuator_estimate_refines_it_from_its_own_onset():
     """evaluate's run 19 on the winding machine (output_error, seed 1): u2's bias is accepted
     1.8 % short; what that leaves rises through the slow paths from the fault's onset (781)
     and is detected 19 samples after acceptance. Tried only from inside the new window, no
     step of u2 fitted it and it was accepted as a bias of Omega2 (a false alarm); tried from
     the accepted onset, it refines u2 to within 0.2 %."""
-    from canfdi.bus.dbc import BusMap
-    from canfdi.config import load_config
-    from canfdi.methods import build_diagnoser, get
-    from canfdi.tools.evaluate import plan_runs, run_one, setup_from_config
-
-    config = load_config(REPO / "deploy" / "config" / "winding_machine_oe.yaml")
-    setup = setup_from_config(config, "winding_machine")
-    spec = plan_runs(setup, 30, 1, kinds=list(get(config.method).fault_kinds))[19]
+    spec, out = _oe_run(19, runs=30)
     (fault,) = spec.faults
     assert fault.label == "a:u2"
-    names = {"actuator": list(config.inputs), "sensor": list(config.outputs)}
-    out = run_one(spec, setup, build_diagnoser(config), names,
-                  BusMap.from_config(config).quantize)
     assert out.false_alarms == ()
     assert [r["channel"] for r in out.refinements] == ["a:u2"]
     (o,) = out.faults
@@ -166,45 +185,13 @@ def test_a_sensor_is_not_accepted_while_an_actuator_fits_far_better():
     but its loose free fit fails kappa, and Omega2 was accepted; then its rests raised two
     false alarms. The sensor now waits while u2 fits better by the evidence margin, and u2 is
     accepted."""
-    from canfdi.bus.dbc import BusMap
-    from canfdi.config import load_config
-    from canfdi.methods import build_diagnoser, get
-    from canfdi.tools.evaluate import plan_runs, run_one, setup_from_config
-
-    config = load_config(REPO / "deploy" / "config" / "winding_machine_oe.yaml")
-    setup = setup_from_config(config, "winding_machine")
-    spec = plan_runs(setup, 100, 1, kinds=list(get(config.method).fault_kinds))[52]
+    spec, out = _oe_run(52)
     (fault,) = spec.faults
     assert fault.label == "a:u2" and fault.fnr < 1.0
-    names = {"actuator": list(config.inputs), "sensor": list(config.outputs)}
-    out = run_one(spec, setup, build_diagnoser(config), names,
-                  BusMap.from_config(config).quantize)
     assert out.false_alarms == ()
     (o,) = out.faults
     assert (o.diagnosed, o.isolation) == ("a:u2", "exact")
     assert o.final_error < 0.1
-
-
-def _oe_run(run: int, runs: int = 100, interval: float | None = None):
-    """Run ``run`` of `canfdi evaluate --plant winding_machine --method output_error --runs
-    RUNS`, with the shipped config (its false-alarm interval replaced when given)."""
-    import yaml
-
-    from canfdi.bus.dbc import BusMap
-    from canfdi.config import parse_config
-    from canfdi.methods import build_diagnoser, get
-    from canfdi.tools.evaluate import plan_runs, run_one, setup_from_config
-
-    path = REPO / "deploy" / "config" / "winding_machine_oe.yaml"
-    doc = yaml.safe_load(path.read_text())
-    if interval is not None:
-        doc["detection"]["false_alarm_interval"] = interval
-    config = parse_config(doc, path)
-    setup = setup_from_config(config, "winding_machine")
-    spec = plan_runs(setup, runs, 1, kinds=list(get(config.method).fault_kinds))[run]
-    names = {"actuator": list(config.inputs), "sensor": list(config.outputs)}
-    return spec, run_one(spec, setup, build_diagnoser(config), names,
-                         BusMap.from_config(config).quantize)
 
 
 def test_an_actuator_shape_the_data_cannot_tell_from_its_model_passes():
@@ -252,18 +239,8 @@ def test_parity_names_near_twins_that_max_samples_did_not_tell_apart():
     the diagnoses ended "unexplained" (run 94) or, after one, took the twin (run 15). Now the
     fault, which fits, is accepted at max_samples with the other named as a candidate, each
     with its estimate."""
-    from canfdi.bus.dbc import BusMap
-    from canfdi.config import load_config
-    from canfdi.methods import build_diagnoser, get
-    from canfdi.tools.evaluate import plan_runs, run_one, setup_from_config
-
-    config = load_config(REPO / "deploy" / "config" / "winding_machine.yaml")
-    setup = setup_from_config(config, "winding_machine")
-    specs = plan_runs(setup, 100, 1, kinds=list(get(config.method).fault_kinds))
-    names = {"actuator": list(config.inputs), "sensor": list(config.outputs)}
-    base = build_diagnoser(config)
     for run, label in ((15, "s:T3"), (94, "a:u3")):
-        out = run_one(specs[run], setup, base, names, BusMap.from_config(config).quantize)
+        _, out = _evaluate_run("winding_machine.yaml", "winding_machine", run)
         (o,) = [o for o in out.faults if o.fault.label == label]
         assert o.decision == "accepted" and o.isolation in ("exact", "candidate"), run
         assert o.error < 0.1, run

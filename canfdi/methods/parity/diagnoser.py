@@ -567,17 +567,15 @@ class ParityDiagnoser(DetectorBacked):
         h = self.hypotheses[best]
         onset = int(d.onsets[kb])
         th = theta[best, kb]
-        family = "actuator" if h.target == "actuator_bias" else h.target
-        alike = [self._describe(self.hypotheses[i], theta[i, best_onset[i]]) for i in near
-                 if self.hypotheses[i].target != "sensors"]
-        alike = [c for c in alike if (c["target"], c["index"]) != (family, h.index)]
+        named = self._describe(h, th)  # without variances: a candidate's form
+        alike = [c for c in (self._describe(self.hypotheses[i], theta[i, best_onset[i]])
+                             for i in near if self.hypotheses[i].target != "sensors")
+                 if (c["target"], c["index"]) != (named["target"], named["index"])]
         faults = []  # (target, index, estimates, variances, candidates)
         if h.target in ("actuator", "actuator_bias"):
             desc = self._describe(h, th, var)
-            named = (desc, *alike) if alike else ()
             faults.append(("actuator", h.index, desc["estimates"], desc["variances"],
-                           tuple({k2: c[k2] for k2 in ("target", "index", "name", "estimates")}
-                                 for c in named)))
+                           (named, *alike) if alike else ()))
         else:
             members = h.members if h.target == "sensors" else (h.index,)
             for c, j in enumerate(members):
@@ -586,10 +584,7 @@ class ParityDiagnoser(DetectorBacked):
                     continue
                 twins = self._sensor_twins(j, float(th[c]))
                 if alike and h.target == "sensor":
-                    first = twins or ({"target": "sensor", "index": j, "name": h.name,
-                                       "estimates": {"bias": float(th[c])}},)
-                    twins = (*first, *({k2: a[k2] for k2 in ("target", "index", "name",
-                                                            "estimates")} for a in alike))
+                    twins = (*(twins or (named,)), *alike)
                 faults.append(("sensor", j, {"bias": float(th[c])}, {"bias": float(var[c])},
                                twins))
         if not faults:
