@@ -222,10 +222,12 @@ def _clip_limits(sig: SignalLayout) -> tuple[float, float]:
     """(low, high): a mapped value at or beyond either is *saturated*: the sender clipped it to
     what the signal can carry (`SignalLayout.physical_limits`: the DBC's [minimum|maximum]
     within the raw range), so it says only that the quantity is at or beyond the limit. Each
-    limit is moved in by half a step, so that a limit decoded with another rounding still
-    counts. A limit at 0 is none: zero is where a quantity rests (a motor at standstill, no
-    current), and a signal that can go below it has a signed range. A float signal has none:
-    its range is where its type ends, which no drive's value reaches.
+    limit is the value a clipped one decodes to (the limit encoded: a DBC's limit need not lie
+    on the signal's steps, as opendbc's Tesla DI_vehicleSpeed, 0.08 kph steps up to 285, whose
+    top is 284.96) moved in by half a step, so that another rounding of it still counts and
+    the next step in does not. A limit at 0 is none: zero is where a quantity rests (a motor
+    at standstill, no current), and a signal that can go below it has a signed range. A float
+    signal has none: its range is where its type ends, which no drive's value reaches.
 
     >>> _clip_limits(SignalLayout("v", 0, 16, True, False, 0.002, 0.0, -65.536, 65.534))
     (-65.535, 65.533)
@@ -234,7 +236,7 @@ def _clip_limits(sig: SignalLayout) -> tuple[float, float]:
     """
     if sig.is_float:
         return -math.inf, math.inf
-    lo, hi = sig.physical_limits()
+    lo, hi = (float(v) for v in sig.quantize(np.array(sig.physical_limits())))
     half = abs(sig.scale) / 2.0
     return (-math.inf if abs(lo) < half else lo + half,
             math.inf if abs(hi) < half else hi - half)

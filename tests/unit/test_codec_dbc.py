@@ -113,3 +113,33 @@ if __name__ == "__main__":
     import json
 
     print(json.dumps(coverage(), indent=1))
+
+
+@pytest.mark.parametrize("path", FILES, ids=[f"{p.parent.name}/{p.name}" for p in FILES])
+def test_a_value_the_encoding_clips_is_saturated_and_one_step_inside_is_not(path):
+    """BusMap's saturation limits (canfdi.bus.dbc._clip_limits) over every integer signal of
+    the public DBCs, whatever their scale, offset and stated range: a value beyond a nonzero
+    limit, encoded and decoded as a sender and the monitor do (`SignalLayout.quantize`), is
+    at or past it; the value one step inside is not. (Signals over 52 bits, whose steps a
+    float64 cannot tell apart, are left out.)"""
+    from canfdi.bus.dbc import _clip_limits
+
+    db = _database(path)
+    for message in db.messages:
+        layout, _ = _compilable(message)
+        for sig in layout.signals:
+            step = abs(sig.scale)
+            if sig.is_float or sig.length > 52 or step == 0.0:
+                continue
+            lo, hi = sig.physical_limits()
+            if hi - lo < 4 * step:
+                continue
+            clip_lo, clip_hi = _clip_limits(sig)
+            for limit, clip, inward in ((lo, clip_lo, 1.0), (hi, clip_hi, -1.0)):
+                if abs(limit) < step / 2:  # a limit at 0 is none
+                    assert np.isinf(clip), sig.name
+                    continue
+                at = float(sig.quantize(np.array([limit - inward * 10 * step]))[0])
+                inside = float(sig.quantize(np.array([at + inward * step]))[0])
+                assert (at <= clip) if inward > 0 else (at >= clip), (sig.name, at, clip)
+                assert (inside > clip) if inward > 0 else (inside < clip), (sig.name, inside)
