@@ -301,7 +301,7 @@ class OutputErrorDiagnoser(DetectorBacked):
         self.last_normalized: np.ndarray | None = None
 
     def _restart_detector(self, k: int = -1) -> None:
-        self.detector.restart(k)
+        self.detector.reset(k)
         self._diag = None
 
     @property
@@ -435,7 +435,7 @@ class OutputErrorDiagnoser(DetectorBacked):
         j, or the row of the alarm, which ``update`` then takes."""
         before = self._snapshot()
         res, rn = self._residuals(k[i:j], U[i:j], Z[i:j])
-        ph, done = self.detector.run(k[i:j], rn)
+        ph, done = self.detector.update_block(k[i:j], rn)
         alarmed = done < j - i
         if alarmed:
             # Redo the models up to the alarm row only: update() takes the alarm sample.
@@ -458,7 +458,7 @@ class OutputErrorDiagnoser(DetectorBacked):
 
     # -- the state machine -----------------------------------------------------------------
     def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
-        alarm = self.detector.step(k, rn)
+        alarm = self.detector.update(k, rn)
         if not alarm.any():
             return []
         alarming = np.flatnonzero(alarm)

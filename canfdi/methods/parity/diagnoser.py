@@ -237,7 +237,7 @@ class ParityDiagnoser(DetectorBacked):
 
     def _restart_detector(self, k: int = -1) -> None:
         """Zero the Page-Hinkley statistics; a change point cannot predate sample k."""
-        self.detector.restart(k)
+        self.detector.reset(k)
         self._diag = None
 
     @property
@@ -306,7 +306,7 @@ class ParityDiagnoser(DetectorBacked):
                 cap = int(reach[0])
             if cap == 0:
                 return i
-        ph, done = self.detector.run(k[i: i + cap], rn[:cap])
+        ph, done = self.detector.update_block(k[i: i + cap], rn[:cap])
         if done > 0:
             m = self.bank.m
             rows.stat[i: i + done] = np.maximum(ph.g_up[:done, :m], ph.g_down[:done, :m])
@@ -368,7 +368,7 @@ class ParityDiagnoser(DetectorBacked):
         return events
 
     def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
-        alarm = self.detector.step(k, rn)
+        alarm = self.detector.update(k, rn)
         if not alarm.any():
             return []
         alarming = np.flatnonzero(alarm)
