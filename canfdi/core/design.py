@@ -130,12 +130,6 @@ class Design:
         width = 0 if self.sensor_window is None else (self.sensor_window + 1) * self.model.q
         return np.array(rows) if rows else np.zeros((0, width))
 
-    def actuator_matrix(self) -> np.ndarray:
-        """V of the actuator bank: (p_exist, (s+1) q)."""
-        rows = [r.vector.vector for r in self.actuators if r.vector.exists]
-        width = 0 if self.actuator_window is None else (self.actuator_window + 1) * self.model.q
-        return np.array(rows) if rows else np.zeros((0, width))
-
     def sensor_jointly_estimable(self) -> np.ndarray:
         """(q,) bool: bias of sensor j can be estimated together with all others (eq. 41).
 
