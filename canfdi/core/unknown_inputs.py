@@ -219,41 +219,11 @@ def row_excess(records: Sequence[Record], R: np.ndarray, sel: Sequence[int]) -> 
     return np.mean((E - E.mean(axis=0))**2, axis=0) / predicted
 
 
-def _lagged_moment(records: Sequence[Record], sel: Sequence[int], A: np.ndarray,
-                   B: np.ndarray, lags: range = range(2, 12)) -> np.ndarray:
-    """(n, n) what the rows' one-step errors e(k) = x(k+1) - A x(k) - B u(k) share over time
-    and not with the noise: their mean's outer product plus their autocovariances at lags
-    ``lags`` (symmetrized). The measurement noise enters e as v(k+1) - A v(k), correlated
-    over one lag only, so from lag 2 on only the unknown inputs (a load, friction, nonlinear
-    terms: all slow next to the sample period) are left: their direction, free of any error
-    in the noise's estimate."""
-    errs = []
-    for rec in records:
-        X = rec.Y[:, list(sel)]
-        errs.append(X[1:] - X[:-1] @ A.T - rec.U[:-1] @ B.T)
-    valid = np.vstack([e[~np.isnan(e).any(axis=1)] for e in errs])
-    mu = valid.mean(axis=0)
-    n = len(mu)
-    acc = np.zeros((n, n))
-    for lag in lags:
-        num, count = np.zeros((n, n)), 0
-        for e in errs:
-            if len(e) <= lag:
-                continue
-            a, b = e[lag:] - mu, e[:-lag] - mu
-            ok = ~(np.isnan(a).any(axis=1) | np.isnan(b).any(axis=1))
-            num += a[ok].T @ b[ok]
-            count += int(ok.sum())
-        if count:
-            acc += num / count
-    return np.outer(mu, mu) + (acc + acc.T) / 2.0
-
-
 def _directions(M2: np.ndarray, Sn: np.ndarray, r: int, rows: Sequence[int]
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """F (n, r) within the axes ``rows``: the r dominant directions of the unknown inputs'
-    moment M2 (`_lagged_moment`), measured in the noise's metric Sn (only for scale: M2 has
-    no noise in it), and all the eigenvalues (descending)."""
+    """F (n, r) within the axes ``rows``: the r dominant directions of the one-step errors'
+    second moment M2 (n, n), measured in the noise's metric Sn, and all the eigenvalues
+    (descending)."""
     n = len(M2)
     L = np.linalg.cholesky(Sn)
     Li = np.linalg.inv(L)

@@ -36,7 +36,7 @@ from canfdi.core.records import FaultEvent
 from canfdi.core.settings import MonitorConfig, unknown_name
 
 __all__ = ["DEFAULT", "ENTRY_POINT_GROUP", "FAULT_KINDS", "EstimateHistory", "Method",
-           "build_diagnoser", "get", "names", "register", "unregister"]
+           "build_diagnoser", "get", "names", "register"]
 
 ENTRY_POINT_GROUP = "canfdi.methods"
 DEFAULT = "parity"
@@ -125,11 +125,6 @@ def register(method: Method) -> Method:
     return method
 
 
-def unregister(name: str) -> None:
-    """Remove a method (tests register throw-away ones)."""
-    _REGISTRY.pop(name, None)
-
-
 def _load() -> None:
     global _LOADED
     if _LOADED:
@@ -174,9 +169,3 @@ def get(name: str) -> Method:
 def build_diagnoser(config: MonitorConfig) -> Diagnoser:
     """The diagnoser a config describes: its method's, designed and calibrated."""
     return get(config.method).build(config)
-
-
-def _reload_entry_points() -> None:
-    """Forget what was loaded (tests that install an entry point call it)."""
-    global _LOADED
-    _LOADED = False
