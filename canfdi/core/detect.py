@@ -450,35 +450,35 @@ class ChangePointDetector:
 
 class DetectorBacked:
     """The `thresholds` and `statistics` of a diagnoser (canfdi.core.protocol) that detects
-    with a `ChangePointDetector` held as ``self.detector``.
+    with a `ChangePointDetector` held (private) as ``self._detector``.
 
     Examples
     --------
     >>> class Watcher(DetectorBacked):
     ...     def __init__(self):
-    ...         self.detector = ChangePointDetector(2, 0.5, [5.0, 8.0])
+    ...         self._detector = ChangePointDetector(2, 0.5, [5.0, 8.0])
     >>> w = Watcher()
     >>> w.thresholds = 2 * w.thresholds
-    >>> w.detector.h, w.statistics
+    >>> w.thresholds, w.statistics
     (array([10., 16.]), array([0., 0.]))
     """
 
-    detector: ChangePointDetector
+    _detector: ChangePointDetector
 
     @property
     def thresholds(self) -> NDArray[np.float64]:
         """(m,) Page-Hinkley thresholds in noise stds: the detector's (settable, e.g. scaled by
         a sensitivity check)."""
-        return self.detector.h
+        return self._detector.h
 
     @thresholds.setter
     def thresholds(self, value: ArrayLike) -> None:
-        self.detector.h = np.asarray(value, dtype=float).reshape(self.detector.m)
+        self._detector.h = np.asarray(value, dtype=float).reshape(self._detector.m)
 
     @property
     def statistics(self) -> NDArray[np.float64]:
         """(m,) the larger Page-Hinkley statistic of each residual."""
-        return self.detector.statistics
+        return self._detector.statistics
 
 
 def onset_candidates(change_point: int, k: int, first: int, before: int,

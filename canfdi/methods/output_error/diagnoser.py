@@ -262,7 +262,7 @@ class OutputErrorDiagnoser(DetectorBacked):
         thresholds = np.asarray(thresholds, dtype=float).reshape(self.q)
         self.settings = settings
         self.input_names, self.output_names = list(input_names), list(output_names)
-        self.detector = ChangePointDetector(self.q, settings.drift, thresholds)
+        self._detector = ChangePointDetector(self.q, settings.drift, thresholds)
         s = settings
         self._paths = model.has_path()
         # taint[i, j]: samples residual j stays missing after a held (lost) command u_i.
@@ -301,7 +301,7 @@ class OutputErrorDiagnoser(DetectorBacked):
         self.last_normalized: np.ndarray | None = None
 
     def _restart_detector(self, k: int = -1) -> None:
-        self.detector.reset(k)
+        self._detector.reset(k)
         self._diag = None
 
     @property
@@ -435,7 +435,7 @@ class OutputErrorDiagnoser(DetectorBacked):
         j, or the row of the alarm, which ``update`` then takes."""
         before = self._snapshot()
         res, rn = self._residuals(k[i:j], U[i:j], Z[i:j])
-        ph, done = self.detector.update_block(k[i:j], rn)
+        ph, done = self._detector.update_block(k[i:j], rn)
         alarmed = done < j - i
         if alarmed:
             # Redo the models up to the alarm row only: update() takes the alarm sample.
@@ -458,11 +458,11 @@ class OutputErrorDiagnoser(DetectorBacked):
 
     # -- the state machine -----------------------------------------------------------------
     def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
-        alarm = self.detector.update(k, rn)
+        alarm = self._detector.update(k, rn)
         if not alarm.any():
             return []
         alarming = np.flatnonzero(alarm)
-        change_point = self.detector.change_point(alarm)
+        change_point = self._detector.change_point(alarm)
         s = self.settings
         first = self._recent[0][0]
         onsets = onset_candidates(change_point, k, first, s.onset_before, s.max_onsets)

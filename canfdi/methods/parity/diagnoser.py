@@ -197,10 +197,10 @@ class ParityDiagnoser(DetectorBacked):
             self._twins.setdefault(h, set())
         m = self.bank.m
         if signatures is None:
-            self.detector = ChangePointDetector(m, settings.drift, thresholds)
+            self._detector = ChangePointDetector(m, settings.drift, thresholds)
             self._column_residuals = [(i,) for i in range(m)]
         else:
-            self.detector = ChangePointDetector(
+            self._detector = ChangePointDetector(
                 m, settings.drift, thresholds[:m], projection=signatures.projection,
                 drifts=signatures.drifts, h_projected=thresholds[m:])
             self._column_residuals = [(i,) for i in range(m)] + list(signatures.residuals)
@@ -237,7 +237,7 @@ class ParityDiagnoser(DetectorBacked):
 
     def _restart_detector(self, k: int = -1) -> None:
         """Zero the Page-Hinkley statistics; a change point cannot predate sample k."""
-        self.detector.reset(k)
+        self._detector.reset(k)
         self._diag = None
 
     @property
@@ -306,7 +306,7 @@ class ParityDiagnoser(DetectorBacked):
                 cap = int(reach[0])
             if cap == 0:
                 return i
-        ph, done = self.detector.update_block(k[i: i + cap], rn[:cap])
+        ph, done = self._detector.update_block(k[i: i + cap], rn[:cap])
         if done > 0:
             m = self.bank.m
             rows.stat[i: i + done] = np.maximum(ph.g_up[:done, :m], ph.g_down[:done, :m])
@@ -368,11 +368,11 @@ class ParityDiagnoser(DetectorBacked):
         return events
 
     def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
-        alarm = self.detector.update(k, rn)
+        alarm = self._detector.update(k, rn)
         if not alarm.any():
             return []
         alarming = np.flatnonzero(alarm)
-        change_point = self.detector.change_point(alarm)
+        change_point = self._detector.change_point(alarm)
         s = self.settings
         onsets = onset_candidates(change_point, k, self._recent.first, s.onset_before,
                                   s.max_onsets, keep="ends")
