@@ -46,7 +46,20 @@ ORDER_FLOOR = 4.0
 class SubspaceModel:
     """x(k+1) = A x + B u + K e, y = C x + D u + e (K, Sigma_e: PBSID's innovation form; zeros
     when the method gives none). offsets : (q,) output offset of the operating point,
-    ``u0`` (p,) its input; the model holds for the deviations y - y0, u - u0."""
+    ``u0`` (p,) its input; the model holds for the deviations y - y0, u - u0.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(1)
+    >>> U = rng.standard_normal((3000, 1))
+    >>> x, Y = 0.0, np.empty((3000, 1))
+    >>> for k in range(3000):
+    ...     Y[k] = x + 0.01 * rng.standard_normal()
+    ...     x = 0.8 * x + U[k, 0]
+    >>> model, _ = pbsid([(U, Y)], 1, 10, 5)
+    >>> model.method, np.round(model.A, 2), np.round(model.C @ model.B, 2)
+    ('PBSID', array([[0.8]]), array([[1.]]))
+    """
 
     A: np.ndarray
     B: np.ndarray

@@ -72,7 +72,14 @@ VISIBLE = 3.0
 @dataclass(frozen=True)
 class Record:
     """One healthy record on a regular grid: U (N, p) commands (never NaN), Y (N, q)
-    measurements (a NaN row: a lost sample)."""
+    measurements (a NaN row: a lost sample).
+
+    Examples
+    --------
+    >>> rec = Record(U=np.zeros((4, 1)), Y=np.array([[0.0], [np.nan], [0.1], [0.2]]))
+    >>> rec.U.shape, int(np.isnan(rec.Y).any(axis=1).sum())  # one lost sample
+    ((4, 1), 1)
+    """
 
     U: np.ndarray
     Y: np.ndarray
@@ -91,6 +98,18 @@ class MeasuredStateFit:
     samples : pairs (k, k+1) used.
     eigenvalues : the generalized eigenvalues of the rows' error against the noise (the first
         r are the unknown inputs; those near 1 are noise).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(3)
+    >>> U, w = rng.standard_normal((4000, 1)), np.cumsum(0.05 * rng.standard_normal(4000))
+    >>> X = np.zeros((4000, 2))
+    >>> for k in range(3999):  # w, a slow unmeasured load, acts on the second state only
+    ...     X[k + 1] = [0.9 * X[k, 0] + U[k, 0], 0.5 * X[k, 0] + 0.8 * X[k, 1] + w[k]]
+    >>> Y = X + 0.01 * rng.standard_normal(X.shape)
+    >>> fit = fit_measured_state([Record(U, Y)], np.full(2, 1e-4), 2, 1)
+    >>> np.round(np.abs(fit.F[:2, 0]), 2), fit.samples  # F: along the second state
+    (array([0., 1.]), 3999)
     """
 
     A: np.ndarray
