@@ -57,7 +57,14 @@ FIRST_CHECK = 64
 class Tracked:
     """A compensated channel and how it is fitted: its hypothesis ("actuator",
     "actuator_bias" or "sensor"), its fault onset and the information its acceptance had
-    about its parameters ((d, d), d = the hypothesis' parameters)."""
+    about its parameters ((d, d), d = the hypothesis' parameters).
+
+    Examples
+    --------
+    >>> t = Tracked(Hypothesis("sensor", 1, "y1"), onset=1000, precision=np.array([[4e4]]))
+    >>> t.hypothesis.label, t.onset, float(1 / np.sqrt(t.precision[0, 0]))  # std at acceptance
+    ('sensor:y1', 1000, 0.005)
+    """
 
     hypothesis: Hypothesis
     onset: int
@@ -68,7 +75,15 @@ class Tracked:
 class Correction:
     """What a check folds into one channel's compensation: the parameters relative to it
     (a sensor's extra bias; an actuator's eta' - 1 and lambda', or lambda' alone) and their
-    variances."""
+    variances.
+
+    Examples
+    --------
+    >>> t = Tracked(Hypothesis("sensor", 1, "y1"), onset=1000, precision=np.array([[4e4]]))
+    >>> c = Correction(t, delta=np.array([0.004]), variances=np.array([1e-6]))
+    >>> c.tracked.hypothesis.name, float(c.delta[0] / np.sqrt(c.variances[0]))  # 4 stds
+    ('y1', 4.0)
+    """
 
     tracked: Tracked
     delta: np.ndarray
