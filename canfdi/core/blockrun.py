@@ -23,7 +23,14 @@ __all__ = ["BlockRows", "Stretch", "continuity_breaks", "has_values", "run_block
 
 class BlockRows:
     """The (N, m) rows a block fills: raw and normalised residuals (NaN where a sample gave
-    none) and statistics."""
+    none) and statistics.
+
+    Examples
+    --------
+    >>> rows = BlockRows(3, 2)
+    >>> rows.R.shape, bool(np.isnan(rows.Rn).all()), float(rows.stat.sum())
+    ((3, 2), True, 0.0)
+    """
 
     def __init__(self, n: int, m: int) -> None:
         self.R = np.full((n, m), np.nan)

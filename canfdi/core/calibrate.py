@@ -1,7 +1,7 @@
 """Choosing Page-Hinkley thresholds: Siegmund's approximation of the average run length (the
-false-alarm interval and the detection delay of a threshold), its inverse, the bound for
-correlated residuals (their long-run variance), and the calibration of thresholds on
-fault-free residuals where the approximation does not hold.
+false-alarm interval of a threshold and, at a change's drift, its detection delay), its
+inverse, the bound for correlated residuals (their long-run variance), and the calibration of
+thresholds on fault-free residuals where the approximation does not hold.
 
 References
 ----------
@@ -28,7 +28,6 @@ __all__ = [
     "arl_two_sided",
     "calibrate_threshold",
     "false_alarm_interval",
-    "mean_detection_delay",
     "threshold_for_false_alarm_interval",
     "threshold_for_long_run_variance",
 ]
@@ -150,34 +149,6 @@ def _check_delta(delta: ArrayLike) -> NDArray[np.float64]:
     if not np.all(np.isfinite(d)) or np.any(d < 0):
         raise ValueError("delta: must be finite and >= 0")
     return d
-
-
-def mean_detection_delay(
-    change: ArrayLike, delta: ArrayLike, h: ArrayLike
-) -> NDArray[np.float64] | float:
-    """Mean detection delay of the Page-Hinkley test for a step change (Siegmund).
-
-    The worst-case delay: the statistic towards the change is zero when it occurs, so the
-    delay is the one-sided ARL with increment mean ``|change| - delta``.
-
-    Parameters
-    ----------
-    change : float or array_like
-        Size of the step in units of sigma (either sign).
-    delta : float or array_like
-        Drift in units of sigma, >= 0.
-    h : float or array_like
-        Threshold in units of sigma, >= 0.
-
-    Returns
-    -------
-    float or ndarray
-        Mean number of samples from the change to the alarm, counting the alarm sample.
-    """
-    c = np.asarray(change, dtype=np.float64)
-    if not np.all(np.isfinite(c)):
-        raise ValueError("change: must be finite")
-    return arl_one_sided(np.abs(c) - _check_delta(delta), h)
 
 
 def false_alarm_interval(delta: ArrayLike, h: ArrayLike) -> NDArray[np.float64] | float:

@@ -47,6 +47,12 @@ class DesignOptions:
     measurement_std : (q,) sensor noise standard deviations (ones when None: gaps are relative).
     process_std : (n,) process noise standard deviations (zeros when None).
     compare_windows : how many window orders above the chosen one the comparison table shows.
+
+    Examples
+    --------
+    >>> options = DesignOptions(max_window=6, measurement_std=np.array([0.01, 0.02]))
+    >>> options.max_window, options.actuator_window, options.compare_windows
+    (6, None, 4)
     """
 
     actuator_window: int | None = None
@@ -66,6 +72,14 @@ class ResidualDesign:
     bias_gain : response to a unit constant fault on its own actuator (actuator residuals), or
         the norm of its sensor gains (sensor residuals).
     fault_to_noise : |bias_gain| / noise_std.
+
+    Examples
+    --------
+    >>> from canfdi.core.model import StateSpace
+    >>> model = StateSpace(A=[[0.9]], B=[[1.0]], C=[[1.0], [1.0]], dt=0.01)
+    >>> residual = design_bank(model, ["u"], ["y0", "y1"]).sensors[0]
+    >>> residual.name, residual.vector.exists, residual.min_window
+    ('s:y0', True, 1)
     """
 
     name: str
@@ -94,6 +108,18 @@ class Design:
         (||v^T Hc[:, cols_j]|| for actuator j, ||v on sensor j's rows|| for sensor j): nonzero
         exactly when the residual responds to the fault at all, constant or not.
     window_comparison : per fault, sensitivity and fault-to-noise at several window orders.
+
+    Examples
+    --------
+    >>> from canfdi.core.model import StateSpace
+    >>> model = StateSpace(A=[[0.9]], B=[[1.0]], C=[[1.0], [1.0]], dt=0.01)
+    >>> design = design_bank(model, ["u"], ["y0", "y1"])
+    >>> design.residual_names, design.sensor_window
+    (['a:u', 's:y0', 's:y1'], 1)
+    >>> design.responds
+    array([[ True,  True,  True],
+           [ True, False,  True],
+           [ True,  True, False]])
     """
 
     model: StateSpace
@@ -128,12 +154,6 @@ class Design:
         """V of the sensor bank: (q_exist, (s+1) q) rows of the existing sensor residuals."""
         rows = [r.vector.vector for r in self.sensors if r.vector.exists]
         width = 0 if self.sensor_window is None else (self.sensor_window + 1) * self.model.q
-        return np.array(rows) if rows else np.zeros((0, width))
-
-    def actuator_matrix(self) -> np.ndarray:
-        """V of the actuator bank: (p_exist, (s+1) q)."""
-        rows = [r.vector.vector for r in self.actuators if r.vector.exists]
-        width = 0 if self.actuator_window is None else (self.actuator_window + 1) * self.model.q
         return np.array(rows) if rows else np.zeros((0, width))
 
     def sensor_jointly_estimable(self) -> np.ndarray:

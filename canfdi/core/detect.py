@@ -1,17 +1,12 @@
-"""Residual evaluation: fixed thresholds and the two-sided Page-Hinkley (CUSUM) test.
+"""Residual evaluation: the two-sided Page-Hinkley (CUSUM) test.
 
-Two decision rules turn residuals into alarms:
-
-* the fixed threshold of eq. 8 of Chan et al. (2006), ``|r| >= r_h`` means faulty, with
-  ``r_h`` chosen from the residual's noise level and a false-alarm probability per sample;
-* the two-sided Page-Hinkley stopping rule (Basseville & Nikiforov 1993, "Detection of
-  Abrupt Changes", Sections 2.2 and 5.2), which accumulates small persistent deviations
-  that a per-sample threshold would miss.
-
-Every rule comes as a pure function (a step function with explicit state and a batch
-function over a whole record, sharing the same arithmetic) and as a thin streaming class
-with ``update(x) -> alarms`` and ``reset()``. Choosing the thresholds (Siegmund's
-approximation of the run length, calibration on fault-free residuals) is canfdi.core.calibrate.
+The two-sided Page-Hinkley stopping rule (Basseville & Nikiforov 1993, "Detection of Abrupt
+Changes", Sections 2.2 and 5.2) accumulates small persistent deviations that a per-sample
+threshold would miss. It comes as a batch function over a whole record (`page_hinkley_batch`,
+cumulative sums) and as the streaming detector the diagnosers run (`ChangePointDetector`, which
+also dates the change); both share the same arithmetic and leave the same state. Choosing the
+thresholds (Siegmund's approximation of the run length, calibration on fault-free residuals) is
+canfdi.core.calibrate.
 
 References
 ----------
@@ -26,23 +21,15 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import special  # quantiles: 30 ms to import where scipy.stats takes 0.6 s
 
 from canfdi.core._check import check_shape
 
 __all__ = [
-    "Alarm",
     "ChangePointDetector",
     "DetectorBacked",
-    "PageHinkley",
     "PageHinkleyResult",
-    "ThresholdDetector",
-    "alarms_to_events",
     "onset_candidates",
     "page_hinkley_batch",
-    "page_hinkley_step",
-    "threshold_alarms",
-    "threshold_from_false_alarm",
 ]
 
 # Cumulative sums are restarted at least this often so that their magnitude (which drifts by
@@ -55,25 +42,6 @@ _MIN_WINDOW = 16
 # --------------------------------------------------------------------------------------
 # records
 # --------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Alarm:
-    """One alarm of one residual at one sample.
-
-    Attributes
-    ----------
-    sample : int
-        Sample index (offset by ``start_sample`` of `alarms_to_events`).
-    residual : int
-        Column index of the residual in alarm.
-    direction : int
-        +1 for an upward change (or a threshold violation), -1 for a downward change.
-    """
-
-    sample: int
-    residual: int
-    direction: int
 
 
 @dataclass(frozen=True)
@@ -91,43 +59,18 @@ class PageHinkleyResult:
     state : ndarray, shape (m, 2)
         Final (g+, g-) per residual, to pass as ``state`` to the next chunk. With
         ``restart_on_alarm`` a residual that alarmed on the last sample has a zero state.
+
+    Examples
+    --------
+    >>> res = page_hinkley_batch(np.array([[1.0], [3.0], [3.0]]), delta=0.5, h=4.0)
+    >>> res.g_up[:, 0], res.alarms[:, 0], res.state
+    (array([0.5, 3. , 5.5]), array([0, 0, 1], dtype=int8), array([[5.5, 0. ]]))
     """
 
     g_up: NDArray[np.float64]
     g_down: NDArray[np.float64]
     alarms: NDArray[np.int8]
     state: NDArray[np.float64]
-
-
-def alarms_to_events(alarms: ArrayLike, start_sample: int = 0) -> list[Alarm]:
-    """List the nonzero entries of an alarm array as `Alarm` records.
-
-    Parameters
-    ----------
-    alarms : array_like of int or bool, shape (N, m)
-        Alarm array as returned by `page_hinkley_batch` (signs) or `threshold_alarms`
-        (booleans, reported with direction +1).
-    start_sample : int, optional
-        Sample index of the first row, so that chunks of a long record report absolute
-        sample numbers.
-
-    Returns
-    -------
-    list of Alarm
-        Ordered by sample, then residual.
-    """
-    a = check_shape("alarms", alarms, ("N", "m"))
-    if a.dtype == np.bool_:
-        a = a.astype(np.int8)
-    elif not np.issubdtype(a.dtype, np.integer):
-        raise ValueError(f"alarms: expected an integer or boolean array, got {a.dtype}")
-    start = int(start_sample)
-    rows, cols = np.nonzero(a)
-    signs = np.sign(a[rows, cols])
-    return [
-        Alarm(sample=int(s) + start, residual=int(r), direction=int(d))
-        for s, r, d in zip(rows, cols, signs, strict=True)
-    ]
 
 
 # --------------------------------------------------------------------------------------
@@ -137,12 +80,6 @@ def alarms_to_events(alarms: ArrayLike, start_sample: int = 0) -> list[Alarm]:
 
 def _as_2d(x: ArrayLike, name: str, missing_ok: bool = False) -> NDArray[np.float64]:
     arr = check_shape(name, x, ("N", "m"), dtype=np.float64)
-    _check_finite(arr, name, missing_ok)
-    return arr
-
-
-def _as_row(x: ArrayLike, m: int, name: str, missing_ok: bool = False) -> NDArray[np.float64]:
-    arr = check_shape(name, x, (m,), dtype=np.float64)
     _check_finite(arr, name, missing_ok)
     return arr
 
@@ -184,99 +121,6 @@ def _scalar_or_array(arr: NDArray[np.float64]) -> NDArray[np.float64] | float:
 
 
 # --------------------------------------------------------------------------------------
-# fixed threshold (Chan et al. 2006, eq. 8)
-# --------------------------------------------------------------------------------------
-
-
-def threshold_from_false_alarm(sigma: ArrayLike, p_fa: float) -> NDArray[np.float64] | float:
-    """Threshold r_h giving a false-alarm probability ``p_fa`` per sample on white noise.
-
-    For a zero-mean Gaussian residual of standard deviation sigma,
-    ``P(|r| >= r_h) = p_fa`` gives ``r_h = sigma * Phi^{-1}(1 - p_fa / 2)``.
-
-    Parameters
-    ----------
-    sigma : float or array_like, shape (m,)
-        Noise standard deviation of each residual, > 0.
-    p_fa : float
-        Target false-alarm probability per sample and residual, in (0, 1).
-
-    Returns
-    -------
-    float or ndarray, shape (m,)
-        Threshold r_h, same shape as ``sigma``.
-    """
-    s = np.asarray(sigma, dtype=np.float64)
-    if s.ndim > 1:
-        raise ValueError(f"sigma: expected a scalar or a 1-D array, got shape {s.shape}")
-    if not np.all(np.isfinite(s)) or np.any(s <= 0):
-        raise ValueError("sigma: must be finite and > 0")
-    p = float(p_fa)
-    if not 0.0 < p < 1.0:
-        raise ValueError(f"p_fa: must be in (0, 1), got {p_fa!r}")
-    # isf(p/2) rather than ppf(1 - p/2): no loss of the small tail probability to rounding.
-    return _scalar_or_array(s * -special.ndtri(p / 2.0))  # norm.isf, as scipy.stats does
-
-
-def threshold_alarms(r: ArrayLike, r_h: ArrayLike) -> NDArray[np.bool_]:
-    """Apply eq. 8 of Chan et al. (2006): residual i is faulty where ``|r_i| >= r_h``.
-
-    Parameters
-    ----------
-    r : array_like, shape (N, m)
-        Residuals, one column per residual.
-    r_h : float or array_like, shape (m,)
-        Threshold of each residual, > 0.
-
-    Returns
-    -------
-    ndarray of bool, shape (N, m)
-        True where the residual is in alarm.
-    """
-    rr = _as_2d(r, "r")
-    th = _per_residual(r_h, rr.shape[1], "r_h", positive=True)
-    return np.abs(rr) >= th
-
-
-class ThresholdDetector:
-    """Streaming form of `threshold_alarms`.
-
-    Parameters
-    ----------
-    threshold : float or array_like, shape (m,)
-        Threshold r_h of each residual, > 0.
-    """
-
-    def __init__(self, threshold: ArrayLike) -> None:
-        th = np.asarray(threshold, dtype=np.float64)
-        if th.ndim > 1:
-            raise ValueError(f"threshold: expected a scalar or 1-D array, got {th.shape}")
-        if not np.all(np.isfinite(th)) or np.any(th <= 0):
-            raise ValueError("threshold: must be finite and > 0")
-        self.threshold = th
-
-    def update(self, r_row: ArrayLike) -> NDArray[np.intp]:
-        """Evaluate one sample.
-
-        Parameters
-        ----------
-        r_row : array_like, shape (m,)
-            Residuals at this sample.
-
-        Returns
-        -------
-        ndarray of intp, shape (k,)
-            Indices of the residuals in alarm, ascending.
-        """
-        row = check_shape("r_row", np.atleast_1d(r_row), ("m",), dtype=np.float64)
-        # same comparison as the batch form, so both give identical alarms
-        return np.flatnonzero(threshold_alarms(row[None, :], self.threshold)[0])
-
-    def reset(self) -> None:
-        """Do nothing: the rule has no memory (kept for a uniform detector interface)."""
-
-
-# --------------------------------------------------------------------------------------
 # Page-Hinkley / CUSUM
 # --------------------------------------------------------------------------------------
 
@@ -312,7 +156,7 @@ def _increments(u: NDArray[np.float64], delta: NDArray[np.float64]
 def _ph_block(
     u: NDArray[np.float64], delta: NDArray[np.float64], g0: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    # the increments are formed exactly as in page_hinkley_step so both agree to rounding
+    # the increments are formed exactly as in _ph_advance so both agree to rounding
     up, down = _increments(u, delta)
     return _lindley(up, g0[:, 0]), _lindley(down, g0[:, 1])
 
@@ -327,62 +171,13 @@ def _direction(
     return in_alarm * sign
 
 
-def page_hinkley_step(
-    state: ArrayLike,
-    x: ArrayLike,
-    delta: ArrayLike,
-    h: ArrayLike,
-    *,
-    mu0: ArrayLike = 0.0,
-    sigma: ArrayLike = 1.0,
-) -> tuple[NDArray[np.float64], NDArray[np.int8]]:
-    """Advance the two-sided Page-Hinkley test by one sample.
-
-    With u = (x - mu0) / sigma,
-    ``g+ = max(0, g+ + u - delta)``, ``g- = max(0, g- - u - delta)``; a residual is in
-    alarm while either statistic is >= h. Nothing is reset on an alarm: the caller decides
-    (pass a zero state to restart). A NaN residual is missing (its window lost a frame): its
-    statistics hold.
-
-    Parameters
-    ----------
-    state : array_like, shape (m, 2)
-        (g+, g-) per residual before this sample, >= 0.
-    x : array_like, shape (m,)
-        Residuals at this sample.
-    delta : float or array_like, shape (m,)
-        Drift, half the smallest change to detect, in units of sigma, >= 0.
-    h : float or array_like, shape (m,)
-        Alarm threshold in units of sigma, > 0.
-    mu0 : float or array_like, shape (m,), optional
-        Known fault-free mean of the residual.
-    sigma : float or array_like, shape (m,), optional
-        Known fault-free standard deviation of the residual, > 0.
-
-    Returns
-    -------
-    state : ndarray, shape (m, 2)
-        (g+, g-) after this sample (a new array; the input is not modified).
-    alarm : ndarray of int8, shape (m,)
-        +1 (upward change), -1 (downward change) or 0.
-    """
-    xr = check_shape("x", np.atleast_1d(x), ("m",), dtype=np.float64)
-    m = xr.shape[0]
-    xr = _as_row(xr, m, "x", missing_ok=True)
-    st = _check_state(state, m)
-    d = _per_residual(delta, m, "delta", nonnegative=True)
-    hh = _per_residual(h, m, "h", positive=True)
-    mu = _per_residual(mu0, m, "mu0")
-    sg = _per_residual(sigma, m, "sigma", positive=True)
-    return _ph_advance(st, xr, d, hh, mu, sg)
-
-
-def _ph_advance(st: NDArray[np.float64], xr: NDArray[np.float64], d: NDArray[np.float64],
-                hh: NDArray[np.float64], mu: NDArray[np.float64], sg: NDArray[np.float64]
-                ) -> tuple[NDArray[np.float64], NDArray[np.int8]]:
-    """`page_hinkley_step` on checked arrays: (m, 2) state, (m,) row and parameters (the
-    detector's per-sample path, whose parameters were checked once, at construction)."""
-    up, down = _increments((xr - mu) / sg, d)
+def _ph_advance(st: NDArray[np.float64], u: NDArray[np.float64], d: NDArray[np.float64],
+                hh: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int8]]:
+    """One sample of the two-sided test on checked arrays: (m, 2) state (g+, g-), (m,)
+    normalised residuals u (NaN: missing, the statistics hold), drifts d and thresholds hh; the
+    new state and the (m,) alarm signs. The detector's per-sample path: its parameters were
+    checked once, at construction."""
+    up, down = _increments(u, d)
     g_up = np.maximum(0.0, st[:, 0] + up)
     g_down = np.maximum(0.0, st[:, 1] + down)
     return np.stack([g_up, g_down], axis=1), _direction(g_up, g_down, hh)
@@ -483,7 +278,9 @@ def page_hinkley_batch(
 ) -> PageHinkleyResult:
     """Run the two-sided Page-Hinkley test over a whole record.
 
-    Same arithmetic as `page_hinkley_step` applied sample by sample, vectorised with
+    Same arithmetic as ``g+ = max(0, g+ + u - delta)``, ``g- = max(0, g- - u - delta)`` with
+    u = (x - mu0) / sigma applied sample by sample (a residual is in alarm while either
+    statistic is >= h, the larger one naming the direction), vectorised with
     cumulative sums: between restarts, ``g_k = max(g_0 + S_k, S_k - min_{0<=j<=k} S_j)``
     with ``S`` the cumulative sum of the increments and ``S_0 = 0``. Calling it on
     consecutive chunks, passing ``result.state`` along, gives the same result as one call.
@@ -504,9 +301,9 @@ def page_hinkley_batch(
         Initial (g+, g-) per residual, >= 0; zeros by default.
     restart_on_alarm : bool, optional
         If True, a residual's statistics restart from zero right after each of its alarms,
-        as a streaming user calling ``PageHinkley.reset([i])`` after each alarm would get;
-        every alarm is then a single sample. If False (default) the statistics keep
-        running, so a persistent change keeps the residual in alarm.
+        as a streaming user zeroing its statistics after each alarm would get; every alarm
+        is then a single sample. If False (default) the statistics keep running, so a
+        persistent change keeps the residual in alarm.
 
     Returns
     -------
@@ -533,27 +330,41 @@ def page_hinkley_batch(
 class ChangePointDetector:
     """Two-sided Page-Hinkley per residual that also dates the change: for each statistic it
     keeps the last sample where it was zero after a (non-missing) residual, so an alarm's change
-    point is the sample after that. The streaming form (``step``) and the block form (``run``)
-    leave the same state. A diagnoser restarts it after each decision.
+    point is the sample after that. The streaming form (`update`) and the block form
+    (`update_block`) leave the same state. A diagnoser resets it after each decision.
 
     Beside the residuals it can run the same test on projections of them (``projection``):
     column c of the statistics is then residual row @ projection[:, c], with its own drift
     and threshold (canfdi.methods.parity.signatures: one CUSUM per fault signature and drift).
-    A projection of a row with a missing residual is missing.
+    A projection of a row with a missing residual is missing. Nothing is reset on an alarm:
+    the caller decides, with `reset`.
 
     Parameters
     ----------
-    m : number of residuals; delta : drift; h : (m,) thresholds (noise-std units).
-    projection : (m, c) extra columns; drifts, h_projected : (c,) their drifts and thresholds.
+    m : int
+        Number of residuals.
+    delta : float
+        Drift of the residuals' statistics, half the smallest change to detect (noise stds).
+    h : array_like, shape (m,)
+        The residuals' thresholds (noise stds), > 0.
+    projection : array_like, shape (m, c), optional
+        Extra columns: the residual row's projections.
+    drifts, h_projected : array_like, shape (c,), optional
+        The projections' drifts and thresholds.
 
     Examples
     --------
     >>> det = ChangePointDetector(2, 0.5, [5.0, 5.0], projection=np.array([[1.0], [1.0]]),
     ...                           drifts=[0.5], h_projected=[6.0])
-    >>> [det.step(k, np.array([1.2, 1.2])).tolist() for k in range(4)]
+    >>> [det.update(k, np.array([1.2, 1.2])).tolist() for k in range(4)]
     [[0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 1]]
-    >>> det.columns
-    3
+    >>> det.change_point(det.update(4, np.array([1.2, 1.2])))
+    0
+    >>> det.statistics
+    array([3.5, 3.5])
+    >>> det.reset(4)
+    >>> det.statistics
+    array([0., 0.])
     """
 
     def __init__(self, m: int, delta: float, h: ArrayLike,
@@ -563,12 +374,12 @@ class ChangePointDetector:
         self.projection = (None if projection is None
                            else check_shape("projection", projection, (m, "c")))
         c = 0 if self.projection is None else self.projection.shape[1]
-        self.columns = m + c
+        self._width = m + c
         self._delta = np.concatenate([np.full(m, float(delta)),
                                       np.asarray(drifts, dtype=float).reshape(c)])
         self._h = np.concatenate([np.asarray(h, dtype=float).reshape(m),
                                   np.asarray(h_projected, dtype=float).reshape(c)])
-        self.restart()
+        self.reset()
 
     @property
     def h(self) -> NDArray[np.float64]:
@@ -580,87 +391,94 @@ class ChangePointDetector:
         self._h = np.concatenate([np.asarray(value, dtype=float).reshape(self.m),
                                   self._h[self.m:]])
 
-    @property
-    def all_thresholds(self) -> NDArray[np.float64]:
-        """(columns,) the thresholds of the residuals, then of the projections."""
-        return self._h.copy()
-
-    def restart(self, k: int = -1) -> None:
+    def reset(self, k: int = -1) -> None:
         """Zero the statistics; a change point cannot predate sample k."""
-        self.state = np.zeros((self.columns, 2))
-        self.last_zero = np.full((self.columns, 2), k, dtype=np.int64)
+        self._state = np.zeros((self._width, 2))
+        self._last_zero = np.full((self._width, 2), k, dtype=np.int64)
 
     @property
     def statistics(self) -> NDArray[np.float64]:
         """(m,) the larger statistic of each residual."""
-        return self.state[: self.m].max(axis=1)
+        return self._state[: self.m].max(axis=1)
 
     def _columns(self, rn: NDArray[np.float64]) -> NDArray[np.float64]:
-        """rn (..., m) -> (..., columns): the residuals, then their projections."""
+        """rn (..., m) -> (..., m + c): the residuals, then their projections."""
         if self.projection is None:
             return rn
         return np.concatenate([rn, rn @ self.projection], axis=-1)
 
-    def step(self, k: int, rn: NDArray[np.float64]) -> NDArray[np.int8]:
-        """Sample k's normalised residuals (m,) (NaN = missing); the (columns,) alarm signs."""
-        # page_hinkley_step's arithmetic without its checks of parameters already checked:
-        # this runs once per sample on the live path. (x - 0) / 1 is x, bit for bit.
+    def update(self, k: int, rn: NDArray[np.float64]) -> NDArray[np.int8]:
+        """Sample k's normalised residuals (m,) (NaN = missing); the (m + c,) alarm signs
+        (+1 upward change, -1 downward, 0 none)."""
+        # The checks of page_hinkley_batch's parameters were made once, at construction:
+        # this runs once per sample on the live path.
         _check_finite(rn, "x", missing_ok=True)
         x = self._columns(rn)
-        self.state, alarm = _ph_advance(self.state, x, self._delta, self._h, 0.0, 1.0)
-        self.last_zero[(self.state == 0.0) & ~np.isnan(x)[:, None]] = k
+        self._state, alarm = _ph_advance(self._state, x, self._delta, self._h)
+        self._last_zero[(self._state == 0.0) & ~np.isnan(x)[:, None]] = k
         return alarm
 
-    def run(self, k: NDArray[np.int64], rn: NDArray[np.float64]
-            ) -> tuple[PageHinkleyResult, int]:
-        """Rows of samples k (N,), residuals rn (N, m): the batch result over the (N, columns)
+    def update_block(self, k: NDArray[np.int64], rn: NDArray[np.float64]
+                     ) -> tuple[PageHinkleyResult, int]:
+        """Rows of samples k (N,), residuals rn (N, m): the batch result over the (N, m + c)
         statistics and ``done``, the rows before the first alarm row (N without one). The state
-        advances over those rows only: the alarm row is left for ``step``."""
+        advances over those rows only: the alarm row is left for `update`."""
         x = self._columns(rn)
-        ph = page_hinkley_batch(x, self._delta, self._h, state=self.state)
+        ph = page_hinkley_batch(x, self._delta, self._h, state=self._state)
         # The first alarm row: the first nonzero of the flat (row-major) alarms (argmax stops
         # there; a reduction along the short axis costs a pass per row).
         flat = ph.alarms.reshape(-1) != 0
         first = int(flat.argmax())
-        done = first // self.columns if flat[first] else len(rn)
+        done = first // self._width if flat[first] else len(rn)
         if done > 0:
             valid = ~np.isnan(x[:done])
-            cols = np.arange(self.columns)
+            cols = np.arange(self._width)
             for d, traj in enumerate((ph.g_up[:done], ph.g_down[:done])):
                 zero = ((traj == 0.0) & valid)[::-1]
                 back = np.argmax(zero, axis=0)  # rows from the end to each one's last zero
                 any_zero = zero[back, cols]
-                self.last_zero[any_zero, d] = k[done - 1 - back[any_zero]]
-            self.state = np.stack([ph.g_up[done - 1], ph.g_down[done - 1]], axis=1)
+                self._last_zero[any_zero, d] = k[done - 1 - back[any_zero]]
+            self._state = np.stack([ph.g_up[done - 1], ph.g_down[done - 1]], axis=1)
         return ph, done
 
     def change_point(self, alarm: NDArray[np.int8]) -> int:
         """The earliest sample after which an alarming statistic last was zero, plus one."""
         alarming = np.flatnonzero(alarm)
         col = np.where(alarm[alarming] > 0, 0, 1)
-        return int(np.min(self.last_zero[alarming, col])) + 1
+        return int(np.min(self._last_zero[alarming, col])) + 1
 
 
 class DetectorBacked:
     """The `thresholds` and `statistics` of a diagnoser (canfdi.core.protocol) that detects
-    with a `ChangePointDetector` held as ``self.detector``."""
+    with a `ChangePointDetector` held (private) as ``self._detector``.
 
-    detector: ChangePointDetector
+    Examples
+    --------
+    >>> class Watcher(DetectorBacked):
+    ...     def __init__(self):
+    ...         self._detector = ChangePointDetector(2, 0.5, [5.0, 8.0])
+    >>> w = Watcher()
+    >>> w.thresholds = 2 * w.thresholds
+    >>> w.thresholds, w.statistics
+    (array([10., 16.]), array([0., 0.]))
+    """
+
+    _detector: ChangePointDetector
 
     @property
     def thresholds(self) -> NDArray[np.float64]:
         """(m,) Page-Hinkley thresholds in noise stds: the detector's (settable, e.g. scaled by
         a sensitivity check)."""
-        return self.detector.h
+        return self._detector.h
 
     @thresholds.setter
     def thresholds(self, value: ArrayLike) -> None:
-        self.detector.h = np.asarray(value, dtype=float).reshape(self.detector.m)
+        self._detector.h = np.asarray(value, dtype=float).reshape(self._detector.m)
 
     @property
     def statistics(self) -> NDArray[np.float64]:
         """(m,) the larger Page-Hinkley statistic of each residual."""
-        return self.detector.statistics
+        return self._detector.statistics
 
 
 def onset_candidates(change_point: int, k: int, first: int, before: int,
@@ -681,100 +499,3 @@ def onset_candidates(change_point: int, k: int, first: int, before: int,
         head = at_most // 2
         return onsets[:head] + onsets[len(onsets) - (at_most - head):]
     return onsets[-at_most:] or [k]
-
-
-class PageHinkley:
-    """Streaming two-sided Page-Hinkley test with a known reference mean.
-
-    Unlike self-resetting implementations with a running mean, the reference ``mu0`` is
-    fixed and nothing is reset on an alarm: the statistics keep running (so a persistent
-    change stays in alarm) until the caller calls `reset`.
-
-    Parameters
-    ----------
-    delta : float or array_like, shape (m,)
-        Drift, half the smallest change to detect, in units of sigma, >= 0.
-    h : float or array_like, shape (m,)
-        Alarm threshold in units of sigma, > 0.
-    mu0 : float or array_like, shape (m,), optional
-        Known fault-free mean of each residual.
-    sigma : float or array_like, shape (m,), optional
-        Known fault-free standard deviation of each residual, > 0.
-    n_residuals : int, optional
-        Number m of residuals monitored together.
-    """
-
-    def __init__(
-        self,
-        delta: ArrayLike,
-        h: ArrayLike,
-        mu0: ArrayLike = 0.0,
-        sigma: ArrayLike = 1.0,
-        n_residuals: int = 1,
-    ) -> None:
-        if int(n_residuals) != n_residuals or n_residuals < 1:
-            raise ValueError(f"n_residuals: must be a positive integer, got {n_residuals!r}")
-        m = int(n_residuals)
-        self.n_residuals = m
-        self.delta = _per_residual(delta, m, "delta", nonnegative=True)
-        self.h = _per_residual(h, m, "h", positive=True)
-        self.mu0 = _per_residual(mu0, m, "mu0")
-        self.sigma = _per_residual(sigma, m, "sigma", positive=True)
-        self._state = np.zeros((m, 2))
-        self._latched = np.zeros(m, dtype=np.int8)
-
-    @property
-    def statistics(self) -> NDArray[np.float64]:
-        """ndarray, shape (m, 2): current (g+, g-) per residual (a copy)."""
-        return self._state.copy()
-
-    @property
-    def alarm_state(self) -> NDArray[np.int8]:
-        """ndarray of int8, shape (m,): direction of the first alarm since the last reset.
-
-        0 where the residual has not alarmed; it stays set even if the statistic later
-        falls back under h, until `reset` clears it.
-        """
-        return self._latched.copy()
-
-    def update(self, x_row: ArrayLike) -> NDArray[np.int8]:
-        """Feed one sample.
-
-        Parameters
-        ----------
-        x_row : array_like, shape (m,)
-            Residuals at this sample.
-
-        Returns
-        -------
-        ndarray of int8, shape (m,)
-            +1 (upward change), -1 (downward change) or 0 per residual.
-        """
-        row = check_shape("x_row", np.atleast_1d(x_row), (self.n_residuals,), dtype=np.float64)
-        _check_finite(row, "x", missing_ok=True)
-        self._state, alarm = _ph_advance(self._state, row, self.delta, self.h, self.mu0,
-                                         self.sigma)
-        self._latched = np.where(self._latched == 0, alarm, self._latched).astype(np.int8)
-        return alarm
-
-    def reset(self, indices: ArrayLike | None = None) -> None:
-        """Zero the statistics and the alarm state.
-
-        Parameters
-        ----------
-        indices : array_like of int, shape (k,), optional
-            Residuals to reset; all of them by default.
-        """
-        if indices is None:
-            self._state[:] = 0.0
-            self._latched[:] = 0
-            return
-        idx = np.atleast_1d(np.asarray(indices))
-        if idx.ndim != 1 or (idx.size and not np.issubdtype(idx.dtype, np.integer)):
-            raise ValueError("indices: expected a 1-D array of integers")
-        if idx.size and (idx.min() < -self.n_residuals or idx.max() >= self.n_residuals):
-            raise ValueError(f"indices: out of range for {self.n_residuals} residuals")
-        self._state[idx] = 0.0
-        self._latched[idx] = 0
-
-

@@ -72,6 +72,13 @@ class Detectability:
     rho : the parity order used (n).
     n_z : number of states reachable only from the fault.
     reason : why the fault is not (strongly) detectable, or None.
+
+    Examples
+    --------
+    >>> from canfdi.core.model import StateSpace
+    >>> model = StateSpace(A=[[0.9]], B=[[1.0]], C=[[1.0], [1.0]], dt=0.01)
+    >>> [(kind, j, d.detectable, d.n_z) for kind, j, d in model_detectability(model)]
+    [('actuator', 0, True, 0), ('sensor', 0, True, 0), ('sensor', 1, True, 0)]
     """
 
     detectable: bool

@@ -75,9 +75,10 @@ Examples
 ['Kt', 'tau_i', 'J', 'b']
 >>> t.outputs, sorted(t.optional)
 (('current_setpoint', 'current', 'velocity', 'position'), ['current_setpoint', 'position'])
->>> model = monitor_model(t, {}, 0.01, ("current", "velocity"))
->>> model.n, model.r, np.round(model.A[0, 0], 4)
-(2, 1, np.float64(0.2865))
+>>> datasheet = np.array([p.default for p in t.parameters])
+>>> A, B, C, F = t.linear_model(datasheet, 0.01, ("current", "velocity"), {"unit": "turn"})
+>>> A.shape, F.shape, np.round(A[0, 0], 4)
+((2, 2), (2, 1), np.float64(0.2865))
 """
 
 from __future__ import annotations
@@ -105,8 +106,6 @@ __all__ = [
     "TemplateFit",
     "fit_template",
     "get_template",
-    "monitor_model",
-    "simulate_template",
 ]
 
 #: A parameter whose relative standard deviation exceeds this is "not determined".
@@ -202,7 +201,8 @@ class Template:
     >>> t = TEMPLATES["dc_motor"]
     >>> t.inputs, t.outputs, t.unknown_inputs
     (('voltage',), ('field_current', 'armature_current', 'speed'), ('phi1', 'phi2'))
-    >>> t.ode(t.defaults, np.array([[1.9, 10.0, 100.0]]), np.array([[100.0]])).shape
+    >>> datasheet = np.array([p.default for p in t.parameters])
+    >>> t.ode(datasheet, np.array([[1.9, 10.0, 100.0]]), np.array([[100.0]])).shape
     (1, 3)
     """
 
@@ -226,11 +226,6 @@ class Template:
     @property
     def parameter_names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.parameters)
-
-    @property
-    def defaults(self) -> np.ndarray:
-        """(d,) the datasheet values."""
-        return np.array([p.default for p in self.parameters])
 
     def scale(self, settings: Mapping[str, str]) -> np.ndarray:
         """(n,) output units to SI, for ``settings`` (validated)."""
@@ -267,10 +262,6 @@ class ParameterEstimate:
     @property
     def rel_std(self) -> float:
         return self.std / abs(self.value) if self.value else math.inf
-
-    @property
-    def determined(self) -> bool:
-        return self.status == "estimated"
 
 
 @dataclass(frozen=True)
@@ -321,10 +312,14 @@ class TemplateFit:
     >>> t = get_template("servo_axis")
     >>> rng = np.random.default_rng(0)
     >>> U = 0.05 * np.sign(rng.standard_normal((400, 1)))
-    >>> X = simulate_template(t, t.defaults, np.zeros(4), U, 0.01)
-    >>> Y = (X / (1, 1, 2 * np.pi, 2 * np.pi))[:, 1:3] + 1e-4 * rng.standard_normal((400, 2))
+    >>> datasheet = np.array([p.default for p in t.parameters])
+    >>> A, B, _, _ = t.linear_model(datasheet, 0.01, t.outputs, {"unit": "turn"})
+    >>> X = np.zeros((400, 4))  # the drive's linear physics, exact at the samples
+    >>> for k in range(399):
+    ...     X[k + 1] = A @ X[k] + B @ U[k]
+    >>> Y = X[:, 1:3] + 1e-4 * rng.standard_normal((400, 2))
     >>> fit = fit_template(t, U, Y, {"current": 0, "velocity": 1}, 0.01, fixed=["b"])
-    >>> [round(float(fit.theta[k] / t.defaults[i]), 2) for i, k in enumerate(("Kt", "tau_i", "J"))]
+    >>> [round(float(fit.theta[k] / datasheet[i]), 2) for i, k in enumerate(("Kt", "tau_i", "J"))]
     [1.0, 1.0, 1.0]
     >>> fit.parameters_table()[3]["status"], fit.model.F.shape
     ('fixed', (2, 1))
@@ -364,30 +359,6 @@ class TemplateFit:
         return [{"name": p.name, "unit": p.unit, "value": p.value, "std": p.std,
                  "rel_std": p.rel_std, "low": p.low, "high": p.high, "start": p.start,
                  "status": p.status, "note": p.note} for p in self.parameters]
-
-    def model_std(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Standard deviations of the monitor model's A, B, F (delta method, central
-        differences in the log parameters): (n, n), (n, p), (n, r)."""
-        theta = np.array([p.value for p in self.parameters])
-        idx = np.flatnonzero(np.diag(self.log_covariance) > 0)
-        base = np.concatenate([m.ravel() for m in self._linear(theta)])
-        D = np.empty((base.size, idx.size))
-        for col, j in enumerate(idx):
-            up, down = theta.copy(), theta.copy()
-            up[j] *= math.exp(FD_STEP)
-            down[j] *= math.exp(-FD_STEP)
-            D[:, col] = (np.concatenate([m.ravel() for m in self._linear(up)])
-                         - np.concatenate([m.ravel() for m in self._linear(down)])) / (2 * FD_STEP)
-        var = np.einsum("ij,jk,ik->i", D, self.log_covariance[np.ix_(idx, idx)], D)
-        std = np.sqrt(np.maximum(var, 0.0))
-        n, p, r = self.model.n, self.model.p, self.model.r
-        return (std[: n * n].reshape(n, n), std[n * n: n * n + n * p].reshape(n, p),
-                std[n * n + n * p:].reshape(n, r))
-
-    def _linear(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        A, B, _C, F = self.template.linear_model(theta, self.model.dt, self.states,
-                                                 self.settings)
-        return A, B, F
 
 
 # --------------------------------------------------------------------------- helpers
@@ -449,31 +420,6 @@ def _substeps(template: Template, theta: np.ndarray, dt: float) -> int:
     return max(10, math.ceil(dt * template.rate(theta) / MAX_RATE_STEP))
 
 
-def simulate_template(template: Template | str, theta: np.ndarray | Mapping[str, float],
-                      x0: np.ndarray, U: np.ndarray, dt: float, substeps: int | None = None
-                      ) -> np.ndarray:
-    """Open-loop simulation of the template's ODE (no unknown input), SI states.
-
-    theta : (d,) or a mapping name -> value (missing names: defaults); x0 : (n,) initial state;
-    U : (N, p) inputs held over each period. Returns X (N, n): X[0] = x0, X[k+1] from X[k], U[k].
-
-    >>> t = get_template("dc_motor")
-    >>> X = simulate_template(t, {}, np.zeros(3), np.full((3, 1), 100.0), 0.01)
-    >>> round(float(X[1, 0]), 5)  # b_f V = 0.002235 x 100 V
-    0.2235
-    """
-    template = get_template(template) if isinstance(template, str) else template
-    th = _theta(template, theta)
-    U_a = check_shape("U", U, ("N", len(template.inputs)), dtype=float, finite=True)
-    x = check_shape("x0", x0, (len(template.outputs),), dtype=float, finite=True)[None, :]
-    steps = substeps or _substeps(template, th, dt)
-    X = np.empty((len(U_a), x.shape[1]))
-    for k in range(len(U_a)):
-        X[k] = x[0]
-        x = _rk4(template, th, x, U_a[k: k + 1], dt, steps)
-    return X
-
-
 def _theta(template: Template, theta: np.ndarray | Mapping[str, float]) -> np.ndarray:
     if isinstance(theta, Mapping):
         names = template.parameter_names
@@ -483,23 +429,6 @@ def _theta(template: Template, theta: np.ndarray | Mapping[str, float]) -> np.nd
                                  f"({_nearest(key, names)})")
         return np.array([float(theta.get(p.name, p.default)) for p in template.parameters])
     return check_shape("theta", theta, (len(template.parameters),), dtype=float, finite=True)
-
-
-def monitor_model(template: Template | str, theta: np.ndarray | Mapping[str, float],
-                  dt: float, present: Iterable[str] | None = None,
-                  settings: Mapping[str, str] | None = None) -> StateSpace:
-    """The monitor's discrete model of a template at ``theta`` (a mapping: missing names take
-    their defaults) over the ``present`` output roles (default: all), one output per role."""
-    template = get_template(template) if isinstance(template, str) else template
-    th = _theta(template, theta)
-    present = tuple(template.outputs if present is None else present)
-    unknown = sorted(set(present) - set(template.outputs))
-    if unknown:
-        raise ValueError(f"template {template.name} has no output role {unknown[0]!r} "
-                         f"({_nearest(unknown[0], template.outputs)})")
-    present = tuple(r for r in template.outputs if r in present)
-    A, B, C, F = template.linear_model(th, dt, present, _resolve_settings(template, settings))
-    return StateSpace(A=A, B=B, C=C, F=F, dt=dt)
 
 
 # --------------------------------------------------------------------------- templates

@@ -24,17 +24,15 @@ its state:
 
 * `rls_init` starts (or, at an alarm, restarts: the covariance reset) an estimator;
 * `rls_update` absorbs one sample's rows (a NaN residual is a missing row: no equation);
-* `rls_step` is `rls_update` returning the innovation ``r - phi theta_prev`` as well;
 * `rls_solve` gives the estimate, its covariance and the cost;
-* `rls_batch` absorbs N samples at once and gives the whole trajectory: the same numbers as N
-  calls of `rls_step` (to rounding);
+* `rls_batch` absorbs N samples at once and gives the whole trajectory, with the innovations
+  ``r - phi theta_prev``: the same numbers as N calls of `rls_update` and `rls_solve` (to
+  rounding);
 * `least_squares` is the one-shot fit of a batch (SVD, for badly conditioned regressors such as
   the Steiglitz-McBride iteration of canfdi.methods.output_error).
 
 Every state may carry leading batch dimensions (one estimator per hypothesis and onset, say):
 ``J`` (..., d, d), ``h`` (..., d).
-
-`RecursiveLeastSquares` is a thin streaming wrapper.
 
 Examples
 --------
@@ -58,7 +56,6 @@ from canfdi.core._check import check_shape
 
 __all__ = [
     "LeastSquaresFit",
-    "RecursiveLeastSquares",
     "RlsBatchResult",
     "RlsSolution",
     "RlsState",
@@ -66,7 +63,6 @@ __all__ = [
     "rls_batch",
     "rls_init",
     "rls_solve",
-    "rls_step",
     "rls_update",
 ]
 
@@ -92,6 +88,12 @@ class RlsState:
         Samples (time steps) absorbed since `rls_init`.
     n_eq : int
         Residual rows absorbed (missing rows not counted): the degrees of freedom of the cost.
+
+    Examples
+    --------
+    >>> state = rls_update(rls_init(2), np.array([[1.0, 0.0], [0.0, 2.0]]), [3.0, np.nan])
+    >>> state.d, state.n, state.n_eq, state.h
+    (2, 1, 1, array([3., 0.]))
     """
 
     J: FloatArray
@@ -113,6 +115,15 @@ class RlsSolution:
     theta : (..., d) estimates; P : (..., d, d) their covariance up to the noise variance
     (``J^{-1}``); cost : (...) residual sum of squares at theta (prior term included);
     dof : residual rows minus parameters (at least 1), to scale P by ``cost / dof``.
+
+    Examples
+    --------
+    >>> state = rls_init(1, prior_precision=1e-12)
+    >>> for x, r in ((1.0, 2.1), (2.0, 3.9), (3.0, 6.0)):
+    ...     state = rls_update(state, [[x]], [r])
+    >>> sol = rls_solve(state)
+    >>> round(float(sol.theta[0]), 4), sol.dof, round(float(sol.cost), 4)
+    (1.9929, 2, 0.0193)
     """
 
     theta: FloatArray
@@ -135,6 +146,14 @@ class RlsBatchResult:
     each sample (up to the noise variance); cost : (N, ...) residual cost after each sample;
     innovations : (N, ..., m) a-priori residuals ``r_k - phi_k theta_{k-1}`` (NaN for missing
     rows); state : the state after the last sample, to pass to the next call.
+
+    Examples
+    --------
+    >>> result = rls_batch(rls_init(1), np.ones((3, 1, 1)), [2.0, 2.0, np.nan])
+    >>> np.round(result.theta[:, 0], 6), np.round(result.innovations[:, 0], 6)
+    (array([2., 2., 2.]), array([ 2.,  0., nan]))
+    >>> result.state.n_eq
+    2
     """
 
     theta: FloatArray
@@ -222,18 +241,10 @@ def rls_solve(state: RlsState) -> RlsSolution:
                        dof=max(state.n_eq - state.d, 1))
 
 
-def rls_step(state: RlsState, phi: ArrayLike, r: ArrayLike) -> tuple[RlsState, FloatArray]:
-    """`rls_update` that also returns the innovation ``r - phi theta_prev`` ((..., m); NaN for
-    missing rows), as eqs. 30-32 use it."""
-    theta = rls_solve(state).theta
-    innovation = np.asarray(r, dtype=float) - np.einsum("...mi,...i->...m",
-                                                       np.asarray(phi, dtype=float), theta)
-    return rls_update(state, phi, r), innovation
-
-
 def rls_batch(state: RlsState, Phi: ArrayLike, R: ArrayLike) -> RlsBatchResult:
-    """Absorb N samples at once and give the trajectory: N calls of `rls_step` in one pass
-    (cumulative sums of the information, one batched solve).
+    """Absorb N samples at once and give the trajectory: N calls of `rls_update` (and
+    `rls_solve` after each) in one pass (cumulative sums of the information, one batched
+    solve).
 
     Parameters
     ----------
@@ -274,7 +285,14 @@ def rls_batch(state: RlsState, Phi: ArrayLike, R: ArrayLike) -> RlsBatchResult:
 class LeastSquaresFit:
     """`least_squares`'s result: theta (d,) or (d, c), cost (the weighted residual sum of
     squares, float or (c,)), dof = rows - rank (at least 1), rank, and the weighted regressors
-    the unscaled covariance ``(X^T W X)^+`` (d, d) is computed from on demand."""
+    the unscaled covariance ``(X^T W X)^+`` (d, d) is computed from on demand.
+
+    Examples
+    --------
+    >>> fit = least_squares(np.array([[1.0], [1.0], [1.0]]), [1.0, 2.0, np.nan])
+    >>> fit.theta, fit.cost, fit.dof, fit.covariance
+    (array([1.5]), 0.5, 1, array([[0.5]]))
+    """
 
     theta: FloatArray
     cost: float | FloatArray
@@ -319,62 +337,3 @@ def least_squares(X: ArrayLike, y: ArrayLike, weights: ArrayLike | None = None) 
     return LeastSquaresFit(theta=theta, cost=float(cost) if np.ndim(cost) == 0 else cost,
                            dof=max(int(keep.sum()) - int(rank), 1), rank=int(rank),
                            weighted_regressors=Xw)
-
-
-class RecursiveLeastSquares:
-    """Streaming recursive least squares: a thin wrapper around `rls_step`.
-
-    Parameters
-    ----------
-    n_params : number of parameters d.
-    prior_precision : ``1 / P_0`` at start and at each `reset`.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> est = RecursiveLeastSquares(1)
-    >>> for x in (1.0, 2.0, 3.0):
-    ...     _ = est.update(np.array([[x]]), np.array([2.0 * x]))
-    >>> round(float(est.theta[0]), 6)  # the prior precision pulls it by ~1e-9 towards 0
-    2.0
-    """
-
-    def __init__(self, n_params: int, prior_precision: float = DEFAULT_PRIOR_PRECISION) -> None:
-        self.n_params = n_params
-        self.prior_precision = prior_precision
-        self._state = rls_init(n_params, prior_precision)
-
-    def reset(self, theta0: ArrayLike | None = None) -> None:
-        """Covariance reset: ``P = P_0`` around ``theta0`` (zeros if None)."""
-        self._state = rls_init(self.n_params, self.prior_precision, theta0)
-
-    def update(self, phi: ArrayLike, r: ArrayLike) -> FloatArray:
-        """Absorb one sample (phi (m, d), r (m,)); returns the innovation (m,)."""
-        self._state, innovation = rls_step(self._state, phi, r)
-        return innovation
-
-    def update_batch(self, Phi: ArrayLike, R: ArrayLike) -> RlsBatchResult:
-        """Absorb N samples at once (Phi (N, m, d), R (N, m))."""
-        result = rls_batch(self._state, Phi, R)
-        self._state = result.state
-        return result
-
-    @property
-    def state(self) -> RlsState:
-        """The current state (immutable)."""
-        return self._state
-
-    @property
-    def theta(self) -> FloatArray:
-        """Current estimate, shape (d,)."""
-        return rls_solve(self._state).theta
-
-    @property
-    def covariance(self) -> FloatArray:
-        """``P = J^{-1}``, shape (d, d)."""
-        return np.linalg.inv(self._state.J)
-
-    @property
-    def n_samples(self) -> int:
-        """Samples absorbed since the last reset."""
-        return self._state.n

@@ -33,7 +33,22 @@ __all__ = ["Store", "digest", "install", "remembered"]
 
 
 class Store(Protocol):
-    """Where remembered results outlive the process (the shell's: files, or nothing)."""
+    """Where remembered results outlive the process (the shell's: files, or nothing).
+
+    Examples
+    --------
+    >>> class DictStore:
+    ...     def __init__(self):
+    ...         self.texts = {}
+    ...     def get(self, key):
+    ...         return self.texts.get(key)
+    ...     def put(self, key, text):
+    ...         self.texts[key] = text
+    >>> store: Store = DictStore()
+    >>> store.put("k", "kept")
+    >>> store.get("k"), store.get("other")
+    ('kept', None)
+    """
 
     def get(self, key: str) -> str | None:
         """The text kept under ``key``, or None."""

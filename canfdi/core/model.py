@@ -43,7 +43,16 @@ def zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray
 
 
 class ModelError(ValueError):
-    """A model matrix has the wrong shape or content; ``field`` names it."""
+    """A model matrix has the wrong shape or content; ``field`` names it.
+
+    Examples
+    --------
+    >>> try:
+    ...     StateSpace(A=[[0.9]], B=[[1.0]], C=[[1.0, 2.0]])
+    ... except ModelError as exc:
+    ...     print(exc.field, "|", exc)
+    C | C: expected shape (q, 1), got (1, 2) (transposed?)
+    """
 
     def __init__(self, field_name: str, message: str) -> None:
         super().__init__(f"{field_name}: {message}")
@@ -118,6 +127,16 @@ class StateSpace:
     G : (q, r1) distribution of the output unknown input psi; (q, 0) when there is none.
     dt : sample period in seconds; required for a continuous model.
     continuous : True when A, B, F describe dx/dt rather than x(k+1).
+
+    Examples
+    --------
+    >>> motor = StateSpace(A=[[-2.0]], B=[[1.0]], C=[[1.0]], F=[[1.0]], dt=0.1,
+    ...                    continuous=True)
+    >>> (motor.n, motor.p, motor.q, motor.r), motor.D
+    ((1, 1, 1, 1), array([[0.]]))
+    >>> discrete = motor.discretize()
+    >>> discrete.continuous, np.round(discrete.A, 4), np.round(discrete.B, 4)
+    (False, array([[0.8187]]), array([[0.0906]]))
     """
 
     A: np.ndarray

@@ -38,6 +38,20 @@ class NoiseEstimate:
         the others show).
     std_error : (q,) approximate standard error of ``std`` (from windows of the record).
     windows : number of complete windows used; s : window order.
+
+    Examples
+    --------
+    >>> from canfdi.core.model import StateSpace
+    >>> model = StateSpace(A=[[0.9]], B=[[1.0]], C=[[1.0], [1.0]], dt=0.01)
+    >>> rng = np.random.default_rng(0)
+    >>> U = rng.standard_normal((5000, 1))
+    >>> x = np.zeros(5000)
+    >>> for k in range(4999):
+    ...     x[k + 1] = 0.9 * x[k] + U[k, 0]
+    >>> Z = x[:, None] + rng.standard_normal((5000, 2)) * [0.01, 0.03]
+    >>> est = estimate_measurement_noise(model, 1, U, Z, prior_std=np.array([0.02, 0.02]))
+    >>> np.round(est.std, 3), est.identifiable, est.windows
+    (array([0.01, 0.03]), array([ True,  True]), 4999)
     """
 
     std: np.ndarray

@@ -96,6 +96,16 @@ class ParityMatrices:
     Hc : ((s+1) q, (s+1) p) input Toeplitz, D on the diagonal (zero in seed 001).
     Hw : ((s+1) q, (s+1) r) state unknown input Toeplitz, zero diagonal.
     Hpsi : ((s+1) q, (s+1) r1) block diagonal of G.
+
+    Examples
+    --------
+    >>> from canfdi.core.model import StateSpace
+    >>> model = StateSpace(A=[[0.9]], B=[[1.0]], C=[[1.0]], dt=0.01)
+    >>> pm = parity_matrices(model, 1)
+    >>> pm.H0, pm.Hc
+    (array([[1. ],
+           [0.9]]), array([[0., 0.],
+           [1., 0.]]))
     """
 
     s: int
@@ -167,6 +177,14 @@ class ParityVector:
     rows : number of rows of H*, (s+1) q for actuators, (s+1)(q-1) for sensors.
     decoupling_residual : ||v^T H*|| / ||H*||_2, the relative violation of the decoupling equations.
     reason : why no vector exists, or None.
+
+    Examples
+    --------
+    >>> from canfdi.core.model import StateSpace
+    >>> model = StateSpace(A=[[0.9]], B=[[1.0]], C=[[1.0], [1.0]], dt=0.01)
+    >>> v = design_sensor(model, 0, 1)  # blind to y0, over a window of two samples
+    >>> v.kind, v.exists, v.s, np.round(np.abs(v.gain), 4)
+    ('sensor', True, 1, array([0.    , 0.0743]))
     """
 
     kind: str

@@ -20,6 +20,13 @@ class Sample:
     z : (q,) measured outputs z(k), in the model's output order.
     gap : samples lost or broken just before this one (0 when the previous sample was k-1);
         the diagnoser restarts its data windows after a gap.
+
+    Examples
+    --------
+    >>> sample = Sample(k=12, timestamp_ns=1_700_000_000_000_000_000, u=np.array([24.0]),
+    ...                 z=np.array([1.9, 10.2, 100.5]), gap=2)
+    >>> sample.k - sample.gap - 1, sample.z.shape
+    (9, (3,))
     """
 
     k: int
@@ -52,6 +59,13 @@ class FaultEvent:
     residuals : names of the residuals in alarm (detected events).
     drive : the drive it concerns (several drives on one bus: the monitor sets it; a
         diagnoser, which sees one drive, leaves it None).
+
+    Examples
+    --------
+    >>> event = FaultEvent("accepted", 1200, 0, target="sensor", index=1, name="i_a",
+    ...                    estimates={"bias": 0.5}, onset_sample=1000)
+    >>> event.as_dict()["estimates"], event.as_dict()["residuals"]
+    ({'bias': 0.5}, [])
     """
 
     kind: str
@@ -85,6 +99,13 @@ class BlockResult:
     residuals, normalized : (N, m), NaN where a sample had no residual (window filling, lost
         values).
     statistic : (N, m) each residual's detection statistic after each sample.
+
+    Examples
+    --------
+    >>> result = BlockResult(events=[], residuals=np.zeros((4, 2)), normalized=np.zeros((4, 2)),
+    ...                      statistic=np.zeros((4, 2)))
+    >>> len(result.events), result.statistic.shape
+    (0, (4, 2))
     """
 
     events: list[FaultEvent]
@@ -102,6 +123,14 @@ class Compensation:
     index : the channel, 0-based; onset : the first sample it applies to.
     eta, lam, bias : the accepted estimates (``lam`` is the paper's lambda).
     scale : whether the method estimates eta (its events report it); False: eta is 1.
+
+    Examples
+    --------
+    >>> fix = Compensation("actuator", 0, onset=100, eta=0.8, lam=2.0, scale=True)
+    >>> fix.as_dict()
+    {'target': 'actuator', 'index': 0, 'onset': 100, 'eta': 0.8, 'lambda': 2.0}
+    >>> Compensation("sensor", 1, onset=50, bias=0.3).as_dict()
+    {'target': 'sensor', 'index': 1, 'onset': 50, 'bias': 0.3}
     """
 
     target: str

@@ -40,6 +40,20 @@ class ResidualBank:
     S : longest window order; a residual needs S+1 consecutive samples.
     M : (m, (S+1)(q+p)) the FIR matrix.
     Gz : (q, m, S+1) sensor signatures; Gu : (p, m, S+1) actuator signatures.
+
+    Examples
+    --------
+    >>> from canfdi.core.design import design_bank
+    >>> from canfdi.core.model import StateSpace
+    >>> model = StateSpace(A=[[0.9]], B=[[1.0]], C=[[1.0], [1.0]], dt=0.01)
+    >>> bank = ResidualBank(design_bank(model, ["u"], ["y0", "y1"]))
+    >>> bank.names, bank.S
+    (['a:u', 's:y0', 's:y1'], 1)
+    >>> bank.update(np.array([1.0, 1.0]), np.array([0.0])) is None  # the window is filling
+    True
+    >>> r = bank.update(np.array([0.9, 1.4]), np.array([0.0]))  # y1 reads 0.5 too high
+    >>> np.round(np.abs(r) / np.abs(r).max(), 3)  # s:y1, the residual blind to y1, stays 0
+    array([0.707, 1.   , 0.   ])
     """
 
     def __init__(self, design: Design) -> None:

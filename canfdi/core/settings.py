@@ -73,7 +73,14 @@ def brief(value: object) -> str:
 
 class ConfigError(ValueError):
     """A configuration problem; ``field`` is the dotted path of the offending key. The line
-    is cut at `MAX_MESSAGE` characters."""
+    is cut at `MAX_MESSAGE` characters.
+
+    Examples
+    --------
+    >>> err = ConfigError("detection.drift", "expected a number > 0, got -1")
+    >>> err.field, str(err)
+    ('detection.drift', 'detection.drift: expected a number > 0, got -1')
+    """
 
     def __init__(self, field: str, message: str) -> None:
         text = f"{field}: {message}"
@@ -104,6 +111,17 @@ class Option:
         number (PyYAML, a YAML 1.1 reader, reads 1.0e7 without an exponent sign as a string).
     lo, hi : bounds (None: unbounded); ``open_lo``/``open_hi`` exclude them.
     choices : the allowed values of a str option.
+
+    Examples
+    --------
+    >>> drift = Option(float, lo=0.0, open_lo=True)
+    >>> drift.check(0.5, "detection.drift"), drift.check("1.0e7", "detection.drift")
+    (0.5, 10000000.0)
+    >>> try:
+    ...     drift.check(0, "detection.drift")
+    ... except ConfigError as exc:
+    ...     print(exc)
+    detection.drift: expected a number > 0.0, got 0
     """
 
     kind: type
@@ -215,7 +233,14 @@ def parse_options(data: Any, spec: Mapping[str, Option], where: str, *,
 class SignalRef:
     """Where the bus carries a model signal: a message of the DBC (its name, or its ID as the
     DBC writes it) and one of its signals; ``range`` (low, high): the values the drive can
-    physically send, tighter than the DBC's (a frame outside is "implausible")."""
+    physically send, tighter than the DBC's (a frame outside is "implausible").
+
+    Examples
+    --------
+    >>> ref = SignalRef("MotorStatus", "ArmatureCurrent", range=(-20.0, 20.0))
+    >>> ref.message, ref.range
+    ('MotorStatus', (-20.0, 20.0))
+    """
 
     message: str | int
     signal: str
@@ -232,6 +257,11 @@ class ClockConfig:
 
     kind : "counter", "trigger" or "grid". message : the trigger message (name or DBC ID).
     period, phase, max_age : seconds (None: the defaults of docs/bus.md, from model.dt).
+
+    Examples
+    --------
+    >>> ClockConfig().kind, ClockConfig(kind="grid", period=0.01).period
+    ('counter', 0.01)
     """
 
     kind: str = "counter"
@@ -245,7 +275,14 @@ class ClockConfig:
 class E2EConfig:
     """End-to-end protection per message: a profile spec (a name, or a mapping with
     ``profile`` and its options; canfdi.bus.e2e) for each listed message (name or DBC ID), and
-    the default for the others."""
+    the default for the others.
+
+    Examples
+    --------
+    >>> e2e = E2EConfig(default="none", messages={"MotorCommand": "canfdi"})
+    >>> e2e.default, dict(e2e.messages)
+    ('none', {'MotorCommand': 'canfdi'})
+    """
 
     default: Any = "canfdi"
     messages: Mapping[str | int, Any] = field(default_factory=dict)
@@ -255,7 +292,14 @@ class E2EConfig:
 class MonitorFramesConfig:
     """The monitor's own frames: the DBC defining FDI_FAULT, FDI_ESTIMATE, FDI_STATUS (and
     FDI_RESIDUAL), their IDs (``base`` for consecutive ones, or ``ids`` by message name; none:
-    the DBC's), their E2E profile."""
+    the DBC's), their E2E profile.
+
+    Examples
+    --------
+    >>> frames = MonitorFramesConfig(base=0x700)
+    >>> frames.dbc, hex(frames.base), frames.e2e
+    ('canfdi_monitor', '0x700', 'canfdi')
+    """
 
     dbc: str = "canfdi_monitor"
     base: int | None = None
@@ -275,6 +319,12 @@ class BusConfig:
     ``id`` (a message's DBC ID) and ``node`` (None: the DBC's IDs as written). node_shared :
     messages of the bus rather than of a drive (a CANopen SYNC), by name or DBC ID: the template
     leaves their IDs alone and every drive reads them.
+
+    Examples
+    --------
+    >>> bus = BusConfig(interface="socketcan", channel="can0", stated=frozenset({"interface"}))
+    >>> bus.interface, bus.bitrate, bus.clock.kind, bus.monitor.dbc
+    ('socketcan', None, 'counter', 'canfdi_monitor')
     """
 
     interface: str = "virtual"
@@ -298,7 +348,13 @@ class BusConfig:
 @dataclass(frozen=True)
 class DriveConfig:
     """One drive on the bus: its name (events and log records carry it) and its node number
-    (for ``bus.node_id``; None: the DBC's IDs)."""
+    (for ``bus.node_id``; None: the DBC's IDs).
+
+    Examples
+    --------
+    >>> DriveConfig("left", node=3)
+    DriveConfig(name='left', node=3)
+    """
 
     name: str
     node: int | None = None
@@ -307,7 +363,13 @@ class DriveConfig:
 @dataclass(frozen=True)
 class DetectionConfig:
     """Page-Hinkley settings: drift delta (noise stds), the false-alarm interval (samples) and
-    whether the parity method also runs a CUSUM per fault signature (``signatures``)."""
+    whether the parity method also runs a CUSUM per fault signature (``signatures``).
+
+    Examples
+    --------
+    >>> DetectionConfig(drift=0.25)
+    DetectionConfig(drift=0.25, false_alarm_interval=10000000.0, signatures=False)
+    """
 
     drift: float = 0.5
     false_alarm_interval: float = 1.0e7
@@ -319,7 +381,14 @@ class WatchdogConfig:
     """The noise watchdog of `canfdi run`, replay and demo (canfdi.core.watchdog): each
     residual's noise std in ``blocks`` consecutive blocks of ``block`` samples against its
     calibrated value; a mismatch beyond ``factor`` (or below 1 / factor) is said, never
-    diagnosed as a fault."""
+    diagnosed as a fault.
+
+    Examples
+    --------
+    >>> w = WatchdogConfig()
+    >>> w.enabled, w.block * w.blocks  # samples the watchdog compares at once
+    (True, 500)
+    """
 
     enabled: bool = True
     factor: float = 1.5
@@ -330,7 +399,13 @@ class WatchdogConfig:
 @dataclass(frozen=True)
 class IdentificationConfig:
     """When the parity method accepts a hypothesis (canfdi.methods.parity); its max_samples is
-    also `canfdi evaluate`'s default spacing between faults, whatever the method."""
+    also `canfdi evaluate`'s default spacing between faults, whatever the method.
+
+    Examples
+    --------
+    >>> IdentificationConfig(max_samples=4000).max_samples, IdentificationConfig().min_samples
+    (4000, 10)
+    """
 
     min_samples: int = 10
     max_samples: int = 2000
@@ -344,7 +419,14 @@ class IdentificationConfig:
 class TemplateSpec:
     """A grey-box template for `canfdi identify` (canfdi.core.greybox): its name, the config
     signal that plays each of its roles, start values of its parameters (the datasheet's;
-    unset: the template's defaults), the parameters held at their start, and its settings."""
+    unset: the template's defaults), the parameters held at their start, and its settings.
+
+    Examples
+    --------
+    >>> spec = TemplateSpec("dc_motor", roles={"speed": "omega_r"}, fixed=("D",))
+    >>> spec.name, dict(spec.roles), spec.fixed
+    ('dc_motor', {'speed': 'omega_r'}, ('D',))
+    """
 
     name: str
     roles: Mapping[str, str] = field(default_factory=dict)
@@ -361,6 +443,12 @@ class IdentifySpec:
         unmodelled coupling). order : the state dimension (None: from the data). delay :
         samples from a command to its first effect (>= 1). template : a grey-box template,
         or None for a black-box model.
+
+    Examples
+    --------
+    >>> spec = IdentifySpec(unknown_inputs=1, template=TemplateSpec("servo_axis"))
+    >>> spec.order, spec.delay, spec.template.name
+    (None, 1, 'servo_axis')
     """
 
     unknown_inputs: int = 0
@@ -372,7 +460,14 @@ class IdentifySpec:
 @dataclass(frozen=True)
 class RecordingConfig:
     """MCAP logging of `canfdi run`: where, when a segment is rotated, and how long logs are
-    kept (canfdi.io.retention; None: no bound of that kind)."""
+    kept (canfdi.io.retention; None: no bound of that kind).
+
+    Examples
+    --------
+    >>> rec = RecordingConfig(directory="/var/log/canfdi", keep_days=30)
+    >>> rec.rotate_mib, rec.keep_days, rec.keep_mib
+    (256.0, 30, None)
+    """
 
     directory: str = "logs"
     rotate_mib: float = 256.0
@@ -392,6 +487,17 @@ class MonitorConfig:
         ``model:`` holds no matrices yet (``identify`` says how to learn them; ``dt`` its
         sample period when known).
     identify : the config's ``model.identify`` (None when it has none).
+
+    Examples
+    --------
+    >>> from canfdi.core.design import DesignOptions
+    >>> from canfdi.core.model import StateSpace
+    >>> model = StateSpace(A=[[0.9]], B=[[1.0]], C=[[1.0]], dt=0.01)
+    >>> config = MonitorConfig(name="toy", description="", model=model, inputs=["u"], outputs=["y"],
+    ...                        unknown_inputs=[], unknown_outputs=[], design=DesignOptions(),
+    ...                        method="parity")
+    >>> config.drive_list, config.detection.false_alarm_interval
+    ((DriveConfig(name='toy', node=None),), 10000000.0)
     """
 
     name: str

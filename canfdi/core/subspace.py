@@ -1,24 +1,16 @@
 """Subspace identification of (A, B, C, D) from records with lost samples, open or closed loop.
 
-Two estimators of the same family, chosen by what the data are:
-
-* PO-MOESP (Verhaegen 1994; Verhaegen and Verdult, "Filtering and System Identification",
-  2007, ch. 9) with past inputs and outputs as instruments: consistent with any noise when
-  the inputs do not depend on past noise (open loop). It needs no noise model, so slow poles
-  cost it nothing.
-* PBSID (Chiuso 2007, "The role of vector autoregressive modeling in predictor-based subspace
-  identification", Automatica 43; van der Veen et al. 2013): a vector ARX model of the
-  one-step predictor over a past window, whose coefficients give the state as a linear
-  function of past data; consistent in closed loop (a master closing a speed loop through
-  the bus makes the input depend on past noise), up to the predictor's decay within the
-  past window.
-
-canfdi identifies with PBSID (drives are usually recorded in closed loop); PO-MOESP is kept to
-show, in the tests, what feedback does to an open-loop method. The order comes from the
-canonical correlations between the future outputs and the past (CVA weighting, Larimore
-1990): a state carries a correlation near 1, noise correlations of order sqrt(dims /
-samples); the count of correlations above ``ORDER_FLOOR`` times the noise floor (the median
-of the trailing ones) is the order.
+PBSID (Chiuso 2007, "The role of vector autoregressive modeling in predictor-based subspace
+identification", Automatica 43; van der Veen et al. 2013): a vector ARX model of the one-step
+predictor over a past window, whose coefficients give the state as a linear function of past
+data; consistent in closed loop (a master closing a speed loop through the bus makes the input
+depend on past noise), up to the predictor's decay within the past window. Open-loop methods
+such as PO-MOESP (Verhaegen 1994) are biased there (tests/unit/test_sysid.py shows it), and
+drives are usually recorded in closed loop. The order comes from the canonical correlations
+between the future outputs and the past (CVA weighting, Larimore 1990): a state carries a
+correlation near 1, noise correlations of order sqrt(dims / samples); the count of
+correlations above ``ORDER_FLOOR`` times the noise floor (the median of the trailing ones) is
+the order.
 
 Records are lists of (U (N, p), Y (N, q)) on regular sample grids; a NaN row of Y is a lost
 sample, and no window that holds one is used; several records (logs) are stacked window by
@@ -44,7 +36,6 @@ __all__ = [
     "input_matrices",
     "order_from_correlations",
     "pbsid",
-    "po_moesp",
 ]
 
 ORDER_FLOOR = 4.0
@@ -55,7 +46,20 @@ ORDER_FLOOR = 4.0
 class SubspaceModel:
     """x(k+1) = A x + B u + K e, y = C x + D u + e (K, Sigma_e: PBSID's innovation form; zeros
     when the method gives none). offsets : (q,) output offset of the operating point,
-    ``u0`` (p,) its input; the model holds for the deviations y - y0, u - u0."""
+    ``u0`` (p,) its input; the model holds for the deviations y - y0, u - u0.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(1)
+    >>> U = rng.standard_normal((3000, 1))
+    >>> x, Y = 0.0, np.empty((3000, 1))
+    >>> for k in range(3000):
+    ...     Y[k] = x + 0.01 * rng.standard_normal()
+    ...     x = 0.8 * x + U[k, 0]
+    >>> model, _ = pbsid([(U, Y)], 1, 10, 5)
+    >>> model.method, np.round(model.A, 2), np.round(model.C @ model.B, 2)
+    ('PBSID', array([[0.8]]), array([[1.]]))
+    """
 
     A: np.ndarray
     B: np.ndarray
@@ -140,25 +144,6 @@ def order_from_correlations(rho: np.ndarray, nmax: int) -> tuple[int, float]:
     floor = float(np.median(tail))
     n = int(np.sum(rho[:nmax] > max(ORDER_FLOOR * floor, 0.1)))
     return max(n, 1), floor
-
-
-def _ac_from_gamma(G: np.ndarray, q: int) -> tuple[np.ndarray, np.ndarray]:
-    """(A, C) from an extended observability matrix ((future q, n)): C its first block row, A
-    from the shift invariance (least squares)."""
-    C = G[:q]
-    A = least_squares(G[:-q], G[q:]).theta
-    return A, C
-
-
-def po_moesp(records: Sequence[tuple[np.ndarray, np.ndarray]], n: int, past: int,
-             future: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(A (n, n), C (q, n), singular values): PO-MOESP's column space of L32."""
-    q = records[0][1].shape[1]
-    L32, _, _ = _lq_blocks(records, past, future)
-    Us, S, _ = np.linalg.svd(L32)
-    G = Us[:, :n] * np.sqrt(S[:n])
-    A, C = _ac_from_gamma(G, q)
-    return A, C, S
 
 
 def _state_response(A: np.ndarray, U: np.ndarray) -> np.ndarray:

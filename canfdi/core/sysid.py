@@ -82,6 +82,21 @@ class IdentifiedModel:
     order was read from. noise_std : (q,) the noise found. unknown_inputs : F's columns.
     notes : what the user should know (fewer unknown inputs than asked, ...).
     details : the path's own figures (row excess, pruned coefficients, ...).
+
+    Examples
+    --------
+    >>> from canfdi.core.unknown_inputs import Record
+    >>> rng = np.random.default_rng(2)
+    >>> U = rng.standard_normal((3000, 1))
+    >>> x, Y = 0.0, np.empty((3000, 1))
+    >>> for k in range(3000):
+    ...     Y[k] = x + 0.01 * rng.standard_normal()
+    ...     x = 0.8 * x + U[k, 0]
+    >>> found = identify_state_space([Record(U, Y)], 0.01, prior_std=np.array([0.01]))
+    >>> found.path, found.order, found.state_names
+    ('subspace (PBSID)', 1, ['x1'])
+    >>> np.round(found.model.A, 2), np.round(found.noise_std, 3)
+    (array([[0.8]]), array([0.01]))
     """
 
     model: StateSpace

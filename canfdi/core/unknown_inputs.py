@@ -72,7 +72,14 @@ VISIBLE = 3.0
 @dataclass(frozen=True)
 class Record:
     """One healthy record on a regular grid: U (N, p) commands (never NaN), Y (N, q)
-    measurements (a NaN row: a lost sample)."""
+    measurements (a NaN row: a lost sample).
+
+    Examples
+    --------
+    >>> rec = Record(U=np.zeros((4, 1)), Y=np.array([[0.0], [np.nan], [0.1], [0.2]]))
+    >>> rec.U.shape, int(np.isnan(rec.Y).any(axis=1).sum())  # one lost sample
+    ((4, 1), 1)
+    """
 
     U: np.ndarray
     Y: np.ndarray
@@ -91,6 +98,18 @@ class MeasuredStateFit:
     samples : pairs (k, k+1) used.
     eigenvalues : the generalized eigenvalues of the rows' error against the noise (the first
         r are the unknown inputs; those near 1 are noise).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(3)
+    >>> U, w = rng.standard_normal((4000, 1)), np.cumsum(0.05 * rng.standard_normal(4000))
+    >>> X = np.zeros((4000, 2))
+    >>> for k in range(3999):  # w, a slow unmeasured load, acts on the second state only
+    ...     X[k + 1] = [0.9 * X[k, 0] + U[k, 0], 0.5 * X[k, 0] + 0.8 * X[k, 1] + w[k]]
+    >>> Y = X + 0.01 * rng.standard_normal(X.shape)
+    >>> fit = fit_measured_state([Record(U, Y)], np.full(2, 1e-4), 2, 1)
+    >>> np.round(np.abs(fit.F[:2, 0]), 2), fit.samples  # F: along the second state
+    (array([0., 1.]), 3999)
     """
 
     A: np.ndarray
@@ -219,41 +238,11 @@ def row_excess(records: Sequence[Record], R: np.ndarray, sel: Sequence[int]) -> 
     return np.mean((E - E.mean(axis=0))**2, axis=0) / predicted
 
 
-def _lagged_moment(records: Sequence[Record], sel: Sequence[int], A: np.ndarray,
-                   B: np.ndarray, lags: range = range(2, 12)) -> np.ndarray:
-    """(n, n) what the rows' one-step errors e(k) = x(k+1) - A x(k) - B u(k) share over time
-    and not with the noise: their mean's outer product plus their autocovariances at lags
-    ``lags`` (symmetrized). The measurement noise enters e as v(k+1) - A v(k), correlated
-    over one lag only, so from lag 2 on only the unknown inputs (a load, friction, nonlinear
-    terms: all slow next to the sample period) are left: their direction, free of any error
-    in the noise's estimate."""
-    errs = []
-    for rec in records:
-        X = rec.Y[:, list(sel)]
-        errs.append(X[1:] - X[:-1] @ A.T - rec.U[:-1] @ B.T)
-    valid = np.vstack([e[~np.isnan(e).any(axis=1)] for e in errs])
-    mu = valid.mean(axis=0)
-    n = len(mu)
-    acc = np.zeros((n, n))
-    for lag in lags:
-        num, count = np.zeros((n, n)), 0
-        for e in errs:
-            if len(e) <= lag:
-                continue
-            a, b = e[lag:] - mu, e[:-lag] - mu
-            ok = ~(np.isnan(a).any(axis=1) | np.isnan(b).any(axis=1))
-            num += a[ok].T @ b[ok]
-            count += int(ok.sum())
-        if count:
-            acc += num / count
-    return np.outer(mu, mu) + (acc + acc.T) / 2.0
-
-
 def _directions(M2: np.ndarray, Sn: np.ndarray, r: int, rows: Sequence[int]
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """F (n, r) within the axes ``rows``: the r dominant directions of the unknown inputs'
-    moment M2 (`_lagged_moment`), measured in the noise's metric Sn (only for scale: M2 has
-    no noise in it), and all the eigenvalues (descending)."""
+    """F (n, r) within the axes ``rows``: the r dominant directions of the one-step errors'
+    second moment M2 (n, n), measured in the noise's metric Sn, and all the eigenvalues
+    (descending)."""
     n = len(M2)
     L = np.linalg.cholesky(Sn)
     Li = np.linalg.inv(L)

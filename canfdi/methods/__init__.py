@@ -36,7 +36,7 @@ from canfdi.core.records import FaultEvent
 from canfdi.core.settings import MonitorConfig, unknown_name
 
 __all__ = ["DEFAULT", "ENTRY_POINT_GROUP", "FAULT_KINDS", "EstimateHistory", "Method",
-           "build_diagnoser", "get", "names", "register", "unregister"]
+           "build_diagnoser", "get", "names", "register"]
 
 ENTRY_POINT_GROUP = "canfdi.methods"
 DEFAULT = "parity"
@@ -53,6 +53,15 @@ class EstimateHistory:
 
     k : (N,) samples from the onset to the acceptance; names : the parameters (e.g. eta,
     lambda); values, std : (N, len(names)); source : how they were computed, for the page.
+
+    Examples
+    --------
+    >>> history = EstimateHistory(k=np.arange(100, 103), names=["bias"],
+    ...                           values=np.array([[0.4], [0.45], [0.5]]),
+    ...                           std=np.full((3, 1), 0.05),
+    ...                           source="recomputed from the log's residuals")
+    >>> history.names, history.values[-1], int(history.k[-1] - history.k[0])
+    (['bias'], array([0.5]), 2)
     """
 
     k: np.ndarray
@@ -90,6 +99,20 @@ class Method:
         the estimate's trajectory for `canfdi report`, recomputed from the log (its
         ``residuals``, ``samples``, ``accepted`` events; what it cannot do goes to its
         ``notes``). None: the report shows the accepted value only.
+
+    Examples
+    --------
+    >>> toy = Method(name="toy", summary="a method that never alarms", section=None,
+    ...              parse_options=lambda section, config: None, build=lambda config: None)
+    >>> toy.fault_kinds, toy.statistic[0]
+    (('actuator_bias', 'sensor_bias'), 'PH statistic g')
+    >>> get("parity").section, get("parity").fault_kinds
+    ('identification', ('actuator_bias', 'actuator_scale', 'sensor_bias'))
+    >>> try:
+    ...     Method("bad", "", None, lambda s, c: None, lambda c: None, fault_kinds=("drift",))
+    ... except ValueError as exc:
+    ...     print(exc)
+    method bad: fault_kinds must be some of actuator_bias, ..., got ('drift',)
     """
 
     name: str
@@ -123,11 +146,6 @@ def register(method: Method) -> Method:
         raise TypeError(f"register: expected a canfdi.methods.Method, got {type(method)}")
     _REGISTRY[method.name] = method
     return method
-
-
-def unregister(name: str) -> None:
-    """Remove a method (tests register throw-away ones)."""
-    _REGISTRY.pop(name, None)
 
 
 def _load() -> None:
@@ -174,9 +192,3 @@ def get(name: str) -> Method:
 def build_diagnoser(config: MonitorConfig) -> Diagnoser:
     """The diagnoser a config describes: its method's, designed and calibrated."""
     return get(config.method).build(config)
-
-
-def _reload_entry_points() -> None:
-    """Forget what was loaded (tests that install an entry point call it)."""
-    global _LOADED
-    _LOADED = False

@@ -1,4 +1,4 @@
-"""Tests of canfdi.core.detect: fixed thresholds, the Page-Hinkley test and its design."""
+"""Tests of canfdi.core.detect and canfdi.core.calibrate: the Page-Hinkley test and its design."""
 
 from __future__ import annotations
 
@@ -15,22 +15,10 @@ from canfdi.core.calibrate import (
     arl_two_sided,
     calibrate_threshold,
     false_alarm_interval,
-    mean_detection_delay,
     threshold_for_false_alarm_interval,
     threshold_for_long_run_variance,
 )
-from canfdi.core.detect import (
-    Alarm,
-    ChangePointDetector,
-    PageHinkley,
-    ThresholdDetector,
-    alarms_to_events,
-    onset_candidates,
-    page_hinkley_batch,
-    page_hinkley_step,
-    threshold_alarms,
-    threshold_from_false_alarm,
-)
+from canfdi.core.detect import ChangePointDetector, onset_candidates, page_hinkley_batch
 
 # --------------------------------------------------------------------------------------
 # helpers
@@ -38,18 +26,26 @@ from canfdi.core.detect import (
 
 
 def run_steps(x, delta, h, *, mu0=0.0, sigma=1.0, state=None, restart=False):
-    """Reference: the step function applied sample by sample, as a streaming user would."""
+    """Reference: the recursion written out, sample by sample and residual by residual, as
+    Basseville and Nikiforov state it (a NaN residual is missing: its statistics hold)."""
     n, m = x.shape
+    delta, h, mu0, sigma = (np.broadcast_to(np.asarray(v, dtype=float), (m,))
+                            for v in (delta, h, mu0, sigma))
     st_ = np.zeros((m, 2)) if state is None else np.array(state, dtype=float)
     g_up = np.empty((n, m))
     g_down = np.empty((n, m))
-    alarms = np.empty((n, m), dtype=np.int8)
+    alarms = np.zeros((n, m), dtype=np.int8)
     for k in range(n):
-        st_, a = page_hinkley_step(st_, x[k], delta, h, mu0=mu0, sigma=sigma)
-        g_up[k], g_down[k], alarms[k] = st_[:, 0], st_[:, 1], a
-        if restart:
-            st_ = st_.copy()
-            st_[a != 0] = 0.0
+        for i in range(m):
+            u = (x[k, i] - mu0[i]) / sigma[i]
+            if not np.isnan(u):
+                st_[i, 0] = max(0.0, st_[i, 0] + (u - delta[i]))
+                st_[i, 1] = max(0.0, st_[i, 1] + (-u - delta[i]))
+            g_up[k, i], g_down[k, i] = st_[i]
+            if max(st_[i]) >= h[i]:
+                alarms[k, i] = 1 if st_[i, 0] >= st_[i, 1] else -1
+                if restart:
+                    st_[i] = 0.0
     return g_up, g_down, alarms, st_
 
 
@@ -105,63 +101,7 @@ def ar1(gen, n, phi):
 
 
 # --------------------------------------------------------------------------------------
-# fixed threshold
-# --------------------------------------------------------------------------------------
-
-
-def test_threshold_false_alarm_rate_matches_gaussian_tail():
-    gen = np.random.default_rng(20060401)
-    sigma = np.array([0.5, 3.0])
-    p_fa = 0.01
-    r_h = threshold_from_false_alarm(sigma, p_fa)
-    assert r_h.shape == (2,)
-    r = gen.standard_normal((1_000_000, 2)) * sigma
-    rate = threshold_alarms(r, r_h).mean(axis=0)
-    np.testing.assert_allclose(rate, p_fa, rtol=0.05)
-
-
-def test_threshold_scalar_sigma_gives_float():
-    r_h = threshold_from_false_alarm(2.0, 0.05)
-    assert isinstance(r_h, float)
-    assert r_h == pytest.approx(2.0 * 1.959963984540054, rel=1e-12)
-
-
-@pytest.mark.parametrize("p_fa", [0.0, 1.0, -0.1, 1.5, float("nan")])
-def test_threshold_rejects_bad_p_fa(p_fa):
-    with pytest.raises(ValueError, match="p_fa"):
-        threshold_from_false_alarm(1.0, p_fa)
-
-
-@pytest.mark.parametrize("sigma", [0.0, -1.0, [1.0, 0.0], float("nan"), [[1.0]]])
-def test_threshold_rejects_bad_sigma(sigma):
-    with pytest.raises(ValueError, match="sigma"):
-        threshold_from_false_alarm(sigma, 0.01)
-
-
-def test_threshold_alarms_rejects_bad_arguments():
-    with pytest.raises(ValueError, match="r:"):
-        threshold_alarms(np.zeros(3), 1.0)
-    with pytest.raises(ValueError, match="r_h"):
-        threshold_alarms(np.zeros((3, 2)), [1.0, -1.0])
-    with pytest.raises(ValueError, match="r_h"):
-        threshold_alarms(np.zeros((3, 2)), [1.0, 1.0, 1.0])
-    with pytest.raises(ValueError, match="threshold"):
-        ThresholdDetector(0.0)
-
-
-def test_threshold_is_inclusive_and_streaming_matches_batch():
-    r = np.array([[1.0, -2.0], [0.5, 2.5], [-1.0, 0.0]])
-    r_h = np.array([1.0, 2.5])
-    batch = threshold_alarms(r, r_h)
-    np.testing.assert_array_equal(batch, [[True, False], [False, True], [True, False]])
-    det = ThresholdDetector(r_h)
-    for k in range(r.shape[0]):
-        np.testing.assert_array_equal(det.update(r[k]), np.flatnonzero(batch[k]))
-    det.reset()
-
-
-# --------------------------------------------------------------------------------------
-# Page-Hinkley: step, batch, chunks, streaming
+# Page-Hinkley: batch against the recursion, chunks, streaming
 # --------------------------------------------------------------------------------------
 
 
@@ -299,37 +239,20 @@ def test_page_hinkley_batch_equals_steps_property(case, restart):
     np.testing.assert_allclose(chunk_state, ref[3], rtol=1e-12, atol=1e-12)
 
 
-def test_streaming_class_matches_batch_and_keeps_alarm_state():
+def test_streaming_detector_matches_batch_and_keeps_running_after_an_alarm():
+    """ChangePointDetector.update, sample by sample, gives page_hinkley_batch's alarms and
+    statistics; nothing resets on an alarm (a persistent change stays in alarm) until reset."""
     x = record_with_changes(13, n=3000)
-    det = PageHinkley(delta=0.5, h=5.0, n_residuals=3)
-    alarms = np.array([det.update(row) for row in x])
-    res = page_hinkley_batch(x, 0.5, 5.0)
+    h = np.array([5.0, 5.0, 5.0])
+    det = ChangePointDetector(3, 0.5, h)
+    alarms = np.array([det.update(k, row) for k, row in enumerate(x)])
+    res = page_hinkley_batch(x, 0.5, h)
     np.testing.assert_array_equal(alarms, res.alarms)
-    np.testing.assert_allclose(det.statistics, res.state, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(det.statistics, res.state.max(axis=1), rtol=1e-12, atol=1e-12)
     # no self-reset: residual 1 is still in alarm at the end of its persistent step
-    assert alarms[-1, 1] == -1 and det.statistics[1, 1] > 5.0
-    first = alarms[np.argmax(alarms != 0, axis=0), np.arange(3)]
-    np.testing.assert_array_equal(det.alarm_state, first)
-    det.reset([1])
-    np.testing.assert_array_equal(det.statistics[1], [0.0, 0.0])
-    assert det.alarm_state[1] == 0
-    np.testing.assert_allclose(det.statistics[[0, 2]], res.state[[0, 2]], rtol=1e-12)
+    assert alarms[-1, 1] == -1 and det.statistics[1] > 5.0
     det.reset()
-    np.testing.assert_array_equal(det.statistics, np.zeros((3, 2)))
-    np.testing.assert_array_equal(det.alarm_state, np.zeros(3))
-
-
-def test_streaming_reset_after_each_alarm_equals_batch_restart():
-    x = record_with_changes(14, n=3000)
-    det = PageHinkley(delta=0.5, h=4.0, mu0=0.05, sigma=1.1, n_residuals=3)
-    alarms = []
-    for row in x:
-        a = det.update(row)
-        alarms.append(a)
-        det.reset(np.flatnonzero(a))
-    res = page_hinkley_batch(x, 0.5, 4.0, mu0=0.05, sigma=1.1, restart_on_alarm=True)
-    np.testing.assert_array_equal(np.array(alarms), res.alarms)
-    assert np.count_nonzero(res.alarms) > 10
+    np.testing.assert_array_equal(det.statistics, np.zeros(3))
 
 
 def test_known_mean_is_used_not_estimated():
@@ -361,33 +284,10 @@ def test_page_hinkley_rejects_bad_arguments(kwargs, name):
         page_hinkley_batch(**args)
 
 
-def test_page_hinkley_step_and_class_reject_bad_arguments():
-    with pytest.raises(ValueError, match="state"):
-        page_hinkley_step(np.zeros((2, 2)), np.zeros(3), 0.5, 4.0)
+def test_streaming_detector_rejects_an_infinite_residual():
+    det = ChangePointDetector(2, 0.5, [4.0, 4.0])
     with pytest.raises(ValueError, match="x"):
-        page_hinkley_step(np.zeros((1, 2)), [np.inf], 0.5, 4.0)
-    with pytest.raises(ValueError, match="n_residuals"):
-        PageHinkley(0.5, 4.0, n_residuals=0)
-    det = PageHinkley(0.5, 4.0, n_residuals=2)
-    with pytest.raises(ValueError, match="x_row"):
-        det.update([1.0, 2.0, 3.0])
-    with pytest.raises(ValueError, match="indices"):
-        det.reset([2])
-
-
-def test_alarms_to_events():
-    alarms = np.zeros((4, 3), dtype=np.int8)
-    alarms[1, 2] = -1
-    alarms[3, 0] = 1
-    alarms[3, 1] = -1
-    events = alarms_to_events(alarms, start_sample=100)
-    assert events == [Alarm(101, 2, -1), Alarm(103, 0, 1), Alarm(103, 1, -1)]
-    assert all(type(e.sample) is int for e in events)
-    assert alarms_to_events(np.array([[False, True]])) == [Alarm(0, 1, 1)]
-    with pytest.raises(ValueError, match="alarms"):
-        alarms_to_events(np.zeros(3, dtype=np.int8))
-    with pytest.raises(ValueError, match="alarms"):
-        alarms_to_events(np.zeros((3, 1)))
+        det.update(0, np.array([np.inf, 0.0]))
 
 
 # --------------------------------------------------------------------------------------
@@ -414,8 +314,7 @@ def test_siegmund_mean_detection_delay_monte_carlo():
     The statistics are zero when the change occurs (worst case); delta = 0.5, h = 4 gives
     4.67 samples (measured 4.75 over 20000 runs).
     """
-    predicted = mean_detection_delay(1.5, 0.5, 4.0)
-    assert mean_detection_delay(-1.5, 0.5, 4.0) == predicted
+    predicted = arl_one_sided(1.5 - 0.5, 4.0)  # the statistic drifts by |change| - delta
     run_length = first_alarm_times(np.random.default_rng(1993), 20_000, 1.5, 0.5, 4.0, 100)
     assert run_length.mean() == pytest.approx(predicted, rel=0.10)
 
@@ -447,7 +346,7 @@ def test_arl_formula_values_and_small_mu_limit():
     with pytest.raises(ValueError, match="h"):
         arl_one_sided(0.0, -1.0)
     with pytest.raises(ValueError, match="delta"):
-        mean_detection_delay(1.0, -0.5, 4.0)
+        false_alarm_interval(-0.5, 4.0)
 
 
 @pytest.mark.parametrize("delta", [0.0, 0.25, 0.5, 1.0])
@@ -502,9 +401,26 @@ def test_calibrate_threshold_rejects_bad_arguments():
         calibrate_threshold(np.zeros((10, 1)), 0.5, 100.0, tol=0.0)
 
 
+def change_points(det, width):
+    """(width, 2) the change point each column's up and down statistic would date an alarm
+    to: the detector's dating, read through change_point one statistic at a time."""
+    return np.array([[det.change_point(np.eye(width, dtype=np.int8)[c] * sign)
+                      for sign in (1, -1)] for c in range(width)])
+
+
+def assert_same_detector(block, stream, width, k_next, rows):
+    """Same statistics and change points now, and the same alarms on the rows that follow."""
+    np.testing.assert_allclose(block.statistics, stream.statistics, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(change_points(block, width), change_points(stream, width))
+    for i, row in enumerate(rows):
+        np.testing.assert_array_equal(block.update(k_next + i, row),
+                                      stream.update(k_next + i, row))
+
+
 def test_change_point_detector_block_form_leaves_the_streaming_state():
-    """run() stops before the first alarm row with the state and change points that step()
-    reaches on the same rows; the change point dates the alarm."""
+    """update_block() stops before the first alarm row with the state and change points that
+    update() reaches on the same rows; the change point dates the alarm; reset(k) dates later
+    changes from k."""
     rng = np.random.default_rng(5)
     rn = rng.standard_normal((400, 3))
     rn[rng.random(rn.shape) < 0.1] = np.nan
@@ -512,16 +428,21 @@ def test_change_point_detector_block_form_leaves_the_streaming_state():
     k = np.arange(1000, 1400)
     h = np.array([40.0, 8.0, 40.0])
     block, stream = ChangePointDetector(3, 0.5, h), ChangePointDetector(3, 0.5, h)
-    ph, done = block.run(k, rn)
+    ph, done = block.update_block(k, rn)
     assert 300 < done < 320 and ph.alarms[done].any() and not ph.alarms[:done].any()
     for r in range(done):
-        assert not stream.step(int(k[r]), rn[r]).any()
-    np.testing.assert_allclose(block.state, stream.state, rtol=1e-12, atol=1e-12)  # cumsum
-    np.testing.assert_array_equal(block.last_zero, stream.last_zero)
-    alarm = stream.step(int(k[done]), rn[done])
+        assert not stream.update(int(k[r]), rn[r]).any()
+    np.testing.assert_array_equal(change_points(block, 3), change_points(stream, 3))
+    alarm = block.update(int(k[done]), rn[done])
+    np.testing.assert_array_equal(alarm, ph.alarms[done])
+    np.testing.assert_array_equal(stream.update(int(k[done]), rn[done]), alarm)
     assert alarm[1] == 1 and abs(stream.change_point(alarm) - 1300) <= 5
-    stream.restart(1400)
-    assert (stream.statistics == 0).all() and (stream.last_zero == 1400).all()
+    assert block.change_point(alarm) == stream.change_point(alarm)
+    assert_same_detector(block, stream, 3, int(k[done]) + 1, rn[done + 1:])
+    stream.reset(1400)
+    assert (stream.statistics == 0).all() and (change_points(stream, 3) == 1401).all()
+    alarm = stream.update(1401, np.array([0.0, 100.0, 0.0]))
+    assert alarm.tolist() == [0, 1, 0] and stream.change_point(alarm) == 1401
 
 
 def test_onset_candidates():
@@ -554,19 +475,25 @@ def test_change_point_detector_with_projections_block_and_stream_agree():
     args = (3, 0.5, np.full(3, 40.0))
     kw = {"projection": proj, "drifts": [0.25, 0.5], "h_projected": [12.0, 10.0]}
     block, stream = ChangePointDetector(*args, **kw), ChangePointDetector(*args, **kw)
-    assert block.columns == 5
-    ph, done = block.run(k, rn)
+    ph, done = block.update_block(k, rn)
     assert ph.alarms.shape == (600, 5) and 400 < done < 600
     assert not ph.alarms[done, :3].any() and ph.alarms[done, 3:].any()  # the sum saw it
     for r in range(done):
-        stream.step(int(k[r]), rn[r])
-    np.testing.assert_allclose(block.state, stream.state, rtol=1e-12, atol=1e-12)
-    np.testing.assert_array_equal(block.last_zero, stream.last_zero)
-    alarm = stream.step(int(k[done]), rn[done])
+        stream.update(int(k[r]), rn[r])
+    np.testing.assert_array_equal(change_points(block, 5), change_points(stream, 5))
+    np.testing.assert_allclose(block.statistics, stream.statistics, rtol=1e-12, atol=1e-12)
+    alarm = stream.update(int(k[done]), rn[done])
+    np.testing.assert_array_equal(block.update(int(k[done]), rn[done]), alarm)
     assert abs(stream.change_point(alarm) - 2400) <= 40
-    held = stream.state.copy()
-    stream.step(int(k[done]) + 1, np.array([np.nan, 1.0, 1.0]))
-    np.testing.assert_array_equal(stream.state[3:], held[3:])
+    # A missing residual makes the projections missing: stream skips a row that block never
+    # sees (one that would swing the sums far down), and their projections' alarms and datings
+    # stay alike.
+    stream.update(int(k[done]) + 1, np.array([np.nan, -100.0, -100.0]))
+    np.testing.assert_array_equal(change_points(block, 5)[3:], change_points(stream, 5)[3:])
+    # Lower residual thresholds raise residual alarms, not projection ones.
     stream.h = np.full(3, 7.0)
-    np.testing.assert_array_equal(stream.all_thresholds, [7.0, 7.0, 7.0, 12.0, 10.0])
+    np.testing.assert_array_equal(stream.h, [7.0, 7.0, 7.0])
+    for i, row in enumerate(rn[done + 1:]):
+        kk = int(k[done]) + 2 + i
+        np.testing.assert_array_equal(block.update(kk, row)[3:], stream.update(kk, row)[3:])
     assert stream.statistics.shape == (3,)

@@ -17,13 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
-from canfdi.core.greybox import (
-    TEMPLATES,
-    fit_template,
-    get_template,
-    monitor_model,
-    simulate_template,
-)
+from canfdi.core.greybox import FD_STEP, TEMPLATES, fit_template, get_template
 from canfdi.core.model import StateSpace, zoh
 from canfdi.firmware_sim.plants.dc_motor import DcMotor, DcMotorParameters
 from canfdi.firmware_sim.scenario import load_scenario
@@ -38,6 +32,39 @@ TWO_PI = 2 * math.pi
 def _dc_truth() -> dict[str, float]:
     p = DcMotorParameters()
     return {"R_f": p.Rf, "L_f": p.Lf, "R_a": p.Ra, "L_a": p.La, "M": p.M, "J": p.J, "D": p.D}
+
+
+def monitor_model(template, theta: dict[str, float], dt: float) -> StateSpace:
+    """The template's monitor model over all its roles, default settings, at ``theta`` (names
+    left out: their defaults)."""
+    template = get_template(template) if isinstance(template, str) else template
+    th = np.array([theta.get(p.name, p.default) for p in template.parameters])
+    A, B, C, F = template.linear_model(th, dt, template.outputs,
+                                       {s.name: s.default for s in template.settings})
+    return StateSpace(A=A, B=B, C=C, F=F, dt=dt)
+
+
+def model_std(fit):
+    """Standard deviations of the fitted model's A, B, F: the delta method over the fit's
+    log-parameter covariance, central differences in the log parameters."""
+    theta = np.array([p.value for p in fit.parameters])
+
+    def flat(th):
+        A, B, _C, F = fit.template.linear_model(th, fit.model.dt, fit.states, fit.settings)
+        return np.concatenate([A.ravel(), B.ravel(), F.ravel()])
+
+    idx = np.flatnonzero(np.diag(fit.log_covariance) > 0)
+    D = np.empty((flat(theta).size, idx.size))
+    for col, j in enumerate(idx):
+        up, down = theta.copy(), theta.copy()
+        up[j] *= math.exp(FD_STEP)
+        down[j] *= math.exp(-FD_STEP)
+        D[:, col] = (flat(up) - flat(down)) / (2 * FD_STEP)
+    std = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", D, fit.log_covariance[np.ix_(idx, idx)],
+                                       D), 0.0))
+    n, p, r = fit.model.n, fit.model.p, fit.model.r
+    return (std[: n * n].reshape(n, n), std[n * n: n * n + n * p].reshape(n, p),
+            std[n * n + n * p:].reshape(n, r))
 
 
 def _off_start(template, factor=1.5):
@@ -60,15 +87,22 @@ def dc_fit(dc_log):
 
 
 def test_dc_motor_template_is_the_emulated_plant_without_load():
-    """simulate_template at the plant's parameters steps as DcMotor.step does."""
+    """The template at the plant's parameters predicts each step of DcMotor.step: held at the
+    truth, a fit's one-step prediction errors on the plant's noise-free states vanish."""
     plant, template = DcMotor(), get_template("dc_motor")
     rng = np.random.default_rng(3)
     U = rng.uniform(40.0, 140.0, (200, 1))
-    X = simulate_template(template, _dc_truth(), plant.initial_state(), U, 0.01, substeps=10)
+    X = np.empty((len(U), 3))
     x = plant.initial_state()
     for k in range(len(U)):
-        assert np.allclose(X[k], x, rtol=1e-12, atol=1e-12)
+        X[k] = x
         x = plant.step(x, U[k])
+    fit = fit_template(template, U, X, dict(zip(template.outputs, range(3), strict=True)), 0.01,
+                       start=_dc_truth(), fixed=list(template.parameter_names))
+    assert fit.substeps == 10 and fit.theta == _dc_truth()
+    errors = fit.residuals[1:]
+    assert np.isfinite(errors).all()
+    assert np.allclose(errors, 0.0, atol=1e-12 * np.abs(X).max())
 
 
 def test_dc_motor_monitor_model_at_the_truth_is_eq_43():
@@ -101,7 +135,7 @@ def test_dc_motor_monitor_model_matches_the_shipped_config(dc_fit):
     sensor's row found by the fit."""
     config = StateSpace.from_dict(yaml.safe_load(CONFIG.read_text())["model"])
     model = dc_fit.model
-    A_std, B_std, F_std = dc_fit.model_std()
+    A_std, B_std, F_std = model_std(dc_fit)
     assert model.dt == config.dt == 0.01 and not model.continuous
     assert np.all(model.A[~np.eye(3, dtype=bool)] == 0)
     assert np.all(np.abs(model.A - config.A) <= 4 * A_std + 1e-12)
@@ -323,7 +357,7 @@ def test_servo_monitor_model_f_is_the_zoh_torque_column(servo_fit):
                                          [Ad[2, 0] / TWO_PI, Ad[2, 1], 1]], rtol=1e-12, atol=1e-15)
     # and at the truth, within the fit's uncertainty
     truth = monitor_model("servo_axis", {"Kt": KT, "tau_i": TAU, "J": J, "b": B}, 0.01)
-    A_std, B_std, F_std = servo_fit.model_std()
+    A_std, B_std, F_std = model_std(servo_fit)
     assert np.all(np.abs(model.F - truth.F) <= 4 * F_std + 1e-15)
     assert np.all(np.abs(model.B - truth.B) <= 4 * B_std + 1e-15)
     assert np.all(np.abs(model.A - truth.A) <= 4 * A_std + 1e-15)
@@ -362,7 +396,8 @@ def test_an_optional_role_enters_no_other_derivative():
             y = x.copy()
             y[:, i] += rng.standard_normal(50)
             others = [j for j in range(n) if j != i]
-            dx, dy = template.ode(template.defaults, x, u), template.ode(template.defaults, y, u)
+            datasheet = np.array([p.default for p in template.parameters])
+            dx, dy = template.ode(datasheet, x, u), template.ode(datasheet, y, u)
             assert np.array_equal(dx[:, others], dy[:, others]), (template.name, role)
 
 

@@ -8,15 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.lib.stride_tricks import sliding_window_view
 
-from canfdi.core.identify import (
-    RecursiveLeastSquares,
-    least_squares,
-    rls_batch,
-    rls_init,
-    rls_solve,
-    rls_step,
-    rls_update,
-)
+from canfdi.core.identify import least_squares, rls_batch, rls_init, rls_solve, rls_update
 
 
 def _eqs_30_32(theta: np.ndarray, P: np.ndarray, Phi: np.ndarray, R: np.ndarray):
@@ -79,7 +71,7 @@ def test_sensor_biases_identified_by_step_and_batch() -> None:
     np.testing.assert_allclose(rls_solve(batch.state).theta, f, atol=1e-6)
     state = rls_init(q)
     for _ in range(N):
-        state, _ = rls_step(state, phi, r)
+        state = rls_update(state, phi, r)
     np.testing.assert_allclose(rls_solve(state).theta, f, atol=1e-6)
 
 
@@ -87,9 +79,11 @@ def test_sensor_biases_identified_by_step_and_batch() -> None:
 
 
 def _stepped(state, Phi, R):
+    """rls_update sample by sample; the innovation is r - phi theta before the sample."""
     thetas, costs, innovs = [], [], []
     for phi, r in zip(Phi, R, strict=True):
-        state, e = rls_step(state, phi, r)
+        e = r - phi @ rls_solve(state).theta
+        state = rls_update(state, phi, r)
         sol = rls_solve(state)
         thetas.append(sol.theta)
         costs.append(sol.cost)
@@ -161,19 +155,18 @@ def test_covariance_reset_follows_an_abrupt_change_within_d_plus_one_samples() -
     theta_a, theta_b = np.array([1.0, -2.0]), np.array([4.0, 3.0])
     Phi = rng.normal(size=(300 + d + 1, 1, d))
     R = np.concatenate([Phi[:300] @ theta_a, Phi[300:] @ theta_b])
-    reset, plain = RecursiveLeastSquares(d), RecursiveLeastSquares(d)
-    reset.update_batch(Phi[:300], R[:300])
-    plain.update_batch(Phi[:300], R[:300])
-    np.testing.assert_allclose(reset.theta, theta_a, atol=1e-6)
-    reset.reset(theta0=reset.theta)
-    assert reset.n_samples == 0
-    np.testing.assert_allclose(reset.covariance, 1e8 * np.eye(d))
+    plain = rls_batch(rls_init(d), Phi[:300], R[:300]).state
+    theta = rls_solve(plain).theta
+    np.testing.assert_allclose(theta, theta_a, atol=1e-6)
+    reset = rls_init(d, theta0=theta)
+    assert reset.n == 0
+    np.testing.assert_allclose(rls_solve(reset).P, 1e8 * np.eye(d))
     for k in range(300, 300 + d + 1):
-        reset.update(Phi[k], R[k])
-        plain.update(Phi[k], R[k])
-    np.testing.assert_allclose(reset.theta, theta_b, atol=1e-6)
+        reset = rls_update(reset, Phi[k], R[k])
+        plain = rls_update(plain, Phi[k], R[k])
+    np.testing.assert_allclose(rls_solve(reset).theta, theta_b, atol=1e-6)
     # Without the reset, 300 samples of history hold the estimate near the old value.
-    assert np.abs(plain.theta - theta_b).max() > 0.5
+    assert np.abs(rls_solve(plain).theta - theta_b).max() > 0.5
 
 
 def test_update_is_functional() -> None:

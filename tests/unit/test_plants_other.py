@@ -310,7 +310,8 @@ def test_vtol_residuals_decouple_the_variation(vtol_design):
     d = vtol_design
     s = d.actuator_window
     assert d.sensor_window == s
-    V = np.vstack([d.actuator_matrix(), d.sensor_matrix()])
+    V = np.vstack([[r.vector.vector for r in d.actuators if r.vector.exists],
+                   d.sensor_matrix()])
     Hc = parity_matrices(d.model, s).Hc
     ys, us = _simulate(Vtol(s_dA=1.0), 1500)
     Y = sliding_window_view(ys, (s + 1, 4)).reshape(-1, (s + 1) * 4)

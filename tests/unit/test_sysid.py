@@ -17,7 +17,6 @@ from canfdi.core.subspace import (
     input_matrices,
     order_from_correlations,
     pbsid,
-    po_moesp,
 )
 from canfdi.core.sysid import first_noise_guess, identify_state_space
 from canfdi.core.unknown_inputs import Record, fit_measured_state, row_excess, visible_order
@@ -30,6 +29,22 @@ def markov(A, B, C, count=12):
         out.append(C @ Ak @ B)
         Ak = A @ Ak
     return np.array(out)
+
+
+def po_moesp(U, Y, n, past, future):
+    """(A, C) by PO-MOESP (Verhaegen 1994), the open-loop method canfdi does not use: the column
+    space of L32 of the LQ factorisation of [Uf; Up, Yp; Yf] (windows as rows, means removed),
+    A by shift invariance. Single input and output."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    wu = sliding_window_view(U[:, 0], past + future)
+    wy = sliding_window_view(Y[:, 0], past + future)
+    H = np.hstack([wu[:, past:], wu[:, :past], wy[:, :past], wy[:, past:]])
+    L = np.linalg.qr(H - H.mean(axis=0), mode="r").T
+    L32 = L[future + 2 * past:, future:future + 2 * past]
+    Us, S, _ = np.linalg.svd(L32)
+    G = Us[:, :n] * np.sqrt(S[:n])
+    return np.linalg.lstsq(G[:-1], G[1:], rcond=None)[0], G[:1]
 
 
 def random_system(rng, n, p, q, radius=(0.3, 0.9)):
@@ -110,7 +125,7 @@ def test_pbsid_stays_consistent_in_closed_loop_where_moesp_does_not():
         x = A @ x + B @ u + K * e[k]
     truth = markov(A, B, C, 8)
     m, _ = pbsid([(U, Y)], 2, 20, 10)
-    Am, Cm, _ = po_moesp([(U, Y)], 2, 10, 10)
+    Am, Cm = po_moesp(U, Y, 2, 10, 10)
     Bm, _, _, _ = input_matrices([(U, Y)], Am, Cm)
     err_pbsid = np.max(np.abs(markov(m.A, m.B, m.C, 8) - truth))
     err_moesp = np.max(np.abs(markov(Am, Bm, Cm, 8) - truth))

@@ -71,7 +71,17 @@ _NUMBER = Option(float)
 @dataclass(frozen=True)
 class OeOptions:
     """The parsed output_error section: the identified model, the residuals' fault-free
-    standard deviations (q,) and long-run variance ratios (q,), the diagnoser's settings."""
+    standard deviations (q,) and long-run variance ratios (q,), the diagnoser's settings.
+
+    Examples
+    --------
+    >>> from canfdi.methods.output_error.model import OeModel, OePair
+    >>> model = OeModel((OePair(0, 0, (0.1,), (-0.9,)),), u0=[0.0], y0=[0.0])
+    >>> options = OeOptions(model, sigma=np.array([0.01]), long_run=np.ones(1),
+    ...                     settings=OeSettings())
+    >>> options.model.static_gains(), options.settings.max_samples
+    (array([[1.]]), 400)
+    """
 
     model: OeModel
     sigma: np.ndarray

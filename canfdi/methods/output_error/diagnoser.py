@@ -152,6 +152,12 @@ class OeSettings:
     check_every : samples between decisions after min_samples.
     max_hold : longest gap (samples) bridged on held inputs; longer ones restart the models.
     settle : fraction a transient must fall to before residuals count again (taint, warm-up).
+
+    Examples
+    --------
+    >>> settings = OeSettings(max_samples=800)
+    >>> settings.min_samples, settings.max_samples, settings.drift
+    (48, 800, 0.5)
     """
 
     drift: float = 0.5
@@ -176,6 +182,14 @@ class OeDiagnosis:
     onsets : candidate fault onsets; start : the first sample of the fitting window (l0 before
     the earliest onset); next_check : the sample of the next decision; k, r : the window's
     samples and normalised residual rows (q,), growing until the decision.
+
+    Examples
+    --------
+    >>> from dataclasses import replace
+    >>> d = OeDiagnosis(k_d=501, onsets=[498, 499, 500, 501], start=488, next_check=549)
+    >>> d = replace(d, k=[*d.k, 502], r=[*d.r, np.array([4.2])])
+    >>> d.k, d.start < min(d.onsets)
+    ([502], True)
     """
 
     k_d: int
@@ -194,6 +208,13 @@ class HypothesisTest:
     cost : least-squares cost of the normalised residuals; distance : the kappa test's
     normalised parameter distance; gamma_ok, fits : the gamma and fit-variance tests; passes :
     all of them.
+
+    Examples
+    --------
+    >>> test = HypothesisTest("sensor", 0, "y", 500, {"bias": 0.1}, {"bias": 1e-6}, cost=48.0,
+    ...                       distance=0.01, gamma_ok=True, fits=True, passes=True)
+    >>> test.candidate()
+    {'target': 'sensor', 'index': 0, 'name': 'y', 'estimates': {'bias': 0.1}, 'onset': 500}
     """
 
     target: str
@@ -242,6 +263,24 @@ class OutputErrorDiagnoser(DetectorBacked):
     thresholds : (q,) Page-Hinkley thresholds in noise stds (oe_thresholds).
     settings : OeSettings.
     input_names, output_names : channel names (p,), (q,).
+
+    Examples
+    --------
+    >>> from scipy.signal import lfilter
+    >>> from canfdi.core.records import Sample
+    >>> from canfdi.methods.output_error.model import OeModel, OePair
+    >>> model = OeModel((OePair(0, 0, (0.1,), (-0.9,)),), u0=[0.0], y0=[0.0])  # 0.1 / (q - 0.9)
+    >>> diag = OutputErrorDiagnoser(model, np.array([0.01]), oe_thresholds(0.5, 1e7, np.ones(1)),
+    ...                             OeSettings(), ["u"], ["y"])
+    >>> rng = np.random.default_rng(0)
+    >>> u = np.sign(np.sin(np.arange(1000) / 20.0))
+    >>> y = lfilter([0.0, 0.1], [1.0, -0.9], u) + 0.01 * rng.standard_normal(1000)
+    >>> y[500:] += 0.1  # the sensor reads 0.1 high from sample 500
+    >>> events = [e for k in range(1000)
+    ...           for e in diag.update(Sample(k, 0, u[k:k + 1], y[k:k + 1]))]
+    >>> [(e.kind, e.sample, e.name, {n: round(v, 2) for n, v in e.estimates.items()})
+    ...  for e in events]
+    [('detected', 501, None, {}), ('accepted', 549, 'y', {'bias': 0.1})]
     """
 
     def __init__(self, model: OeModel, sigma: np.ndarray, thresholds: np.ndarray,
@@ -262,7 +301,7 @@ class OutputErrorDiagnoser(DetectorBacked):
         thresholds = np.asarray(thresholds, dtype=float).reshape(self.q)
         self.settings = settings
         self.input_names, self.output_names = list(input_names), list(output_names)
-        self.detector = ChangePointDetector(self.q, settings.drift, thresholds)
+        self._detector = ChangePointDetector(self.q, settings.drift, thresholds)
         s = settings
         self._paths = model.has_path()
         # taint[i, j]: samples residual j stays missing after a held (lost) command u_i.
@@ -301,7 +340,7 @@ class OutputErrorDiagnoser(DetectorBacked):
         self.last_normalized: np.ndarray | None = None
 
     def _restart_detector(self, k: int = -1) -> None:
-        self.detector.restart(k)
+        self._detector.reset(k)
         self._diag = None
 
     @property
@@ -435,7 +474,7 @@ class OutputErrorDiagnoser(DetectorBacked):
         j, or the row of the alarm, which ``update`` then takes."""
         before = self._snapshot()
         res, rn = self._residuals(k[i:j], U[i:j], Z[i:j])
-        ph, done = self.detector.run(k[i:j], rn)
+        ph, done = self._detector.update_block(k[i:j], rn)
         alarmed = done < j - i
         if alarmed:
             # Redo the models up to the alarm row only: update() takes the alarm sample.
@@ -458,11 +497,11 @@ class OutputErrorDiagnoser(DetectorBacked):
 
     # -- the state machine -----------------------------------------------------------------
     def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
-        alarm = self.detector.step(k, rn)
+        alarm = self._detector.update(k, rn)
         if not alarm.any():
             return []
         alarming = np.flatnonzero(alarm)
-        change_point = self.detector.change_point(alarm)
+        change_point = self._detector.change_point(alarm)
         s = self.settings
         first = self._recent[0][0]
         onsets = onset_candidates(change_point, k, first, s.onset_before, s.max_onsets)

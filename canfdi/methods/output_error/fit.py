@@ -31,7 +31,14 @@ __all__ = ["FitOptions", "fit_output_error", "fit_section"]
 class FitOptions:
     """The fit's choices (`canfdi identify --orders/--oe-delay/--min-gain-snr/--skip`): fixed
     pair orders {(output, input): (nb, nf, d) or None}, the free pairs' delay, the gain
-    significance to keep a pair, samples skipped at the start."""
+    significance to keep a pair, samples skipped at the start.
+
+    Examples
+    --------
+    >>> options = FitOptions(fixed={(0, 0): (1, 1, 1)}, skip=50)
+    >>> options.delay, options.min_gain_snr, options.fixed[(0, 0)]
+    (1, 5.0, (1, 1, 1))
+    """
 
     fixed: dict = field(default_factory=dict)
     delay: int = 1

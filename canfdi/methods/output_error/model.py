@@ -67,6 +67,14 @@ class OePair:
     output, input : 0-based indices.
     b : (nb,) numerator b_0..b_{nb-1}; f : (nf,) denominator f_1..f_nf (monic F, the 1 implied).
     delay : d >= 0 samples.
+
+    Examples
+    --------
+    >>> pair = OePair(output=0, input=0, b=(0.1,), f=(-0.9,))
+    >>> round(pair.static_gain, 12), pair.pole_radius, pair.state_size
+    (1.0, 0.9, 1)
+    >>> np.round(pair.step_response(4), 3)  # one sample of delay, then towards the gain of 1
+    array([0.   , 0.1  , 0.19 , 0.271])
     """
 
     output: int
@@ -110,6 +118,13 @@ class OeModel:
 
     pairs : the paths (an (output, input) not listed has no path).
     u0 : (p,) and y0 : (q,) the operating point: y_hat = y0 + sum G (u - u0).
+
+    Examples
+    --------
+    >>> model = OeModel((OePair(0, 0, (0.1,), (-0.9,)), OePair(1, 0, (2.0,), ())),
+    ...                 u0=[0.0], y0=[0.0, 5.0])
+    >>> (model.q, model.p), model.static_gains().ravel(), model.has_path().ravel()
+    ((2, 1), array([1., 2.]), array([ True,  True]))
     """
 
     pairs: tuple[OePair, ...]
@@ -329,6 +344,17 @@ class MisoFit:
     residual : (N,) simulation errors over the whole record (the warm-up included).
     sigma : residual standard deviation after the warm-up.
     gain_std : (n_pairs,) standard deviations of the static gains (delta method).
+
+    Examples
+    --------
+    >>> from scipy.signal import lfilter
+    >>> rng = np.random.default_rng(1)
+    >>> U = np.sign(rng.standard_normal((2000, 1)))
+    >>> y = lfilter([0.0, 0.2], [1.0, -0.8], U[:, 0]) + 0.01 * rng.standard_normal(2000)
+    >>> fit = fit_miso(U, y - y.mean(), [(0, 1, 1, 1)], skip=50)
+    >>> (pair,) = fit.pairs
+    >>> np.round(pair.b, 2), np.round(pair.f, 2), round(fit.sigma, 3)
+    (array([0.2]), array([-0.8]), 0.01)
     """
 
     pairs: tuple[OePair, ...]
@@ -420,6 +446,14 @@ class StepFit:
     from the fit); cost : sum of squared errors; n : equations used; held_costs : for each of
     the fit's ``f_starts``, the cost with F held there and B fitted (a known shape, its gain
     free: never below ``cost``).
+
+    Examples
+    --------
+    >>> from scipy.signal import lfilter
+    >>> r = lfilter([0.0, 0.3], [1.0, -0.7], (np.arange(200) >= 50).astype(float))
+    >>> fit = fit_step(r, onset=50, nb=1, nf=1, delay=1)
+    >>> np.round(fit.b, 3), np.round(fit.f, 3), fit.n
+    (array([0.3]), array([-0.7]), 200)
     """
 
     b: np.ndarray

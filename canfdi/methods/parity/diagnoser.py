@@ -99,6 +99,12 @@ class ParitySettings:
     signature_drifts : the drift ladder of the signature CUSUMs run beside the residuals'
         Page-Hinkley (canfdi.methods.parity.signatures, e.g. its DRIFTS); () (the default:
         the config's detection.signatures false) runs Page-Hinkley alone.
+
+    Examples
+    --------
+    >>> settings = ParitySettings(max_samples=4000, signature_drifts=(0.25, 1.0))
+    >>> settings.drift, settings.max_samples, settings.signature_drifts
+    (0.5, 4000, (0.25, 1.0))
     """
 
     drift: float = 0.5
@@ -124,6 +130,14 @@ class Diagnosis:
     phi^T Gamma phi, Gamma the residuals' long-run covariance: the middle of the estimates'
     sandwich covariance P meat P; u_abs, n_u : (p,) sum of |u_c| and count of known commands
     since the alarm (the scale an actuator's lambda is judged against).
+
+    Examples
+    --------
+    >>> from canfdi.core.identify import rls_init
+    >>> d = Diagnosis(k_d=1027, onsets=np.array([999, 1000]), info=rls_init(1, shape=(3, 2)),
+    ...               meat=np.zeros((3, 2, 1, 1)), u_abs=np.zeros(1), n_u=np.zeros(1))
+    >>> d.info.J.shape  # (hypotheses, onsets, d, d)
+    (3, 2, 1, 1)
     """
 
     k_d: int
@@ -148,6 +162,31 @@ class ParityDiagnoser(DetectorBacked):
         None: white, independent residuals.
     signatures : the signature CUSUMs detection runs beside the residuals' (signatures.
         signature_columns); None: Page-Hinkley on the residuals alone.
+
+    Examples
+    --------
+    >>> from canfdi.core.calibrate import threshold_for_long_run_variance
+    >>> from canfdi.core.design import DesignOptions, design_bank
+    >>> from canfdi.core.model import StateSpace
+    >>> from canfdi.core.records import Sample
+    >>> model = StateSpace(A=[[0.9]], B=[[1.0]], C=[[1.0], [1.0]], dt=0.01)  # two sensors of x
+    >>> design = design_bank(model, ["u"], ["y0", "y1"],
+    ...                      DesignOptions(measurement_std=np.array([0.01, 0.01])))
+    >>> diag = ParityDiagnoser(design, ParitySettings(),
+    ...                        threshold_for_long_run_variance(0.5, 1e7, np.ones(3)))
+    >>> diag.residual_names
+    ['a:u', 's:y0', 's:y1']
+    >>> rng = np.random.default_rng(0)
+    >>> x, events = 0.0, []
+    >>> for k in range(1100):
+    ...     u = np.sign(np.sin(k / 30))
+    ...     z = x + 0.01 * rng.standard_normal(2)
+    ...     z[1] += 0.1 if k >= 1000 else 0.0  # y1 reads 0.1 high from sample 1000
+    ...     events += diag.update(Sample(k, 0, np.array([u]), z))
+    ...     x = 0.9 * x + u
+    >>> [(e.kind, e.sample, e.name, {n: round(v, 2) for n, v in e.estimates.items()})
+    ...  for e in events]
+    [('detected', 1027, None, {}), ('accepted', 1037, 'y1', {'bias': 0.1})]
     """
 
     def __init__(self, design: Design, settings: ParitySettings, thresholds: np.ndarray,
@@ -197,10 +236,10 @@ class ParityDiagnoser(DetectorBacked):
             self._twins.setdefault(h, set())
         m = self.bank.m
         if signatures is None:
-            self.detector = ChangePointDetector(m, settings.drift, thresholds)
+            self._detector = ChangePointDetector(m, settings.drift, thresholds)
             self._column_residuals = [(i,) for i in range(m)]
         else:
-            self.detector = ChangePointDetector(
+            self._detector = ChangePointDetector(
                 m, settings.drift, thresholds[:m], projection=signatures.projection,
                 drifts=signatures.drifts, h_projected=thresholds[m:])
             self._column_residuals = [(i,) for i in range(m)] + list(signatures.residuals)
@@ -237,7 +276,7 @@ class ParityDiagnoser(DetectorBacked):
 
     def _restart_detector(self, k: int = -1) -> None:
         """Zero the Page-Hinkley statistics; a change point cannot predate sample k."""
-        self.detector.restart(k)
+        self._detector.reset(k)
         self._diag = None
 
     @property
@@ -306,7 +345,7 @@ class ParityDiagnoser(DetectorBacked):
                 cap = int(reach[0])
             if cap == 0:
                 return i
-        ph, done = self.detector.run(k[i: i + cap], rn[:cap])
+        ph, done = self._detector.update_block(k[i: i + cap], rn[:cap])
         if done > 0:
             m = self.bank.m
             rows.stat[i: i + done] = np.maximum(ph.g_up[:done, :m], ph.g_down[:done, :m])
@@ -368,11 +407,11 @@ class ParityDiagnoser(DetectorBacked):
         return events
 
     def _monitor(self, k: int, t: int, rn: np.ndarray) -> list[FaultEvent]:
-        alarm = self.detector.step(k, rn)
+        alarm = self._detector.update(k, rn)
         if not alarm.any():
             return []
         alarming = np.flatnonzero(alarm)
-        change_point = self.detector.change_point(alarm)
+        change_point = self._detector.change_point(alarm)
         s = self.settings
         onsets = onset_candidates(change_point, k, self._recent.first, s.onset_before,
                                   s.max_onsets, keep="ends")

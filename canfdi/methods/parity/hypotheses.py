@@ -29,6 +29,12 @@ class Hypothesis:
         independent).
     index, name : the channel (for "sensors": the first member).
     members : the sensor indices of a "sensors" hypothesis.
+
+    Examples
+    --------
+    >>> h = Hypothesis("actuator", 0, "V")
+    >>> h.label, h.n_params, Hypothesis("sensors", 1, "i_a", members=(1, 2)).n_params
+    ('actuator:V', 2, 2)
     """
 
     target: str

@@ -48,6 +48,17 @@ class SignatureColumns:
     projection : (m, c) column c = the weights of its signature; drifts : (c,); names : (c,)
     "cusum:<channels>"; residuals : per column, the residuals its signature moves (what a
     detection by it names); rungs : drifts per signature (the false-alarm budget's factor).
+
+    Examples
+    --------
+    >>> from canfdi.core.design import design_bank
+    >>> from canfdi.core.model import StateSpace
+    >>> from canfdi.core.residuals import ResidualBank
+    >>> model = StateSpace(A=[[0.9]], B=[[1.0]], C=[[1.0], [1.0]], dt=0.01)
+    >>> bank = ResidualBank(design_bank(model, ["u"], ["y0", "y1"]))
+    >>> cols = signature_columns(bank, np.array([0.01, 0.01]), ["u"], ["y0", "y1"], drifts=(0.5,))
+    >>> cols.count, cols.names, cols.projection.shape
+    (3, ('cusum:u', 'cusum:y0', 'cusum:y1'), (3, 3))
     """
 
     projection: np.ndarray

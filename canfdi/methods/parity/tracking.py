@@ -57,7 +57,14 @@ FIRST_CHECK = 64
 class Tracked:
     """A compensated channel and how it is fitted: its hypothesis ("actuator",
     "actuator_bias" or "sensor"), its fault onset and the information its acceptance had
-    about its parameters ((d, d), d = the hypothesis' parameters)."""
+    about its parameters ((d, d), d = the hypothesis' parameters).
+
+    Examples
+    --------
+    >>> t = Tracked(Hypothesis("sensor", 1, "y1"), onset=1000, precision=np.array([[4e4]]))
+    >>> t.hypothesis.label, t.onset, float(1 / np.sqrt(t.precision[0, 0]))  # std at acceptance
+    ('sensor:y1', 1000, 0.005)
+    """
 
     hypothesis: Hypothesis
     onset: int
@@ -68,7 +75,15 @@ class Tracked:
 class Correction:
     """What a check folds into one channel's compensation: the parameters relative to it
     (a sensor's extra bias; an actuator's eta' - 1 and lambda', or lambda' alone) and their
-    variances."""
+    variances.
+
+    Examples
+    --------
+    >>> t = Tracked(Hypothesis("sensor", 1, "y1"), onset=1000, precision=np.array([[4e4]]))
+    >>> c = Correction(t, delta=np.array([0.004]), variances=np.array([1e-6]))
+    >>> c.tracked.hypothesis.name, float(c.delta[0] / np.sqrt(c.variances[0]))  # 4 stds
+    ('y1', 4.0)
+    """
 
     tracked: Tracked
     delta: np.ndarray
@@ -118,8 +133,8 @@ class AcceptedFaultTracker:
     True
     >>> [round(float(c.delta[0]), 1) for c in t.correction()]
     [10.0]
-    >>> t.next_check
-    128
+    >>> t.samples_to_check()  # the next checkpoint is twice as far: 128 samples absorbed
+    64
     """
 
     def __init__(self, bank: ResidualBank, long_run: np.ndarray | None = None,
@@ -128,8 +143,13 @@ class AcceptedFaultTracker:
         self.projection = projection
         self.gamma = np.eye(bank.m) if long_run is None else np.asarray(long_run, dtype=float)
         self.precise = float(precise)
-        self.tracked: list[Tracked] = []
+        self._tracked: list[Tracked] = []
         self.clear()
+
+    @property
+    def tracked(self) -> list[Tracked]:
+        """The channels being fitted (a copy)."""
+        return list(self._tracked)
 
     def clear(self) -> None:
         """Track nothing."""
@@ -145,62 +165,62 @@ class AcceptedFaultTracker:
     def restart(self, tracked: list[Tracked]) -> None:
         """Fit these channels from now on, relative to the compensation as it now is, from
         the information of their acceptances."""
-        self.tracked = list(tracked)
-        sizes = [t.hypothesis.n_params for t in self.tracked]
+        self._tracked = list(tracked)
+        sizes = [t.hypothesis.n_params for t in self._tracked]
         starts = np.cumsum([0, *sizes])[:-1]
         self._slices = [slice(int(a), int(a) + n) for a, n in zip(starts, sizes, strict=True)]
         D = sum(sizes)
         # The fit so far (information J, vector h, and the meat M of its sandwich covariance)
         # and the segment since the last checkpoint.
-        self.J, self.h, self.M = np.zeros((D, D)), np.zeros(D), np.zeros((D, D))
-        for t, s in zip(self.tracked, self._slices, strict=True):
-            self.J[s, s] = t.precision
-            self.M[s, s] = self._ratio(t.hypothesis) * t.precision
+        self._J, self._h, self._M = np.zeros((D, D)), np.zeros(D), np.zeros((D, D))
+        for t, s in zip(self._tracked, self._slices, strict=True):
+            self._J[s, s] = t.precision
+            self._M[s, s] = self._ratio(t.hypothesis) * t.precision
         self._new_segment()
-        self.absorbed = 0
-        self.next_check = FIRST_CHECK
+        self._absorbed = 0
+        self._next_check = FIRST_CHECK
         self._u_abs, self._u_n = np.zeros(self.bank.p), 0
 
     def _new_segment(self) -> None:
-        D = len(self.h)
-        self.seg_J, self.seg_h, self.seg_M = np.zeros((D, D)), np.zeros(D), np.zeros((D, D))
+        D = len(self._h)
+        self._seg_J, self._seg_h, self._seg_M = np.zeros((D, D)), np.zeros(D), np.zeros((D, D))
 
     @property
     def due(self) -> bool:
         """Whether a checkpoint is reached."""
-        return bool(self.tracked) and self.absorbed >= self.next_check
+        return bool(self._tracked) and self._absorbed >= self._next_check
 
     def samples_to_check(self) -> int | None:
         """Residual samples still to absorb before the next checkpoint (None: nothing is
         tracked)."""
-        return max(self.next_check - self.absorbed, 0) if self.tracked else None
+        return max(self._next_check - self._absorbed, 0) if self._tracked else None
 
     def absorb(self, k: np.ndarray, u_windows: np.ndarray, rn: np.ndarray) -> None:
         """Absorb N monitored samples: (N,) k, (N, S+1, p) their compensated command windows,
         (N, m) normalised residuals (NaN: missing, no equation)."""
-        if not self.tracked or len(k) == 0:
+        if not self._tracked or len(k) == 0:
             return
-        phi = row_regressors(self.bank, [t.hypothesis for t in self.tracked],
-                             [t.onset for t in self.tracked], k, u_windows)
+        phi = row_regressors(self.bank, [t.hypothesis for t in self._tracked],
+                             [t.onset for t in self._tracked], k, u_windows)
         valid = ~np.isnan(rn)
         phi = phi * valid[:, :, None]
         r = np.where(valid, rn, 0.0)
-        self.seg_J += np.einsum("nmi,nmj->ij", phi, phi)
-        self.seg_h += np.einsum("nmi,nm->i", phi, r)
-        self.seg_M += np.einsum("nmi,mk,nkj->ij", phi, self.gamma, phi)
+        self._seg_J += np.einsum("nmi,nmj->ij", phi, phi)
+        self._seg_h += np.einsum("nmi,nm->i", phi, r)
+        self._seg_M += np.einsum("nmi,mk,nkj->ij", phi, self.gamma, phi)
         self._u_abs += np.abs(np.nan_to_num(np.asarray(u_windows, dtype=float)[:, -1, :])).sum(0)
         self._u_n += len(k)
-        self.absorbed += len(k)
+        self._absorbed += len(k)
 
     def correction(self) -> list[Correction]:
         """At a checkpoint: the channels whose correction is significant, now counted as
         folded in (none when the segment since the last checkpoint contradicts the fit so
         far: a new change, left to the detector); the next checkpoint is twice as far."""
-        self.next_check *= 2
-        sJ, sh, sM = self.seg_J, self.seg_h, self.seg_M
+        self._next_check *= 2
+        sJ, sh, sM = self._seg_J, self._seg_h, self._seg_M
         self._new_segment()
-        W = np.linalg.inv(self.J)
-        before, P_before = W @ self.h, W @ self.M @ W
+        W = np.linalg.inv(self._J)
+        before, P_before = W @ self._h, W @ self._M @ W
         # Under "the same remaining error throughout" the segment's information vector is
         # J_seg delta + noise with delta ~ N(before, P_before): v is N(0, spread).
         v = sh - sJ @ before
@@ -208,14 +228,14 @@ class AcceptedFaultTracker:
         rank = int(np.linalg.matrix_rank(spread, hermitian=True))
         if rank and float(v @ np.linalg.pinv(spread, hermitian=True) @ v) > _chi2_3sigma(rank):
             return []
-        self.J, self.h, self.M = self.J + sJ, self.h + sh, self.M + sM
-        W = np.linalg.inv(self.J)
-        theta, P = W @ self.h, W @ self.M @ W
+        self._J, self._h, self._M = self._J + sJ, self._h + sh, self._M + sM
+        W = np.linalg.inv(self._J)
+        theta, P = W @ self._h, W @ self._M @ W
         # The last checkpoint (every parameter precise) folds the fit whatever its size: it
         # is the best estimate there will be, and no later check can fold what it leaves.
         last = self.precise > 0.0 and self._precise(P)
         out, applied = [], np.zeros(len(theta))
-        for t, s in zip(self.tracked, self._slices, strict=True):
+        for t, s in zip(self._tracked, self._slices, strict=True):
             delta, Ps = theta[s], P[s, s]
             if not (last and np.any(delta)) and float(
                     delta @ np.linalg.solve(Ps, delta)) < _chi2_3sigma(len(delta)):
@@ -224,7 +244,7 @@ class AcceptedFaultTracker:
             out.append(Correction(t, delta.copy(), np.diag(Ps).copy()))
         # The fit is now relative to the new compensation: its mean moves, its information
         # stays.
-        self.h = self.h - self.J @ applied
+        self._h = self._h - self._J @ applied
         if last:
             self.clear()
         return out
@@ -233,7 +253,7 @@ class AcceptedFaultTracker:
         """Whether every tracked parameter's standard deviation (P: the fit's covariance) is
         within ``precise`` of its noise units."""
         u_mean = self._u_abs / max(self._u_n, 1)
-        for t, s in zip(self.tracked, self._slices, strict=True):
+        for t, s in zip(self._tracked, self._slices, strict=True):
             h = t.hypothesis
             unit = noise_units(self.bank, h, float(u_mean[h.index])
                                if h.target == "actuator" else None, self.projection)

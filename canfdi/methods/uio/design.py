@@ -74,6 +74,18 @@ class Decoupling:
 
     CEp : (r, m) (CE)^+; T : (n, m) E (CE)^+; Pi : (n, n) I - T C; Abar : (n, n) Pi A;
     Bbar : (n, p) Pi B; H : (m, m) I - CE (CE)^+ (projector onto range(CE)^perp).
+
+    Examples
+    --------
+    >>> A = np.array([[0.9, 0.0], [0.1, 0.95]])
+    >>> B, E = np.array([[0.1], [0.0]]), np.array([[0.0], [1.0]])  # E: an unmeasured load on x2
+    >>> C = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    >>> dec = decouple(A, B, C, E)
+    >>> np.round(dec.H @ C @ E, 12), np.round(dec.Pi @ E, 12)  # d reaches neither H y nor Pi x
+    (array([[0.],
+           [0.],
+           [0.]]), array([[0.],
+           [0.]]))
     """
 
     CEp: np.ndarray
@@ -134,7 +146,15 @@ def deadbeat_gain(Abar: np.ndarray, C: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Lti:
-    """x(k+1) = A x + B v, out(k) = C x + D v: A (ns, ns), B (ns, nin), C (nout, ns), D."""
+    """x(k+1) = A x + B v, out(k) = C x + D v: A (ns, ns), B (ns, nin), C (nout, ns), D.
+
+    Examples
+    --------
+    >>> gain = Lti(A=np.array([[0.5]]), B=np.array([[1.0]]), C=np.array([[1.0]]),
+    ...            D=np.array([[0.0]]))
+    >>> gain.markov(4).ravel()
+    array([0.  , 1.  , 0.5 , 0.25])
+    """
 
     A: np.ndarray
     B: np.ndarray
@@ -180,6 +200,12 @@ class Fir:
 
     coef : (S+1, m+p, n_out), oldest lag first; entries at round-off are exactly zero, so an
     output never reads (nor goes missing for) a channel it was decoupled from.
+
+    Examples
+    --------
+    >>> smooth = Fir(coef=np.full((2, 1, 1), 0.5))  # the mean of the last two samples
+    >>> smooth.S, smooth.dc, smooth.batch(np.array([[1.0], [3.0], [np.nan], [5.0]])).ravel()
+    (1, array([[1.]]), array([ 2., nan, nan]))
     """
 
     coef: np.ndarray
@@ -239,6 +265,21 @@ class UioDesign:
     W0 : (p, m) the FIDF's left inverse of M1 = H C B.
     noise_std : (p+m,) std of r for the measurement noise; front_std : (p+m,) of o;
     long_run_std : (p+m,) sqrt of the long-run variance of o (and r) (sum of autocovariances).
+
+    Examples
+    --------
+    >>> A = np.array([[0.9, 0.0], [0.1, 0.95]])
+    >>> B, E = np.array([[0.1], [0.0]]), np.array([[0.0], [1.0]])  # E: an unmeasured load on x2
+    >>> C = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    >>> design = design_uio(A, B, C, E, 0.01, measurement_std=np.full(3, 0.01), input_names=["u"],
+    ...                     output_names=["y0", "y1", "y2"])
+    >>> design.names, (design.p, design.m), design.fir.S
+    (['fidf:u', 'grgs:y0', 'grgs:y1', 'grgs:y2'], (1, 3), 1)
+    >>> np.round(design.fault_dc, 2)  # each column: one unit fault's steady residuals
+    array([[ 1.  ,  0.67, -0.33,  0.33],
+           [-0.07,  0.  ,  0.07, -0.07],
+           [ 0.1 ,  0.1 ,  0.  ,  0.  ],
+           [ 0.1 ,  0.1 ,  0.  ,  0.  ]])
     """
 
     p: int

@@ -55,7 +55,15 @@ __all__ = ["Isolation", "StepMeans", "UioDiagnoser", "UioDiagnosis", "UioSetting
 @dataclass(frozen=True)
 class UioDiagnosis:
     """A diagnosis in progress: the alarm at ``k_d``, the change point it found, and the
-    front-end output rows (k, o (p+m,)) since the first candidate onset, growing."""
+    front-end output rows (k, o (p+m,)) since the first candidate onset, growing.
+
+    Examples
+    --------
+    >>> d = UioDiagnosis(k_d=1500, change_point=1499)
+    >>> d.rows.append((1500, np.array([0.0, 0.2, 0.0, 0.0])))
+    >>> d.change_point, len(d.rows)
+    (1499, 1)
+    """
 
     k_d: int
     change_point: int
@@ -66,7 +74,14 @@ class UioDiagnosis:
 class StepMeans:
     """The hinge fit of the front-end outputs: the best onset (the first sample whose outputs
     carry the fault), the means mu (p+m,) after it, their standard errors se (p+m,), and the
-    number n of samples after the onset's transient."""
+    number n of samples after the onset's transient.
+
+    Examples
+    --------
+    >>> fit = StepMeans(onset=1499, mu=np.array([0.0, 0.2, 0.0, 0.0]), se=np.full(4, 0.002), n=30)
+    >>> fit.mu / fit.se  # in standard errors: the fault's column stands out
+    array([  0., 100.,   0.,   0.])
+    """
 
     onset: int
     mu: np.ndarray
@@ -78,7 +93,20 @@ class StepMeans:
 class Isolation:
     """How an accepted fault was isolated: its event and every hypothesis ranked by angle
     (each with its estimate, the FIDF's own lambda or the GRGS bias, and the paper's eq 23b
-    angle theta_i), as `UioDiagnoser.isolations` keeps them."""
+    angle theta_i), as `UioDiagnoser.isolations` keeps them.
+
+    Examples
+    --------
+    >>> from canfdi.core.records import FaultEvent
+    >>> event = FaultEvent("accepted", 1530, 0, target="sensor", index=0, name="y0")
+    >>> iso = Isolation(event, ranking=(
+    ...     {"target": "sensor", "index": 0, "name": "y0", "estimates": {"bias": 0.2},
+    ...      "angle_deg": 0.4},
+    ...     {"target": "actuator", "index": 0, "name": "u", "estimates": {"lambda": 1.9},
+    ...      "angle_deg": 71.0}))
+    >>> iso.event.name, [(c["name"], c["angle_deg"]) for c in iso.ranking]
+    ('y0', [('y0', 0.4), ('u', 71.0)])
+    """
 
     event: FaultEvent
     ranking: tuple[dict, ...]
@@ -94,6 +122,11 @@ class UioSettings:
     settle_rel_std : the estimate's standard error must be below this fraction of it.
     onset_lookback : samples before the alarm kept for the fit (onsets are tried from 10
         before the change point to the alarm).
+
+    Examples
+    --------
+    >>> UioSettings(angle_threshold=10.0).angle_threshold, UioSettings().max_samples
+    (10.0, 400)
     """
 
     false_alarm_interval: float = 1.0e7
@@ -128,6 +161,31 @@ class UioDiagnoser:
     design : canfdi.methods.uio.design.design_uio's result; settings : UioSettings;
     thresholds : (p+m,) alarm thresholds on |normalised residual| (uio_thresholds);
     input_names, output_names : the model's channel names.
+
+    Examples
+    --------
+    >>> from canfdi.core.records import Sample
+    >>> from canfdi.methods.uio.design import design_uio
+    >>> A = np.array([[0.9, 0.0], [0.1, 0.95]])
+    >>> B, E = np.array([[0.1], [0.0]]), np.array([[0.0], [1.0]])  # E: an unmeasured load on x2
+    >>> C = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    >>> design = design_uio(A, B, C, E, 0.01, measurement_std=np.full(3, 0.01), input_names=["u"],
+    ...                     output_names=["y0", "y1", "y2"])
+    >>> diag = UioDiagnoser(design, UioSettings(), uio_thresholds(4, 1e7), ["u"],
+    ...                     ["y0", "y1", "y2"])
+    >>> rng = np.random.default_rng(0)
+    >>> x, events = np.zeros(2), []
+    >>> for k in range(1600):
+    ...     u = np.array([np.sign(np.sin(k / 30))])
+    ...     z = C @ x + 0.01 * rng.standard_normal(3)
+    ...     z[0] += 0.2 if k >= 1500 else 0.0  # y0 reads 0.2 high from sample 1500
+    ...     events += diag.update(Sample(k, 0, u, z))
+    ...     x = A @ x + B @ u + E[:, 0] * 0.5 * np.sin(k / 100)  # the load, decoupled
+    >>> [(e.kind, e.sample, e.name, {n: round(v, 2) for n, v in e.estimates.items()})
+    ...  for e in events]
+    [('detected', 1500, None, {}), ('accepted', 1530, 'y0', {'bias': 0.2})]
+    >>> [(c["name"], round(c["angle_deg"], 1)) for c in diag.isolations[-1].ranking]
+    [('y0', 0.5), ('u', 23.8), ('y1', 76.0), ('y2', 76.0)]
     """
 
     def __init__(self, design: UioDesign, settings: UioSettings, thresholds: np.ndarray,
