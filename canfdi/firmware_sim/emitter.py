@@ -29,10 +29,11 @@ import can
 import numpy as np
 
 from canfdi.bus.frames import FLAG_REMOTE, FrameBlock
+from canfdi.firmware_sim.chunk import SimChunk
 from canfdi.firmware_sim.profiles import BusProfile, Slot, get_profile
 from canfdi.firmware_sim.profiles.canfdi import FrameEncoder
 from canfdi.firmware_sim.scenario import Scenario
-from canfdi.firmware_sim.simulate import SimChunk, Simulator
+from canfdi.firmware_sim.simulate import Simulator
 
 __all__ = ["Disturbance", "DriveLog", "EmitStats", "FrameEncoder", "FrameLog", "emit",
            "frame_log"]
