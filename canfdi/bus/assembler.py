@@ -100,6 +100,33 @@ class AssembledLog(NamedTuple):
     signals of a broken sample's lost messages; gap : (M,) int64 samples missing entirely
     before each; statuses : (N,) int8 codes into `STATUS_NAMES`, one per frame; stats : the
     assembler's `SampleAssembler.stats` after the batch.
+
+    Examples
+    --------
+    The shipped dc_motor config's drive: DRIVE_CMD (0x104: V), DRIVE_CURRENTS (0x105: i_f, i_a,
+    i_f_plus_i_a) and DRIVE_SPEED (0x106: omega_r), each with canfdi's CRC and counter; one
+    period's frames, counter 0:
+
+    >>> from canfdi.bus.dbc import BusMap
+    >>> from canfdi.bus.e2e import protect
+    >>> from canfdi.config import load_config
+    >>> from canfdi.configs import CONFIG_DIR
+    >>> bus_map = BusMap.from_config(load_config(CONFIG_DIR / "dc_motor.yaml"))
+    >>> cmd = protect(0x104, bytes(2) + (1200).to_bytes(2, "little") + bytes(4), 0)
+    >>> currents = protect(0x105, bytes(2) + bytes.fromhex("f401b80bac0d"), 0)
+    >>> speed = protect(0x106, bytes(2) + (10000).to_bytes(2, "little"), 0)
+    >>> import can
+    >>> from canfdi.bus.frames import FrameBlock
+    >>> block = FrameBlock.from_messages(
+    ...     [can.Message(timestamp=1.0 + 0.00013 * i, arbitration_id=frame_id, data=data,
+    ...                  is_extended_id=False)
+    ...      for i, (frame_id, data) in enumerate([(0x104, cmd), (0x105, currents),
+    ...                                            (0x106, speed), (0x7FF, bytes(8))])])
+    >>> log = SampleAssembler(bus_map, dt=0.01).push_batch(block)
+    >>> log.k.tolist(), log.u.tolist(), log.z.tolist(), log.gap.tolist()
+    ([0], [[12.0]], [[0.5, 3.0, 3.5, 100.0]], [0])
+    >>> [STATUS_NAMES[code] for code in log.statuses], log.stats["frames_invalid"]
+    (['ok', 'ok', 'ok', 'unknown_id'], 1)
     """
 
     k: NDArray[np.int64]
@@ -131,6 +158,32 @@ class SampleAssembler:
     periods the timestamps say how many wraps the counter made. k < K is "stale", k == K joins
     the pending sample (or is a "duplicate"), k > K closes the pending sample as broken if it
     is incomplete and opens sample k.
+
+    Examples
+    --------
+    The shipped dc_motor config's drive: DRIVE_CMD (0x104: V), DRIVE_CURRENTS (0x105: i_f, i_a,
+    i_f_plus_i_a) and DRIVE_SPEED (0x106: omega_r), each with canfdi's CRC and counter; one
+    period's frames, counter 0:
+
+    >>> from canfdi.bus.dbc import BusMap
+    >>> from canfdi.bus.e2e import protect
+    >>> from canfdi.config import load_config
+    >>> from canfdi.configs import CONFIG_DIR
+    >>> bus_map = BusMap.from_config(load_config(CONFIG_DIR / "dc_motor.yaml"))
+    >>> cmd = protect(0x104, bytes(2) + (1200).to_bytes(2, "little") + bytes(4), 0)
+    >>> currents = protect(0x105, bytes(2) + bytes.fromhex("f401b80bac0d"), 0)
+    >>> speed = protect(0x106, bytes(2) + (10000).to_bytes(2, "little"), 0)
+    >>> assembler = SampleAssembler(bus_map, dt=0.01)
+    >>> assembler.push(0, 0x104, cmd), assembler.push(130_000, 0x105, currents)
+    (('ok', []), ('ok', []))
+    >>> status, [sample] = assembler.push(260_000, 0x106, speed)
+    >>> status, sample.k, sample.u.tolist(), sample.z.tolist()
+    ('ok', 0, [12.0], [0.5, 3.0, 3.5, 100.0])
+
+    A repeated frame is no new sample:
+
+    >>> assembler.push(390_000, 0x106, speed), assembler.stats["duplicates"]
+    (('duplicate', []), 1)
     """
 
     def __init__(self, bus_map: BusMap, dt: float) -> None:

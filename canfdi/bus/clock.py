@@ -72,6 +72,28 @@ class LatestValueClock:
     dt : the control period, seconds (> 0): counts lost triggers, the grid's default period.
     kind : "trigger" or "grid".
     period, phase, max_age : seconds (None: dt, period / 2, 1.5 dt).
+
+    Examples
+    --------
+    A grid clock on the shipped dc_motor config's drive (DRIVE_CMD 0x104: V, DRIVE_CURRENTS
+    0x105: i_f, i_a, i_f_plus_i_a, DRIVE_SPEED 0x106: omega_r): the first frame at t = 0 puts
+    sample k at (k + 1/2) 10 ms, delivered by the first frame after it:
+
+    >>> from canfdi.bus.dbc import BusMap
+    >>> from canfdi.bus.e2e import protect
+    >>> from canfdi.config import load_config
+    >>> from canfdi.configs import CONFIG_DIR
+    >>> bus_map = BusMap.from_config(load_config(CONFIG_DIR / "dc_motor.yaml"))
+    >>> cmd = protect(0x104, bytes(2) + (1200).to_bytes(2, "little") + bytes(4), 0)
+    >>> currents = protect(0x105, bytes(2) + bytes.fromhex("f401b80bac0d"), 0)
+    >>> speed = protect(0x106, bytes(2) + (10000).to_bytes(2, "little"), 0)
+    >>> clock = LatestValueClock(bus_map, 0.01, "grid")
+    >>> [clock.push(t, frame_id, data) for t, frame_id, data in
+    ...  [(0, 0x104, cmd), (130_000, 0x105, currents), (260_000, 0x106, speed)]]
+    [('ok', []), ('ok', []), ('ok', [])]
+    >>> status, [sample] = clock.push(10_000_000, 0x104, protect(0x104, cmd, 1))
+    >>> sample.k, sample.timestamp_ns, sample.u.tolist(), sample.z.tolist()
+    (0, 5000000, [12.0], [0.5, 3.0, 3.5, 100.0])
     """
 
     def __init__(self, bus_map: BusMap, dt: float, kind: str, *, period: float | None = None,

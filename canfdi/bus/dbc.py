@@ -306,7 +306,15 @@ class _Slot:
 @dataclass(frozen=True)
 class Known:
     """A known message that is no slot: "monitor" (the monitor's own) or "unused" (the DBC's
-    other messages, the other drives'), checked for its length, FD flag and E2E profile."""
+    other messages, the other drives'), checked for its length, FD flag and E2E profile.
+
+    Examples
+    --------
+    >>> from canfdi.bus.e2e import make_profile
+    >>> known = Known("unused", 4, False, make_profile("none", 0x2A0, False, 4, {}, "bus.e2e"))
+    >>> known.kind, known.length, known.e2e.check(bytes(4))
+    ('unused', 4, True)
+    """
 
     kind: str
     length: int
@@ -348,6 +356,23 @@ class BusMap:
     counter_modulus : the alive counter modulus every slot shares, or None when one has none
         (the counter clock needs it).
     n_signals_max : width of the values of `decode_frames` (most fields in one slot).
+
+    Examples
+    --------
+    The shipped dc_motor config's drive; a frame decodes to (status, slot, values, counter):
+
+    >>> from canfdi.bus.e2e import protect
+    >>> from canfdi.config import load_config
+    >>> from canfdi.configs import CONFIG_DIR
+    >>> bus_map = BusMap.from_config(load_config(CONFIG_DIR / "dc_motor.yaml"))
+    >>> bus_map
+    BusMap(dc_motor: motor_drive: DRIVE_CMD=0x104, DRIVE_CURRENTS=0x105, DRIVE_SPEED=0x106; \
+p=1, q=4)
+    >>> speed = protect(0x106, bytes(2) + (1234).to_bytes(2, "little"), 7)
+    >>> bus_map.decode_frame(0x106, speed)
+    ('ok', 2, (12.34,), 7)
+    >>> bus_map.decode_frame(0x106, bytes([speed[0] ^ 1]) + speed[1:])[0]
+    'crc'
     """
 
     def __init__(self, dbc_label: str, drive: str, input_names: Sequence[str],

@@ -50,6 +50,24 @@ class MonitorFrames:
     layouts : message name -> compiled layout (the monitor DBC's).
     keys : message name -> (ID, extended) on this bus.
     transmit : False for a listen-only monitor (`encode` gives nothing).
+
+    Examples
+    --------
+    The shipped dc_motor config's monitor frames (the DBC's IDs, canfdi's CRC and counter):
+
+    >>> from canfdi.bus.dbc import BusMap
+    >>> from canfdi.bus.e2e import check
+    >>> from canfdi.config import load_config
+    >>> from canfdi.configs import CONFIG_DIR
+    >>> config = load_config(CONFIG_DIR / "dc_motor.yaml")
+    >>> frames = MonitorFrames.from_config(config, BusMap.from_config(config).keys)
+    >>> frames.keys["FDI_STATUS"]
+    (130, False)
+    >>> (frame_id, _), payload = frames.encode("FDI_STATUS", {"Samples": 100})
+    >>> frame_id, payload[1], check(frame_id, payload)
+    (130, 0, True)
+    >>> frames.known()[(130, False)].kind
+    'monitor'
     """
 
     def __init__(self, layouts: Mapping[str, MessageLayout], keys: Mapping[str, MessageKey],

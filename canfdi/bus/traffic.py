@@ -49,7 +49,14 @@ def no_traffic_default(dt: float | None) -> float:
 class TrafficChange:
     """A change of the traffic: ``kind`` "first" (the first mapped frame, ``seconds`` after the
     watch started), "silent" (no mapped frame for ``seconds``) or "resumed" (after ``seconds``
-    of silence)."""
+    of silence).
+
+    Examples
+    --------
+    >>> change = TrafficChange("silent", 1.25)
+    >>> change.kind, change.seconds, change == TrafficChange("silent", 1.25)
+    ('silent', 1.25, True)
+    """
 
     kind: str
     seconds: float
@@ -63,6 +70,19 @@ class TrafficWatch:
     timeout : seconds without a new mapped frame after which the traffic is silent (0 or
         less: never).
     start : the clock's value when watching began (the bus opened).
+
+    Examples
+    --------
+    Silent before the first frame, and again after a reopened bus's restart:
+
+    >>> watch = TrafficWatch(timeout=2.0, start=10.0)
+    >>> watch.waiting, watch.update(12.0, 0), watch.silent
+    (True, TrafficChange(kind='silent', seconds=2.0), True)
+    >>> watch.update(12.5, 1), watch.waiting
+    (TrafficChange(kind='first', seconds=2.5), False)
+    >>> watch.restart(20.0)
+    >>> watch.update(21.0, 1) is None, watch.update(22.0, 1)
+    (True, TrafficChange(kind='silent', seconds=2.0))
     """
 
     def __init__(self, timeout: float, start: float) -> None:

@@ -29,10 +29,11 @@ import can
 import numpy as np
 
 from canfdi.bus.frames import FLAG_REMOTE, FrameBlock
+from canfdi.firmware_sim.chunk import SimChunk
 from canfdi.firmware_sim.profiles import BusProfile, Slot, get_profile
 from canfdi.firmware_sim.profiles.canfdi import FrameEncoder
 from canfdi.firmware_sim.scenario import Scenario
-from canfdi.firmware_sim.simulate import SimChunk, Simulator
+from canfdi.firmware_sim.simulate import Simulator
 
 __all__ = ["Disturbance", "DriveLog", "EmitStats", "FrameEncoder", "FrameLog", "emit",
            "frame_log"]
@@ -157,6 +158,42 @@ class _Link:
                 bus.shutdown()
 
 
+def _count_clipped(stats: EmitStats, clipped: dict[str, int]) -> None:
+    """Add a block's clipped signals to the run's; a signal's first clipping is logged."""
+    for name, count in clipped.items():
+        if name not in stats.clipped:
+            log.warning("signal %s clipped to its DBC range", name)
+        stats.clipped[name] = stats.clipped.get(name, 0) + count
+
+
+def _disturbed(payload: bytes, slot: Slot, u: np.ndarray, disturbance: Disturbance,
+               stats: EmitStats) -> bytes | None:
+    """One frame's payload after the disturbance, or None when it is dropped.
+
+    ``u`` holds the frame's three uniform draws (drop, bad CRC, wrong DLC); what was injected is
+    counted in ``stats``.
+    """
+    if u[0] < disturbance.drop:
+        stats.frames_dropped += 1
+        return None
+    if slot.crc and u[1] < disturbance.bad_crc:
+        payload = bytes([payload[0] ^ 0xFF]) + payload[1:]
+        stats.frames_bad_crc += 1
+    if not slot.remote and u[2] < disturbance.wrong_dlc:
+        payload = payload[:-1] if len(payload) > 2 else payload + b"\x00"
+        stats.frames_wrong_dlc += 1
+    return payload
+
+
+def _message(slot: Slot, payload: bytes, stamp: float) -> can.Message:
+    """The python-can message of one slot's frame (a remote frame carries the slot's DLC)."""
+    if slot.remote:
+        return can.Message(arbitration_id=slot.frame_id, is_remote_frame=True, dlc=slot.dlc,
+                           is_extended_id=False, timestamp=stamp)
+    return can.Message(arbitration_id=slot.frame_id, data=payload, is_extended_id=False,
+                       timestamp=stamp)
+
+
 async def emit(
     bus: can.BusABC,
     scenario: Scenario,
@@ -213,10 +250,7 @@ async def emit(
         while run.k < total and not (stop is not None and stop.is_set()):
             chunks, data, clipped = run.advance(min(block, total - run.k))
             chunk = chunks[0]
-            for name, count in clipped.items():
-                if name not in stats.clipped:
-                    log.warning("signal %s clipped to its DBC range", name)
-                stats.clipped[name] = stats.clipped.get(name, 0) + count
+            _count_clipped(stats, clipped)
             scheduled = run.scheduled(chunk.k)
             for i, k in enumerate(chunk.k):
                 start = 0.0
@@ -239,23 +273,11 @@ async def emit(
                     first = False
                     payload = data[i, j, : slot.dlc].tobytes()
                     if u is not None:
-                        if u[j, 0] < disturbance.drop:
-                            stats.frames_dropped += 1
+                        payload = _disturbed(payload, slot, u[j], disturbance, stats)
+                        if payload is None:
                             continue
-                        if slot.crc and u[j, 1] < disturbance.bad_crc:
-                            payload = bytes([payload[0] ^ 0xFF]) + payload[1:]
-                            stats.frames_bad_crc += 1
-                        if not slot.remote and u[j, 2] < disturbance.wrong_dlc:
-                            payload = payload[:-1] if len(payload) > 2 else payload + b"\x00"
-                            stats.frames_wrong_dlc += 1
                     stamp = time.time() if speed > 0 else epoch0 + k * dt + slot.offset
-                    if slot.remote:
-                        msg = can.Message(arbitration_id=slot.frame_id, is_remote_frame=True,
-                                          dlc=slot.dlc, is_extended_id=False, timestamp=stamp)
-                    else:
-                        msg = can.Message(arbitration_id=slot.frame_id, data=payload,
-                                          is_extended_id=False, timestamp=stamp)
-                    await link.send(msg, stats)
+                    await link.send(_message(slot, payload, stamp), stats)
                     stats.frames_sent += 1
                 stats.samples += 1
             if on_block is not None:

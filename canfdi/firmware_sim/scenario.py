@@ -206,6 +206,38 @@ def parse_scenario(data: Any, path: Path | None = None) -> Scenario:
     for key in data:
         if key not in allowed:
             raise ScenarioError(str(key), f"unknown key (allowed: {', '.join(sorted(allowed))})")
+    plant_name, plant_options, plant = _plant(data)
+    if "duration" not in data:
+        raise ScenarioError("duration", "missing (seconds)")
+    duration = _number(data["duration"], "duration", 0.0, strict=True)
+    seed = data.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ScenarioError("seed", f"expected an integer >= 0, got {seed!r}")
+    meas, proc = _noise(data.get("noise") or {}, plant)
+    faults_data = data.get("faults") or []
+    if not isinstance(faults_data, list):
+        raise ScenarioError("faults", "expected a list of faults")
+    faults = tuple(_fault(f, f"faults[{i}]", plant, duration) for i, f in enumerate(faults_data))
+    name = data.get("name", path.stem if path else plant_name)
+    description = data.get("description", "")
+    if not isinstance(name, str) or not isinstance(description, str):
+        raise ScenarioError("name" if not isinstance(name, str) else "description",
+                            "expected a string")
+    profile, node = _bus(data.get("bus"), plant_name)
+    if data.get("drives") is None:
+        drives = (Drive(name=name, node=profile.default_node if node is None else node,
+                        faults=faults),)
+    else:
+        _refuse_single_drive_keys(faults, node)
+        drives = _drives(data["drives"], profile, plant, duration)
+        faults = ()
+    return Scenario(name=name, description=description, plant=plant_name, duration=duration,
+                    seed=seed, measurement_std=meas, process_std=proc, faults=faults, path=path,
+                    profile=profile.name, drives=drives, plant_options=dict(plant_options))
+
+
+def _plant(data: dict) -> tuple[str, dict, Plant]:
+    """The ``plant:`` and its ``plant_options:``: (name, options, a fresh plant)."""
     plant_name = data.get("plant")
     if plant_name not in PLANTS:
         raise ScenarioError("plant", f"unknown plant {plant_name!r} (known: {', '.join(PLANTS)})")
@@ -218,13 +250,12 @@ def parse_scenario(data: Any, path: Path | None = None) -> Scenario:
     except PlantOptionError as exc:
         message = str(exc).removeprefix(f"{exc.option}: ")
         raise ScenarioError(f"plant_options.{exc.option}", message) from None
-    if "duration" not in data:
-        raise ScenarioError("duration", "missing (seconds)")
-    duration = _number(data["duration"], "duration", 0.0, strict=True)
-    seed = data.get("seed", 0)
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ScenarioError("seed", f"expected an integer >= 0, got {seed!r}")
-    noise = data.get("noise") or {}
+    return plant_name, plant_options, plant
+
+
+def _noise(noise: Any, plant: Plant) -> tuple[np.ndarray, np.ndarray]:
+    """The ``noise:`` section: (measurement, process) standard deviations, the plant's defaults
+    where it names none."""
     if not isinstance(noise, dict):
         raise ScenarioError("noise", "expected a mapping {measurement: ..., process: ...}")
     for key in noise:
@@ -233,32 +264,17 @@ def parse_scenario(data: Any, path: Path | None = None) -> Scenario:
     defaults = plant.noise_defaults()
     meas = _stds(noise.get("measurement"), "noise.measurement", plant.q, defaults.measurement)
     proc = _stds(noise.get("process"), "noise.process", plant.n, defaults.process)
-    faults_data = data.get("faults") or []
-    if not isinstance(faults_data, list):
-        raise ScenarioError("faults", "expected a list of faults")
-    faults = tuple(_fault(f, f"faults[{i}]", plant, duration) for i, f in enumerate(faults_data))
-    name = data.get("name", path.stem if path else plant_name)
-    description = data.get("description", "")
-    if not isinstance(name, str) or not isinstance(description, str):
-        raise ScenarioError("name" if not isinstance(name, str) else "description",
-                            "expected a string")
-    profile, node = _bus(data.get("bus"), plant_name)
-    if data.get("drives") is None:
-        if node is None:
-            node = profile.default_node
-        drives = (Drive(name=name, node=node, faults=faults),)
-    else:
-        if faults:
-            raise ScenarioError("faults", "not used with drives: (each drive lists its own "
-                                          "faults, drives[i].faults)")
-        if node is not None:
-            raise ScenarioError("bus.node", "not used with drives: (each drive names its "
-                                            "node, drives[i].node)")
-        drives = _drives(data["drives"], profile, plant, duration)
-        faults = ()
-    return Scenario(name=name, description=description, plant=plant_name, duration=duration,
-                    seed=seed, measurement_std=meas, process_std=proc, faults=faults, path=path,
-                    profile=profile.name, drives=drives, plant_options=dict(plant_options))
+    return meas, proc
+
+
+def _refuse_single_drive_keys(faults: tuple[Fault, ...], node: int | None) -> None:
+    """With ``drives:``, the top level's ``faults:`` and ``bus.node`` are each drive's own."""
+    if faults:
+        raise ScenarioError("faults", "not used with drives: (each drive lists its own "
+                                      "faults, drives[i].faults)")
+    if node is not None:
+        raise ScenarioError("bus.node", "not used with drives: (each drive names its "
+                                        "node, drives[i].node)")
 
 
 def _bus(data: Any, plant_name: str) -> tuple[BusProfile, int | None]:
@@ -319,16 +335,7 @@ def _drives(data: Any, profile: BusProfile, plant: Plant, duration: float
             raise ScenarioError(f"{where}.name", f"expected a non-empty string, got {name!r}")
         if name in {d.name for d in drives}:
             raise ScenarioError(f"{where}.name", f"{name!r} names an earlier drive too")
-        node = None
-        if profile.nodes is not None:
-            if item.get("node") is None:
-                raise ScenarioError(f"{where}.node", f"missing (the drive's node ID, "
-                                                     f"{profile.nodes[0]}..{profile.nodes[1]})")
-            node = _node(item["node"], f"{where}.node", profile)
-            if node in {d.node for d in drives}:
-                raise ScenarioError(f"{where}.node", f"node {node} is an earlier drive's too")
-        elif item.get("node") is not None:
-            _node(item["node"], f"{where}.node", profile)
+        node = _drive_node(item.get("node"), f"{where}.node", profile, {d.node for d in drives})
         faults_data = item.get("faults") or []
         if not isinstance(faults_data, list):
             raise ScenarioError(f"{where}.faults", "expected a list of faults")
@@ -340,6 +347,23 @@ def _drives(data: Any, profile: BusProfile, plant: Plant, duration: float
                                                         f"{offset!r}")
         drives.append(Drive(name=name, node=node, faults=faults, seed_offset=offset))
     return tuple(drives)
+
+
+def _drive_node(value: Any, field: str, profile: BusProfile, taken: set[int | None]
+                ) -> int | None:
+    """A drive's ``node:``: required and unique where the profile has node IDs; None where it
+    has none (a node given there is refused as `_node` refuses it)."""
+    if profile.nodes is None:
+        if value is not None:
+            _node(value, field, profile)
+        return None
+    if value is None:
+        raise ScenarioError(field, f"missing (the drive's node ID, "
+                                   f"{profile.nodes[0]}..{profile.nodes[1]})")
+    node = _node(value, field, profile)
+    if node in taken:
+        raise ScenarioError(field, f"node {node} is an earlier drive's too")
+    return node
 
 
 def load_scenario(path: str | Path) -> Scenario:

@@ -8,38 +8,14 @@ chunked runs equal one long run (same random draws, in the same order).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
+from canfdi.firmware_sim.chunk import SimChunk
 from canfdi.firmware_sim.faults import FaultInjector, onset_sample
 from canfdi.firmware_sim.plants import Plant
 from canfdi.firmware_sim.scenario import Scenario
 
-__all__ = ["SimChunk", "Simulator", "simulate"]
-
-
-@dataclass(frozen=True)
-class SimChunk:
-    """Samples k0 .. k0+N-1 of a run.
-
-    k : (N,) sample indices; t : (N,) seconds; x : (N, n) states; y : (N, q) true outputs with
-    measurement noise; z : (N, q) measured outputs (faults applied); u_c : (N, p) commands;
-    u : (N, p) applied inputs; ref : (N, n_ref) controller references.
-    """
-
-    k: np.ndarray
-    t: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    z: np.ndarray
-    u_c: np.ndarray
-    u: np.ndarray
-    ref: np.ndarray
-    truth: list[dict] = field(default_factory=list)
-
-    def __len__(self) -> int:
-        return len(self.k)
+__all__ = ["Simulator", "simulate"]
 
 
 class Simulator:

@@ -22,9 +22,10 @@ from canfdi.core.settings import (
     MonitorFramesConfig,
     SignalRef,
 )
+from canfdi.firmware_sim.chunk import SimChunk
 from canfdi.firmware_sim.emitter import FrameEncoder
 from canfdi.firmware_sim.scenario import load_scenario
-from canfdi.firmware_sim.simulate import SimChunk, Simulator
+from canfdi.firmware_sim.simulate import Simulator
 from canfdi.monitor import Monitor
 
 REPO = Path(__file__).resolve().parents[2]

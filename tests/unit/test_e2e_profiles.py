@@ -4,6 +4,8 @@ corrupted bytes and wrong Data IDs; the counter signal's bits against cantools."
 from __future__ import annotations
 
 import doctest
+import importlib
+import pkgutil
 
 import cantools
 import numpy as np
@@ -75,8 +77,12 @@ def _counter_bits(profile: e2e.E2EProfile) -> tuple[int, int]:
 
 
 def test_module_doctests() -> None:
-    result = doctest.testmod(e2e, optionflags=doctest.ELLIPSIS)
-    assert result.attempted >= 6 and result.failed == 0
+    modules = [e2e] + [importlib.import_module(f"{e2e.__name__}.{info.name}")
+                       for info in pkgutil.iter_modules(e2e.__path__)]
+    results = [doctest.testmod(module, optionflags=doctest.ELLIPSIS) for module in modules]
+    # The registry's lookup and every profile class show their use.
+    assert sum(result.attempted for result in results) >= 6
+    assert [result.failed for result in results] == [0] * len(modules)
 
 
 # --- CRCs -----------------------------------------------------------------------------------

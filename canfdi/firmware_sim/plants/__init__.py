@@ -11,7 +11,8 @@ Examples
 >>> make_plant("dc_motor", {"load": False})
 Traceback (most recent call last):
 ...
-canfdi.firmware_sim.plants.PlantOptionError: load: not an option of plant dc_motor (it takes none)
+canfdi.firmware_sim.plants.base.PlantOptionError: load: not an option of plant dc_motor \
+(it takes none)
 """
 
 from __future__ import annotations
@@ -19,17 +20,9 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from canfdi.firmware_sim.plants.base import Controller, NoiseDefaults, Plant
+from canfdi.firmware_sim.plants.base import Controller, NoiseDefaults, Plant, PlantOptionError
 
 __all__ = ["PLANTS", "Controller", "NoiseDefaults", "Plant", "PlantOptionError", "make_plant"]
-
-
-class PlantOptionError(ValueError):
-    """A plant option that the plant does not take, or a bad value; ``option`` names it."""
-
-    def __init__(self, option: str, message: str) -> None:
-        super().__init__(f"{option}: {message}")
-        self.option = option
 
 
 def _no_options(name: str, options: Mapping[str, Any]) -> None:

@@ -17,7 +17,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Controller", "NoiseDefaults", "Plant"]
+__all__ = ["Controller", "NoiseDefaults", "Plant", "PlantOptionError"]
+
+
+class PlantOptionError(ValueError):
+    """A plant option that the plant does not take, or a bad value; ``option`` names it.
+
+    Examples
+    --------
+    >>> error = PlantOptionError("load", "must be true or false, got 2")
+    >>> error.option, str(error), isinstance(error, ValueError)
+    ('load', 'load: must be true or false, got 2', True)
+    """
+
+    def __init__(self, option: str, message: str) -> None:
+        super().__init__(f"{option}: {message}")
+        self.option = option
 
 
 @dataclass(frozen=True)

@@ -94,8 +94,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from canfdi.firmware_sim.plants import PlantOptionError
-from canfdi.firmware_sim.plants.base import Controller, NoiseDefaults, Plant
+from canfdi.firmware_sim.plants.base import Controller, NoiseDefaults, Plant, PlantOptionError
 from canfdi.firmware_sim.plants.vtol import zoh
 
 __all__ = ["OPTIONS", "REFERENCES", "ServoAxis", "ServoAxisParameters",

@@ -26,8 +26,8 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 if TYPE_CHECKING:
+    from canfdi.firmware_sim.chunk import SimChunk
     from canfdi.firmware_sim.plants import Plant
-    from canfdi.firmware_sim.simulate import SimChunk
 
 __all__ = ["BusEncoder", "BusProfile", "Field", "Slot", "check_nodes", "pack", "source_values"]
 

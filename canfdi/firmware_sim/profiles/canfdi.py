@@ -27,8 +27,8 @@ from canfdi.bus.e2e import protect_batch
 from canfdi.firmware_sim.profiles.base import BusEncoder, BusProfile, Slot
 
 if TYPE_CHECKING:
+    from canfdi.firmware_sim.chunk import SimChunk
     from canfdi.firmware_sim.plants import Plant
-    from canfdi.firmware_sim.simulate import SimChunk
 
 __all__ = ["CanfdiEncoder", "CanfdiProfile", "FrameEncoder"]
 

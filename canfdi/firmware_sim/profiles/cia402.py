@@ -63,8 +63,8 @@ from canfdi.firmware_sim.profiles.base import (
 )
 
 if TYPE_CHECKING:
+    from canfdi.firmware_sim.chunk import SimChunk
     from canfdi.firmware_sim.plants import Plant
-    from canfdi.firmware_sim.simulate import SimChunk
 
 __all__ = ["MASTER_DELAY", "Cia402Encoder", "Cia402Profile", "DeviceSpec", "PdoSpec",
            "read_device"]

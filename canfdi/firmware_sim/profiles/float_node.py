@@ -83,8 +83,8 @@ from canfdi.firmware_sim.profiles.base import (
 )
 
 if TYPE_CHECKING:
+    from canfdi.firmware_sim.chunk import SimChunk
     from canfdi.firmware_sim.plants import Plant
-    from canfdi.firmware_sim.simulate import SimChunk
 
 __all__ = ["CMD_MASK", "MASTER_DELAY", "FloatBusSpec", "FloatNodeEncoder", "FloatNodeProfile",
            "frame_id"]

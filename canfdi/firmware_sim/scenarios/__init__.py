@@ -1,0 +1,1 @@
+"""The shipped scenarios: YAML files that `canfdi sim --scenario NAME` loads by name."""
