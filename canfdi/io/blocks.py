@@ -169,6 +169,12 @@ class Rows:
             for column in self.columns:
                 column.clear()
 
+    def append(self, values: Sequence[Any]) -> None:
+        """Add one row: a value per column (a row of numbers for a float column)."""
+        for column, value in zip(self.columns, values, strict=True):
+            column.append(value)
+        self.count += 1
+
     def add(self, arrays: tuple[np.ndarray, ...]) -> None:
         self.seal()
         self.chunks.append(arrays)
