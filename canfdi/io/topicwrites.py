@@ -1,8 +1,8 @@
-"""`TopicWrites`: the recorder's methods for canfdi's own topics, each a thin form of the
-generic ones (`McapRecorder.write_message` and the row channels of canfdi.io.rowtopics).
+"""`TopicWrites`: the recorder's write methods for row topics and canfdi's own messages.
 
-Samples and residuals are row topics: checked against their names and buffered in their row
-channel. Estimates, events, status and log lines are single JSON messages, written at once.
+`TopicWrites.write_row` and `TopicWrites.write_rows` buffer the rows of any row topic of
+canfdi.io.rowtopics; samples and residuals have their own forms of them, checked against their
+names. Estimates, events, status and log lines are single JSON messages, written at once.
 """
 
 from __future__ import annotations
@@ -35,6 +35,79 @@ class TopicWrites:
     inherits this): ``_begin_write()`` (the clock's now, after a due flush), ``_row_channel``
     (a row topic's channel, named and of the drive given), ``_append_row`` and ``_add_rows``
     (a row, or checked columns, buffered) and ``_write_message`` (one encoded message, at once)."""
+
+    def write_row(self, topic: str, timestamp_ns: int, ints: Sequence[int],
+                  groups: Sequence[ArrayLike], names: Sequence[Sequence[str]],
+                  drive: str | None = None) -> None:
+        """Buffer one row of a row topic (canfdi.io.rowtopics), copied.
+
+        Parameters
+        ----------
+        topic : str
+            A registered row topic (`ROW_LAYOUTS`).
+        timestamp_ns : int
+            The row's time.
+        ints : sequence of int
+            The layout's integer fields, in order.
+        groups : sequence of array_like
+            The layout's groups of numbers, in order, each as long as its name list.
+        names : sequence of sequences of str
+            The layout's name lists; a change writes the buffered rows first.
+        drive : str, optional
+            The drive whose row it is; a change writes the buffered rows first.
+
+        Raises
+        ------
+        ValueError
+            After `close`, or for a row that does not match the layout or the names.
+        """
+        now = self._begin_write()
+        channel = self._row_channel(topic, names, drive, now)
+        layout = channel.encoder.layout
+        widths = layout.widths(channel.encoder.names)
+        values = [float_row(group) for group in groups]
+        if len(ints) != len(layout.ints) or [len(v) for v in values] != list(widths):
+            raise ValueError(f"a {topic} row has fields {layout.columns[1:]} of widths "
+                             f"{widths}, got {len(ints)} integers and groups "
+                             f"{[len(v) for v in values]}")
+        self._append_row(channel, (timestamp_ns, *ints, *values), now)
+
+    def write_rows(self, topic: str, t_ns: ArrayLike, ints: Sequence[ArrayLike],
+                   groups: Sequence[ArrayLike], names: Sequence[Sequence[str]],
+                   drive: str | None = None) -> None:
+        """Buffer N rows of a row topic (canfdi.io.rowtopics), vectorised (copied).
+
+        Parameters
+        ----------
+        topic : str
+            A registered row topic (`ROW_LAYOUTS`).
+        t_ns : (N,) int
+            The rows' times.
+        ints : sequence of (N,) int
+            The layout's integer fields, in order.
+        groups : sequence of (N, width) float
+            The layout's groups of numbers, in order, each as wide as its name list.
+        names, drive
+            As `write_row`.
+
+        Raises
+        ------
+        ValueError
+            After `close`, or for arrays of the wrong shape.
+        """
+        now = self._begin_write()
+        channel = self._row_channel(topic, names, drive, now)
+        layout = channel.encoder.layout
+        if len(ints) != len(layout.ints) or len(groups) != len(layout.groups):
+            raise ValueError(f"{topic} rows have fields {layout.columns[1:]}")
+        n = len(np.asarray(t_ns))
+        columns = [check_column(t_ns, n, "t_ns").astype(np.int64)]
+        columns += [check_column(values, n, name).astype(np.int64)
+                    for values, name in zip(ints, layout.ints, strict=True)]
+        columns += [check_matrix(values, n, width, key) for values, (key, _), width in
+                    zip(groups, layout.groups, layout.widths(channel.encoder.names),
+                        strict=True)]
+        self._add_rows(channel, tuple(columns), now)
 
     def write_sample(
         self, sample: Sample, input_names: Sequence[str], output_names: Sequence[str],

@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from canfdi.bus.frames import FrameBlock
-from canfdi.io.blocks import check_column, check_matrix, encode_message, float_row, stamp
+from canfdi.io.blocks import encode_message, stamp
 from canfdi.io.channels import (
     Channel,
     FrameBlockEncoder,
@@ -372,79 +372,6 @@ class McapRecorder(TopicWrites):
         self._frame_buffer.extend(block, statuses, status_names)
         if self._frames.full:
             self._frames.emit(self._out, now, full_only=True)
-
-    def write_row(self, topic: str, timestamp_ns: int, ints: Sequence[int],
-                  groups: Sequence[ArrayLike], names: Sequence[Sequence[str]],
-                  drive: str | None = None) -> None:
-        """Buffer one row of a row topic (canfdi.io.rowtopics), copied.
-
-        Parameters
-        ----------
-        topic : str
-            A registered row topic (`ROW_LAYOUTS`).
-        timestamp_ns : int
-            The row's time.
-        ints : sequence of int
-            The layout's integer fields, in order.
-        groups : sequence of array_like
-            The layout's groups of numbers, in order, each as long as its name list.
-        names : sequence of sequences of str
-            The layout's name lists; a change writes the buffered rows first.
-        drive : str, optional
-            The drive whose row it is; a change writes the buffered rows first.
-
-        Raises
-        ------
-        ValueError
-            After `close`, or for a row that does not match the layout or the names.
-        """
-        now = self._begin_write()
-        channel = self._row_channel(topic, names, drive, now)
-        layout = channel.encoder.layout
-        widths = layout.widths(channel.encoder.names)
-        values = [float_row(group) for group in groups]
-        if len(ints) != len(layout.ints) or [len(v) for v in values] != list(widths):
-            raise ValueError(f"a {topic} row has fields {layout.columns[1:]} of widths "
-                             f"{widths}, got {len(ints)} integers and groups "
-                             f"{[len(v) for v in values]}")
-        self._append_row(channel, (timestamp_ns, *ints, *values), now)
-
-    def write_rows(self, topic: str, t_ns: ArrayLike, ints: Sequence[ArrayLike],
-                   groups: Sequence[ArrayLike], names: Sequence[Sequence[str]],
-                   drive: str | None = None) -> None:
-        """Buffer N rows of a row topic (canfdi.io.rowtopics), vectorised (copied).
-
-        Parameters
-        ----------
-        topic : str
-            A registered row topic (`ROW_LAYOUTS`).
-        t_ns : (N,) int
-            The rows' times.
-        ints : sequence of (N,) int
-            The layout's integer fields, in order.
-        groups : sequence of (N, width) float
-            The layout's groups of numbers, in order, each as wide as its name list.
-        names, drive
-            As `write_row`.
-
-        Raises
-        ------
-        ValueError
-            After `close`, or for arrays of the wrong shape.
-        """
-        now = self._begin_write()
-        channel = self._row_channel(topic, names, drive, now)
-        layout = channel.encoder.layout
-        if len(ints) != len(layout.ints) or len(groups) != len(layout.groups):
-            raise ValueError(f"{topic} rows have fields {layout.columns[1:]}")
-        n = len(np.asarray(t_ns))
-        columns = [check_column(t_ns, n, "t_ns").astype(np.int64)]
-        columns += [check_column(values, n, name).astype(np.int64)
-                    for values, name in zip(ints, layout.ints, strict=True)]
-        columns += [check_matrix(values, n, width, key) for values, (key, _), width in
-                    zip(groups, layout.groups, layout.widths(channel.encoder.names),
-                        strict=True)]
-        self._add_rows(channel, tuple(columns), now)
 
     def write_metadata(self, name: str, values: dict[str, str]) -> None:
         """A named metadata record, now (teach-in's learned values, say) and at the head of
