@@ -31,6 +31,7 @@ __all__ = [
     "MessageEncoder",
     "RowTopicEncoder",
     "Sink",
+    "row_channel",
     "schema_bytes",
 ]
 
