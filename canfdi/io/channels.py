@@ -200,10 +200,6 @@ class RowTopicEncoder:
         self._known: tuple[list[str], ...] = tuple([] for _ in layout.names)
         self.schema: Schema | None = None
 
-    def same_given(self, names: Sequence[Sequence[str]]) -> bool:
-        """These are the very name lists given last."""
-        return all(a is b for a, b in zip(names, self.given, strict=True))
-
     def check_names(self, names: Sequence[Sequence[str]]) -> tuple[list[str], ...]:
         """The name lists as lists of str; ValueError if one repeats a name."""
         if len(names) != len(self.layout.names):

@@ -33,23 +33,29 @@ class FrameBuffer:
 
     Parameters
     ----------
+    block_frames : int
+        Frames of a full block (`append` and `extend` say when the buffer holds one).
     make_room : callable
         Called before the status table starts anew (it is full): it must take every buffered
         frame, which the old table describes.
 
     Examples
     --------
-    >>> buffer = FrameBuffer(make_room=lambda: None)
+    >>> buffer = FrameBuffer(2, make_room=lambda: None)
     >>> buffer.append(1_000, 0x123, b"\\x01\\x02", "ok")
+    False
     >>> buffer.append(2_000, 0x124, b"", "sent")
+    True
     >>> t0, records, count, long, statuses = buffer.take(2)
     >>> t0, len(records), count, long, buffer.count
     (1000, 48, 2, None, 0)
     """
 
-    __slots__ = ("_codes", "_long", "_make_room", "_names", "_records", "statuses_json")
+    __slots__ = ("_codes", "_full", "_long", "_make_room", "_names", "_records",
+                 "statuses_json")
 
-    def __init__(self, make_room: Callable[[], None]) -> None:
+    def __init__(self, block_frames: int, make_room: Callable[[], None]) -> None:
+        self._full = int(block_frames) * FRAME_SIZE  # bytes of a full block
         self._make_room = make_room
         self._records = bytearray()
         self._long: dict[int, bytes] = {}
@@ -64,8 +70,9 @@ class FrameBuffer:
         return len(self._records) // FRAME_SIZE
 
     def append(self, timestamp_ns: int, frame_id: int, data: bytes, status: str,
-               extended: bool = False, dlc: int | None = None, flags: int = 0) -> None:
-        """Buffer one frame (`McapRecorder.write_frame`'s arguments)."""
+               extended: bool = False, dlc: int | None = None, flags: int = 0) -> bool:
+        """Buffer one frame (`McapRecorder.write_frame`'s arguments); whether the buffer
+        holds a full block."""
         code = self._codes.get(status)
         if code is None:
             code = self._new_status(status)
@@ -80,11 +87,12 @@ class FrameBuffer:
                 self._long[self.count] = data
             self._records += pack_frame(timestamp_ns, frame_id, dlc, flags | extended, code,
                                         data)
+        return len(self._records) >= self._full
 
     def extend(self, block: FrameBlock, statuses: Any, status_names: Sequence[str] | None
-               ) -> None:
+               ) -> bool:
         """Buffer a block of frames (`McapRecorder.write_frames`'s arguments, ``statuses``
-        given or the block's)."""
+        given or the block's); whether the buffer holds a full block."""
         n = block.size
         records = np.zeros(n, dtype=FRAME_DTYPE)
         records["t_ns"] = block.t_ns
@@ -94,7 +102,7 @@ class FrameBuffer:
         records["flags"] = block.flags
         records["status"] = self._status_array(statuses, n, status_names)
         if not n:
-            return
+            return len(self._records) >= self._full
         if block.long:  # (after _status_array, which may have made room)
             base = self.count
             dlc = block.dlc
@@ -102,6 +110,7 @@ class FrameBuffer:
                 if len(data) != min(int(dlc[row]), MAX_DATA):
                     self._long[base + row] = bytes(data)
         self._records += records.tobytes()
+        return len(self._records) >= self._full
 
     def take(self, n: int) -> FrameRecords:
         """Remove and return the first ``n`` frames (``0 < n <= count``)."""

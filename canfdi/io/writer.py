@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
+from operator import is_
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any, Self
@@ -192,6 +193,7 @@ class McapRecorder(TopicWrites):
         # The status table of the frames starts anew when full: the frames it describes go
         # out first.
         self._frame_buffer = FrameBuffer(
+            block_frames,
             make_room=lambda: self._frames.emit(self._out, self._clock(), full_only=False))
         self._frames = Channel(TOPIC_FRAMES, self._frame_buffer, FrameBlockEncoder(),
                                block_frames)
@@ -335,8 +337,7 @@ class McapRecorder(TopicWrites):
             After `close`.
         """
         now = self._begin_write()
-        self._frame_buffer.append(timestamp_ns, frame_id, data, status, extended, dlc, flags)
-        if self._frames.full:
+        if self._frame_buffer.append(timestamp_ns, frame_id, data, status, extended, dlc, flags):
             self._frames.emit(self._out, now, full_only=True)
 
     def write_frames(
@@ -369,8 +370,7 @@ class McapRecorder(TopicWrites):
             if block.status is None:
                 raise ValueError("write_frames: the block holds no statuses and none are given")
             statuses = block.status
-        self._frame_buffer.extend(block, statuses, status_names)
-        if self._frames.full:
+        if self._frame_buffer.extend(block, statuses, status_names):
             self._frames.emit(self._out, now, full_only=True)
 
     def write_metadata(self, name: str, values: dict[str, str]) -> None:
@@ -431,7 +431,8 @@ class McapRecorder(TopicWrites):
         if drive != encoder.drive:
             channel.emit(self._out, now, full_only=False)
             encoder.set_drive(drive)
-        if not encoder.same_given(names):
+        given = encoder.given
+        if len(names) != len(given) or not all(map(is_, names, given)):
             listed = encoder.check_names(names)
             if listed != encoder.names:
                 channel.emit(self._out, self._clock(), full_only=False)
@@ -441,8 +442,7 @@ class McapRecorder(TopicWrites):
 
     def _append_row(self, channel: Channel, row: tuple[Any, ...], now: float) -> None:
         """Buffer one row (a value per column, in the layout's order) of a row channel."""
-        channel.buffer.append(row)
-        if channel.full:
+        if channel.buffer.append(row) >= channel.limit:
             channel.emit(self._out, now, full_only=True)
 
     def _add_rows(self, channel: Channel, columns: tuple[np.ndarray, ...], now: float) -> None:
