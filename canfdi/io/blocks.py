@@ -140,8 +140,8 @@ FRAMES_HEAD = (
 
 
 class Rows:
-    """Buffered rows of one block topic, in order: single rows in per-column lists, vectorised
-    writes as array chunks (copies).
+    """Buffered rows of one block topic, in order: single rows as they come, vectorised writes
+    as array chunks (copies).
 
     Parameters
     ----------
@@ -149,25 +149,31 @@ class Rows:
         Each column's dtype; the float columns hold (N, width) arrays.
     """
 
-    __slots__ = ("chunks", "columns", "count", "kinds")
+    __slots__ = ("chunks", "count", "kinds", "pending")
 
     def __init__(self, kinds: tuple[type, ...]) -> None:
         self.kinds = kinds
-        self.columns: tuple[list[Any], ...] = tuple([] for _ in kinds)
+        self.pending: list[Sequence[Any]] = []
         self.chunks: list[tuple[np.ndarray, ...]] = []
         self.count = 0
 
     def seal(self) -> None:
         """Turn the pending single rows into a chunk."""
-        if self.columns[0]:
+        if self.pending:
             self.chunks.append(
                 tuple(
                     np.array(c, dtype=kind)
-                    for c, kind in zip(self.columns, self.kinds, strict=True)
+                    for c, kind in zip(zip(*self.pending, strict=True), self.kinds, strict=True)
                 )
             )
-            for column in self.columns:
-                column.clear()
+            self.pending = []
+
+    def append(self, values: Sequence[Any]) -> int:
+        """Add one row: a value per column (a row of numbers for a float column), kept as
+        given until the rows are sealed; returns the rows buffered."""
+        self.pending.append(values)
+        self.count += 1
+        return self.count
 
     def add(self, arrays: tuple[np.ndarray, ...]) -> None:
         self.seal()
@@ -193,8 +199,7 @@ class Rows:
     def clear(self) -> int:
         """Drop every row; returns how many there were."""
         n = self.count
-        for column in self.columns:
-            column.clear()
+        self.pending = []
         self.chunks = []
         self.count = 0
         return n

@@ -211,6 +211,18 @@ class _IndexedChunk:
     index_channels: frozenset[int]
 
 
+@dataclass
+class _Walk:
+    """What a `McapFile.records` walk carries from record to record."""
+
+    crc: int | None  # the data section's CRC so far (None: it cannot be checked)
+    clean: bool  # nothing lost so far: the data CRC can judge the file
+    order: ChunkOrder | None  # the chunks' reading order (inflating walks)
+    held: HeldChunks | None = None  # chunks waiting for their turn (out of order)
+    tail: LostRegion | None = None  # the lost region the MessageIndex records here count
+    whole: bool = False  # and they follow its one lost chunk directly: they count it whole
+
+
 class McapFile:
     """One MCAP file, walked record by record with every check; a context manager.
 
@@ -681,83 +693,102 @@ class McapFile:
         """
         buf, size = self._buf, self.size
         pos = self._first
-        crc: int | None = _crc32(MAGIC) if pos == 8 and not self.damage.bad_magic else None
-        clean = not self.damage.regions
-        tail: LostRegion | None = None  # the lost region the MessageIndex records here count
-        whole = False  # and they follow its one lost chunk directly: they count it whole
-        self.complete = False
-        self._last_chunk, self._waiting, self._past_data = None, [], False
+        walk = self._start_walk(inflate)
         seen: dict[bytes, int] = {}  # a checked chunk's header -> where it was first read
-        order = self._reading_order() if inflate else None
-        held: HeldChunks | None = None
-        if order is not None and not order.in_file_order:
-            held = HeldChunks(order)
-            self._note("chunks out of log-time order, read in the order "
-                       + ("the summary lists them" if self._listed_chunks is not None
-                          else "of their messages' times"))
         while pos < size:
             found = self._sound(pos)
             if found is None:
                 resume, lost_at = self._resync(pos)
-                tail, whole = self._lose(pos, resume, lost_at), False
-                crc, clean = None, False
+                walk.tail, walk.whole = self._lose(pos, resume, lost_at), False
+                walk.crc, walk.clean = None, False
                 if resume is None:
                     break
                 pos = resume
                 continue
             op, start, stop = found
-            if crc is not None and op != OP_DATA_END:
-                crc = _crc32(buf[pos:stop], crc)
+            if walk.crc is not None and op != OP_DATA_END:
+                walk.crc = _crc32(buf[pos:stop], walk.crc)
             if op == OP_MESSAGE_INDEX:
-                if tail is not None:
-                    self._count_index(tail, pos)
-                    tail.indexed = tail.indexed or (whole and tail.chunks == 1)
+                if walk.tail is not None:
+                    self._count_index(walk.tail, pos)
+                    walk.tail.indexed = walk.tail.indexed or (walk.whole
+                                                              and walk.tail.chunks == 1)
                 pos = stop
                 continue
-            tail, whole = None, False
+            walk.tail, walk.whole = None, False
             if op == OP_CHUNK and inflate:
-                if order is not None and pos in order.foreign:
-                    # Its bytes are sound, but the summary (intact) lists no such chunk: it
-                    # is another recording's, inserted. The data CRC cannot judge the rest.
-                    self._note(f"a chunk at byte {pos} that the summary does not list (not "
-                               "this recording's), skipped")
-                    clean = False
-                elif held is not None and pos in order.rank:
-                    clean = False  # the data CRC is over file order: it cannot match
-                    held.hold(pos, start, stop)
-                    yield from self._release(held, stop, skip, seen)
-                else:
-                    give, inner, region = self._take_chunk(pos, start, stop, skip, seen)
-                    if region is not None:
-                        clean, tail, whole = False, region, region.start == pos
-                    elif not give:
-                        clean = False
-                    else:
-                        yield op, start, stop, inner
+                yield from self._walk_chunk(walk, pos, start, stop, skip, seen)
                 pos = stop
                 continue
-            if held is not None and op == OP_DATA_END:
-                yield from self._release(held, None, skip, seen)
             if op == OP_DATA_END:
-                self._past_data = True
-                (stored,) = _U32.unpack_from(buf, start)
-                if inflate and clean and crc is not None and stored and stored != crc:
-                    self.damage.data_crc = True
-                crc = None
-                yield op, start, stop, None
-            else:
-                yield op, start, stop, None
+                if walk.held is not None:
+                    yield from self._release(walk.held, None, skip, seen)
+                self._past_data_end(walk, start, inflate)
+            yield op, start, stop, None
             pos = stop
             if op == OP_FOOTER:
-                rest = bytes(buf[pos:])
-                if rest == MAGIC:
-                    self.complete = True
-                elif not MAGIC.startswith(rest):
-                    self._lose(pos, None)
+                self._after_footer(pos)
                 break
-        if held is not None:  # a file cut short before its DataEnd
-            yield from self._release(held, None, skip, seen)
+        if walk.held is not None:  # a file cut short before its DataEnd
+            yield from self._release(walk.held, None, skip, seen)
         self.truncated = not self.complete
+
+    def _start_walk(self, inflate: bool) -> _Walk:
+        """The state of a `records` walk from the first record: the data CRC so far, and the
+        reading order of the chunks (when inflating)."""
+        crc = _crc32(MAGIC) if self._first == 8 and not self.damage.bad_magic else None
+        clean = not self.damage.regions
+        self.complete = False
+        self._last_chunk, self._waiting, self._past_data = None, [], False
+        order = self._reading_order() if inflate else None
+        walk = _Walk(crc, clean, order)
+        if order is not None and not order.in_file_order:
+            walk.held = HeldChunks(order)
+            self._note("chunks out of log-time order, read in the order "
+                       + ("the summary lists them" if self._listed_chunks is not None
+                          else "of their messages' times"))
+        return walk
+
+    def _walk_chunk(self, walk: _Walk, pos: int, start: int, stop: int,
+                    skip: Callable[[int, int], bool] | None, seen: dict[bytes, int]
+                    ) -> Iterator[tuple[int, int, int, Any]]:
+        """The chunk at ``pos`` in a `records` walk that inflates: given (checked), held for
+        its turn, or skipped as foreign, a copy or damaged."""
+        order, held = walk.order, walk.held
+        if order is not None and pos in order.foreign:
+            # Its bytes are sound, but the summary (intact) lists no such chunk: it is
+            # another recording's, inserted. The data CRC cannot judge the rest.
+            self._note(f"a chunk at byte {pos} that the summary does not list (not "
+                       "this recording's), skipped")
+            walk.clean = False
+        elif held is not None and order is not None and pos in order.rank:
+            walk.clean = False  # the data CRC is over file order: it cannot match
+            held.hold(pos, start, stop)
+            yield from self._release(held, stop, skip, seen)
+        else:
+            give, inner, region = self._take_chunk(pos, start, stop, skip, seen)
+            if region is not None:
+                walk.clean, walk.tail, walk.whole = False, region, region.start == pos
+            elif not give:
+                walk.clean = False
+            else:
+                yield OP_CHUNK, start, stop, inner
+
+    def _past_data_end(self, walk: _Walk, start: int, inflate: bool) -> None:
+        """Past the data section: check its CRC (a sound, inflated walk's)."""
+        self._past_data = True
+        (stored,) = _U32.unpack_from(self._buf, start)
+        if inflate and walk.clean and walk.crc is not None and stored and stored != walk.crc:
+            self.damage.data_crc = True
+        walk.crc = None
+
+    def _after_footer(self, pos: int) -> None:
+        """The footer ends the walk: the file is complete if the closing magic follows."""
+        rest = bytes(self._buf[pos:])
+        if rest == MAGIC:
+            self.complete = True
+        elif not MAGIC.startswith(rest):
+            self._lose(pos, None)
 
     def _note(self, text: str) -> None:
         """A note on the file's damage, said once however many walks meet it."""

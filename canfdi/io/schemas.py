@@ -59,7 +59,10 @@ per row, so that Foxglove plots every one. Read them back with canfdi.io.reader'
     ``{"timestamp", "state": str, "samples": int, "frames": {counter: int},
     "active_faults": int}``.
 
-Estimates, events, status and log lines are one message each (they are rare). Other topics
+The row topics (samples, residuals: a message per row, a schema naming the run's signals) are
+registered in canfdi.io.rowtopics, with their fields; the recorder registers each one's schema
+in a log when it first writes a row. Estimates, events, status and log lines are one message
+each (they are rare). Other topics
 may be written with canfdi.io.writer's `McapRecorder.write`; they get a permissive object
 schema (`GENERIC_SCHEMA`). Non-finite floats (NaN, inf),
 which JSON cannot express, are written as ``null`` (read back as NaN).
@@ -93,7 +96,6 @@ __all__ = [
     "MESSAGE_ENCODING",
     "METADATA_NAME",
     "RESIDUALS_ENCODING",
-    "ROW_TOPICS",
     "SAMPLES_ENCODING",
     "SCHEMAS",
     "SCHEMA_ENCODING",
@@ -125,9 +127,6 @@ TOPICS = (
     TOPIC_STATUS,
     TOPIC_LOG,
 )
-ROW_TOPICS = (TOPIC_SAMPLES, TOPIC_RESIDUALS)
-"""Topics whose schema names the run's signals (`sample_schema`, `residual_schema`): the
-recorder registers them when it first writes a row."""
 FRAMES_ENCODING = "canfdi.frames.v1"
 SAMPLES_ENCODING = "canfdi.samples.v1"
 RESIDUALS_ENCODING = "canfdi.residuals.v1"

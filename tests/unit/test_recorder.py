@@ -1087,7 +1087,7 @@ def test_batched_messages_are_the_bytes_add_message_writes() -> None:
 
     from mcap.writer import CompressionType
 
-    from canfdi.io.writer import _add_messages
+    from canfdi.io.mcapwrite import add_messages
 
     rng = np.random.default_rng(5)
     times = T0 + np.cumsum(rng.integers(0, 10**7, 3000))
@@ -1105,7 +1105,7 @@ def test_batched_messages_are_the_bytes_add_message_writes() -> None:
             for channel in channels:
                 t, d = times[part : part + 700], data[part : part + 700]
                 if batched:
-                    _add_messages(writer, channel, t, d, part)
+                    add_messages(writer, channel, t, d, part)
                 else:
                     for i, (ti, di) in enumerate(zip(t.tolist(), d, strict=True)):
                         writer.add_message(channel, ti, di, ti, part + i)
@@ -1174,7 +1174,7 @@ def test_chunks_are_zstd_at_the_recorders_level(tmp_path):
     import zstandard
     from mcap.records import Chunk
 
-    from canfdi.io.writer import ZSTD_LEVEL
+    from canfdi.io.mcapwrite import ZSTD_LEVEL
 
     path = tmp_path / "level.mcap"
     n = 5000
