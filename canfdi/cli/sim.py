@@ -8,12 +8,8 @@ import json
 import sys
 from pathlib import Path
 
-from canfdi.cli.common import (
-    BusArgumentError,
-    StopEvent,
-    add_bus_overrides,
-    bus_factory,
-)
+from canfdi.cli.common import add_bus_overrides, bus_request
+from canfdi.tools.session import BusArgumentError, StopEvent, bus_factory
 
 HELP = """\
 Run the plant emulator (canfdi.firmware_sim) for a scenario and publish its drives' frames on a
@@ -115,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     if args.output is not None:
         return _to_file(args, scenario, disturbance)
     try:
-        interface, channel, opener = bus_factory(args, None)
+        interface, channel, opener = bus_factory(bus_request(args), None)
     except BusArgumentError as exc:
         print(f"canfdi sim: {exc}", file=sys.stderr)
         return 2
