@@ -28,6 +28,18 @@ def demo_truth(scenario) -> list[dict]:
             for d in scenario.drives for f in d.faults]
 
 
+def truth_document(scenario) -> dict[str, Any]:
+    """What `canfdi sim --truth` writes: the scenario, its plant, dt and bus profile, the
+    injected faults ("faults": `demo_truth`) and each drive's own ("drives")."""
+    plant = scenario.make_plant()
+    names = {"actuator": plant.input_names, "sensor": plant.output_names}
+    drives = [{"name": d.name, "node": d.node,
+               "faults": [f.truth(plant.dt, names[f.target]) for f in d.faults]}
+              for d in scenario.drives]
+    return {"scenario": scenario.name, "plant": plant.name, "dt": plant.dt,
+            "profile": scenario.profile, "faults": demo_truth(scenario), "drives": drives}
+
+
 async def play_demo(session: Session, scenario, *, speed: float = 0.0,
                     channel: str = "canfdi-demo", on_event=None,
                     announce: Callable[[str], None] | None = None,
