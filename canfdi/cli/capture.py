@@ -73,8 +73,7 @@ def run(args: argparse.Namespace) -> int:
     if stats.frames == 0:
         # Nothing was recorded: no empty log that looks like a capture, and a status that says
         # so (a dead or silent bus, a wrong channel).
-        for path in session.recorder.paths:
-            path.unlink(missing_ok=True)
+        session.discard_recording()
         why = "the bus could not be opened" if stats.gave_up else "no frame was received"
         print(f"canfdi capture: {why} on {interface} {channel}; nothing recorded",
               file=sys.stderr)

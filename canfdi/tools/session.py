@@ -483,6 +483,13 @@ class Session:
             if self.foxglove is not None:
                 self.foxglove.close()
 
+    def discard_recording(self) -> None:
+        """Remove the files the recorder wrote (a session that recorded nothing worth a log:
+        no empty file that looks like one)."""
+        if self.recorder is not None:
+            for path in self.recorder.paths:
+                path.unlink(missing_ok=True)
+
     async def serve(self, stop: StopEvent, *, duration: float | None = None,
                     opener: Callable[[], Any] | None = None,
                     alongside: Callable[[MonitorService, asyncio.Task], Awaitable[None]]

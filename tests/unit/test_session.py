@@ -106,3 +106,12 @@ def test_a_served_session_reports_its_counters_and_closes_what_it_opened():
                       "write_errors": 1, "last_error": "full"}}
     session.recording = Recording(None)  # a tap for Foxglove only: no recording counts
     assert "recording" not in session.stopped(stats)
+
+
+def test_a_discarded_recording_leaves_no_file(tmp_path):
+    recorder = _Recorder()
+    recorder.paths = [tmp_path / "c.mcap", tmp_path / "c-0001.mcap"]
+    for path in recorder.paths:
+        path.write_bytes(b"")
+    Session(_Monitor(), recorder=recorder).discard_recording()
+    assert list(tmp_path.iterdir()) == []
