@@ -9,14 +9,18 @@ import sys
 from pathlib import Path
 
 from canfdi.cli.common import (
-    BusArgumentError,
-    StopEvent,
     add_bus_overrides,
     add_retry_option,
-    bus_factory,
-    config_error,
+    bus_request,
+    fail,
     load_config_or_exit,
-    open_recorder,
+)
+from canfdi.tools.session import (
+    CannotRecord,
+    Recording,
+    SessionError,
+    StopEvent,
+    open_session,
     recording_counts,
 )
 
@@ -45,49 +49,31 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from canfdi.monitor import Monitor
-    from canfdi.service import MonitorService
-
     config = load_config_or_exit(args.config, "capture")
     if isinstance(config, int):
         return config
     try:
-        monitor = Monitor(config, diagnose=False)
-    except ValueError as exc:
-        return config_error(exc, "capture")
-    try:
-        interface, channel, opener = bus_factory(args, config.bus)
-    except BusArgumentError as exc:
-        print(f"canfdi capture: {exc}", file=sys.stderr)
-        return 2
-    try:
-        recorder = open_recorder(args.output, monitor.metadata())
-    except OSError as exc:
-        print(f"canfdi capture: cannot write {args.output}: {exc}", file=sys.stderr)
-        return 1
-    monitor.sink = recorder
+        session = open_session(config, "capture", diagnose=False, bus=bus_request(args),
+                               filters=False, recording=Recording(args.output, log_lines=False))
+    except SessionError as exc:
+        return fail("capture", exc.message, exc.status)
+    except CannotRecord as exc:
+        return fail("capture", f"cannot write {exc.path}: {exc.error}", 1)
+    interface, channel = session.interface, session.channel
 
     def on_ready() -> None:
         print(f"canfdi capture: recording {interface} {channel} to {args.output}",
               file=sys.stderr, flush=True)
 
     stop = StopEvent()
-
-    async def main():
-        service = MonitorService(monitor, opener, status_period=0, on_ready=on_ready,
-                                 retry_for=args.retry_for or None)
-        return await service.run(stop.arm(args.duration))
-
-    try:
-        stats = asyncio.run(main())
-    finally:
-        recorder.close()
-    counts = recording_counts(recorder)
+    with session:
+        stats = asyncio.run(session.serve(stop, duration=args.duration, status_period=0,
+                                          on_ready=on_ready, retry_for=args.retry_for or None))
+    counts = recording_counts(session.recorder)
     if stats.frames == 0:
         # Nothing was recorded: no empty log that looks like a capture, and a status that says
         # so (a dead or silent bus, a wrong channel).
-        for path in recorder.paths:
-            path.unlink(missing_ok=True)
+        session.discard_recording()
         why = "the bus could not be opened" if stats.gave_up else "no frame was received"
         print(f"canfdi capture: {why} on {interface} {channel}; nothing recorded",
               file=sys.stderr)
@@ -95,14 +81,14 @@ def run(args: argparse.Namespace) -> int:
             print(json.dumps({"output": None, "frames": 0, "samples": 0,
                               "bus_errors": stats.bus_errors, "recording": counts}))
         return 1
-    print(f"canfdi capture: {stats.frames} frames, {monitor.samples} samples -> {args.output}",
-          file=sys.stderr)
+    print(f"canfdi capture: {stats.frames} frames, {session.monitor.samples} samples -> "
+          f"{args.output}", file=sys.stderr)
     if counts["write_errors"]:
         print(f"canfdi capture: {counts['write_errors']} log write errors (last: "
               f"{counts['last_error']}), {counts['dropped']} records dropped; segments: "
               f"{', '.join(counts['segments'])}", file=sys.stderr)
     if args.json:
         print(json.dumps({"output": str(args.output), "frames": stats.frames,
-                          "samples": monitor.samples, "bus_errors": stats.bus_errors,
+                          "samples": session.monitor.samples, "bus_errors": stats.bus_errors,
                           "recording": counts}))
     return stop.exit_status

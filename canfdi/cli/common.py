@@ -1,43 +1,34 @@
-"""Small pieces the verbs share: config loading with exit status 2, event lines, tables."""
+"""What the verbs share to parse their arguments and print: config loading with exit status 2,
+the bus options, one-line errors, event lines, the demo's comparison."""
 
 from __future__ import annotations
 
 import argparse
-import asyncio
-import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from canfdi.core.eventtext import estimates_text
 from canfdi.core.eventtext import event_line as format_event
+from canfdi.tools.session import BusRequest
 
 if TYPE_CHECKING:
     from canfdi.config import MonitorConfig
 
 __all__ = [
-    "BUS_PRECEDENCE",
     "RETRY_FOR_S",
-    "BusArgumentError",
-    "StopEvent",
     "add_bus_overrides",
     "add_foxglove_option",
     "add_retry_option",
-    "bus_factory",
-    "bus_kwargs",
-    "bus_settings",
-    "check_bus",
-    "close_recorder",
+    "bus_request",
     "config_error",
+    "fail",
     "format_event",
     "load_config_or_exit",
-    "open_foxglove",
-    "open_recorder",
     "print_comparison",
-    "recording_counts",
+    "say",
 ]
-
 
 
 def load_config_or_exit(path: Path | str, verb: str) -> MonitorConfig | int:
@@ -52,8 +43,8 @@ def load_config_or_exit(path: Path | str, verb: str) -> MonitorConfig | int:
 
 def add_bus_overrides(p: argparse.ArgumentParser, config: bool = True) -> None:
     """python-can's bus options, as its own tools spell them: -i/--interface, -c/--channel,
-    -b/--bitrate, --fd, --data-bitrate and --bus-kwargs KEY=VALUE... (`BUS_PRECEDENCE`:
-    over the config's bus: section when the verb reads a ``config``)."""
+    -b/--bitrate, --fd, --data-bitrate and --bus-kwargs KEY=VALUE... (over the config's bus:
+    section when the verb reads a ``config``: canfdi.tools.session.BUS_PRECEDENCE)."""
     def said(key: str) -> str:
         return (f"overrides the config's bus.{key}" if config else
                 "default: python-can's configuration, else " + {"interface": "virtual",
@@ -82,175 +73,29 @@ def add_retry_option(p: argparse.ArgumentParser) -> None:
                         f"a loss (default {RETRY_FOR_S:g}; 0: retry forever)")
 
 
-BUS_PRECEDENCE = ("the command line", "the config file's bus: section",
-                  "python-can's configuration (CAN_INTERFACE, CAN_CHANNEL, CAN_BITRATE, "
-                  "CAN_CONFIG, can.conf)", "canfdi's defaults (virtual, canfdi)")
-"""Where interface, channel and bitrate come from, the first that gives one winning."""
+def bus_request(args: argparse.Namespace) -> BusRequest:
+    """The bus the options of `add_bus_overrides` ask for (None where they say nothing)."""
+    return BusRequest(interface=getattr(args, "interface", None),
+                      channel=getattr(args, "channel", None),
+                      bitrate=getattr(args, "bitrate", None), fd=bool(getattr(args, "fd", False)),
+                      data_bitrate=getattr(args, "data_bitrate", None),
+                      bus_kwargs=tuple(getattr(args, "bus_kwargs", []) or []))
 
 
-def python_can_config() -> dict[str, Any]:
-    """What python-can's own configuration gives (its environment variables and config files,
-    through can.util.load_config), or {} when it configures no interface."""
-    import can
-
-    try:
-        found = can.util.load_config()
-    except (can.CanInterfaceNotImplementedError, ValueError, OSError):
-        return {}
-    return {k: v for k, v in found.items() if v is not None}
+def say(verb: str) -> Callable[[str], None]:
+    """A line on stderr as ``canfdi VERB: LINE``."""
+    return lambda line: print(f"canfdi {verb}: {line}", file=sys.stderr, flush=True)
 
 
-class BusArgumentError(ValueError):
-    """A bad --bus-kwargs entry."""
-
-
-def bus_kwargs(args: argparse.Namespace) -> dict[str, Any]:
-    """--fd, --data-bitrate and --bus-kwargs as keyword arguments of can.Bus."""
-    import yaml
-
-    extra: dict[str, Any] = {}
-    if getattr(args, "fd", False):
-        extra["fd"] = True
-    if getattr(args, "data_bitrate", None) is not None:
-        extra["data_bitrate"] = args.data_bitrate
-    for item in getattr(args, "bus_kwargs", []) or []:
-        key, sep, text = item.partition("=")
-        if not sep or not key.isidentifier():
-            raise BusArgumentError(f"--bus-kwargs: expected KEY=VALUE, got {item!r}")
-        try:
-            extra[key] = yaml.safe_load(text) if text else ""
-        except yaml.YAMLError:
-            extra[key] = text
-    return extra
-
-
-def bus_settings(args: argparse.Namespace, bus=None) -> tuple[str, str, int | None]:
-    """(interface, channel, bitrate) by `BUS_PRECEDENCE` (``bus``: the config's BusConfig, or
-    None for a verb without a config)."""
-    stated = bus.stated if bus is not None else frozenset()
-    defaults = {"interface": "virtual", "channel": "canfdi", "bitrate": None}
-    chosen: dict[str, Any] = {}
-    fallback: dict[str, Any] | None = None  # python-can's, read only when it is needed
-    for key in ("interface", "channel", "bitrate"):
-        given = getattr(args, key, None)
-        if given is None and key in stated:
-            given = getattr(bus, key)
-        if given is None:
-            fallback = python_can_config() if fallback is None else fallback
-            given = fallback.get(key, defaults[key])
-        chosen[key] = given
-    bitrate = chosen["bitrate"]
-    return (str(chosen["interface"]), str(chosen["channel"]),
-            int(bitrate) if bitrate is not None else None)
-
-
-def check_bus(interface: str, channel: str) -> None:
-    """BusArgumentError (the verb exits 2) for an interface python-can does not know, or a
-    SocketCAN channel that is no network interface of this machine: a typo, not a bus to
-    wait for (a bus that exists and fails to open is retried for --retry-for seconds)."""
-    import difflib
-    import socket
-
-    import can
-
-    known = sorted(can.interfaces.VALID_INTERFACES)
-    if interface not in known:
-        near = difflib.get_close_matches(interface, known, n=1)
-        raise BusArgumentError(
-            f"unknown interface {interface!r}" + (f" (did you mean {near[0]!r}?)" if near
-                                                  else "") + f"; python-can's: {', '.join(known)}")
-    if interface == "socketcan":
-        try:
-            socket.if_nametoindex(channel)
-        except OSError:
-            raise BusArgumentError(
-                f"no network interface {channel!r} on this machine (`ip link` lists them; a "
-                f"virtual one: deploy/vcan-setup {channel})") from None
-
-
-def bus_factory(args: argparse.Namespace, bus, can_filters: list[dict] | None = None
-                ) -> tuple[str, str, object]:
-    """(interface, channel, opener) from the command line, the config's BusConfig and
-    python-can's configuration (`BUS_PRECEDENCE`), with receive filters ``can_filters``
-    unless --bus-kwargs gives its own; raises BusArgumentError for a bad --bus-kwargs."""
-    from canfdi.service import open_bus
-
-    interface, channel, bitrate = bus_settings(args, bus)
-    check_bus(interface, channel)
-    extra = bus_kwargs(args)
-    if can_filters is not None:
-        extra.setdefault("can_filters", can_filters)
-    return interface, channel, lambda: open_bus(interface, channel, bitrate, **extra)
-
-
-class StopEvent(asyncio.Event):
-    """The event a long-running verb stops on: set by SIGINT, SIGTERM or after a duration
-    (`arm`). ``interrupted`` says SIGINT (Ctrl-C) set it: the verb then stops in order as for
-    SIGTERM and exits with `exit_status` 130, as a shell reports an interrupted command."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.interrupted = False
-
-    def arm(self, duration: float | None = None) -> StopEvent:
-        """Install the signal handlers on the running event loop (and the timer)."""
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, self._signalled, sig)
-        if duration:
-            loop.call_later(duration, self.set)
-        return self
-
-    def disarm(self) -> None:
-        """Remove the signal handlers again (from the same running loop)."""
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.remove_signal_handler(sig)
-
-    def _signalled(self, sig: int) -> None:
-        self.interrupted = self.interrupted or sig == signal.SIGINT
-        self.set()
-
-    @property
-    def exit_status(self) -> int:
-        """130 after Ctrl-C, else 0."""
-        return 130 if self.interrupted else 0
-
+def fail(verb: str, message: str, status: int = 2) -> int:
+    """``status`` after one line ``canfdi VERB: MESSAGE`` on stderr."""
+    print(f"canfdi {verb}: {message}", file=sys.stderr)
+    return status
 
 
 def config_error(exc: Exception, verb: str) -> int:
     print(f"canfdi {verb}: config error: {exc}", file=sys.stderr)
     return 2
-
-
-def open_recorder(path: Path | None, metadata: dict[str, str] | None = None, *,
-                  drive_clock: Callable[[], int] | None = None, **kwargs):
-    """An MCAP recorder for ``path`` (parent directories created; None: no file, for a live
-    view's ``tap`` alone). With ``drive_clock`` (the drive's time now, ns), the canfdi loggers'
-    warnings are recorded on its ``/canfdi/log`` too, until `close_recorder`."""
-    import logging
-
-    from canfdi.io.writer import McapLogHandler, McapRecorder
-
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    recorder = McapRecorder(path, metadata=metadata, **kwargs)
-    if drive_clock is not None:
-        logging.getLogger("canfdi").addHandler(McapLogHandler(recorder, drive_clock))
-    return recorder
-
-
-def close_recorder(recorder) -> None:
-    """Close a recorder of `open_recorder`, and stop recording log lines into it."""
-    import logging
-
-    from canfdi.io.writer import McapLogHandler
-
-    logger = logging.getLogger("canfdi")
-    for handler in list(logger.handlers):
-        if isinstance(handler, McapLogHandler) and handler.recorder is recorder:
-            logger.removeHandler(handler)
-    recorder.close()
 
 
 def add_foxglove_option(p: argparse.ArgumentParser) -> None:
@@ -259,38 +104,6 @@ def add_foxglove_option(p: argparse.ArgumentParser) -> None:
                    help="serve the log's channels live over Foxglove's WebSocket protocol on "
                         "PORT (host 127.0.0.1 unless given; 0.0.0.0 serves other machines); "
                         "needs pip install 'canfdi[foxglove]'")
-
-
-def open_foxglove(address: str | None, verb: str):
-    """The live Foxglove server ``--foxglove`` asks for (None when it does not), or the exit
-    status 2 after one line on stderr (a bad address, no foxglove-sdk, a port in use)."""
-    if address is None:
-        return None
-    from canfdi.liveserver import FoxgloveServer, FoxgloveUnavailable, parse_address
-
-    try:
-        host, port = parse_address(address)
-        server = FoxgloveServer(host, port, name=f"canfdi {verb}")
-    except (ValueError, OSError, FoxgloveUnavailable) as exc:
-        print(f"canfdi {verb}: --foxglove: {exc}", file=sys.stderr)
-        return 2
-    print(f"canfdi {verb}: Foxglove live on ws://{host}:{server.port} (open it in Foxglove: "
-          "Open connection, Foxglove WebSocket)", file=sys.stderr)
-    return server
-
-
-def recording_counts(recorder) -> dict:
-    """What an McapRecorder wrote and lost, for a verb's exit summary: ``{"segments": [file
-    names], "written": rows and messages, "dropped": lost to write errors, "write_errors": N,
-    "last_error": str or None}``."""
-    error = recorder.last_error
-    return {
-        "segments": [str(p) for p in recorder.paths],
-        "written": recorder.messages_written,
-        "dropped": recorder.messages_dropped,
-        "write_errors": recorder.write_errors,
-        "last_error": None if error is None else (error.strerror or str(error)),
-    }
 
 
 def print_comparison(result: dict, truth: list[dict] | None) -> None:

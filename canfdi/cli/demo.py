@@ -6,21 +6,20 @@ import argparse
 import asyncio
 import json
 import sys
-import time
 from pathlib import Path
 
 from canfdi.cli.common import (
-    StopEvent,
     add_foxglove_option,
-    close_recorder,
     config_error,
+    fail,
     format_event,
     load_config_or_exit,
-    open_foxglove,
-    open_recorder,
     print_comparison,
+    say,
 )
 from canfdi.configs import CONFIG_DIR
+from canfdi.tools.demo import demo_truth, play_demo
+from canfdi.tools.session import CannotRecord, Recording, SessionError, StopEvent, open_session
 
 HELP = """\
 Run a scenario's drive (canfdi.firmware_sim) and the canfdi monitor together on python-can's
@@ -60,143 +59,37 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="no live view (it is on when stdout is a terminal, off otherwise)")
 
 
-async def run_demo(scenario, config, *, speed: float = 0.0, channel: str = "canfdi-demo",
-                   recorder=None, on_event=None, announce=None, live=None,
-                   stop: StopEvent | None = None):
-    """Emulator and monitor on one virtual bus; returns (monitor, emitter stats, truth).
-
-    ``stop``: the event SIGINT and SIGTERM set while the demo runs (its ``interrupted`` says
-    whether Ctrl-C did); a private one when None.
-
-    ``recorder``: a callable (metadata, drive_time) -> record sink, where drive_time() is the
-    drive's time now (ns), for the sink's log lines.
-
-    ``live``: a callable monitor -> canfdi.liveview.LiveView, shown while the demo runs."""
-    import can
-
-    from canfdi.firmware_sim.emitter import emit
-    from canfdi.monitor import Monitor
-    from canfdi.service import MonitorService
-
-    plant = scenario.make_plant()
-    names = {"actuator": plant.input_names, "sensor": plant.output_names}
-    several = len(scenario.drives) > 1
-    truth = [{**f.truth(plant.dt, names[f.target]), **({"drive": d.name} if several else {})}
-             for d in scenario.drives for f in d.faults]
-    monitor = Monitor(config)
-    if recorder is not None:
-        monitor.sink = recorder(monitor.metadata(truth),
-                                lambda: monitor.last_timestamp_ns or time.time_ns())
-    stop = (stop if stop is not None else StopEvent()).arm()
-    # The drive's time is the emulator's (the frames carry it): what the monitor's own frames
-    # are recorded at too, so that the log's time is the drive's throughout.
-    service = MonitorService(monitor, lambda: can.Bus(interface="virtual", channel=channel),
-                             status_period=config.bus.status_period, on_event=on_event,
-                             clock=lambda: monitor.last_timestamp_ns or time.time_ns())
-    monitor_task = asyncio.create_task(service.run(stop))
-    view = live(monitor) if live is not None else None
-    view_task = None
-    if view is not None:
-        view.__enter__()
-        view_task = asyncio.create_task(view.run(stop))
-    while service.bus is None and not monitor_task.done():
-        await asyncio.sleep(0.01)
-    # The emulator stamps each frame with its time in the drive's run (at speed 0, faster than
-    # the wall clock); the bus keeps it, as the frames' timing is what a grid clock samples.
-    sim_bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
-    try:
-        if announce is not None:
-            announce(f"canfdi demo: {scenario.name} ({scenario.duration:g} s of {plant.name}) "
-                     f"on virtual bus {channel!r}")
-        stats = await emit(sim_bus, scenario, speed=speed, stop=stop)
-        # Let the monitor catch up with every frame the drive sent (unless it died: then its
-        # exception is raised below instead of waiting forever).
-        while (service.stats.frames < stats.frames_sent and not stop.is_set()
-               and not monitor_task.done()):
-            await asyncio.sleep(0.01)
-    finally:
-        sim_bus.shutdown()
-        stop.set()
-        try:
-            await monitor_task
-        finally:
-            if view is not None:
-                await view_task
-                view.__exit__(None, None, None)
-        stop.disarm()
-    return monitor, stats, truth
-
-
 def run(args: argparse.Namespace) -> int:
     from canfdi.firmware_sim.scenario import ScenarioError, load_scenario
 
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
-        print(f"canfdi demo: scenario error: {exc}", file=sys.stderr)
-        return 2
+        return fail("demo", f"scenario error: {exc}")
     if args.speed < 0:
-        print("canfdi demo: --speed: must be >= 0", file=sys.stderr)
-        return 2
-    plant = scenario.make_plant()
+        return fail("demo", "--speed: must be >= 0")
     if args.config is None:
         from canfdi.tools.pairing import NoPairing, config_for
 
         try:
             args.config = config_for(scenario, CONFIG_DIR)
         except NoPairing as exc:
-            print(f"canfdi demo: {exc}", file=sys.stderr)
-            return 2
+            return fail("demo", str(exc))
     config = load_config_or_exit(args.config, "demo")
     if isinstance(config, int):
         return config
-    quiet = args.json
-    live = open_foxglove(args.foxglove, "demo")
-    if isinstance(live, int):
-        return live
-    recorders = []
-    views = []
-
-    def make_view(monitor):
-        from canfdi.liveview import LiveView
-
-        views.append(LiveView(monitor, title=f"canfdi demo: {scenario.name}"))
-        return views[-1]
-
-    def say(line: str) -> None:
-        if views:
-            views[0].print(line)
-        else:
-            print(line, flush=True)
-
-    def make_recorder(metadata, drive_time):
-        recorders.append(open_recorder(args.output, metadata, drive_clock=drive_time, tap=live))
-        return recorders[-1]
-
-    def on_event(event) -> None:
-        if not quiet:
-            say(format_event(event, plant.dt, len(config.drive_list) > 1))
-
     stop = StopEvent()
     try:
-        monitor, stats, truth = asyncio.run(run_demo(
-            scenario, config, speed=args.speed, channel=args.channel,
-            recorder=make_recorder if args.output or live else None, on_event=on_event,
-            announce=None if quiet else say,
-            live=make_view if not quiet and not args.no_live and sys.stdout.isatty() else None,
-            stop=stop))
+        outcome = _play(args, scenario, config, stop)
+    except SessionError as exc:
+        return fail("demo", exc.message, exc.status)
     except ValueError as exc:
         return config_error(exc, "demo")
+    except CannotRecord as exc:
+        return fail("demo", f"cannot write {exc.path}: {exc.error.strerror or exc.error}", 1)
     except OSError as exc:
-        print(f"canfdi demo: cannot write {args.output}: {exc.strerror or exc}", file=sys.stderr)
-        return 1
-    finally:
-        for r in recorders:
-            close_recorder(r)
-        if live is not None:
-            live.close()
-    result = monitor.summary(truth)
-    result["emitter"] = stats.as_dict()
+        return fail("demo", f"cannot write {args.output}: {exc.strerror or exc}", 1)
+    result, truth = outcome
     if args.json:
         print(json.dumps(result, indent=2))
     else:
@@ -204,3 +97,33 @@ def run(args: argparse.Namespace) -> int:
         if args.output:
             print(f"log: {args.output}")
     return stop.exit_status
+
+
+def _play(args: argparse.Namespace, scenario, config, stop: StopEvent) -> tuple[dict, list]:
+    """The demo's session, played: (the monitor's summary with the emitter's counters, the
+    injected faults)."""
+    quiet = args.json
+    truth = demo_truth(scenario)
+    session = open_session(
+        config, "demo", foxglove=args.foxglove, truth=truth, notice=say("demo"),
+        recording=Recording(args.output) if args.output else None,
+        view=scenario.name if not quiet and not args.no_live and sys.stdout.isatty() else None)
+    dt = scenario.make_plant().dt
+
+    def line(text: str) -> None:
+        if session.view is not None:
+            session.view.print(text)
+        else:
+            print(text, flush=True)
+
+    def on_event(event) -> None:
+        if not quiet:
+            line(format_event(event, dt, len(config.drive_list) > 1))
+
+    with session:
+        stats = asyncio.run(play_demo(session, scenario, speed=args.speed, channel=args.channel,
+                                      on_event=on_event, announce=None if quiet else line,
+                                      stop=stop))
+    result = session.monitor.summary(truth)
+    result["emitter"] = stats.as_dict()
+    return result, truth

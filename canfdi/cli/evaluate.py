@@ -225,6 +225,40 @@ def _calibrated(config, plant: str, noise_scale: float, seconds: float, seed: in
                              read_yaml(config.path, ConfigError, "config"))
 
 
+def _monitored(args: argparse.Namespace, path: Path, config, progress):
+    """(the config the faults are drawn from, the config monitored when another one: None,
+    the calibration of --calibrate or None), or the exit status after one error line."""
+    monitor, calibration = None, None
+    if args.faults_from is not None:
+        if args.calibrate is not None:
+            return _fail("--faults-from and --calibrate: give one")
+        reference = load_config_or_exit(args.faults_from, "evaluate")
+        if isinstance(reference, int):
+            return reference
+        if (reference.inputs, reference.outputs) != (config.inputs, config.outputs):
+            return _fail(f"--faults-from {args.faults_from}: its signals differ from "
+                         f"{path}'s")
+        monitor, config = config, reference
+    if args.calibrate is not None:
+        try:
+            calibration = _calibrated(config, args.plant, args.noise_scale, args.calibrate,
+                                      args.seed, progress)
+        except ValueError as exc:
+            return _fail(f"--calibrate: {exc}")
+        monitor = calibration.config
+    return config, monitor, calibration
+
+
+def _write_files(stem: Path, result: dict[str, Any], progress) -> None:
+    """The figure and the JSON of ``result`` as STEM.png and STEM.json (their names go into
+    ``result["files"]``)."""
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    plot(result, stem.with_suffix(".png"))
+    stem.with_suffix(".json").write_text(json.dumps(result, indent=2) + "\n")
+    result["files"] = [str(stem.with_suffix(".png")), str(stem.with_suffix(".json"))]
+    progress(f"wrote {stem}.png and {stem}.json")
+
+
 def run(args: argparse.Namespace) -> int:
     problem = _check_args(args)
     if problem:
@@ -254,24 +288,10 @@ def run(args: argparse.Namespace) -> int:
 
     from canfdi.tools.evaluate import evaluate
 
-    monitor, calibration = None, None
-    if args.faults_from is not None:
-        if args.calibrate is not None:
-            return _fail("--faults-from and --calibrate: give one")
-        reference = load_config_or_exit(args.faults_from, "evaluate")
-        if isinstance(reference, int):
-            return reference
-        if (reference.inputs, reference.outputs) != (config.inputs, config.outputs):
-            return _fail(f"--faults-from {args.faults_from}: its signals differ from "
-                         f"{path}'s")
-        monitor, config = config, reference
-    if args.calibrate is not None:
-        try:
-            calibration = _calibrated(config, args.plant, args.noise_scale, args.calibrate,
-                                      args.seed, progress)
-        except ValueError as exc:
-            return _fail(f"--calibrate: {exc}")
-        monitor = calibration.config
+    chosen = _monitored(args, path, config, progress)
+    if isinstance(chosen, int):
+        return chosen
+    config, monitor, calibration = chosen
     try:
         with _engine(args) as mapper:
             result = evaluate(config, args.plant, runs=args.runs, seed=args.seed,
@@ -292,12 +312,7 @@ def run(args: argparse.Namespace) -> int:
                                  "measurement_std": calibration.noise.std.tolist()}
     result["wall_s"] = time.monotonic() - start
     if args.output is not None:
-        args.output.mkdir(parents=True, exist_ok=True)
-        stem = args.output / f"{args.plant}_{config.method}"
-        plot(result, stem.with_suffix(".png"))
-        stem.with_suffix(".json").write_text(json.dumps(result, indent=2) + "\n")
-        result["files"] = [str(stem.with_suffix(".png")), str(stem.with_suffix(".json"))]
-        progress(f"wrote {stem}.png and {stem}.json")
+        _write_files(args.output / f"{args.plant}_{config.method}", result, progress)
     if args.json:
         print(json.dumps(result, indent=2))
     else:

@@ -6,10 +6,9 @@ import argparse
 import json
 import sys
 import time
-from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from canfdi.io.formats import LogFormat, formats
+from canfdi.tools.export import writable_formats, write_export
 
 HELP_HEAD = """\
 Write every raw frame of a log (a canfdi MCAP: all segments, valid or not, the drive's and the
@@ -29,13 +28,9 @@ line per damaged file). The format is --format, or the suffix of -o. Exit status
 the output could not be written, or the log holds no frame (one line, no output left)."""
 
 
-def _writable() -> list[LogFormat]:
-    return [f for f in formats() if f.writable]
-
-
 def _help() -> str:
     lines = [f"  {f.name:<7} {f.description}" + (f" (needs canfdi[{f.extra}])" if f.extra else "")
-             for f in _writable()]
+             for f in writable_formats()]
     return HELP_HEAD + "\n" + "\n".join(lines) + "\n" + HELP_TAIL
 
 
@@ -43,8 +38,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("export", help="write a log's raw frames as BLF, ASC, candump, CSV...",
                        description=_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("log", type=Path, help="the log (for a canfdi MCAP, its first segment)")
-    p.add_argument("--format", choices=[f.name for f in _writable()], metavar="FMT",
-                   help="output format: " + ", ".join(f.name for f in _writable())
+    p.add_argument("--format", choices=[f.name for f in writable_formats()], metavar="FMT",
+                   help="output format: " + ", ".join(f.name for f in writable_formats())
                    + " (default: the suffix of -o)")
     p.add_argument("-o", "--output", type=Path, metavar="OUT",
                    help="output file (default: the log's name with the format's suffix)")
@@ -54,29 +49,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "skipped, seconds, damage")
 
 
-def _counted(blocks: Iterator, progress: Callable[[int], None] | None) -> Iterator:
-    count = 0
-    for block in blocks:
-        yield block
-        count += block.size
-        if progress is not None:
-            progress(count)
-
-
-def export_frames(log: Path, out: Path, fmt: str, progress=None, damage=None) -> int:
-    """Write every frame of ``log`` to ``out`` in format ``fmt`` (a name of
-    canfdi.io.formats); returns the number of frames written. What a damaged log lost is
-    recorded in ``damage`` (a canfdi.io.damage.Damage), the rest is written."""
-    from canfdi.io.logs import frame_blocks, write_frames
-
-    blocks = frame_blocks(log, received=False, damage=damage)
-    return write_frames(out, _counted(blocks, progress), fmt).frames
-
-
 def run(args: argparse.Namespace) -> int:
     from canfdi.io.damage import Damage
     from canfdi.io.formats import LogFormatError, LogReadError, format_named, format_of
-    from canfdi.io.logs import frame_blocks, write_frames
+    from canfdi.io.logs import frame_blocks
 
     try:
         source = format_of(args.log)
@@ -109,23 +85,19 @@ def run(args: argparse.Namespace) -> int:
             print(f"\rcanfdi export: {n:,} frames", end="", file=sys.stderr)
 
     try:
-        written = write_frames(out, _counted(blocks, progress), target.name)
+        written = write_export(out, blocks, target.name, progress)
     except LogReadError as exc:
-        out.unlink(missing_ok=True)  # begun before the input failed: worth nothing
         print(f"canfdi export: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
         print(f"canfdi export: cannot write {out}: {exc.strerror or exc}", file=sys.stderr)
         return 1
     except ValueError as exc:  # a block of an unknown layout
-        out.unlink(missing_ok=True)  # begun before the input failed: worth nothing
         print(f"canfdi export: {args.log}: {exc}", file=sys.stderr)
         return 2
     if not args.no_progress and sys.stderr.isatty():
         print("\r", end="", file=sys.stderr)
     if written.frames == 0:
-        # Nothing usable: no empty file that looks like an export, and a status that says so.
-        out.unlink(missing_ok=True)
         lost = "; ".join(damage.lines())
         print(f"canfdi export: {args.log}: no frame to export{f' ({lost})' if lost else ''}",
               file=sys.stderr)

@@ -110,10 +110,35 @@ def _parse_orders(specs: list[str], inputs: list[str], outputs: list[str]) -> di
     return fixed
 
 
+def _check_args(args: argparse.Namespace) -> str | None:
+    """A missing log or an option out of its range, as the error line, or None."""
+    for log in [*args.logs, *args.validate]:
+        if not log.exists():
+            return f"no such log: {log}"
+    if not 0.05 <= args.holdout <= 0.7:
+        return "--holdout: expected a fraction in [0.05, 0.7]"
+    if args.oe_delay < 0 or args.skip < 0 or args.min_gain_snr < 0:
+        return "--oe-delay, --skip and --min-gain-snr: must be >= 0"
+    return None
+
+
+def _faulty_log(args: argparse.Namespace) -> str | None:
+    """The error line for the first log that holds injected faults, or None."""
+    from canfdi.io.logs import truth_of
+
+    for log in [*args.logs, *args.validate]:
+        truth = truth_of(log) if log.suffix.lower() == ".mcap" else None
+        if truth:
+            onsets = ", ".join(f"{f.get('target', '?')} {f.get('name', f.get('index'))} at "
+                               f"{f.get('onset', '?')} s" for f in truth)
+            return (f"{log} holds injected faults ({onsets}): a model is learned from a "
+                    "healthy drive; record a fault-free log (or --force)")
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
     from canfdi.config import ConfigError, load_config
     from canfdi.io.damage import Damage
-    from canfdi.io.logs import truth_of
     from canfdi.methods.output_error.fit import FitOptions
     from canfdi.tools.configdoc import ConfigDocument
     from canfdi.tools.identify import Refusal, identify
@@ -122,25 +147,16 @@ def run(args: argparse.Namespace) -> int:
         config = load_config(args.config, allow_unidentified=True)
     except ConfigError as exc:
         return _fail(f"config error: {exc}")
-    for log in [*args.logs, *args.validate]:
-        if not log.exists():
-            return _fail(f"no such log: {log}")
-    if not 0.05 <= args.holdout <= 0.7:
-        return _fail("--holdout: expected a fraction in [0.05, 0.7]")
-    if args.oe_delay < 0 or args.skip < 0 or args.min_gain_snr < 0:
-        return _fail("--oe-delay, --skip and --min-gain-snr: must be >= 0")
+    problem = _check_args(args)
+    if problem:
+        return _fail(problem)
     try:
         fixed = _parse_orders(args.orders, config.inputs, config.outputs)
     except ValueError as exc:
         return _fail(str(exc))
-    if not args.force:
-        for log in [*args.logs, *args.validate]:
-            truth = truth_of(log) if log.suffix.lower() == ".mcap" else None
-            if truth:
-                onsets = ", ".join(f"{f.get('target', '?')} {f.get('name', f.get('index'))} at "
-                                   f"{f.get('onset', '?')} s" for f in truth)
-                return _fail(f"{log} holds injected faults ({onsets}): a model is learned "
-                             "from a healthy drive; record a fault-free log (or --force)", 1)
+    faulty = None if args.force else _faulty_log(args)
+    if faulty:
+        return _fail(faulty, 1)
 
     def progress(msg: str) -> None:
         if sys.stderr.isatty() or not args.json:
@@ -166,18 +182,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"{exc}{lost}")
     for line in damage.lines():
         print(f"canfdi identify: {line}", file=sys.stderr)
-    when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    out = args.output or args.config
-    for key, value in result.updates.items():
-        if value is None:
-            document.delete(key)
-        else:
-            document.set(key, value)
-    document.relocate_paths(args.config, out)
-    document.header([f"canfdi identify, {when}: {args.config.name} + "
-                     f"{', '.join(p.name for p in args.logs)} -> "
-                     f"{(args.output or Path('stdout')).name}", *result.header])
-    text = document.dump()
+    text = _identified_config(args, document, result)
     report = dict(result.report)
     report["damage"] = damage.as_dict()
     if args.json:
@@ -191,6 +196,23 @@ def run(args: argparse.Namespace) -> int:
     elif not args.json:
         print(text)
     return 0
+
+
+def _identified_config(args: argparse.Namespace, document, result) -> str:
+    """The config as written with identify's updates, its paths relative to where it goes
+    and a header saying where it came from."""
+    when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    out = args.output or args.config
+    for key, value in result.updates.items():
+        if value is None:
+            document.delete(key)
+        else:
+            document.set(key, value)
+    document.relocate_paths(args.config, out)
+    document.header([f"canfdi identify, {when}: {args.config.name} + "
+                     f"{', '.join(p.name for p in args.logs)} -> "
+                     f"{(args.output or Path('stdout')).name}", *result.header])
+    return document.dump()
 
 
 def _jsonable(value):

@@ -10,13 +10,12 @@ import time
 from pathlib import Path
 
 from canfdi.cli.common import (
-    close_recorder,
     config_error,
     format_event,
     load_config_or_exit,
-    open_recorder,
     print_comparison,
 )
+from canfdi.tools.session import close_recorder, open_recorder
 
 HELP = """\
 Run the monitor offline over a log: an MCAP written by canfdi (run, demo, capture), whose raw

@@ -4,29 +4,28 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import json
 import logging
 import sys
-import time
-from functools import partial
 from pathlib import Path
 
 from canfdi.bus.traffic import NO_TRAFFIC_MIN_S, NO_TRAFFIC_PERIODS, no_traffic_default
 from canfdi.cli.common import (
-    BusArgumentError,
-    StopEvent,
     add_bus_overrides,
     add_foxglove_option,
     add_retry_option,
-    bus_factory,
-    close_recorder,
-    config_error,
+    bus_request,
+    fail,
     format_event,
     load_config_or_exit,
-    open_foxglove,
-    open_recorder,
-    recording_counts,
+    say,
+)
+from canfdi.tools.session import (
+    CannotRecord,
+    SessionError,
+    StopEvent,
+    open_session,
+    run_recording,
 )
 
 HELP = """\
@@ -118,133 +117,27 @@ def setup_logging(fmt: str) -> None:
     root.setLevel(logging.INFO)
 
 
-def remember_designs() -> None:
-    """Keep what the monitor computes at start (canfdi.core.memo: the parity thresholds) in
-    the cache directory (canfdi.io.memostore), so that a restarted daemon starts sooner."""
-    from canfdi.core import memo
-    from canfdi.io.memostore import DirectoryStore, cache_directory
-
-    directory = cache_directory()
-    if directory is not None:
-        memo.install(DirectoryStore(directory))
-
-
-def teacher(config, seconds: float):
-    """The teach-in of ``seconds`` for the config (canfdi.tools.calibrate.Teach), or exit
-    status 2 after one error line."""
-    import math
-
-    from canfdi.config import read_yaml
-    from canfdi.core.settings import ConfigError
-    from canfdi.tools.calibrate import MIN_SAMPLES, Teach
-
-    dt = config.model.dt or 1.0
-    samples = round(seconds / dt) if math.isfinite(seconds) and seconds > 0 else 0
-    if samples < MIN_SAMPLES:
-        print(f"canfdi run: --teach: {seconds:g} s is {samples} samples at dt = {dt:g} s; "
-              f"teach-in needs at least {MIN_SAMPLES} ({MIN_SAMPLES * dt:g} s)", file=sys.stderr)
-        return 2
-    return Teach(config, read_yaml(config.path, ConfigError, "config"), samples)
-
-
-PRUNE_INTERVAL_S = 600.0
-"""How often a running daemon applies recording.keep_days / keep_mib (and at start)."""
-
-
-def prune_run_logs(directory: Path, name: str, keep_days: float | None, keep_bytes: int | None,
-                   log: logging.Logger, current) -> None:
-    """Apply the retention rule (canfdi.io.retention) to the run's logs in ``directory``,
-    sparing the files ``current``; one line per pruning that removed anything, one warning
-    when the directory cannot be pruned (recording goes on)."""
-    from canfdi.io.retention import prune_logs
-
-    try:
-        removed = prune_logs(directory, name, time.time(), keep_days, keep_bytes, current)
-    except OSError as exc:
-        log.warning("cannot remove old logs in %s: %s", directory, exc)
-        return
-    if removed:
-        log.info("removed %d old log file(s) (%.1f MiB) under recording.keep_days/keep_mib: "
-                 "%s", len(removed), sum(f.size for f in removed) / 2**20,
-                 ", ".join(f.path.name for f in removed[:5])
-                 + (", ..." if len(removed) > 5 else ""))
-
-
-async def keep_pruning(prune, recorder, stop: asyncio.Event) -> None:
-    """Prune every PRUNE_INTERVAL_S until ``stop``, sparing the recorder's open segment."""
-    while not stop.is_set():
-        with contextlib.suppress(asyncio.TimeoutError):
-            await asyncio.wait_for(stop.wait(), PRUNE_INTERVAL_S)
-        if not stop.is_set():
-            prune(recorder.paths[-1:])
-
-
 def run(args: argparse.Namespace) -> int:
-    from canfdi.monitor import Monitor
-    from canfdi.sdnotify import Notifier
-    from canfdi.service import MonitorService
-
     setup_logging(args.log_format)
     config = load_config_or_exit(args.config, "run")
     if isinstance(config, int):
         return config
-    teach = None
-    if args.teach is not None:
-        teach = teacher(config, args.teach)
-        if isinstance(teach, int):
-            return teach
-    remember_designs()
-    try:
-        monitor = Monitor(config, teach=teach)
-    except ValueError as exc:
-        return config_error(exc, "run")
-    try:
-        interface, channel, opener = bus_factory(
-            args, config.bus, None if args.no_filters else monitor.receive_filters())
-    except BusArgumentError as exc:
-        print(f"canfdi run: {exc}", file=sys.stderr)
-        return 2
-    live = open_foxglove(args.foxglove, "run")
-    if isinstance(live, int):
-        return live
-    recorder = None
-    drive_time = lambda: monitor.last_timestamp_ns or time.time_ns()  # noqa: E731
     log = logging.getLogger("canfdi.run")
-    prune = None
-    if not args.no_record:
-        rec = config.recording
-        directory = args.log_dir or Path(rec.directory)
-        path = args.output or directory / (
-            f"{config.name}-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
-        if args.output is None and (rec.keep_days is not None or rec.keep_mib is not None):
-            prune = partial(prune_run_logs, directory, config.name, rec.keep_days,
-                            None if rec.keep_mib is None else int(rec.keep_mib * 2**20), log)
-            prune(())
-        try:
-            recorder = open_recorder(path, monitor.metadata(), drive_clock=drive_time, tap=live,
-                                     rotate_bytes=int(rec.rotate_mib * 2**20),
-                                     rotate_seconds=rec.rotate_minutes * 60.0)
-        except OSError as exc:
-            print(f"canfdi run: cannot write logs to {path}: {exc}", file=sys.stderr)
-            if live is not None:
-                live.close()
-            return 1
-    elif live is not None:
-        recorder = open_recorder(None, monitor.metadata(), drive_clock=drive_time, tap=live)
-    monitor.sink = recorder
-    systemd = Notifier()
+    try:
+        session = open_session(
+            config, "run", teach=args.teach, cache_designs=True, bus=bus_request(args),
+            filters=not args.no_filters, foxglove=args.foxglove, systemd=True,
+            recording=None if args.no_record else run_recording(config, args.output,
+                                                                 args.log_dir, log),
+            view=config.name if not args.quiet and not args.no_live and sys.stdout.isatty()
+            else None, notice=say("run"))
+    except SessionError as exc:
+        return fail("run", exc.message, exc.status)
+    except CannotRecord as exc:
+        return fail("run", f"cannot write logs to {exc.path}: {exc.error}", 1)
     no_traffic = no_traffic_default(config.model.dt) if args.no_traffic is None else max(
         args.no_traffic, 0.0)
-
-    def on_ready() -> None:
-        log.info("monitoring %s %s", interface, channel)
-        systemd.ready(f"monitoring {interface} {channel}")
-
-    view = None
-    if not args.quiet and not args.no_live and sys.stdout.isatty():
-        from canfdi.liveview import LiveView
-
-        view = LiveView(monitor, title=f"canfdi run: {config.name} on {interface} {channel}")
+    monitor, view = session.monitor, session.view
 
     def on_event(event) -> None:
         log.info("event %s", json.dumps(event.as_dict()))
@@ -256,54 +149,15 @@ def run(args: argparse.Namespace) -> int:
                 print(line, flush=True)
 
     stop = StopEvent()
-
-    async def main():
-        stop.arm(args.duration)
-        if prune is not None:
-            pruner = asyncio.create_task(keep_pruning(prune, recorder, stop))
-        service = MonitorService(
-            monitor, opener, status_period=config.bus.status_period, on_event=on_event,
-            on_ready=on_ready, on_tick=systemd.watchdog, retry_for=args.retry_for or None,
-            no_traffic=no_traffic, on_status=systemd.status)
-        if view is not None:
-            view.condition = lambda: service.condition
-        if view is None:
-            stats = await service.run(stop)
-        else:
-            # Log lines print above the view instead of tearing it.
-            for handler in logging.getLogger().handlers:
-                if isinstance(handler, logging.StreamHandler):
-                    handler.setStream(view.stream())
-            with view:
-                refresher = asyncio.create_task(view.run(stop))
-                try:
-                    stats = await service.run(stop)
-                finally:
-                    stop.set()
-                    await refresher
-        systemd.stopping()
-        if prune is not None:
-            await pruner
-        return stats
-
-    try:
-        stats = asyncio.run(main())
-    finally:
-        if recorder is not None:
-            close_recorder(recorder)
-        if live is not None:
-            live.close()
-    summary = monitor.summary()
-    stopped = {"frames": stats.frames, "sent": stats.sent, "bus_errors": stats.bus_errors,
-               "bus_down_s": round(stats.bus_down_s, 3), "faults": len(summary["faults"]),
-               "gave_up": stats.gave_up}
-    if recorder is not None and not args.no_record:
-        stopped["recording"] = recording_counts(recorder)
-    if live is not None:  # viewers that fell behind, messages too large to show live
-        stopped["foxglove"] = {"lagging": live.lagging, "oversize": live.oversize}
+    with session:
+        stats = asyncio.run(session.serve(
+            stop, duration=args.duration, status_period=config.bus.status_period,
+            on_event=on_event, retry_for=args.retry_for or None, no_traffic=no_traffic,
+            on_ready=lambda: log.info("monitoring %s %s", session.interface, session.channel)))
+    stopped = session.stopped(stats)
     log.info("stopped: %s", json.dumps(stopped))
     if stats.frames == 0 and not stats.gave_up:
-        log.warning("no frame was received on %s %s", interface, channel)
+        log.warning("no frame was received on %s %s", session.interface, session.channel)
     if args.json:
         print(json.dumps(stopped))
     if stats.gave_up:

@@ -8,12 +8,8 @@ import json
 import sys
 from pathlib import Path
 
-from canfdi.cli.common import (
-    BusArgumentError,
-    StopEvent,
-    add_bus_overrides,
-    bus_factory,
-)
+from canfdi.cli.common import add_bus_overrides, bus_request
+from canfdi.tools.session import BusArgumentError, StopEvent, bus_factory
 
 HELP = """\
 Run the plant emulator (canfdi.firmware_sim) for a scenario and publish its drives' frames on a
@@ -72,11 +68,26 @@ def _fail(message: str) -> int:
     return 2
 
 
-def run(args: argparse.Namespace) -> int:
-    import can
-
-    from canfdi.firmware_sim.emitter import Disturbance, emit
+def _check_args(args: argparse.Namespace, scenario) -> str | None:
+    """The first option out of its range for ``scenario``, as the error line, or None."""
     from canfdi.firmware_sim.profiles import get_profile
+
+    if args.speed < 0:
+        return "--speed: must be >= 0"
+    if args.duration is not None and args.duration <= 0:
+        return "--duration: must be > 0 seconds"
+    for name in ("drop", "bad_crc", "wrong_dlc"):
+        if not 0.0 <= getattr(args, name) <= 1.0:
+            return f"--{name.replace('_', '-')}: a probability in [0, 1]"
+    if args.jitter < 0:
+        return "--jitter: must be >= 0 seconds"
+    if args.bad_crc and not get_profile(scenario.profile).has_crc:
+        return f"--bad-crc: the {scenario.profile} profile's frames carry no CRC"
+    return None
+
+
+def run(args: argparse.Namespace) -> int:
+    from canfdi.firmware_sim.emitter import Disturbance
     from canfdi.firmware_sim.scenario import ScenarioError, load_scenario
     from canfdi.tools.pairing import without_faults
 
@@ -86,36 +97,28 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"scenario error: {exc}")
     if args.healthy:
         scenario = without_faults(scenario)
-    if args.speed < 0:
-        return _fail("--speed: must be >= 0")
-    if args.duration is not None and args.duration <= 0:
-        return _fail("--duration: must be > 0 seconds")
-    for name in ("drop", "bad_crc", "wrong_dlc"):
-        if not 0.0 <= getattr(args, name) <= 1.0:
-            return _fail(f"--{name.replace('_', '-')}: a probability in [0, 1]")
-    if args.jitter < 0:
-        return _fail("--jitter: must be >= 0 seconds")
-    if args.bad_crc and not get_profile(scenario.profile).has_crc:
-        return _fail(f"--bad-crc: the {scenario.profile} profile's frames carry no CRC")
+    problem = _check_args(args, scenario)
+    if problem:
+        return _fail(problem)
     disturbance = Disturbance(drop=args.drop, jitter=args.jitter, bad_crc=args.bad_crc,
                               wrong_dlc=args.wrong_dlc, seed=scenario.seed)
-    plant = scenario.make_plant()
     if args.truth:
-        def faults(drive) -> list[dict]:
-            return [f.truth(plant.dt, plant.input_names if f.target == "actuator"
-                            else plant.output_names) for f in drive.faults]
+        from canfdi.tools.demo import truth_document
 
-        drives = [{"name": d.name, "node": d.node, "faults": faults(d)} for d in scenario.drives]
-        # "faults": the one drive's; with several drives, all of them, each naming its drive.
-        everything = (drives[0]["faults"] if len(drives) == 1 else
-                      [{**f, "drive": d["name"]} for d in drives for f in d["faults"]])
-        truth = {"scenario": scenario.name, "plant": plant.name, "dt": plant.dt,
-                 "profile": scenario.profile, "faults": everything, "drives": drives}
-        args.truth.write_text(json.dumps(truth, indent=2) + "\n")
+        args.truth.write_text(json.dumps(truth_document(scenario), indent=2) + "\n")
     if args.output is not None:
         return _to_file(args, scenario, disturbance)
+    return _to_bus(args, scenario, disturbance)
+
+
+def _to_bus(args: argparse.Namespace, scenario, disturbance) -> int:
+    """The scenario's frames on the bus the options ask for."""
+    import can
+
+    from canfdi.firmware_sim.emitter import emit
+
     try:
-        interface, channel, opener = bus_factory(args, None)
+        interface, channel, opener = bus_factory(bus_request(args), None)
     except BusArgumentError as exc:
         print(f"canfdi sim: {exc}", file=sys.stderr)
         return 2
@@ -124,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     except (can.CanError, OSError, ValueError, ImportError) as exc:
         print(f"canfdi sim: cannot open {interface} bus {channel!r}: {exc}", file=sys.stderr)
         return 1
-    total = round((args.duration or scenario.duration) / plant.dt)
+    total = round((args.duration or scenario.duration) / scenario.make_plant().dt)
 
     def progress(chunk, stats) -> None:
         if not args.quiet:

@@ -16,14 +16,11 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from canfdi.cli.common import config_error, load_config_or_exit
 from canfdi.config import ConfigError
 from canfdi.configs import CONFIG_DIR
-
-if TYPE_CHECKING:
-    pass
 
 HELP = """\
 Soak test: run the DC motor drive emulator fault-free, at the noise and nonlinearity of the
@@ -101,6 +98,33 @@ def _fail(message: str) -> int:
     return 2
 
 
+def _check_scenario(scenario) -> str | None:
+    """What makes ``scenario`` no soak of the emulated plant, or None."""
+    from canfdi.tools.soak import PLANT
+
+    if scenario.plant != PLANT:
+        return f"scenario error: plant: {scenario.plant!r}; canfdi soak emulates {PLANT}"
+    if scenario.faults:
+        return (f"scenario error: faults: a soak is fault-free; {scenario.name} has "
+                f"{len(scenario.faults)}")
+    return None
+
+
+def _check_args(args: argparse.Namespace) -> str | None:
+    """The first option out of its range, as the error line, or None."""
+    checks = [
+        (args.runs >= 1, "--runs: at least 1"),
+        (args.samples >= 1, "--samples: at least 1"),
+        (args.seed is None or args.seed >= 0, "--seed: an integer >= 0"),
+        (args.threshold_scale > 0 and math.isfinite(args.threshold_scale),
+         "--threshold-scale: a number > 0"),
+        (args.noise_scale > 0 and math.isfinite(args.noise_scale),
+         "--noise-scale: a number > 0"),
+        (args.calibrate_seconds >= 10, "--calibrate-seconds: at least 10"),
+    ]
+    return next((message for ok, message in checks if not ok), None)
+
+
 def run(args: argparse.Namespace) -> int:
     from canfdi.firmware_sim.plants import make_plant
     from canfdi.firmware_sim.scenario import ScenarioError, load_scenario
@@ -119,23 +143,9 @@ def run(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
         return _fail(f"scenario error: {exc}")
-    if scenario.plant != PLANT:
-        return _fail(f"scenario error: plant: {scenario.plant!r}; canfdi soak emulates {PLANT}")
-    if scenario.faults:
-        return _fail(f"scenario error: faults: a soak is fault-free; {scenario.name} has "
-                     f"{len(scenario.faults)}")
-    if args.runs < 1:
-        return _fail("--runs: at least 1")
-    if args.samples < 1:
-        return _fail("--samples: at least 1")
-    if args.seed is not None and args.seed < 0:
-        return _fail("--seed: an integer >= 0")
-    if not (args.threshold_scale > 0 and math.isfinite(args.threshold_scale)):
-        return _fail("--threshold-scale: a number > 0")
-    if not (args.noise_scale > 0 and math.isfinite(args.noise_scale)):
-        return _fail("--noise-scale: a number > 0")
-    if not args.calibrate_seconds >= 10:
-        return _fail("--calibrate-seconds: at least 10")
+    problem = _check_scenario(scenario) or _check_args(args)
+    if problem:
+        return _fail(problem)
     scenario = dataclasses.replace(scenario,
                                    measurement_std=scenario.measurement_std * args.noise_scale)
     start = time.monotonic()

@@ -342,7 +342,7 @@ class BusConfig:
     monitor: MonitorFramesConfig = MonitorFramesConfig()
     stated: frozenset[str] = frozenset()
     """Which of interface, channel and bitrate the config file states (the others may come
-    from python-can's own configuration: canfdi.cli.common.bus_factory)."""
+    from python-can's own configuration: canfdi.tools.session.bus_factory)."""
 
 
 @dataclass(frozen=True)

@@ -459,6 +459,31 @@ def _explains(fault: InjectedFault, decided: list[FaultEvent]) -> bool:
                       for c in e.candidates) for e in decided)
 
 
+def _fault_outcome(f: InjectedFault, own: list[FaultEvent], accepted_at: int | None, end: int,
+                   events: Sequence[FaultEvent], accepted_by: dict[int, list[FaultEvent]],
+                   unexplained: set[int], twins: dict[str, frozenset[str]] | None,
+                   names: dict | None) -> FaultOutcome:
+    """The outcome of fault ``f`` from its ``own`` detections (`match_run`'s rules), accepted
+    at ``accepted_at`` (None: never), its segment ending at ``end``."""
+    if not own:
+        return FaultOutcome(f, None, None, "none", "none", None)
+    first = own[0].sample
+    decided = next((d for d in own if d.sample in accepted_by), None)
+    if decided is None:
+        decision = "unexplained" if any(d.sample in unexplained for d in own) else "none"
+        return FaultOutcome(f, first, first - f.onset_sample, decision, decision, None)
+    acc = accepted_by[decided.sample]
+    isolation, diagnosed, est, extra, matched = _isolate(f, acc, twins, names)
+    errors = relative_errors(f, est) if isolation in ("exact", "candidate") else {}
+    final, final_errors = dict(est), dict(errors)
+    if matched is not None and accepted_at is not None:
+        later = [e for e in events if e.kind == "refined" and accepted_at < e.sample < end]
+        final = _refined(est, matched, isolation == "exact", later)
+        final_errors = relative_errors(f, final)
+    return FaultOutcome(f, first, first - f.onset_sample, "accepted", diagnosed, isolation,
+                        accepted_at, est, errors, extra, final, final_errors)
+
+
 def match_run(faults: Sequence[InjectedFault], events: Sequence[FaultEvent], samples: int,
               first_monitored: int = 0, twins: dict[str, frozenset[str]] | None = None,
               names: dict | None = None, run: int = 0, noise_scale: float = 1.0
@@ -527,31 +552,8 @@ def match_run(faults: Sequence[InjectedFault], events: Sequence[FaultEvent], sam
         if acc and accepted_at[seg] is None:
             accepted_at[seg] = min(e.accepted_sample if e.accepted_sample is not None
                                    else e.sample for e in acc)
-    outcomes = []
-    for i, f in enumerate(faults):
-        if not own[i]:
-            outcomes.append(FaultOutcome(f, None, None, "none", "none", None))
-            continue
-        first = own[i][0].sample
-        decided = next((d for d in own[i] if d.sample in accepted_by), None)
-        if decided is None:
-            decision = ("unexplained" if any(d.sample in unexplained for d in own[i])
-                        else "none")
-            outcomes.append(FaultOutcome(f, first, first - f.onset_sample, decision, decision,
-                                         None))
-            continue
-        acc = accepted_by[decided.sample]
-        isolation, diagnosed, est, extra, matched = _isolate(f, acc, twins, names)
-        errors = relative_errors(f, est) if isolation in ("exact", "candidate") else {}
-        final, final_errors = dict(est), dict(errors)
-        if matched is not None and accepted_at[i] is not None:
-            later = [e for e in events if e.kind == "refined"
-                     and accepted_at[i] < e.sample < ends[i]]
-            final = _refined(est, matched, isolation == "exact", later)
-            final_errors = relative_errors(f, final)
-        outcomes.append(FaultOutcome(f, first, first - f.onset_sample, "accepted", diagnosed,
-                                     isolation, accepted_at[i], est, errors, extra, final,
-                                     final_errors))
+    outcomes = [_fault_outcome(f, own[i], accepted_at[i], ends[i], events, accepted_by,
+                               unexplained, twins, names) for i, f in enumerate(faults)]
     if faults:
         free = max(0, onsets[0] - first_monitored)
         for i in range(len(faults)):

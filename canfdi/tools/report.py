@@ -550,18 +550,7 @@ def plot_overview(contents: LogContents, path: Path) -> Path:
             _symlog(ax, Rn)
             ax.set_ylabel("r / σ (symlog)")
         elif panel == "g":
-            if contents.thresholds is not None:
-                ratio = res.stat / contents.thresholds[None, :]
-                ax.set_ylabel(f"{_statistic_name(contents)[0]} / h")
-                ax.axhline(1.0, color="k", lw=1.2, label="threshold (g = h)")
-            else:
-                ratio = res.stat
-                ax.set_ylabel(_statistic_name(contents)[0])
-            x, G = decimate(res.k, ratio)
-            for i, name in enumerate(res.names):
-                ax.plot(x, G[:, i], lw=0.8, label=name, color=_residual_colour(i))
-            ax.set_ylim(bottom=0.0)
-            _diagnosing(ax, contents, label=True)
+            _plot_statistic(ax, contents)
         else:
             ax.text(0.5, 0.5, "the log holds no samples and no residuals",
                     ha="center", va="center", transform=ax.transAxes)
@@ -576,6 +565,24 @@ def plot_overview(contents: LogContents, path: Path) -> Path:
         fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=8)
     fig.suptitle(f"{contents.path.name}: overview ({_run_label(contents)})")
     return _save(fig, path)
+
+
+def _plot_statistic(ax, contents: LogContents) -> None:
+    """The overview's panel of each residual's statistic over its threshold (the statistic
+    alone when the log holds no thresholds), with the diagnosing spans."""
+    res = contents.residuals
+    if contents.thresholds is not None:
+        ratio = res.stat / contents.thresholds[None, :]
+        ax.set_ylabel(f"{_statistic_name(contents)[0]} / h")
+        ax.axhline(1.0, color="k", lw=1.2, label="threshold (g = h)")
+    else:
+        ratio = res.stat
+        ax.set_ylabel(_statistic_name(contents)[0])
+    x, G = decimate(res.k, ratio)
+    for i, name in enumerate(res.names):
+        ax.plot(x, G[:, i], lw=0.8, label=name, color=_residual_colour(i))
+    ax.set_ylim(bottom=0.0)
+    _diagnosing(ax, contents, label=True)
 
 
 def _run_label(contents: LogContents) -> str:

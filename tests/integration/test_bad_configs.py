@@ -11,7 +11,7 @@ import textwrap
 
 import pytest
 
-from canfdi.cli import main
+from tests.cli import canfdi_main as main
 from tests.conftest import REPO
 
 CONFIGS = REPO / "deploy" / "config"

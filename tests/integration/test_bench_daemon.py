@@ -12,11 +12,11 @@ import math
 
 import pytest
 
-from canfdi.cli import main
 from canfdi.config import load_config
 from canfdi.io.reader import read_frames
 from canfdi.io.segments import log_segments
 from canfdi.tools.bench import loop_traffic, run_daemon_soak
+from tests.cli import canfdi_main as main
 
 CONFIG = "deploy/config/dc_motor.yaml"
 FRAMES = 200_000

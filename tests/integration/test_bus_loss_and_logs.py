@@ -13,12 +13,12 @@ import time
 import can
 import pytest
 
-from canfdi.cli import main
 from canfdi.config import load_config
 from canfdi.io.formats import format_of
 from canfdi.io.reader import read_frames
 from canfdi.monitor import Monitor
 from canfdi.service import MonitorService
+from tests.cli import canfdi_main as main
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
@@ -48,9 +48,9 @@ class FlakyBus(can.BusABC):
 
 def test_lost_bus_is_reopened_and_diagnosis_goes_on(tmp_path):
     # Frames of a demo log: the first half comes on a bus that then dies, the rest on the next.
-    from canfdi.cli.demo import run_demo
     from canfdi.firmware_sim.scenario import load_scenario
     from canfdi.io.writer import McapRecorder
+    from canfdi.tools.demo import run_demo
 
     log = tmp_path / "src.mcap"
     recs = []

@@ -48,7 +48,7 @@ def test_version_imports_nothing_heavy():
 def test_other_verbs_keep_python_cans_mf4_support(tmp_path):
     """Only run and capture keep asammdf out: export writes .mf4 through it."""
     pytest.importorskip("asammdf")
-    from canfdi.cli import main
+    from tests.cli import canfdi_main as main
 
     log = tmp_path / "d.log"
     assert main(["sim", "--scenario", "dc_motor_actuator", "--duration", "1", "-o", str(log),

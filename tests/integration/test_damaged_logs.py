@@ -31,7 +31,6 @@ import zstandard
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
-from canfdi.cli import main
 from canfdi.config import load_config
 from canfdi.firmware_sim.emitter import frame_log
 from canfdi.firmware_sim.scenario import load_scenario
@@ -40,6 +39,7 @@ from canfdi.io.reader import read_frames
 from canfdi.io.schemas import TOPIC_FRAMES
 from canfdi.io.writer import McapRecorder
 from canfdi.monitor import Monitor
+from tests.cli import canfdi_main as main
 from tests.conftest import REPO
 
 pytestmark = pytest.mark.slow
@@ -218,7 +218,7 @@ class Hang(Exception):
 
 
 def run(argv: list[str]) -> tuple[int, str, str]:
-    """canfdi.cli.main(argv) in this process: (exit status, stdout, stderr), under a
+    """`canfdi ARGV...` (tests.cli) in this process: (exit status, stdout, stderr), under a
     watchdog that raises Hang after WATCHDOG_S seconds."""
 
     def alarm(signum, frame):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from canfdi.configs import CONFIG_DIR
 
-from canfdi.cli import main
 from canfdi.io.reader import read_frames
+from tests.cli import canfdi_main as main
 
 
 @pytest.fixture(scope="module")

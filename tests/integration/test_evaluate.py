@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from canfdi.cli import main
+from tests.cli import canfdi_main as main
 from tests.conftest import REPO
 
 KEYS = ("runs", "detection_rate", "isolation_accuracy", "delay_mean_samples",

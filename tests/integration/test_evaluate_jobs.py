@@ -11,7 +11,7 @@ import logging
 
 import pytest
 
-from canfdi.cli import main
+from tests.cli import canfdi_main as main
 
 pytest.importorskip("distributed")
 

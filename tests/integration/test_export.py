@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from canfdi.bus.frames import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, FrameBlock
-from canfdi.cli import main
 from canfdi.io.formats import formats
 from canfdi.io.logs import frame_blocks
 from canfdi.io.reader import read_frames
 from canfdi.io.writer import McapRecorder
+from tests.cli import canfdi_main as main
 from tests.conftest import REPO
 
 T0 = 1_795_000_000_000_000_000

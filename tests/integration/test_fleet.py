@@ -14,7 +14,6 @@ from pathlib import Path
 import pytest
 
 from canfdi.bus.frames import STATUS_NAMES, VALID_STATUSES
-from canfdi.cli import main
 from canfdi.tools.fleet import (
     FleetLogSpec,
     find_logs,
@@ -23,6 +22,7 @@ from canfdi.tools.fleet import (
     run_fleet,
     write_drive_log,
 )
+from tests.cli import canfdi_main as main
 from tests.conftest import REPO
 
 pq = pytest.importorskip("pyarrow.parquet")

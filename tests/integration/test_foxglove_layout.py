@@ -10,7 +10,7 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
-from canfdi.cli import main
+from tests.cli import canfdi_main as main
 
 LAYOUT = Path(__file__).resolve().parents[2] / "docs" / "foxglove-layout.json"
 # Lichtblick's message-path grammar: id -> [a-zA-Z0-9_-]+, or a double-quoted string.

@@ -16,8 +16,8 @@ import pytest
 pytest.importorskip("foxglove", reason="the foxglove extra is not installed")
 websockets = pytest.importorskip("websockets", reason="websockets is not installed")
 
-from canfdi.cli import main  # noqa: E402
 from canfdi.liveserver import parse_address  # noqa: E402
+from tests.cli import canfdi_main as main  # noqa: E402
 
 SUBPROTOCOL = "foxglove.sdk.v1"  # what foxglove-sdk's server speaks
 

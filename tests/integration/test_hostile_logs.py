@@ -3,10 +3,10 @@ did not write (issue 27)."""
 
 from __future__ import annotations
 
-from canfdi.cli import main
 from canfdi.config import load_config
 from canfdi.io.writer import McapRecorder
 from canfdi.monitor import Monitor
+from tests.cli import canfdi_main as main
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from canfdi.cli import main
+from tests.cli import canfdi_main as main
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"

@@ -23,7 +23,6 @@ from pathlib import Path
 import can
 import pytest
 
-from canfdi.cli.common import recording_counts
 from canfdi.config import load_config
 from canfdi.firmware_sim.emitter import emit
 from canfdi.firmware_sim.scenario import load_scenario
@@ -32,6 +31,7 @@ from canfdi.io.segments import log_segments
 from canfdi.io.writer import McapRecorder
 from canfdi.monitor import Monitor
 from canfdi.service import MonitorService
+from canfdi.tools.session import recording_counts
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"

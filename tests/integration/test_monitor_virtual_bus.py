@@ -14,11 +14,11 @@ import pytest
 
 from canfdi import dbc as dbc_files
 from canfdi.bus import e2e
-from canfdi.cli.demo import run_demo
 from canfdi.config import load_config
 from canfdi.firmware_sim.scenario import load_scenario, parse_scenario
 from canfdi.io.reader import read_frames
 from canfdi.io.writer import McapRecorder
+from canfdi.tools.demo import run_demo
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from canfdi import dbc as dbc_files
-from canfdi.cli.demo import run_demo
 from canfdi.config import load_config
 from canfdi.firmware_sim.emitter import frame_log
 from canfdi.firmware_sim.scenario import load_scenario
+from canfdi.tools.demo import run_demo
 from canfdi.tools.samples import log_samples
 from tests.conftest import REPO
 

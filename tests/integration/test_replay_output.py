@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from canfdi.cli import main
 from canfdi.io.reader import read_log, read_metadata
+from tests.cli import canfdi_main as main
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"

@@ -7,13 +7,13 @@ import sys
 import numpy as np
 import pytest
 
-from canfdi.cli import main
 from canfdi.config import load_config
 from canfdi.firmware_sim.emitter import frame_log
 from canfdi.firmware_sim.scenario import load_scenario
 from canfdi.io.writer import McapRecorder
 from canfdi.monitor import Monitor
 from canfdi.tools.report import decimate
+from tests.cli import canfdi_main as main
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"

@@ -98,7 +98,7 @@ def test_capture_pipeline_records_every_frame_and_sample(tmp_path):
 def test_run_removes_its_own_old_logs_and_nothing_else(tmp_path, capfd):
     """recording.keep_days (issue 27): at start the daemon removes the logs it named itself
     that are older than the bound, and leaves everything else in the directory."""
-    from canfdi.cli import main
+    from tests.cli import canfdi_main as main
 
     text = CONFIG.read_text()
     assert "  rotate_minutes: 60\n" in text

@@ -12,10 +12,10 @@ import yaml
 from scipy.stats import chi2
 
 from canfdi.bus.dbc import BusMap
-from canfdi.cli import main
 from canfdi.config import load_config
 from canfdi.methods import build_diagnoser
 from canfdi.tools.soak import rate_lower_bound, rate_upper_bound
+from tests.cli import canfdi_main as main
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"

@@ -29,11 +29,11 @@ import pytest
 from mcap.reader import make_reader
 
 from canfdi.bus.frames import FrameBlock
-from canfdi.cli import main
 from canfdi.io.reader import read_log
 from canfdi.io.schemas import FOXGLOVE_LOG_SCHEMA
 from canfdi.io.segments import log_segments
 from canfdi.io.writer import McapRecorder
+from tests.cli import canfdi_main as main
 
 NODE_DIR = Path(__file__).resolve().parents[1] / "node"
 T0 = 1_800_000_000_000_000_000

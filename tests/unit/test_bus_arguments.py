@@ -5,27 +5,18 @@ defaults."""
 
 from __future__ import annotations
 
-import argparse
-
 import pytest
 
-from canfdi.cli.common import (
-    BusArgumentError,
-    add_bus_overrides,
-    bus_kwargs,
-    bus_settings,
-    python_can_config,
-)
 from canfdi.config import parse_config
+from canfdi.tools.session import BusArgumentError, bus_kwargs, bus_settings, python_can_config
+from tests.cli import run_bus_request
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
 
 
-def _args(*argv: str) -> argparse.Namespace:
-    p = argparse.ArgumentParser()
-    add_bus_overrides(p)
-    return p.parse_args(list(argv))
+def _args(*argv: str):
+    return run_bus_request(*argv)
 
 
 def _bus(text: str):
@@ -77,7 +68,7 @@ def test_fd_and_bus_kwargs_become_keyword_arguments():
 
 
 def test_a_bad_bus_kwargs_is_one_line_and_exit_2(capsys):
-    from canfdi.cli import main
+    from tests.cli import canfdi_main as main
 
     assert main(["run", "--config", str(CONFIG), "--no-record", "--bus-kwargs", "oops"]) == 2
     err = capsys.readouterr().err.strip().splitlines()

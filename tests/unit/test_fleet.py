@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from canfdi.bus.frames import STATUS_NAMES
-from canfdi.cli import main
 from canfdi.core.records import FaultEvent
 from canfdi.tools.fleet import (
     CREEP_BIAS,
@@ -31,6 +30,7 @@ from canfdi.tools.fleet import (
     report_dir,
     tables_paths,
 )
+from tests.cli import canfdi_main as main
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"

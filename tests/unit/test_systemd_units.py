@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from canfdi.cli import build_parser
+from tests.cli import canfdi_parser as build_parser
 from tests.conftest import REPO
 
 UNITS = REPO / "deploy" / "systemd"
