@@ -224,6 +224,44 @@ def test_throughput_of_assemble_batch_on_clean_traffic():
 # -- defects ------------------------------------------------------------------------------------
 
 
+def _defect(out: list, frame: tuple[int, int, bytes, int], roll: float,
+            rng: np.random.Generator) -> bool:
+    """Append the defect ``roll`` picks for ``frame`` to ``out``; True when the frame itself
+    is not to follow (dropped, doubled or replaced)."""
+    t, frame_id, data, flags = frame
+    if roll < 0.1:
+        return True  # dropped
+    if roll < 0.2:
+        out += [(t, frame_id, data, flags)] * 2
+        return True
+    if roll < 0.3:
+        bad = bytearray(data)
+        bad[int(rng.integers(len(data)))] ^= int(rng.integers(1, 256))
+        out.append((t, frame_id, bytes(bad), flags))
+        return True
+    if roll < 0.4:
+        out.append((t, frame_id, data[:-1] if rng.random() < 0.5 else data + b"\0",
+                    flags))
+        return True
+    if roll < 0.5:
+        out.append((t, frame_id, data, FLAG_EXTENDED))
+    elif roll < 0.6:
+        out.append((t, 0x300, data, 0))
+    elif roll < 0.7:
+        out.append((t, 0x082, STATUS_FRAME, 0))
+    elif roll < 0.8 and out:
+        # A late copy of an older frame (stale, or a duplicate of the pending sample).
+        old = out[-int(rng.integers(1, min(len(out), 40) + 1))]
+        out.append((t, *old[1:]))
+    elif roll < 0.9:
+        # Another valid counter: a period ahead, or one behind.
+        counter = data[1] + int(rng.choice([-1, 1, 2, 130]))
+        out.append((t, frame_id, protect(frame_id, data, counter & 0xFF), flags))
+    elif roll < 1.0:
+        out.append((t, 0, b"", FLAG_ERROR))
+    return False
+
+
 def _sprinkled(n: int, k0: int, seed: int, rate: float) -> list[tuple[int, int, bytes, int]]:
     """Clean traffic with outages, pauses of the clock and frame defects at random places."""
     frames = frames_of(n, k0)
@@ -248,36 +286,8 @@ def _sprinkled(n: int, k0: int, seed: int, rate: float) -> list[tuple[int, int, 
         for t, frame_id, data, flags in period:
             t += int(shift[3 * p])
             roll = rng.random() / rate if rate else 1.0
-            if roll < 0.1:
-                continue  # dropped
-            if roll < 0.2:
-                out += [(t, frame_id, data, flags)] * 2
+            if _defect(out, (t, frame_id, data, flags), roll, rng):
                 continue
-            if roll < 0.3:
-                bad = bytearray(data)
-                bad[int(rng.integers(len(data)))] ^= int(rng.integers(1, 256))
-                out.append((t, frame_id, bytes(bad), flags))
-                continue
-            if roll < 0.4:
-                out.append((t, frame_id, data[:-1] if rng.random() < 0.5 else data + b"\0",
-                            flags))
-                continue
-            if roll < 0.5:
-                out.append((t, frame_id, data, FLAG_EXTENDED))
-            elif roll < 0.6:
-                out.append((t, 0x300, data, 0))
-            elif roll < 0.7:
-                out.append((t, 0x082, STATUS_FRAME, 0))
-            elif roll < 0.8 and out:
-                # A late copy of an older frame (stale, or a duplicate of the pending sample).
-                old = out[-int(rng.integers(1, min(len(out), 40) + 1))]
-                out.append((t, *old[1:]))
-            elif roll < 0.9:
-                # Another valid counter: a period ahead, or one behind.
-                counter = data[1] + int(rng.choice([-1, 1, 2, 130]))
-                out.append((t, frame_id, protect(frame_id, data, counter & 0xFF), flags))
-            elif roll < 1.0:
-                out.append((t, 0, b"", FLAG_ERROR))
             out.append((t, frame_id, data, flags))
     return out
 
