@@ -17,7 +17,7 @@ with ``J_0 = prior_precision I``; the residual cost ``sum_i |r_i - phi_i theta_k
 prior's term) comes from the same sums, ``c_k = rr_k - theta_k . h_k``. That form serves the
 diagnosers best (thousands of hypotheses and onsets fitted at once by broadcasting, a solve only
 when a decision is due) and the report (a whole trajectory by cumulative sums), so it is the one
-kept; tests/unit/test_identify.py checks it against eqs. 30-32 written out.
+kept; tests/unit/core/test_identify.py checks it against eqs. 30-32 written out.
 
 The functions work on `RlsState` the way ``scipy.signal.lfilter(b, a, x, zi) -> (y, zf)`` works on
 its state:

@@ -5,7 +5,7 @@ identification", Automatica 43; van der Veen et al. 2013): a vector ARX model of
 predictor over a past window, whose coefficients give the state as a linear function of past
 data; consistent in closed loop (a master closing a speed loop through the bus makes the input
 depend on past noise), up to the predictor's decay within the past window. Open-loop methods
-such as PO-MOESP (Verhaegen 1994) are biased there (tests/unit/test_sysid.py shows it), and
+such as PO-MOESP (Verhaegen 1994) are biased there (tests/unit/core/test_sysid.py shows it), and
 drives are usually recorded in closed loop. The order comes from the canonical correlations
 between the future outputs and the past (CVA weighting, Larimore 1990): a state carries a
 correlation near 1, noise correlations of order sqrt(dims / samples); the count of

@@ -17,7 +17,7 @@ from canfdi.firmware_sim.scenario import load_scenario
 from canfdi.io.logs import write_frames
 from canfdi.tools.calibrate import calibrated_document
 from tests.conftest import REPO
-from tests.unit.test_configdoc import assert_same, comments, hex_lines
+from tests.unit.tools.test_configdoc import assert_same, comments, hex_lines
 
 CONFIGS = REPO / "deploy" / "config"
 

@@ -27,7 +27,7 @@ from canfdi.bus.frames import (
     STATUS_NAMES,
     FrameBlock,
 )
-from tests.unit.test_assembler import (
+from tests.unit.bus.test_assembler import (
     DT,
     STATUS_FRAME,
     _mutate,
@@ -36,7 +36,7 @@ from tests.unit.test_assembler import (
     frames_of,
     push_all,
 )
-from tests.unit.test_busmap import DT_NS, as_log, dc_motor_map
+from tests.unit.bus.test_busmap import DT_NS, as_log, dc_motor_map
 
 # 80 wraps of the 8-bit counter; a multiple of 256 so that copies of the log can be chained.
 N_CLEAN = 20_480

@@ -57,7 +57,7 @@ from canfdi.io.schemas import (
 from canfdi.io.segments import log_segments
 from canfdi.io.writer import McapRecorder
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 T0 = 1_700_000_000_123_456_789
 METADATA = {"config_yaml": "name: test\n", "design_json": '{"a": 1}', "version": "0.1.0"}
 INPUTS, OUTPUTS = ["voltage", "load"], ["speed", "current"]

@@ -21,9 +21,9 @@ from hypothesis import strategies as st
 import canfdi.bus.codec as codec_module
 from canfdi import dbc as dbc_files
 from canfdi.bus.codec import compile_layout
-from tests.unit.cantools_reference import check_against_cantools, check_encode
+from tests.unit.bus.cantools_reference import check_against_cantools, check_encode
 
-DBC = Path(__file__).parents[1] / "data" / "dbc"
+DBC = Path(__file__).parents[2] / "data" / "dbc"
 
 
 def _messages():

@@ -28,7 +28,7 @@ from canfdi.firmware_sim.plants.winding_machine import (
     WindingProfile,
 )
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 CONFIGS = ROOT / "deploy" / "config"
 
 # The static gains documented in the winding machine's module docstring, (q, p).

@@ -29,7 +29,7 @@ from canfdi.bus.frames import (
     FrameBlock,
 )
 from canfdi.bus.timegate import CONFIRM_FRAMES
-from tests.unit.test_busmap import DT_NS, as_log, dc_motor_map, drive_traffic
+from tests.unit.bus.test_busmap import DT_NS, as_log, dc_motor_map, drive_traffic
 
 DT = DT_NS / 1e9
 CMD, CURRENTS, SPEED = 0x104, 0x105, 0x106

@@ -10,7 +10,7 @@ import pytest
 
 from canfdi.io.damage import Damage
 from canfdi.io.scan import McapFile
-from tests.unit.test_damaged_logs import write_log
+from tests.unit.io.test_damaged_logs import write_log
 
 
 @pytest.fixture(scope="module")

@@ -28,7 +28,7 @@ from canfdi.firmware_sim.scenario import load_scenario
 from canfdi.firmware_sim.simulate import Simulator
 from canfdi.monitor import Monitor
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 DC_MOTOR_CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
 CONFIGS = REPO / "deploy" / "config"
 DT_NS = 10_000_000  # motor_drive: dt = 0.01 s

@@ -23,7 +23,7 @@ from canfdi.firmware_sim.plants.dc_motor import DcMotor, DcMotorParameters
 from canfdi.firmware_sim.scenario import load_scenario
 from canfdi.firmware_sim.simulate import simulate
 
-CONFIG = Path(__file__).resolve().parents[2] / "deploy" / "config" / "dc_motor.yaml"
+CONFIG = Path(__file__).resolve().parents[3] / "deploy" / "config" / "dc_motor.yaml"
 DC_ROLES = {"field_current": 0, "armature_current": 1, "speed": 3}  # column 2: i_f + i_a
 SERVO_ROLES = {"current_setpoint": 0, "current": 1, "velocity": 2, "position": 3}
 TWO_PI = 2 * math.pi

@@ -32,7 +32,7 @@ from canfdi.bus.monitorframes import MONITOR_MESSAGES, MonitorFrames
 from canfdi.config import MAX_DRIVES, load_config
 from canfdi.core.settings import MonitorFramesConfig
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 DBC_DIR = REPO / "dbc"
 ALL_DBC_FILES = sorted(DBC_DIR.glob("*.dbc"))
 README = DBC_DIR / "README.md"

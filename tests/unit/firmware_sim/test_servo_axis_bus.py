@@ -32,7 +32,7 @@ from canfdi.firmware_sim.emitter import FrameLog, frame_log
 from canfdi.firmware_sim.plants import make_plant
 from canfdi.firmware_sim.scenario import load_scenario, parse_scenario
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 CONFIG = REPO / "deploy" / "config" / "servo_axis_odrive.yaml"
 ODRIVE_DBC = REPO / "tests" / "data" / "dbc" / "odrive" / "odrive-cansimple.dbc"
 USED = {"Heartbeat": 0x01, "Get_Encoder_Estimates": 0x09, "Set_Input_Torque": 0x0E,

@@ -24,14 +24,14 @@ from cantools.database.can import Message
 from cantools.database.errors import DecodeError
 
 from canfdi.bus.codec import MessageLayout, compile_layout
-from tests.unit.cantools_reference import (
+from tests.unit.bus.cantools_reference import (
     alone,
     check_against_cantools,
     check_encode,
     random_payloads,
 )
 
-DATA = Path(__file__).parents[1] / "data" / "dbc"
+DATA = Path(__file__).parents[2] / "data" / "dbc"
 FILES = sorted(p for p in DATA.glob("*/*") if p.suffix.lower() == ".dbc")
 
 

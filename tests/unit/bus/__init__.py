@@ -1,0 +1,1 @@
+"""Unit tests of canfdi.bus, the bus layer: a file per module or topic."""

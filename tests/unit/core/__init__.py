@@ -1,0 +1,1 @@
+"""Unit tests of canfdi.core, the numerical core: a file per module or topic."""

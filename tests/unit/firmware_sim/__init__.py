@@ -1,0 +1,1 @@
+"""Unit tests of canfdi.firmware_sim, the drive emulator: a file per module or topic."""

@@ -1,0 +1,1 @@
+"""Unit tests of canfdi.tools, the verbs' library: a file per module or topic."""
