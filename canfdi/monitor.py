@@ -8,6 +8,11 @@ with the frames, frames to send are returned, records go to an optional sink (th
           -> Sample -> that drive's Diagnoser.update -> FaultEvents (with the drive's name)
           -> FDI_FAULT / FDI_ESTIMATE frames (with the drive's index), unless listen-only
 
+Each drive's diagnoser is the method's run by a `Supervisor` (canfdi.core.protocol), which says
+the drive's state: the noise watchdog wrapping it (canfdi.core.watched), teach-in standing in
+for it until it has learned (canfdi.core.teachin), or nothing (canfdi.core.supervision). The
+monitor only routes: samples to the drive's diagnoser, its events to the sink and the bus.
+
 Several drives of one description share a bus (the config's ``drives:``, docs/bus.md): each
 has its own sample clock and diagnoser; a frame goes to the drive whose message it is (to each
 drive that maps it, for a message they share, such as the CANopen SYNC that triggers them all),
@@ -17,10 +22,10 @@ counts it.
 
 from __future__ import annotations
 
-import copy
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any, Protocol
 
 import numpy as np
@@ -38,17 +43,12 @@ from canfdi.bus.frames import (
 )
 from canfdi.bus.monitorframes import MonitorFrames
 from canfdi.core.eventtext import event_level, event_line
-from canfdi.core.protocol import DIAGNOSE, Diagnoser
+from canfdi.core.protocol import Diagnoser, Supervisor
 from canfdi.core.records import BlockResult, FaultEvent, Sample
 from canfdi.core.settings import MonitorConfig
-from canfdi.core.watchdog import (
-    DECISIONS,
-    NoiseWatchdog,
-    WatchdogChange,
-    block_runs,
-    monitoring_rows,
-    watch_runs,
-)
+from canfdi.core.supervision import Supervision
+from canfdi.core.teachin import Teacher, TeachIn
+from canfdi.core.watched import NoiseWatched
 
 __all__ = ["Drive", "Monitor", "OutFrame", "RecordSink", "Teacher", "summary_json"]
 
@@ -85,17 +85,6 @@ class RecordSink(Protocol):
     def write_log(self, timestamp_ns: int, level: str, message: str, name: str) -> None: ...
 
 
-class Teacher(Protocol):
-    """Teach-in (`canfdi run --teach`): how many samples to learn from, and how
-    (canfdi.tools.calibrate.Teach fits). ``learn`` raises ValueError when the samples cannot
-    be learned from (too few, a fault in them): the drive is then monitored as configured."""
-
-    samples: int
-
-    def learn(self, k: np.ndarray, U: np.ndarray, Z: np.ndarray
-              ) -> tuple[Diagnoser, dict[str, str]]: ...
-
-
 @dataclass(frozen=True)
 class OutFrame:
     """A frame the monitor wants on the bus."""
@@ -108,59 +97,21 @@ class OutFrame:
 @dataclass
 class Drive:
     """One drive on the bus: its name, its index in ``drives:`` (the Drive signal of the
-    monitor's frames), its bus map, its sample clock, its diagnoser (None when capturing), its
-    noise watchdog (None when off or capturing) and how many samples it has delivered."""
+    monitor's frames), its bus map, its sample clock, its diagnoser (a `Supervisor`; None when
+    capturing) and how many samples it has delivered."""
 
     name: str
     index: int
     bus_map: BusMap
     clock: SampleAssembler | LatestValueClock
-    diagnoser: Diagnoser | None
-    watchdog: NoiseWatchdog | None = None
+    diagnoser: Supervisor | None
     samples: int = 0
-    held: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
-    teaching: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
-    check: NoiseCheck | None = None
-
-    @property
-    def mismatch(self) -> bool:
-        """Whether the watchdog says a residual's noise left its calibrated value (either
-        way)."""
-        return self.watchdog is not None and bool(self.watchdog.mismatch.any())
 
     @property
     def state(self) -> str:
         """"teaching", "checking", "diagnosing", "mismatch", "quiet" or "monitoring"
-        (FDI_STATUS's State names)."""
-        if self.teaching is not None:
-            return "teaching"
-        if self.check is not None:
-            return "checking"
-        if self.diagnoser is not None and self.diagnoser.mode == DIAGNOSE:
-            return "diagnosing"
-        if not self.mismatch:
-            return "monitoring"
-        return "quiet" if bool(self.watchdog.quiet[self.watchdog.mismatch].all()) else "mismatch"
-
-
-@dataclass
-class NoiseCheck:
-    """A drive's first samples, held while the noise watchdog checks the configured noise on
-    them (FDI_STATUS "checking"), so that no detection made against a wrong noise reaches the
-    bus: ``probe`` (a copy of the fresh diagnoser) gives the watchdog their residuals, ``kept``
-    holds them (k, t_ns, U, Z, gap) for the real diagnoser once the check is over, ``changes``
-    the watchdog's verdicts meanwhile, said when it is. The check is over at the first block
-    end from block ``end`` on (``blocks`` whole blocks from the first sample, after the first
-    sample's block when the drive started inside one) where the watchdog has a whole window
-    to judge (`NoiseWatchdog.judged`: none of its blocks mostly lost or held back under a
-    diagnosis), or at block ``cap`` whatever it has (a diagnosis of the probe's may hold
-    samples back up to identification.max_samples); None before the first sample."""
-
-    probe: Diagnoser
-    kept: list[tuple[np.ndarray, ...]] = field(default_factory=list)
-    changes: list[WatchdogChange | None] = field(default_factory=list)
-    end: int | None = None
-    cap: int | None = None
+        (FDI_STATUS's State names; canfdi.core.protocol.STATES)."""
+        return "monitoring" if self.diagnoser is None else self.diagnoser.state
 
 
 class Monitor:
@@ -197,19 +148,14 @@ class Monitor:
         bus_keys = keys_of(database, config)
         self.frames = MonitorFrames.from_config(config, bus_keys)
         monitor = self.frames.known()
+        self.teach = teach
+        self.taught: dict[str, dict[str, str]] = {}
         self.drives: list[Drive] = []
         for index, drive in enumerate(config.drive_list):
             bus_map = BusMap.from_dbc(database, config, drive, label, monitor)
             self.drives.append(Drive(
                 drive.name, index, bus_map, make_clock(bus_map, self.dt, config.bus.clock),
-                self.method.build(config) if diagnose else None))
-            self.drives[-1].watchdog = self._watchdog(self.drives[-1].diagnoser)
-            if teach is not None and diagnose:
-                self.drives[-1].teaching = []
-            elif self.drives[-1].watchdog is not None:
-                self.drives[-1].check = NoiseCheck(_copy(self.drives[-1].diagnoser))
-        self.teach = teach
-        self.taught: dict[str, dict[str, str]] = {}
+                self._supervised(drive.name) if diagnose else None))
         # Which drives a frame goes to: (ID, extended) -> bit mask of drive indices. A message
         # several drives share (a CANopen SYNC that triggers all) goes to each; a frame of no
         # drive goes to the first, which only counts it.
@@ -232,23 +178,40 @@ class Monitor:
         # live, the emulated time in a demo). What the monitor's own records are stamped with.
         self.last_timestamp_ns: int | None = None
 
-    def _watchdog(self, dg: Diagnoser | None) -> NoiseWatchdog | None:
-        w = self.config.watchdog
-        if dg is None or not w.enabled:
-            return None
-        return NoiseWatchdog(len(dg.residual_names), w.factor, w.block, w.blocks)
+    def _supervised(self, name: str) -> Supervisor:
+        """Drive ``name``'s diagnoser, the config's method's run as the config says: under
+        the noise watchdog (armed after a check of the configured noise), or as it is; with
+        teach-in, a stand-in until it has learned (the learned values to `_learned`), then
+        the diagnoser learned under the watchdog (no check: its noise was just learned)."""
+        cfg = self.config
+        w = cfg.watchdog
 
-    def replace_diagnoser(self, drive: Drive, diagnoser: Diagnoser) -> None:
-        """Give a drive a new diagnoser (teach-in: the one built on the learned noise) and a
-        fresh watchdog; its sample clock and counters go on."""
-        drive.diagnoser = diagnoser
-        drive.watchdog = self._watchdog(diagnoser)
+        def run(dg: Diagnoser, check: bool) -> Supervisor:
+            if not w.enabled:
+                return Supervision(dg)
+            return NoiseWatched(dg, w.factor, w.block, w.blocks, check=check,
+                                longest_diagnosis=cfg.identification.max_samples)
+
+        configured = self.method.build(cfg)
+        if self.teach is None:
+            return run(configured, check=True)
+        # (A bound method, not a lambda: a deep copy of the monitor reports to the copy.)
+        return TeachIn(configured, self.teach, then=partial(run, check=False),
+                       on_learned=partial(self._learned, name))
+
+    def _learned(self, name: str, learned: dict[str, str]) -> None:
+        """Teach-in of drive ``name`` is over: what it learned (or why not) to ``taught`` and
+        the log's metadata."""
+        self.taught[name] = learned
+        if self.sink is not None and hasattr(self.sink, "write_metadata"):
+            self.sink.write_metadata(f"canfdi.teach.{name}", learned)
 
     # -- the first (or only) drive, for the many callers that watch one --------------------
     @property
     def diagnoser(self) -> Diagnoser | None:
-        """The first drive's diagnoser."""
-        return self.drives[0].diagnoser
+        """The first drive's method diagnoser (the one its supervisor runs now)."""
+        supervisor = self.drives[0].diagnoser
+        return None if supervisor is None else supervisor.diagnoser
 
     @property
     def assembler(self) -> SampleAssembler | LatestValueClock:
@@ -395,8 +358,7 @@ class Monitor:
     def on_samples(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
                    gap: np.ndarray, drive: Drive | None = None) -> list[OutFrame]:
         """Diagnose a block of one drive's assembled samples ((N,) k, t_ns, gap; (N, p) U;
-        (N, q) Z; default the first drive). With the noise watchdog on, the block is cut where
-        its blocks end (the same cuts whatever blocks the samples arrive in)."""
+        (N, q) Z; default the first drive)."""
         drive = drive or self.drives[0]
         if len(k) == 0:
             return []
@@ -404,106 +366,18 @@ class Monitor:
         cfg = self.config
         if self.sink is not None:
             self.sink.write_samples(k, t_ns, U, Z, gap, cfg.inputs, cfg.outputs, drive.name)
-        if drive.teaching is not None:
-            n = self._learn(drive, k, t_ns, U, Z)
-            if n == len(k):
-                return []
-            k, t_ns, U, Z, gap = k[n:], t_ns[n:], U[n:], Z[n:], gap[n:]
         dg = drive.diagnoser
         if dg is None:
             return []
-        out: list[OutFrame] = []
-        if drive.check is not None:
-            n, out = self._check(drive, k, t_ns, U, Z, gap)
-            if n == len(k):
-                return out
-            k, t_ns, U, Z, gap = k[n:], t_ns[n:], U[n:], Z[n:], gap[n:]
-        if drive.watchdog is None:
-            return out + self._diagnose_span(drive, k, t_ns, U, Z, gap)
-        lo = 0
-        while lo < len(k):
-            out += self._watch_before(drive, int(k[lo]), int(t_ns[lo]))
-            pieces = block_runs(k[lo:], drive.watchdog.block)
-            if drive.mismatch or len(pieces) <= 2:
-                # The noise scale may change where each block ends: one block at a time.
-                hi = lo + pieces[0][1]
-                out += self._diagnose_span(drive, k[lo:hi], t_ns[lo:hi], U[lo:hi], Z[lo:hi],
-                                           gap[lo:hi])
-                lo = hi
-                continue
-            # Not in mismatch, the scale stays 1 until a block ends in one (rare): run the rest
-            # at once; should a block end in mismatch inside it, undo and stop there.
-            dg = drive.diagnoser
-            saved = _copy(dg), copy.deepcopy(drive.watchdog), copy.deepcopy(drive.held)
-            got = self._diagnose_span(drive, k[lo:], t_ns[lo:], U[lo:], Z[lo:], gap[lo:],
-                                      stop_on_mismatch=True)
-            if isinstance(got, list):
-                out += got
-                break
-            drive.diagnoser, drive.watchdog, drive.held = saved
-            hi = lo + got
-            out += self._diagnose_span(drive, k[lo:hi], t_ns[lo:hi], U[lo:hi], Z[lo:hi],
-                                       gap[lo:hi])
-            lo = hi
-        return out
-
-    def _diagnose_span(self, drive: Drive, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray,
-                       Z: np.ndarray, gap: np.ndarray, stop_on_mismatch: bool = False
-                       ) -> list[OutFrame] | int:
-        """One update_block over the samples, the watchdog fed block by block (its block ends
-        inside closed as they come); the frames to send. With ``stop_on_mismatch``, a block end
-        inside that enters mismatch stops it before anything is recorded or announced: its row
-        is returned instead (the caller undoes the diagnoser and the watchdog)."""
-        dg, wd = drive.diagnoser, drive.watchdog
-        before = dg.mode == DIAGNOSE
         result = dg.update_block(k, t_ns, U, Z, gap)
-        if wd is not None:
-            raw = result.normalized * _noise_scale(dg)
-            quiet = monitoring_rows(k, result.events, before)
-            for a, b, plain in watch_runs(k, wd.block, quiet):
-                if plain:
-                    # Blocks the diagnoser only watched (no event, no row held back): the
-                    # watchdog takes them at once.
-                    changes = wd.update(k[a:b], raw[a:b], stop_on_change=stop_on_mismatch)
-                    if changes and stop_on_mismatch:
-                        return int(np.searchsorted(k, changes[0].k))
-                    continue
-                if a > 0 and wd.due(int(k[a])):
-                    change = wd.close(int(k[a]))
-                    if change is not None and stop_on_mismatch:
-                        return a
-                    # Without it, the span ends before any block end that changes anything (the
-                    # caller cut it there, or it is one block long).
-                self._watch(drive, k[a:b], raw[a:b], quiet[a:b],
-                            [e for e in result.events if k[a] <= e.sample <= k[b - 1]])
-        self._record_residuals(drive, k, t_ns, result, dg)
+        self._record_residuals(drive, k, t_ns, result)
         return self._announce(result.events, drive)
 
     def on_sample(self, sample: Sample, drive: Drive | None = None) -> list[OutFrame]:
         """Diagnose one assembled sample of a drive (default the first)."""
         drive = drive or self.drives[0]
         drive.samples += 1
-        if drive.teaching is not None:
-            if self.sink is not None:
-                self.sink.write_sample(sample, self.config.inputs, self.config.outputs,
-                                       drive.name)
-            self._learn(drive, np.array([sample.k]), np.array([sample.timestamp_ns]),
-                        np.asarray(sample.u, float)[None, :], np.asarray(sample.z, float)[None, :])
-            return []
         dg = drive.diagnoser
-        out: list[OutFrame] = []
-        if drive.check is not None:
-            row = (np.array([sample.k]), np.array([sample.timestamp_ns]),
-                   np.asarray(sample.u, float)[None, :], np.asarray(sample.z, float)[None, :],
-                   np.array([sample.gap]))
-            n, out = self._check(drive, *row)
-            if n == 1:
-                if self.sink is not None:
-                    self.sink.write_sample(sample, self.config.inputs, self.config.outputs,
-                                           drive.name)
-                return out
-        out += self._watch_before(drive, sample.k, sample.timestamp_ns)
-        before = dg is not None and dg.mode == DIAGNOSE
         events = dg.update(sample) if dg is not None else []
         if self.sink is not None:
             self.sink.write_sample(sample, self.config.inputs, self.config.outputs, drive.name)
@@ -511,179 +385,23 @@ class Monitor:
                 self.sink.write_residuals(sample.timestamp_ns, sample.k, dg.residual_names,
                                           dg.last_residuals, dg.last_normalized,
                                           dg.statistics, drive.name)
-        if drive.watchdog is not None and dg.last_normalized is not None:
-            k = np.array([sample.k])
-            self._watch(drive, k, dg.last_normalized[None, :] * _noise_scale(dg),
-                        monitoring_rows(k, events, before), events)
-        return out + self._announce(events, drive)
-
-    @staticmethod
-    def _watch(drive: Drive, k: np.ndarray, raw: np.ndarray, quiet: np.ndarray,
-               events: list[FaultEvent]) -> None:
-        """Samples k (N,) of one watchdog block, their residuals against the calibrated noise
-        (N, m), to the drive's watchdog: those the diagnoser watched (quiet (N,),
-        core.watchdog.monitoring_rows) at once; those of a diagnosis held until it ends, then
-        counted if it found no fault ("unexplained": the alarm was the noise), dropped if it
-        found one. events: the events of these samples."""
-        wd = drive.watchdog
-        wd.add(k[quiet], raw[quiet])
-        if not quiet.all():
-            drive.held.append((k[~quiet], raw[~quiet]))
-        for e in events:
-            if e.kind not in DECISIONS or not drive.held:
-                continue
-            kh = np.concatenate([h[0] for h in drive.held])
-            rh = np.concatenate([h[1] for h in drive.held])
-            mine = kh <= e.sample
-            if e.kind == "unexplained":
-                wd.add_late(kh[mine], rh[mine])
-            drive.held = [(kh[~mine], rh[~mine])] if (~mine).any() else []
-
-    def _learn(self, drive: Drive, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray,
-               Z: np.ndarray) -> int:
-        """Teach-in: keep the drive's samples until it has enough, then learn; returns how many
-        of these samples went to teaching (the rest are to be diagnosed)."""
-        have = sum(len(b[0]) for b in drive.teaching)
-        n = min(len(k), self.teach.samples - have)
-        drive.teaching.append((k[:n], U[:n], Z[:n]))
-        if have + n < self.teach.samples:
-            return n
-        kk, UU, ZZ = (np.concatenate([b[i] for b in drive.teaching]) for i in range(3))
-        drive.teaching = None
-        try:
-            diagnoser, learned = self.teach.learn(kk, UU, ZZ)
-        except ValueError as exc:
-            learned = {"status": "failed", "reason": str(exc),
-                       "samples": str(len(kk)), "first_sample": str(int(kk[0]))}
-        else:
-            self.replace_diagnoser(drive, diagnoser)
-        self.taught[drive.name] = learned
-        if self.sink is not None and hasattr(self.sink, "write_metadata"):
-            self.sink.write_metadata(f"canfdi.teach.{drive.name}", learned)
-        noise = json.loads(learned.get("noise_json", "[]"))
-        reason = ({"reason": learned["reason"]},) if "reason" in learned else ()
-        self._announce([FaultEvent(
-            kind="taught" if learned["status"] == "learned" else "teach_failed",
-            sample=int(kk[-1]), timestamp_ns=int(t_ns[n - 1]), candidates=reason,
-            estimates={row["sensor"]: row["std"] for row in noise})], drive)
-        return n
+        return self._announce(events, drive)
 
     @property
     def teaching(self) -> bool:
         """Whether a drive is still being taught."""
-        return any(d.teaching is not None for d in self.drives)
-
-    def _check(self, drive: Drive, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray,
-               Z: np.ndarray, gap: np.ndarray) -> tuple[int, list[OutFrame]]:
-        """While the drive's noise is being checked (`NoiseCheck`): the samples go to the
-        probe and are kept, their residuals to the watchdog as the monitor feeds it (those of
-        the probe's diagnoses held back until they end: dropped if a fault explained them,
-        noise if not or if still running when the window ends; a mismatch sets the probe's
-        noise), block by block; the check ends (`_arm`) at the first block end from ``end`` on
-        where the watchdog has a whole window to judge, or at ``cap`` whatever it has. Returns
-        how many of these samples the check took and the frames its end sent."""
-        check, wd, probe = drive.check, drive.watchdog, drive.check.probe
-        if check.end is None:
-            first = int(k[0])
-            check.end = first // wd.block + wd.blocks + (1 if first % wd.block else 0)
-            check.cap = check.end + wd.blocks + -(-self.config.identification.max_samples
-                                                   // wd.block)
-        before = probe.mode == DIAGNOSE
-        result = probe.update_block(k, t_ns, U, Z, gap)
-        raw = result.normalized * _noise_scale(probe)
-        quiet = monitoring_rows(k, result.events, before)
-        taken = self._checked(drive, k, t_ns, U, Z, gap, result, raw, quiet)
-        self._record_residuals(drive, k[:taken], t_ns[:taken], result, probe)
-        if taken < len(k):
-            return taken, self._arm(drive, t_ns[taken])
-        return taken, []
-
-    def _checked(self, drive: Drive, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray,
-                 Z: np.ndarray, gap: np.ndarray, result: BlockResult, raw: np.ndarray,
-                 quiet: np.ndarray) -> int:
-        """The watchdog's part of `_check`: how many of the samples the check takes (all, or
-        those before the block end at which it is over)."""
-        check, wd, probe = drive.check, drive.watchdog, drive.check.probe
-        for a, b in block_runs(k, wd.block):
-            if wd.due(int(k[a])):
-                if int(k[a]) // wd.block >= check.end and drive.held:
-                    # A diagnosis of the probe's still running at the end of the window: its
-                    # samples count as noise (a drive far noisier than configured alarms at
-                    # once and would hold them all back; a real fault's step shows in one
-                    # block only, and the quietest block sets the scale).
-                    wd.add_late(np.concatenate([h[0] for h in drive.held]),
-                                np.concatenate([h[1] for h in drive.held]))
-                    drive.held = []
-                check.changes.append(wd.close(int(k[a])))
-                _widen(probe, wd)
-                block = int(k[a]) // wd.block
-                if block >= check.cap or (block >= check.end and wd.judged):
-                    if a:
-                        check.kept.append((k[:a], t_ns[:a], U[:a], Z[:a], gap[:a]))
-                    return a
-            self._watch(drive, k[a:b], raw[a:b], quiet[a:b],
-                        [e for e in result.events if k[a] <= e.sample <= k[b - 1]])
-        check.kept.append((k, t_ns, U, Z, gap))
-        return len(k)
+        return any(d.state == "teaching" for d in self.drives)
 
     def _record_residuals(self, drive: Drive, k: np.ndarray, t_ns: np.ndarray,
-                          result: BlockResult, dg: Diagnoser) -> None:
-        """The residual rows of samples k (N,) to the sink, those with any value: the first N
-        rows of ``result`` (a block the check took only the start of is longer)."""
-        if self.sink is None or not self.record_residuals or not len(k):
+                          result: BlockResult) -> None:
+        """The residual rows of samples k (N,) to the sink, those with any value."""
+        if self.sink is None or not self.record_residuals:
             return
-        n = len(k)
-        R, Rn, stat = result.residuals[:n], result.normalized[:n], result.statistic[:n]
+        R, Rn, stat = result.residuals, result.normalized, result.statistic
         have = ~np.isnan(R).all(axis=1)
         if have.any():
-            self.sink.write_residual_rows(k[have], t_ns[have], dg.residual_names, R[have],
-                                          Rn[have], stat[have], drive.name)
-
-    def _arm(self, drive: Drive, t_ns: int) -> list[OutFrame]:
-        """End a drive's noise check (the watchdog has just closed the block it ended with):
-        what the watchdog found is said and sets the noise the diagnoser detects against, then
-        the diagnoser takes the kept samples, its events announced now."""
-        check, wd, dg = drive.check, drive.watchdog, drive.diagnoser
-        drive.check = None
-        drive.held = []  # what the probe's diagnoses held back: the diagnoser's own now
-        _widen(dg, wd)
-        out: list[OutFrame] = []
-        for change in check.changes:
-            if change is not None:
-                out += self._announce(self._watch_events(change, int(t_ns), dg), drive)
-        if not check.kept:
-            return out
-        kk, tt, UU, ZZ, gg = (np.concatenate(c) for c in zip(*check.kept, strict=True))
-        # (Their residual rows were recorded as the check saw them, in time order: the log's
-        # chunks keep increasing times, which is how a reader finds swapped ones.)
-        result = dg.update_block(kk, tt, UU, ZZ, gg)
-        return out + self._announce(result.events, drive)
-
-    def _watch_before(self, drive: Drive, k: int, t_ns: int) -> list[OutFrame]:
-        """Before sample k: close the watchdog's block if k ends it; a change of the residuals
-        in mismatch is an event, and sets the noise the diagnoser detects against."""
-        wd = drive.watchdog
-        if wd is None or not wd.due(k):
-            return []
-        change = wd.close(k)
-        _widen(drive.diagnoser, wd)
-        if change is None:
-            return []
-        return self._announce(self._watch_events(change, t_ns, drive.diagnoser), drive)
-
-    @staticmethod
-    def _watch_events(change: WatchdogChange, t_ns: int, dg: Diagnoser) -> list[FaultEvent]:
-        names = dg.residual_names
-        out = []
-        quieter = change.ratio < 1.0
-        for kind, which in (("mismatch", change.entered & ~quieter),
-                            ("quiet", change.entered & quieter), ("matched", change.left)):
-            if which.any():
-                idx = np.flatnonzero(which)
-                out.append(FaultEvent(kind=kind, sample=change.k, timestamp_ns=t_ns,
-                                      residuals=tuple(names[i] for i in idx),
-                                      estimates={names[i]: float(change.ratio[i]) for i in idx}))
-        return out
+            self.sink.write_residual_rows(k[have], t_ns[have], drive.diagnoser.residual_names,
+                                          R[have], Rn[have], stat[have], drive.name)
 
     def _announce(self, events: list[FaultEvent], drive: Drive) -> list[OutFrame]:
         out: list[OutFrame] = []
@@ -782,29 +500,6 @@ def _active_faults(drive: Drive) -> int:
     """The channels a drive's diagnoser compensates now (0 without a diagnoser)."""
     dg = drive.diagnoser
     return len({(c.target, c.index) for c in dg.compensation}) if dg is not None else 0
-
-
-# A diagnoser's parts its update never changes (the design, the models): an undo shares them.
-_READ_ONLY = ("design", "_design0", "model")
-
-
-def _copy(dg: Diagnoser) -> Diagnoser:
-    """A copy of a diagnoser to run apart from it, its read-only design shared."""
-    shared = {id(v): v for v in (getattr(dg, a, None) for a in _READ_ONLY) if v is not None}
-    return copy.deepcopy(dg, shared)
-
-
-def _widen(dg: Diagnoser, wd: NoiseWatchdog) -> None:
-    """Give a diagnoser the noise its watchdog says detection should use (a method without
-    the setting keeps its own)."""
-    if hasattr(dg, "noise_scale"):
-        dg.noise_scale = wd.scale
-
-
-def _noise_scale(dg: Diagnoser) -> np.ndarray | float:
-    """The noise scale a diagnoser normalises with (1 for a method without the setting): its
-    normalised residuals times this are the residuals against the calibrated noise."""
-    return getattr(dg, "noise_scale", 1.0)
 
 
 def summary_json(events: list[FaultEvent], frame_stats: dict, dt: float,

@@ -8,10 +8,15 @@ path gives exactly the streaming path's results chunk by chunk (lost samples inc
 restores the first run exactly, events are well formed, a bad option is named.
 
 Residual arrays are (m,) in `residual_names` order, normalised by each residual's noise
-standard deviation; `statistics` are the method's detection statistics in the units of
-`thresholds` (a residual alarms when its statistic reaches its threshold). Events follow the
-FaultEvent contract (canfdi.core.records): kinds "detected", "accepted", "unexplained";
-estimates "eta"/"lambda" for actuators, "bias" for sensors.
+standard deviation (times `noise_scale`, which the noise watchdog widens); `statistics` are the
+method's detection statistics in the units of `thresholds` (a residual alarms when its
+statistic reaches its threshold). Events follow the FaultEvent contract
+(canfdi.core.records): kinds "detected", "accepted", "unexplained"; estimates "eta"/"lambda"
+for actuators, "bias" for sensors.
+
+The monitor runs a method's diagnoser inside a `Supervisor` (canfdi.core.supervision): a
+diagnoser itself, which also says the drive's state (FDI_STATUS) and which method diagnoser it
+runs: the noise watchdog wraps one, teach-in stands in for one until it has learned.
 """
 
 from __future__ import annotations
@@ -22,11 +27,14 @@ import numpy as np
 
 from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample
 
-__all__ = ["DIAGNOSE", "MODES", "MONITOR", "Diagnoser"]
+__all__ = ["DIAGNOSE", "MODES", "MONITOR", "STATES", "Diagnoser", "Supervisor"]
 
 MONITOR, DIAGNOSE = "monitor", "diagnose"
 MODES = (MONITOR, DIAGNOSE)
 """`Diagnoser.mode`: watching for a change, or diagnosing one that was detected."""
+
+STATES = ("monitoring", "diagnosing", "teaching", "checking", "mismatch", "quiet")
+"""`Supervisor.state`: what a drive's diagnosis is doing (FDI_STATUS's State names)."""
 
 
 @runtime_checkable
@@ -70,6 +78,17 @@ class Diagnoser(Protocol):
         """(m,) the detection statistic of each residual after the latest sample."""
         ...
 
+    @property
+    def noise_scale(self) -> np.ndarray:
+        """(m,) each residual's noise over its configured value, what detection normalises
+        with (ones as built or reset; settable to (m,) or a scalar: the noise watchdog widens
+        it where the noise rose). The normalised residuals times this are the residuals
+        against the configured noise."""
+        ...
+
+    @noise_scale.setter
+    def noise_scale(self, value: np.ndarray | float) -> None: ...
+
     def update(self, sample: Sample) -> list[FaultEvent]:
         """Process one sample; returns the events it caused (usually none)."""
         ...
@@ -87,4 +106,28 @@ class Diagnoser(Protocol):
     def reset(self) -> None:
         """Back to the state after construction: monitoring, no compensation, no events, empty
         windows."""
+        ...
+
+
+@runtime_checkable
+class Supervisor(Diagnoser, Protocol):
+    """A diagnoser that runs a method's diagnoser for the monitor (wrapping it, or standing in
+    for it) and says what the drive is doing.
+
+    Attributes
+    ----------
+    state : str
+        One of `STATES`.
+    diagnoser : Diagnoser
+        The method's diagnoser it runs now (its design, its isolations: what the tools read).
+    """
+
+    @property
+    def state(self) -> str:
+        """What the drive's diagnosis is doing, one of `STATES`."""
+        ...
+
+    @property
+    def diagnoser(self) -> Diagnoser:
+        """The method's diagnoser it runs now."""
         ...

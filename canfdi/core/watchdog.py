@@ -19,10 +19,13 @@ A residual enters mismatch when each of its last ``blocks`` blocks is out of
 [1/factor, factor] (in std; one block may hold a fault's step, several in a row are no step),
 and leaves it when each is back within [1/sqrt(factor), sqrt(factor)] (hysteresis: no flapping
 at the edge). While in mismatch its ratio (from the window's quietest block: a fault's step
-inflates one block, noise all) is the scale by which the monitor widens that residual's noise
-for detection (`scale`), so the Page-Hinkley tests keep their false-alarm interval and a real
+inflates one block, noise all) is the scale by which that residual's noise is widened for
+detection (`scale`), so the Page-Hinkley tests keep their false-alarm interval and a real
 fault, a change of mean, is still detected. A residual quieter than calibrated is in mismatch
-too ("quiet": the monitor says so) but is never detected against a narrower noise.
+too ("quiet", said as such) but is never detected against a narrower noise.
+
+canfdi.core.watched runs a diagnoser under it: it feeds the watchdog, holds the rows of a
+diagnosis back, says the verdicts and widens the diagnoser's noise.
 """
 
 from __future__ import annotations

@@ -151,12 +151,14 @@ def test_the_live_view_says_mismatch_and_teaching():
     assert snapshot(Monitor(config, teach=teach))["state"] == "teaching"
     monitor = Monitor(config, record_residuals=False)
     assert snapshot(monitor)["state"] == "checking"
-    monitor.drives[0].check = None  # what the first watchdog window ends
+    run = simulate(dataclasses.replace(load_scenario("dc_motor_nominal"), duration=6.0))
+    list(_feed(monitor, run.k, run.u_c, run.z))  # the first watchdog window ends the check
     assert snapshot(monitor)["state"] == "monitoring"
-    monitor.drives[0].watchdog.mismatch[1] = True  # what the watchdog test above reaches
-    monitor.drives[0].watchdog.ratio[:] = 2.0
+    watchdog = monitor.drives[0].diagnoser.watchdog
+    watchdog.mismatch[1] = True  # what the watchdog test above reaches
+    watchdog.ratio[:] = 2.0
     assert snapshot(monitor)["state"] == "mismatch"
-    monitor.drives[0].watchdog.ratio[:] = 0.5
+    watchdog.ratio[:] = 0.5
     assert snapshot(monitor)["state"] == "quiet"
 
 

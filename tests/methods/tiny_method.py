@@ -53,6 +53,7 @@ class TinyDiagnoser:
         self.reset()
 
     def reset(self) -> None:
+        self._scale = np.ones(self.bank.m)
         self.mode = MONITOR
         self.events: list[FaultEvent] = []
         self.compensation: list[Compensation] = []
@@ -79,6 +80,14 @@ class TinyDiagnoser:
     def statistics(self) -> np.ndarray:
         return self._stat.copy()
 
+    @property
+    def noise_scale(self) -> np.ndarray:
+        return self._scale.copy()
+
+    @noise_scale.setter
+    def noise_scale(self, value: np.ndarray) -> None:
+        self._scale = np.broadcast_to(np.asarray(value, dtype=float), (self.bank.m,)).copy()
+
     def update(self, sample: Sample) -> list[FaultEvent]:
         k = int(sample.k)
         if self._last_k is not None and k != self._last_k + 1:
@@ -90,7 +99,7 @@ class TinyDiagnoser:
         if r is None:
             self.last_residuals = self.last_normalized = None
             return []
-        rn = r / self.bank.sigma
+        rn = r / (self.bank.sigma * self._scale)
         self.last_residuals, self.last_normalized = r, rn
         seen = ~np.isnan(rn)
         self._stat[seen] = np.abs(rn[seen])
@@ -117,7 +126,7 @@ class TinyDiagnoser:
         for j in range(self.bank.q):
             # Residual rows respond to a bias on sensor j with its signature's sum over the
             # window (the bias is on every sample of the window since the alarm).
-            x = (self.bank.Gz[j].sum(axis=1) / self.bank.sigma)
+            x = self.bank.Gz[j].sum(axis=1) / (self.bank.sigma * self._scale)
             X = np.broadcast_to(x, R.shape).reshape(-1, 1)
             fits.append(least_squares(X, R.reshape(-1)) if x.any() else None)
         costs = [np.inf if f is None else f.cost for f in fits]

@@ -1,4 +1,5 @@
-"""Several drives on one bus: each frame to the drives that map it, streaming == blocks."""
+"""Several drives on one bus: each frame to the drives that map it, streaming == blocks; each
+drive its own diagnoser, run by its own supervisor (canfdi.core.protocol.Supervisor)."""
 
 import dataclasses
 
@@ -6,6 +7,7 @@ import numpy as np
 import pytest
 
 from canfdi.config import ConfigError, load_config
+from canfdi.core.protocol import Supervisor
 from canfdi.firmware_sim.emitter import frame_log
 from canfdi.firmware_sim.scenario import load_scenario
 from canfdi.monitor import Monitor
@@ -59,3 +61,16 @@ def test_a_shared_entry_must_name_a_message_of_the_dbc():
     with pytest.raises(ConfigError, match="did you mean SYNC") as info:
         Monitor(bad)
     assert info.value.field == "bus.node.shared[0]"
+
+
+def test_each_drive_has_its_own_supervised_diagnoser_and_capture_none():
+    config = load_config(CONFIG)
+    monitor = Monitor(config)
+    left, right = (d.diagnoser for d in monitor.drives)
+    assert isinstance(left, Supervisor) and left is not right
+    assert left.diagnoser is not right.diagnoser
+    assert monitor.diagnoser is left.diagnoser  # the method's, for the tools that read it
+    assert [d.state for d in monitor.drives] == ["checking", "checking"]
+    capture = Monitor(config, diagnose=False)
+    assert capture.diagnoser is None and [d.state for d in capture.drives] == [
+        "monitoring", "monitoring"]

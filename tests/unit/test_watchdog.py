@@ -1,14 +1,16 @@
 """The noise watchdog (canfdi.core.watchdog): a doubled or halved noise is a mismatch within
 its window, a change of mean is not, it comes back, and the same verdicts whatever blocks the
-samples arrive in."""
+samples arrive in; wrapped around a diagnoser (canfdi.core.watched), it checks the configured
+noise first, says its verdicts as events and its state, the same whatever the chunks."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from canfdi.core.records import FaultEvent
+from canfdi.core.records import FaultEvent, Sample
 from canfdi.core.watchdog import NoiseWatchdog, monitoring_rows
+from canfdi.core.watched import NoiseWatched
 
 BLOCK, BLOCKS = 100, 2
 
@@ -139,3 +141,94 @@ def test_the_batch_update_can_stop_at_the_first_change():
     first = ref.update(k[:change.k], rn[:change.k])  # up to the sample whose block end moved
     assert not first and ref.due(change.k)
     assert ref.close(change.k).k == change.k and _close(_state(wd), _state(ref))
+
+
+# -- the watchdog as a wrapping diagnoser (canfdi.core.watched) --------------------------------
+
+
+class _Echo:
+    """A diagnoser whose residuals are the measurements (normalised by noise_scale), never
+    alarming: what the watchdog alone makes of a drive's noise."""
+
+    def __init__(self, m: int) -> None:
+        self.residual_names = [f"r{i}" for i in range(m)]
+        self.thresholds = np.full(m, 5.0)
+        self.reset()
+
+    def reset(self) -> None:
+        m = len(self.residual_names)
+        self.mode, self.compensation, self.events = "monitor", [], []
+        self.last_residuals = self.last_normalized = None
+        self.statistics = np.zeros(m)
+        self.noise_scale = np.ones(m)
+
+    def update(self, sample):
+        self.last_residuals = np.asarray(sample.z, dtype=float)
+        self.last_normalized = self.last_residuals / self.noise_scale
+        return []
+
+    def update_block(self, k, t_ns, U, Z, gap=None):
+        from canfdi.core.records import BlockResult
+
+        if len(k):
+            self.update(Sample(int(k[-1]), int(t_ns[-1]), U[-1], Z[-1]))
+        return BlockResult([], Z.copy(), Z / self.noise_scale, np.zeros_like(Z))
+
+
+def _watched(m: int = 3) -> NoiseWatched:
+    return NoiseWatched(_Echo(m), 1.5, BLOCK, BLOCKS, longest_diagnosis=300)
+
+
+def _feed_watched(watched: NoiseWatched, rn: np.ndarray, chunk: int) -> tuple[list, list]:
+    """(events, state after each chunk, repeated for each of its samples) of samples 0..
+    with measurements rn, fed ``chunk`` at a time (1: `update`)."""
+    k = np.arange(len(rn))
+    events, states = [], []
+    for a in range(0, len(rn), chunk):
+        b = min(a + chunk, len(rn))
+        if chunk == 1:
+            events += watched.update(Sample(int(k[a]), int(k[a]) * 10, np.zeros(1), rn[a]))
+        else:
+            events += watched.update_block(k[a:b], k[a:b] * 10, np.zeros((b - a, 1)),
+                                           rn[a:b]).events
+        states += [watched.state] * (b - a)
+    return events, states
+
+
+def test_wrapped_the_watchdog_checks_then_says_the_noise_and_widens_detection():
+    rn = _noise(1500)
+    rn[:, 1] *= 2.5  # noisier than configured from the start
+    rn[:, 2] *= 0.3  # quieter
+    rn[800:, 2] /= 0.3  # and back
+    events, states = _feed_watched(_watched(), rn, 1)
+    armed = BLOCK * BLOCKS
+    assert set(states[:armed - 1]) == {"checking"} and states[armed] == "mismatch"
+    kinds = [(e.kind, e.sample, e.residuals) for e in events]
+    assert kinds[:2] == [("mismatch", armed, ("r1",)), ("quiet", armed, ("r2",))]
+    assert ("matched", 1000, ("r2",)) in kinds
+    assert events[0].estimates["r1"] == pytest.approx(2.5, rel=0.2)
+
+
+def test_wrapped_the_same_events_rows_and_states_whatever_the_chunks():
+    rn = _noise(2000)
+    rn[700:1400, 0] *= 3.0
+    rn[100:130] = np.nan
+    want = _feed_watched(_watched(), rn, 1)
+    for chunk in (7, 250, 333, 2000):
+        got = _feed_watched(_watched(), rn, chunk)
+        assert [(e.kind, e.sample, e.residuals) for e in got[0]] == \
+            [(e.kind, e.sample, e.residuals) for e in want[0]]
+        ends = [*range(chunk - 1, len(rn), chunk), len(rn) - 1]
+        assert [got[1][i] for i in ends] == [want[1][i] for i in ends]
+
+
+def test_wrapped_quiet_says_quiet_and_reset_checks_again():
+    watched = _watched(2)
+    rn = _noise(1000, 2) * 0.3
+    events, states = _feed_watched(watched, rn, 100)
+    assert states[-1] == "quiet" and [e.kind for e in events] == ["quiet"]
+    np.testing.assert_array_equal(watched.noise_scale, [1.0, 1.0])  # never tightened
+    assert watched.events == events
+    watched.reset()
+    assert watched.state == "checking" and watched.events == []
+    assert _feed_watched(watched, rn, 1000)[0] == events
