@@ -51,6 +51,26 @@ class Diagnoser(Protocol):
         Every event since construction or the last `reset`.
     last_residuals, last_normalized : (m,) ndarray or None
         The latest sample's raw and normalised residuals (None when it gave none).
+
+    Examples
+    --------
+    The protocol is structural and checkable at run time: a class with these members is a
+    Diagnoser, whatever it derives from (the methods' are in canfdi.methods).
+
+    >>> from canfdi.core.records import BlockResult
+    >>> class Silent:  # residuals = the measurements; never alarms
+    ...     mode, compensation, events = MONITOR, [], []
+    ...     last_residuals = last_normalized = None
+    ...     residual_names, thresholds, statistics = ["r"], np.ones(1), np.zeros(1)
+    ...     noise_scale = 1.0
+    ...     def update(self, sample): return []
+    ...     def update_block(self, k, t_ns, U, Z, gap=None):
+    ...         return BlockResult([], Z, Z, np.zeros_like(Z))
+    ...     def reset(self): pass
+    >>> isinstance(Silent(), Diagnoser), isinstance(object(), Diagnoser)
+    (True, False)
+    >>> Silent().update_block(np.arange(2), np.zeros(2), np.zeros((2, 0)), np.ones((2, 1))).events
+    []
     """
 
     mode: str
@@ -120,6 +140,25 @@ class Supervisor(Diagnoser, Protocol):
         One of `STATES`.
     diagnoser : Diagnoser
         The method's diagnoser it runs now (its design, its isolations: what the tools read).
+
+    Examples
+    --------
+    canfdi.core.supervision.Supervision runs a method's diagnoser as it is; the monitor reads
+    the drive's state from it.
+
+    >>> from canfdi.core.supervision import Supervision
+    >>> class Silent:
+    ...     mode, compensation, events = MONITOR, [], []
+    ...     last_residuals = last_normalized = None
+    ...     residual_names, thresholds, statistics = ["r"], np.ones(1), np.zeros(1)
+    ...     noise_scale = 1.0
+    ...     def update(self, sample): return []
+    ...     def update_block(self, k, t_ns, U, Z, gap=None): ...
+    ...     def reset(self): pass
+    >>> method = Silent()
+    >>> run = Supervision(method)
+    >>> isinstance(run, Supervisor), run.state in STATES, run.diagnoser is method
+    (True, True, True)
     """
 
     @property

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -24,11 +24,32 @@ from canfdi.core.supervision import Supervision
 __all__ = ["TeachIn", "Teacher"]
 
 
+@runtime_checkable
 class Teacher(Protocol):
     """How many samples to learn from, and how (canfdi.tools.calibrate.Teach fits).
     ``learn`` returns the diagnoser built on what it learned and the learned values as strings
     (``"status": "learned"``, ``"noise_json"``: [{"sensor", "std"}], ...); it raises ValueError
-    when the samples cannot be learned from."""
+    when the samples cannot be learned from.
+
+    Examples
+    --------
+    A teacher that takes the measurements' std as the noise (the diagnoser it returns is the
+    one it was given; canfdi.tools.calibrate.Teach builds one on the noise learned):
+
+    >>> class StdTeacher:
+    ...     samples = 100
+    ...     def __init__(self, diagnoser): self.diagnoser = diagnoser
+    ...     def learn(self, k, U, Z):
+    ...         if len(k) < self.samples:
+    ...             raise ValueError(f"{len(k)} samples, {self.samples} needed")
+    ...         return self.diagnoser, {"status": "learned", "std": f"{Z.std():.2f}"}
+    >>> teacher = StdTeacher(diagnoser=None)
+    >>> isinstance(teacher, Teacher)
+    True
+    >>> Z = np.random.default_rng(4).normal(0.0, 0.5, (100, 1))
+    >>> teacher.learn(np.arange(100), np.zeros((100, 0)), Z)[1]
+    {'status': 'learned', 'std': '0.51'}
+    """
 
     samples: int
 

@@ -50,6 +50,16 @@ class WatchdogChange:
     entered, left : (m,) bool, the residuals that entered / left mismatch; ratio : (m,) each
     residual's noise std over its calibrated value (the window's quietest block; NaN while
     unknown).
+
+    Examples
+    --------
+    Residual 0 entered mismatch at the block that ended before sample 200, its noise twice
+    the calibrated value:
+
+    >>> change = WatchdogChange(k=200, entered=np.array([True, False]),
+    ...                         left=np.array([False, False]), ratio=np.array([2.0, 1.0]))
+    >>> int(np.flatnonzero(change.entered)[0]), change.ratio.tolist()
+    (0, [2.0, 1.0])
     """
 
     k: int
