@@ -21,13 +21,14 @@ runs: the noise watchdog wraps one, teach-in stands in for one until it has lear
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+import copy
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample
 
-__all__ = ["DIAGNOSE", "MODES", "MONITOR", "STATES", "Diagnoser", "Supervisor"]
+__all__ = ["DIAGNOSE", "MODES", "MONITOR", "STATES", "Diagnoser", "Supervisor", "deepcopy_sharing"]
 
 MONITOR, DIAGNOSE = "monitor", "diagnose"
 MODES = (MONITOR, DIAGNOSE)
@@ -170,3 +171,26 @@ class Supervisor(Diagnoser, Protocol):
     def diagnoser(self) -> Diagnoser:
         """The method's diagnoser it runs now."""
         ...
+
+
+def deepcopy_sharing(obj: Any, memo: dict[int, Any], *shared: object) -> Any:
+    """A deep copy of ``obj`` whose ``shared`` parts are the original's, for a diagnoser's
+    ``__deepcopy__``: its design or models never change once built, and the noise watchdog's
+    undo (canfdi.core.watched) copies the diagnoser on every block it runs at once.
+
+    Examples
+    --------
+    >>> class Run:
+    ...     def __init__(self): self.design, self.state = np.eye(2), np.zeros(2)
+    ...     def __deepcopy__(self, memo): return deepcopy_sharing(self, memo, self.design)
+    >>> a = Run()
+    >>> b = copy.deepcopy(a)
+    >>> b.design is a.design, b.state is a.state
+    (True, False)
+    """
+    for part in shared:
+        memo[id(part)] = part
+    new = object.__new__(type(obj))
+    memo[id(obj)] = new
+    new.__dict__.update({name: copy.deepcopy(value, memo) for name, value in vars(obj).items()})
+    return new

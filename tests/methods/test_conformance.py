@@ -14,6 +14,7 @@ the noise watchdog as the monitor runs it (canfdi.core.watched: a Diagnoser too)
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import itertools
 import json
@@ -151,6 +152,22 @@ def test_reset_restores_the_first_run_exactly(example: Example, wrap: str):
         assert run[0] == first[0]
         np.testing.assert_array_equal(run[1], first[1])
         np.testing.assert_array_equal(run[2], first[2])
+
+
+def test_a_copy_runs_apart_from_its_original(example: Example, wrap: str):
+    """The watchdog's undo copies the diagnoser mid-run: the copy must go on exactly as the
+    original would, and running it must leave the original as it was."""
+    cut = len(example.k) // 3
+    dg = _build(example, wrap)
+    half = slice(0, cut)
+    dg.update_block(example.k[half], example.t_ns[half], example.U[half], example.Z[half])
+    twin = copy.deepcopy(dg)
+    rest = slice(cut, None)
+    got = twin.update_block(example.k[rest], example.t_ns[rest], example.U[rest], example.Z[rest])
+    assert twin.events != dg.events  # the copy went on: the fault is in the rest
+    ours = dg.update_block(example.k[rest], example.t_ns[rest], example.U[rest], example.Z[rest])
+    _same_events(ours.events, got.events, "the original after its copy ran")
+    _same(ours.normalized, got.normalized, "normalised residuals of the original and its copy")
 
 
 def test_events_are_well_formed_and_the_fault_is_diagnosed(example: Example, wrap: str):

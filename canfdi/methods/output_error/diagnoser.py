@@ -105,7 +105,7 @@ from canfdi.core.blockrun import BlockRows, continuity_breaks, run_block
 from canfdi.core.calibrate import threshold_for_long_run_variance
 from canfdi.core.detect import ChangePointDetector, DetectorBacked, onset_candidates
 from canfdi.core.identify import least_squares
-from canfdi.core.protocol import DIAGNOSE, MONITOR
+from canfdi.core.protocol import DIAGNOSE, MONITOR, deepcopy_sharing
 from canfdi.core.records import (
     BlockResult,
     Compensation,
@@ -323,6 +323,10 @@ class OutputErrorDiagnoser(DetectorBacked):
         self.reset()
 
     # -- state ---------------------------------------------------------------------------
+    def __deepcopy__(self, memo: dict) -> OutputErrorDiagnoser:
+        """A copy that runs apart from this one; the models, which update never changes, shared."""
+        return deepcopy_sharing(self, memo, self.model)
+
     def reset(self) -> None:
         """Back to the state after construction: monitoring, no compensation, no events; the
         models restart on the next sample."""

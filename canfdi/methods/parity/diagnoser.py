@@ -50,7 +50,7 @@ from canfdi.core.blockrun import BlockRows, continuity_breaks, has_values, run_b
 from canfdi.core.design import Design
 from canfdi.core.detect import ChangePointDetector, DetectorBacked, onset_candidates
 from canfdi.core.identify import RlsState, rls_init, rls_solve, rls_update
-from canfdi.core.protocol import DIAGNOSE, MONITOR
+from canfdi.core.protocol import DIAGNOSE, MONITOR, deepcopy_sharing
 from canfdi.core.records import (
     BlockResult,
     Compensation,
@@ -258,6 +258,10 @@ class ParityDiagnoser(DetectorBacked):
         self.reset()
 
     # -- state ---------------------------------------------------------------------------
+    def __deepcopy__(self, memo: dict) -> ParityDiagnoser:
+        """A copy that runs apart from this one; the design, which update never changes, shared."""
+        return deepcopy_sharing(self, memo, self.design)
+
     def reset(self) -> None:
         """Back to the state after construction: monitoring, no compensation, no events, empty
         windows."""

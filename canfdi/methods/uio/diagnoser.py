@@ -36,7 +36,7 @@ from scipy import special  # quantiles: 30 ms to import where scipy.stats takes 
 
 from canfdi.core.blockrun import run_block
 from canfdi.core.identify import least_squares
-from canfdi.core.protocol import DIAGNOSE, MONITOR
+from canfdi.core.protocol import DIAGNOSE, MONITOR, deepcopy_sharing
 from canfdi.core.records import (
     BlockResult,
     Compensation,
@@ -212,6 +212,10 @@ class UioDiagnoser:
         self.reset()
 
     # -- state ----------------------------------------------------------------------------
+    def __deepcopy__(self, memo: dict) -> UioDiagnoser:
+        """A copy that runs apart from this one; the designs, which update never changes, shared."""
+        return deepcopy_sharing(self, memo, self.design, self._design0)
+
     def reset(self) -> None:
         """Back to the state after construction: monitoring, no compensation, no events,
         empty window, filters at rest."""
