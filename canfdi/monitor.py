@@ -203,7 +203,7 @@ class Monitor:
         """Teach-in of drive ``name`` is over: what it learned (or why not) to ``taught`` and
         the log's metadata."""
         self.taught[name] = learned
-        if self.sink is not None and hasattr(self.sink, "write_metadata"):
+        if self.sink is not None:
             self.sink.write_metadata(f"canfdi.teach.{name}", learned)
 
     # -- the first (or only) drive, for the many callers that watch one --------------------
@@ -410,10 +410,9 @@ class Monitor:
             self.events.append(event)
             if self.sink is not None:
                 self.sink.write_event(event)
-                if hasattr(self.sink, "write_log"):
-                    self.sink.write_log(event.timestamp_ns, event_level(event),
-                                        event_line(event, self.dt, len(self.drives) > 1).strip(),
-                                        f"canfdi.{drive.name}")
+                self.sink.write_log(event.timestamp_ns, event_level(event),
+                                    event_line(event, self.dt, len(self.drives) > 1).strip(),
+                                    f"canfdi.{drive.name}")
             out.extend(self.fault_frames(event, drive))
         return out
 

@@ -410,6 +410,9 @@ class LogStats:
     def write_metadata(self, name: str, values: dict[str, str]) -> None:
         pass
 
+    def write_log(self, timestamp_ns: int, level: str, message: str, name: str) -> None:
+        pass
+
 
 @dataclass
 class LogResult:
