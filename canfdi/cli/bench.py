@@ -225,7 +225,7 @@ def _daemon_rows(r: dict) -> list[tuple[str, str]]:
 
 def _soak(config, args: argparse.Namespace, scenario, progress, start: float) -> int:
     """``--daemon-frames``: the daemon soak, printed; 1 when its log does not check out."""
-    from canfdi.tools.bench import run_daemon_soak
+    from canfdi.tools.bench import run_daemon_soak, soak_frames_missing
 
     try:
         r = run_daemon_soak(config, args.daemon_frames, round(args.rotate_mib * 2**20),
@@ -233,7 +233,7 @@ def _soak(config, args: argparse.Namespace, scenario, progress, start: float) ->
     except ValueError as exc:
         return config_error(exc, "bench")
     r["elapsed_s"] = time.monotonic() - start
-    lost = r["daemon_frames"] - r["daemon_messages_dropped"] - r["daemon_frames_in_segments"]
+    lost = soak_frames_missing(r)
     failed = bool(r["daemon_unreadable_segments"]) or lost > 0
     if args.json:
         print(json.dumps(r, indent=2))

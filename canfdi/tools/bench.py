@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from canfdi.firmware_sim.scenario import Scenario
 
 __all__ = ["bench_scenarios", "bus_limit", "data_lengths", "make_traffic", "run_bench",
-           "run_daemon_bench"]
+           "run_daemon_bench", "soak_frames_missing"]
 
 
 def frame_bits(dlc: int, stuffed: bool) -> int:
@@ -517,6 +517,13 @@ def _verify_segment(path: str, delete: bool) -> tuple[str, int, str | None]:
     if delete:
         Path(path).unlink(missing_ok=True)
     return Path(path).name, frames, problem
+
+
+def soak_frames_missing(r: dict) -> int:
+    """Frames of a `run_daemon_soak` (its result ``r``) that reached neither its rotated
+    segments nor the count of messages it dropped: more than 0, or an unreadable segment, and
+    its log does not check out."""
+    return r["daemon_frames"] - r["daemon_messages_dropped"] - r["daemon_frames_in_segments"]
 
 
 def run_daemon_soak(config, frames: int, rotate_bytes: int,

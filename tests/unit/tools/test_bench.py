@@ -4,7 +4,7 @@ import pytest
 
 from canfdi.config import load_config
 from canfdi.firmware_sim.scenario import ScenarioError
-from canfdi.tools.bench import bench_scenarios
+from canfdi.tools.bench import bench_scenarios, soak_frames_missing
 from tests.conftest import REPO
 
 CONFIGS = REPO / "deploy" / "config"
@@ -25,3 +25,9 @@ def test_a_named_scenario_plays_without_its_faults_and_with_them():
 def test_a_scenario_that_does_not_load_says_so():
     with pytest.raises(ScenarioError):
         bench_scenarios(load_config(CONFIGS / "dc_motor.yaml"), "no_such_scenario")
+
+
+def test_a_soak_frame_missing_from_the_segments_and_not_dropped_is_missing():
+    r = {"daemon_frames": 1000, "daemon_messages_dropped": 3, "daemon_frames_in_segments": 997}
+    assert soak_frames_missing(r) == 0
+    assert soak_frames_missing({**r, "daemon_frames_in_segments": 990}) == 7
