@@ -124,16 +124,12 @@ def run(args: argparse.Namespace) -> int:
     if frames < 1000:
         print("canfdi bench: --frames: at least 1000", file=sys.stderr)
         return 2
-    from canfdi.firmware_sim.scenario import SCENARIO_DIR, ScenarioError, load_scenario
-    from canfdi.tools.pairing import NoPairing, scenario_for, without_faults
+    from canfdi.firmware_sim.scenario import ScenarioError
+    from canfdi.tools.bench import bench_scenarios
+    from canfdi.tools.pairing import NoPairing
 
     try:
-        if args.scenario is not None:
-            faulty = load_scenario(args.scenario)
-            scenario = without_faults(faulty)
-        else:
-            scenario = scenario_for(config, SCENARIO_DIR)
-            faulty = scenario_for(config, SCENARIO_DIR, faults=True)
+        scenario, faulty = bench_scenarios(config, args.scenario)
     except (NoPairing, ScenarioError) as exc:
         print(f"canfdi bench: {exc}", file=sys.stderr)
         return 2
@@ -193,13 +189,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _daemon_only(config, args: argparse.Namespace, scenario, progress, start: float) -> int:
-    """``--daemon-only``: canfdi.tools.daemonbench on the drive's frames, printed."""
-    from canfdi.tools.bench import make_traffic
-    from canfdi.tools.daemonbench import daemon_figures
+    """``--daemon-only``: canfdi.tools.bench.run_daemon_bench, printed."""
+    from canfdi.tools.bench import run_daemon_bench
 
-    progress("generating the drive's frames")
-    r = daemon_figures(config, make_traffic(100_000, scenario), *args.daemon_bus,
-                       quick=args.quick, progress=progress)
+    r = run_daemon_bench(config, scenario, *args.daemon_bus, quick=args.quick,
+                         progress=progress)
     r["elapsed_s"] = time.monotonic() - start
     if args.json:
         print(json.dumps(r, indent=2))
@@ -231,7 +225,7 @@ def _daemon_rows(r: dict) -> list[tuple[str, str]]:
 
 def _soak(config, args: argparse.Namespace, scenario, progress, start: float) -> int:
     """``--daemon-frames``: the daemon soak, printed; 1 when its log does not check out."""
-    from canfdi.tools.bench import run_daemon_soak
+    from canfdi.tools.bench import run_daemon_soak, soak_frames_missing
 
     try:
         r = run_daemon_soak(config, args.daemon_frames, round(args.rotate_mib * 2**20),
@@ -239,7 +233,7 @@ def _soak(config, args: argparse.Namespace, scenario, progress, start: float) ->
     except ValueError as exc:
         return config_error(exc, "bench")
     r["elapsed_s"] = time.monotonic() - start
-    lost = r["daemon_frames"] - r["daemon_messages_dropped"] - r["daemon_frames_in_segments"]
+    lost = soak_frames_missing(r)
     failed = bool(r["daemon_unreadable_segments"]) or lost > 0
     if args.json:
         print(json.dumps(r, indent=2))

@@ -1,14 +1,14 @@
 """`canfdi evaluate`: Monte Carlo over generated fault scenarios through the monitor's diagnoser.
 
-Issue 10. The work is in canfdi.tools.evaluate (generation, simulation, matching, metrics); this
-module parses arguments, prints and plots. Like soak and demo, it needs the plant emulator.
+Issue 10. The work is in canfdi.tools.evaluate (generation, simulation, matching, metrics),
+canfdi.tools.evaluate_monitor (the monitor evaluated), canfdi.tools.evaluate_files (the figure
+and the JSON of -o) and canfdi.tools.fleet (the Dask engine); this module parses arguments and
+prints. Like soak and demo, it needs the plant emulator.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import functools
 import json
 import math
 import sys
@@ -180,83 +180,62 @@ def _check_args(args: argparse.Namespace) -> str | None:
     return None
 
 
-class _NoEngine(Exception):
-    """--jobs / --scheduler cannot be served (no Dask, no scheduler there)."""
-
-
-@contextlib.contextmanager
-def _engine(args: argparse.Namespace):
-    """The runs' mapper of canfdi.tools.fleet on a Dask client for --jobs / --scheduler (None:
-    here, one by one)."""
-    if args.jobs is None and args.scheduler is None:
-        yield None
-        return
-    from canfdi.tools.fleet import FleetError, dask_client, map_tasks, need_fleet_extra
-
-    missing = need_fleet_extra(arrow=False)
-    if missing:
-        raise _NoEngine(f"--jobs/--scheduler {missing}")
-    try:
-        with dask_client(args.jobs, args.scheduler) as client:
-            yield functools.partial(map_tasks, client)
-    except FleetError as exc:  # only opening the client raises it
-        raise _NoEngine(str(exc)) from None
-
-
-def _calibrated(config, plant: str, noise_scale: float, seconds: float, seed: int, progress):
-    """`canfdi calibrate` on ``seconds`` of the plant, healthy, at ``noise_scale`` times the
-    config's noise (its own seed), through the config's bus: the monitor a user would deploy
-    on that drive."""
-    import numpy as np
-
-    from canfdi.config import read_yaml
-    from canfdi.firmware_sim.plants import make_plant
-    from canfdi.firmware_sim.scenario import parse_scenario
-    from canfdi.tools.calibrate import calibrate_records, scenario_records
-
-    std = config.design.measurement_std
-    if std is None:
-        std = make_plant(plant).noise_defaults().measurement
-    progress(f"calibrating on {seconds:g} s of the healthy drive at {noise_scale:g}x noise")
-    healthy = parse_scenario({"plant": plant, "duration": seconds, "seed": seed + 10**6,
-                              "noise": {"measurement": [float(v) for v in
-                                                        np.asarray(std) * noise_scale]}})
-    return calibrate_records(scenario_records(config, healthy, seconds, seed + 10**6), config,
-                             read_yaml(config.path, ConfigError, "config"))
-
-
 def _monitored(args: argparse.Namespace, path: Path, config, progress):
-    """(the config the faults are drawn from, the config monitored when another one: None,
-    the calibration of --calibrate or None), or the exit status after one error line."""
-    monitor, calibration = None, None
+    """canfdi.tools.evaluate_monitor.evaluated_monitor for --faults-from and --calibrate, or
+    the exit status after one error line."""
+    from canfdi.tools.evaluate_monitor import SignalsDiffer, evaluated_monitor
+
+    reference = None
     if args.faults_from is not None:
         if args.calibrate is not None:
             return _fail("--faults-from and --calibrate: give one")
         reference = load_config_or_exit(args.faults_from, "evaluate")
         if isinstance(reference, int):
             return reference
-        if (reference.inputs, reference.outputs) != (config.inputs, config.outputs):
-            return _fail(f"--faults-from {args.faults_from}: its signals differ from "
-                         f"{path}'s")
-        monitor, config = config, reference
-    if args.calibrate is not None:
-        try:
-            calibration = _calibrated(config, args.plant, args.noise_scale, args.calibrate,
-                                      args.seed, progress)
-        except ValueError as exc:
-            return _fail(f"--calibrate: {exc}")
-        monitor = calibration.config
-    return config, monitor, calibration
+    try:
+        return evaluated_monitor(config, args.plant, faults_from=reference,
+                                 calibrate_seconds=args.calibrate,
+                                 noise_scale=args.noise_scale, seed=args.seed,
+                                 progress=progress)
+    except SignalsDiffer:
+        return _fail(f"--faults-from {args.faults_from}: its signals differ from {path}'s")
+    except ValueError as exc:
+        return _fail(f"--calibrate: {exc}")
 
 
-def _write_files(stem: Path, result: dict[str, Any], progress) -> None:
-    """The figure and the JSON of ``result`` as STEM.png and STEM.json (their names go into
-    ``result["files"]``)."""
-    stem.parent.mkdir(parents=True, exist_ok=True)
-    plot(result, stem.with_suffix(".png"))
-    stem.with_suffix(".json").write_text(json.dumps(result, indent=2) + "\n")
-    result["files"] = [str(stem.with_suffix(".png")), str(stem.with_suffix(".json"))]
-    progress(f"wrote {stem}.png and {stem}.json")
+def _evaluate(args: argparse.Namespace, chosen, progress) -> dict[str, Any] | int:
+    """canfdi.tools.evaluate.evaluate of the chosen monitor, on the engine --jobs or
+    --scheduler ask for; the result, or the exit status after one error line."""
+    from canfdi.tools.evaluate import evaluate
+    from canfdi.tools.fleet import FleetError, NoDask, task_mapper
+
+    try:
+        with task_mapper(args.jobs, args.scheduler) as mapper:
+            return evaluate(chosen.drawn, args.plant, runs=args.runs, seed=args.seed,
+                            max_faults=args.max_faults, fnr=tuple(args.fnr),
+                            noise_spread=args.noise_spread, kinds=args.kinds,
+                            spacing=args.spacing, quantize=not args.no_quantize,
+                            noise_scale=args.noise_scale, monitor=chosen.monitor,
+                            progress=progress, mapper=mapper)
+    except NoDask as exc:
+        return _fail(f"--jobs/--scheduler {exc}")
+    except FleetError as exc:  # no scheduler there
+        return _fail(str(exc))
+    except (ConfigError, ValueError) as exc:
+        return config_error(exc, "evaluate")
+
+
+def _plant_mismatch(name: str, config) -> ConfigError | None:
+    """The error of a config whose signals are not the --plant's, or None."""
+    from canfdi.firmware_sim.plants import make_plant
+
+    plant = make_plant(name)
+    if (tuple(config.inputs), tuple(config.outputs)) == (plant.input_names, plant.output_names):
+        return None
+    return ConfigError(
+        "signals", f"the {name} plant has inputs {list(plant.input_names)}, outputs "
+                   f"{list(plant.output_names)}; this config has inputs {config.inputs}, "
+                   f"outputs {config.outputs}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -271,14 +250,9 @@ def run(args: argparse.Namespace) -> int:
         return config
     if args.method is not None and config.method != args.method:
         return _fail(f"--method {args.method}, but {path} is a {config.method} config")
-    from canfdi.firmware_sim.plants import make_plant
-
-    plant = make_plant(args.plant)
-    if (tuple(config.inputs), tuple(config.outputs)) != (plant.input_names, plant.output_names):
-        return config_error(ConfigError(
-            "signals", f"the {args.plant} plant has inputs {list(plant.input_names)}, outputs "
-                       f"{list(plant.output_names)}; this config has inputs {config.inputs}, "
-                       f"outputs {config.outputs}"), "evaluate")
+    mismatch = _plant_mismatch(args.plant, config)
+    if mismatch is not None:
+        return config_error(mismatch, "evaluate")
     start = time.monotonic()
 
     def progress(msg: str) -> None:
@@ -286,24 +260,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"canfdi evaluate [{time.monotonic() - start:6.1f} s] {msg}", file=sys.stderr,
                   flush=True)
 
-    from canfdi.tools.evaluate import evaluate
-
     chosen = _monitored(args, path, config, progress)
     if isinstance(chosen, int):
         return chosen
-    config, monitor, calibration = chosen
-    try:
-        with _engine(args) as mapper:
-            result = evaluate(config, args.plant, runs=args.runs, seed=args.seed,
-                              max_faults=args.max_faults, fnr=tuple(args.fnr),
-                              noise_spread=args.noise_spread, kinds=args.kinds,
-                              spacing=args.spacing, quantize=not args.no_quantize,
-                              noise_scale=args.noise_scale, monitor=monitor,
-                              progress=progress, mapper=mapper)
-    except _NoEngine as exc:
-        return _fail(str(exc))
-    except (ConfigError, ValueError) as exc:
-        return config_error(exc, "evaluate")
+    result = _evaluate(args, chosen, progress)
+    if isinstance(result, int):
+        return result
+    config, calibration = chosen.drawn, chosen.calibration
     result["config"] = str(path)
     if args.faults_from is not None:
         result["faults_from"] = str(args.faults_from)
@@ -312,7 +275,11 @@ def run(args: argparse.Namespace) -> int:
                                  "measurement_std": calibration.noise.std.tolist()}
     result["wall_s"] = time.monotonic() - start
     if args.output is not None:
-        _write_files(args.output / f"{args.plant}_{config.method}", result, progress)
+        from canfdi.tools.evaluate_files import write_evaluation
+
+        stem = args.output / f"{args.plant}_{config.method}"
+        write_evaluation(stem, result)
+        progress(f"wrote {stem}.png and {stem}.json")
     if args.json:
         print(json.dumps(result, indent=2))
     else:
@@ -403,58 +370,3 @@ def print_report(r: dict[str, Any]) -> None:
     for f in r.get("files", []):
         print(f"wrote {f}")
 
-
-def plot(r: dict[str, Any], path: Path) -> None:
-    """Detection delay and isolation accuracy against fault-to-noise ratio, as a PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    faults = r["fault_list"]
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7.5, 7), sharex=True)
-    det = [f for f in faults if f["delay"] is not None]
-    missed = [f for f in faults if f["delay"] is None]
-    ax1.scatter([f["fnr"] for f in det], [max(f["delay"], 0) + 1 for f in det], s=12,
-                alpha=0.6, label="detected fault (delay + 1)")
-    if missed:
-        top = max([f["delay"] + 1 for f in det], default=10) * 2
-        ax1.scatter([f["fnr"] for f in missed], [top] * len(missed), marker="x", color="red",
-                    label="missed")
-    centers, means, p95s, acc, rate = [], [], [], [], []
-    for b in r["by_fnr"]:
-        if not b["faults"]:
-            continue
-        c = math.sqrt(b["fnr_lo"] * b["fnr_hi"])
-        centers.append(c)
-        means.append(None if b["delay_mean_samples"] is None else b["delay_mean_samples"] + 1)
-        p95s.append(None if b["delay_p95_samples"] is None else b["delay_p95_samples"] + 1)
-        acc.append(b["isolation_accuracy"])
-        rate.append(b["detection_rate"])
-
-    def line(ax, xs, ys, **kw):
-        pts = [(x, y) for x, y in zip(xs, ys, strict=True) if y is not None]
-        if pts:
-            ax.plot(*zip(*pts, strict=True), marker="o", **kw)
-
-    line(ax1, centers, means, color="black", label="bin mean")
-    line(ax1, centers, p95s, color="gray", linestyle="--", label="bin 95th percentile")
-    ax1.set_xscale("log")
-    ax1.set_yscale("log")
-    ax1.set_ylabel("detection delay + 1 (samples)")
-    ax1.legend(fontsize=8)
-    ax1.grid(True, which="both", alpha=0.3)
-    ax1.set_title(f"canfdi evaluate: {r['plant']}, {r['method']}, {r['runs']} runs")
-    line(ax2, centers, acc, color="tab:green", label="isolation accuracy (of accepted)")
-    line(ax2, centers, rate, color="tab:blue", linestyle="--", label="detection rate")
-    for lo in [b["fnr_lo"] for b in r["by_fnr"]] + [r["by_fnr"][-1]["fnr_hi"]]:
-        ax2.axvline(lo, color="gray", alpha=0.2)
-    ax2.set_ylim(-0.05, 1.05)
-    ax2.set_xscale("log")
-    ax2.set_xlabel("fault-to-noise ratio (residual noise standard deviations)")
-    ax2.set_ylabel("fraction of faults")
-    ax2.legend(fontsize=8, loc="lower right")
-    ax2.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from canfdi.cli.common import config_error, load_config_or_exit
+from canfdi.cli.common import config_error
 
 HELP = """\
 Diagnose many logs at once: every log (any format canfdi replay reads: canfdi's MCAP, candump
@@ -93,26 +93,11 @@ def _fail(message: str) -> int:
     return 2
 
 
-def _check_configs(paths: list[str]) -> int:
-    """0, or 2 after one line: each distinct config loads and builds a monitor here first, so
-    that a bad one stops the run before any worker starts."""
-    from canfdi.monitor import Monitor
-
-    for path in paths:
-        config = load_config_or_exit(path, "fleet")
-        if isinstance(config, int):
-            return config
-        try:
-            Monitor(config, record_residuals=False)
-        except ValueError as exc:
-            return config_error(exc, "fleet")
-    return 0
-
-
 def run(args: argparse.Namespace) -> int:
     from canfdi.tools.fleet import (
         ConfigMap,
         FleetError,
+        check_configs,
         find_logs,
         need_fleet_extra,
         parse_drive_pattern,
@@ -133,9 +118,10 @@ def run(args: argparse.Namespace) -> int:
                            pattern=pattern)
     except FleetError as exc:
         return _fail(str(exc))
-    status = _check_configs(sorted({t.config for t in tasks}))
-    if status:
-        return status
+    try:
+        check_configs(sorted({t.config for t in tasks}))
+    except ValueError as exc:
+        return config_error(exc, "fleet")
     return _run(args, tasks)
 
 

@@ -124,16 +124,16 @@ def _check_args(args: argparse.Namespace) -> str | None:
 
 def _faulty_log(args: argparse.Namespace) -> str | None:
     """The error line for the first log that holds injected faults, or None."""
-    from canfdi.io.logs import truth_of
+    from canfdi.tools.identify import first_faulty_log
 
-    for log in [*args.logs, *args.validate]:
-        truth = truth_of(log) if log.suffix.lower() == ".mcap" else None
-        if truth:
-            onsets = ", ".join(f"{f.get('target', '?')} {f.get('name', f.get('index'))} at "
-                               f"{f.get('onset', '?')} s" for f in truth)
-            return (f"{log} holds injected faults ({onsets}): a model is learned from a "
-                    "healthy drive; record a fault-free log (or --force)")
-    return None
+    faulty = first_faulty_log([*args.logs, *args.validate])
+    if faulty is None:
+        return None
+    log, truth = faulty
+    onsets = ", ".join(f"{f.get('target', '?')} {f.get('name', f.get('index'))} at "
+                       f"{f.get('onset', '?')} s" for f in truth)
+    return (f"{log} holds injected faults ({onsets}): a model is learned from a healthy "
+            "drive; record a fault-free log (or --force)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -141,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
     from canfdi.io.damage import Damage
     from canfdi.methods.output_error.fit import FitOptions
     from canfdi.tools.configdoc import ConfigDocument
-    from canfdi.tools.identify import Refusal, identify
+    from canfdi.tools.identify import Refusal, config_document, identify, jsonable
 
     try:
         config = load_config(args.config, allow_unidentified=True)
@@ -182,11 +182,12 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"{exc}{lost}")
     for line in damage.lines():
         print(f"canfdi identify: {line}", file=sys.stderr)
-    text = _identified_config(args, document, result)
+    when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    text = config_document(result, document, args.config, args.logs, args.output, when).dump()
     report = dict(result.report)
     report["damage"] = damage.as_dict()
     if args.json:
-        print(json.dumps(report, indent=2, default=_jsonable))
+        print(json.dumps(report, indent=2, default=jsonable))
     else:
         _print_report(report)
     if args.output:
@@ -196,31 +197,6 @@ def run(args: argparse.Namespace) -> int:
     elif not args.json:
         print(text)
     return 0
-
-
-def _identified_config(args: argparse.Namespace, document, result) -> str:
-    """The config as written with identify's updates, its paths relative to where it goes
-    and a header saying where it came from."""
-    when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    out = args.output or args.config
-    for key, value in result.updates.items():
-        if value is None:
-            document.delete(key)
-        else:
-            document.set(key, value)
-    document.relocate_paths(args.config, out)
-    document.header([f"canfdi identify, {when}: {args.config.name} + "
-                     f"{', '.join(p.name for p in args.logs)} -> "
-                     f"{(args.output or Path('stdout')).name}", *result.header])
-    return document.dump()
-
-
-def _jsonable(value):
-    if isinstance(value, complex):
-        return [value.real, value.imag]
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    return str(value)
 
 
 def _print_report(report: dict) -> None:

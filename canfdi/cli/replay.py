@@ -15,7 +15,12 @@ from canfdi.cli.common import (
     load_config_or_exit,
     print_comparison,
 )
-from canfdi.tools.session import close_recorder, open_recorder
+from canfdi.tools.replay import (
+    CannotWriteDiagnosis,
+    NoRecordedConfig,
+    recorded_config,
+    replay_diagnosis,
+)
 
 HELP = """\
 Run the monitor offline over a log: an MCAP written by canfdi (run, demo, capture), whose raw
@@ -65,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     with tempfile.TemporaryDirectory(prefix="canfdi-replay-") as scratch:
         config = (load_config_or_exit(args.config, "replay") if args.config is not None
-                  else recorded_config(args.log, Path(scratch)))
+                  else _recorded_config(args.log, Path(scratch)))
         if isinstance(config, int):
             return config
         try:
@@ -75,30 +80,18 @@ def run(args: argparse.Namespace) -> int:
         return _replay(args, monitor)
 
 
-def recorded_config(log: Path, scratch: Path):
-    """The monitor config recorded in a canfdi MCAP (its ``config_yaml`` metadata), loaded
-    from a copy in ``scratch``; 2 after one line when there is none."""
-    from canfdi.config import ConfigError, load_config
-    from canfdi.io.reader import read_metadata
-    from canfdi.io.scan import NotMcap
-
+def _recorded_config(log: Path, scratch: Path):
+    """canfdi.tools.replay.recorded_config, said on stderr; 2 after one line when there is
+    none."""
     try:
-        meta = read_metadata(log) if log.suffix == ".mcap" else {}
-    except (NotMcap, OSError):
-        meta = {}
-    text = meta.get("config_yaml", "")
-    if not text:
-        print(f"canfdi replay: give --config: {log} holds no monitor config (only a canfdi "
-              "MCAP does)", file=sys.stderr)
-        return 2
-    # (the name is the log's to say: its last part only, so the copy stays in scratch)
-    copy = scratch / f"{Path(meta.get('config_name') or 'recorded').name or 'recorded'}.yaml"
-    copy.write_text(text)
-    try:
-        config = load_config(copy)
-    except ConfigError as exc:
-        print(f"canfdi replay: the config recorded in {log} does not load here ({exc}); give "
-              "--config", file=sys.stderr)
+        config = recorded_config(log, scratch)
+    except NoRecordedConfig as exc:
+        if exc.error is None:
+            print(f"canfdi replay: give --config: {log} holds no monitor config (only a canfdi "
+                  "MCAP does)", file=sys.stderr)
+        else:
+            print(f"canfdi replay: the config recorded in {log} does not load here "
+                  f"({exc.error}); give --config", file=sys.stderr)
         return 2
     print(f"canfdi replay: using the config recorded in {log} ({config.name}); --config "
           "gives another", file=sys.stderr)
@@ -106,8 +99,9 @@ def recorded_config(log: Path, scratch: Path):
 
 
 def _replay(args: argparse.Namespace, monitor) -> int:
-    """The replay into ``monitor``, recorded with -o; the exit status."""
-    from canfdi.io.logs import truth_of
+    """canfdi.tools.replay.replay_diagnosis into ``monitor``, its events and progress printed as
+    the blocks go; the exit status."""
+    from canfdi.io.formats import LogFormatError
 
     progress = not args.no_progress and sys.stderr.isatty()
     start = time.monotonic()
@@ -125,36 +119,11 @@ def _replay(args: argparse.Namespace, monitor) -> int:
             print(f"\rcanfdi replay: {count:,} frames, {monitor.samples:,} samples, "
                   f"{rate:,.0f} samples/s", end="", file=sys.stderr)
 
-    recorder = None
-    if args.output is not None:
-        try:
-            recorder = open_recorder(args.output, monitor.metadata(truth_of(args.log)),
-                                     drive_clock=lambda: monitor.last_timestamp_ns or 0)
-        except (OSError, ValueError) as exc:
-            print(f"canfdi replay: cannot write {args.output}: {exc}", file=sys.stderr)
-            return 1
-        monitor.sink = recorder
-    status = 2
     try:
-        status = _diagnose(args, monitor, on_block, progress, seen)
-    finally:
-        if recorder is not None:
-            close_recorder(recorder)
-            if status != 0:  # nothing diagnosed: no log that looks like a diagnosis
-                for path in recorder.paths:
-                    path.unlink(missing_ok=True)
-            elif not args.json:
-                print(f"log: {args.output}")
-    return status
-
-
-def _diagnose(args: argparse.Namespace, monitor, on_block, progress: bool, seen: dict) -> int:
-    """Replay the log into ``monitor`` and print the outcome; the exit status."""
-    from canfdi.io.formats import LogFormatError
-    from canfdi.tools.replay import replay_log
-
-    try:
-        replayed = replay_log(monitor, args.log, on_block)
+        diagnosis = replay_diagnosis(monitor, args.log, args.output, on_block)
+    except CannotWriteDiagnosis as exc:
+        print(f"canfdi replay: cannot write {args.output}: {exc.error}", file=sys.stderr)
+        return 1
     except LogFormatError as exc:
         print(f"canfdi replay: {exc}", file=sys.stderr)
         return 2
@@ -169,21 +138,27 @@ def _diagnose(args: argparse.Namespace, monitor, on_block, progress: bool, seen:
         return 2
     if progress:
         print(file=sys.stderr)
-    damage, truth = replayed.damage, replayed.truth
-    result = monitor.summary(truth)
-    if "no_samples" in result and damage:
+    return _print_diagnosis(args, diagnosis)
+
+
+def _print_diagnosis(args: argparse.Namespace, diagnosis) -> int:
+    """The diagnosis as a table or JSON, what a damaged log lost on stderr; the exit
+    status."""
+    damage, truth, result = diagnosis.replayed.damage, diagnosis.replayed.truth, diagnosis.result
+    if not diagnosis.diagnosed and damage:
         print(f"canfdi replay: {'; '.join(damage.lines())}; no sample left to replay "
               f"({result['no_samples']})", file=sys.stderr)
         return 2
-    result["damage"] = damage.as_dict()
     if args.json:
         print(json.dumps(result, indent=2))
     else:
         print_comparison(result, truth)
     for line in damage.lines():
         print(f"canfdi replay: {line}", file=sys.stderr)
-    if "no_samples" in result:
+    if not diagnosis.diagnosed:
         if args.json:  # the table printed it already
             print(f"canfdi replay: {result['no_samples']}", file=sys.stderr)
         return 1
+    if args.output is not None and not args.json:
+        print(f"log: {args.output}")
     return 0

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from canfdi.cli.common import add_bus_overrides, bus_request
 from canfdi.tools.session import BusArgumentError, StopEvent, bus_factory
+from canfdi.tools.sim import samples_to_play
 
 HELP = """\
 Run the plant emulator (canfdi.firmware_sim) for a scenario and publish its drives' frames on a
@@ -127,7 +128,7 @@ def _to_bus(args: argparse.Namespace, scenario, disturbance) -> int:
     except (can.CanError, OSError, ValueError, ImportError) as exc:
         print(f"canfdi sim: cannot open {interface} bus {channel!r}: {exc}", file=sys.stderr)
         return 1
-    total = round((args.duration or scenario.duration) / scenario.make_plant().dt)
+    total = samples_to_play(scenario, args.duration)
 
     def progress(chunk, stats) -> None:
         if not args.quiet:
@@ -159,9 +160,8 @@ def _to_bus(args: argparse.Namespace, scenario, disturbance) -> int:
 
 def _to_file(args: argparse.Namespace, scenario, disturbance) -> int:
     """The scenario's frames into a log file (no bus)."""
-    from canfdi.firmware_sim.emitter import frame_log
     from canfdi.io.formats import LogFormatError, format_of
-    from canfdi.io.logs import write_frames
+    from canfdi.tools.sim import write_scenario_log
 
     try:
         format_of(args.output)
@@ -171,15 +171,12 @@ def _to_file(args: argparse.Namespace, scenario, disturbance) -> int:
         return _fail(f"-o {args.output}: exists (not overwritten)")
     if not args.quiet:
         print(f"canfdi sim: {scenario.name}: writing {args.output}", file=sys.stderr)
-    log = frame_log(scenario, disturbance, duration=args.duration)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
     try:
-        written = write_frames(args.output, [log.frames])
+        outcome = write_scenario_log(scenario, disturbance, args.output, args.duration)
     except (OSError, LogFormatError) as exc:
         print(f"canfdi sim: cannot write {args.output}: {exc}", file=sys.stderr)
         return 1
-    _report(args, {"scenario": scenario.name, "output": str(args.output),
-                   "frames": written.frames, "skipped": written.skipped, **log.stats.as_dict()})
+    _report(args, outcome)
     return 0
 
 

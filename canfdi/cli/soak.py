@@ -10,7 +10,6 @@ Like the demo verb, this one imports canfdi.firmware_sim: it needs the emulated 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import sys
@@ -98,18 +97,6 @@ def _fail(message: str) -> int:
     return 2
 
 
-def _check_scenario(scenario) -> str | None:
-    """What makes ``scenario`` no soak of the emulated plant, or None."""
-    from canfdi.tools.soak import PLANT
-
-    if scenario.plant != PLANT:
-        return f"scenario error: plant: {scenario.plant!r}; canfdi soak emulates {PLANT}"
-    if scenario.faults:
-        return (f"scenario error: faults: a soak is fault-free; {scenario.name} has "
-                f"{len(scenario.faults)}")
-    return None
-
-
 def _check_args(args: argparse.Namespace) -> str | None:
     """The first option out of its range, as the error line, or None."""
     checks = [
@@ -128,7 +115,14 @@ def _check_args(args: argparse.Namespace) -> str | None:
 def run(args: argparse.Namespace) -> int:
     from canfdi.firmware_sim.plants import make_plant
     from canfdi.firmware_sim.scenario import ScenarioError, load_scenario
-    from canfdi.tools.soak import PLANT, SoakArgumentError, soak
+    from canfdi.tools.soak import (
+        PLANT,
+        SoakArgumentError,
+        calibrated,
+        scenario_problem,
+        soak,
+        with_noise_scale,
+    )
 
     config = load_config_or_exit(args.config, "soak")
     if isinstance(config, int):
@@ -143,11 +137,11 @@ def run(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
         return _fail(f"scenario error: {exc}")
-    problem = _check_scenario(scenario) or _check_args(args)
+    problem = scenario_problem(scenario)
+    problem = f"scenario error: {problem}" if problem else _check_args(args)
     if problem:
         return _fail(problem)
-    scenario = dataclasses.replace(scenario,
-                                   measurement_std=scenario.measurement_std * args.noise_scale)
+    scenario = with_noise_scale(scenario, args.noise_scale)
     start = time.monotonic()
 
     def progress(msg: str) -> None:
@@ -158,16 +152,10 @@ def run(args: argparse.Namespace) -> int:
     calibration = None
     seed = scenario.seed if args.seed is None else args.seed
     if args.calibrate:
-        from canfdi.config import read_yaml
-        from canfdi.tools.calibrate import LogFault, calibrate_records, scenario_records
-
-        progress(f"calibrating on {args.calibrate_seconds:g} s of the healthy drive")
         try:
-            records = scenario_records(config, scenario, args.calibrate_seconds, seed + 1)
-            calibration = calibrate_records(records, config,
-                                            read_yaml(args.config, ValueError, "config"),
-                                            progress=progress)
-        except (LogFault, ValueError) as exc:
+            calibration = calibrated(config, args.config, scenario, args.calibrate_seconds,
+                                     seed, progress)
+        except ValueError as exc:  # LogFault too
             return _fail(f"calibration: {exc}")
         config = calibration.config
     try:
@@ -188,8 +176,6 @@ def run(args: argparse.Namespace) -> int:
         print_report(result)
     return 0 if result["passed"] else 1
 
-
-# -- the soak ---------------------------------------------------------------------------------
 
 # -- the report -------------------------------------------------------------------------------
 

@@ -24,7 +24,8 @@ from canfdi.bus.frames import FLAG_EXTENDED, FLAG_REMOTE, FrameBlock
 if TYPE_CHECKING:
     from canfdi.firmware_sim.scenario import Scenario
 
-__all__ = ["bus_limit", "data_lengths", "make_traffic", "run_bench"]
+__all__ = ["bench_scenarios", "bus_limit", "data_lengths", "make_traffic", "run_bench",
+           "run_daemon_bench", "soak_frames_missing"]
 
 
 def frame_bits(dlc: int, stuffed: bool) -> int:
@@ -52,6 +53,28 @@ def bus_limit(dlcs, bitrate: float = 1e6) -> tuple[float, float]:
 def data_lengths(traffic: FrameBlock) -> np.ndarray:
     """(N,) bytes of data on the wire per frame (0 for a remote request, whatever its DLC)."""
     return np.where((traffic.flags & FLAG_REMOTE) != 0, 0, traffic.dlc).astype(np.int64)
+
+
+def bench_scenarios(config, scenario: str | None = None) -> tuple[Scenario, Scenario]:
+    """(the bench's fault-free scenario, the same bus with faults for the latency):
+    ``scenario`` (a YAML file or a shipped name) without and with its faults, else the shipped
+    scenarios that play the config's bus (canfdi.tools.pairing.scenario_for).
+
+    Raises
+    ------
+    NoPairing
+        No shipped scenario plays the config's bus.
+    ScenarioError
+        ``scenario`` does not load.
+    """
+    from canfdi.firmware_sim.scenario import SCENARIO_DIR, load_scenario
+    from canfdi.tools.pairing import scenario_for, without_faults
+
+    if scenario is not None:
+        faulty = load_scenario(scenario)
+        return without_faults(faulty), faulty
+    return (scenario_for(config, SCENARIO_DIR),
+            scenario_for(config, SCENARIO_DIR, faults=True))
 
 
 def make_traffic(frames: int, scenario: str | Scenario = "dc_motor_nominal") -> FrameBlock:
@@ -229,6 +252,19 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
 
         out.update(daemon_figures(config, traffic, *daemon_bus, quick=quick, progress=say))
     return out
+
+
+def run_daemon_bench(config, scenario: Scenario | str, interface: str, channel: str, *,
+                     quick: bool = False, progress: Callable[[str], None] | None = None
+                     ) -> dict:
+    """The daemon measurement alone (`canfdi bench --daemon-only`): canfdi.tools.daemonbench
+    on 10^5 frames of the scenario's drive, on the bus ``interface`` ``channel``."""
+    from canfdi.tools.daemonbench import daemon_figures
+
+    say = progress or (lambda msg: None)
+    say("generating the drive's frames")
+    return daemon_figures(config, make_traffic(100_000, scenario), interface, channel,
+                          quick=quick, progress=say)
 
 
 IDENTIFY_SCENARIO = "servo_axis_commissioning"
@@ -481,6 +517,13 @@ def _verify_segment(path: str, delete: bool) -> tuple[str, int, str | None]:
     if delete:
         Path(path).unlink(missing_ok=True)
     return Path(path).name, frames, problem
+
+
+def soak_frames_missing(r: dict) -> int:
+    """Frames of a `run_daemon_soak` (its result ``r``) that reached neither its rotated
+    segments nor the count of messages it dropped: more than 0, or an unreadable segment, and
+    its log does not check out."""
+    return r["daemon_frames"] - r["daemon_messages_dropped"] - r["daemon_frames_in_segments"]
 
 
 def run_daemon_soak(config, frames: int, rotate_bytes: int,

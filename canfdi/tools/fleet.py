@@ -62,8 +62,10 @@ __all__ = [
     "LogResult",
     "LogStats",
     "LogTask",
+    "NoDask",
     "RunningVariance",
     "bench_fleet",
+    "check_configs",
     "dask_client",
     "diagnose_log",
     "drive_of",
@@ -81,6 +83,7 @@ __all__ = [
     "run_fleet",
     "schemas",
     "tables_paths",
+    "task_mapper",
     "warm_up",
     "workers_of",
     "write_drive_log",
@@ -277,6 +280,22 @@ class LogTask:
     log: str
     drive: str
     config: str
+
+
+def check_configs(paths: Sequence[str | Path]) -> None:
+    """Load each config and build its monitor here, so that a bad one stops the run before any
+    worker starts (a worker would make it every log's error).
+
+    Raises
+    ------
+    ValueError
+        The first config that does not load (ConfigError) or build a monitor.
+    """
+    from canfdi.config import load_config
+    from canfdi.monitor import Monitor
+
+    for path in paths:
+        Monitor(load_config(path), record_residuals=False)
 
 
 def plan_tasks(logs: Sequence[tuple[Path, Path | None]], *, config: Path | None = None,
@@ -738,6 +757,40 @@ def map_tasks(client: Any | None, fn: Callable[..., Any], items: Sequence[Any],
     for future, result in as_completed(futures, with_results=True):
         yield index[future.key], result
         future.release()  # the result is ours now: free the worker's copy
+
+
+class NoDask(FleetError):
+    """Dask's distributed is not installed (the message says what to install).
+
+    Examples
+    --------
+    >>> isinstance(NoDask("pip install 'canfdi[fleet]'"), FleetError)
+    True
+    """
+
+
+@contextlib.contextmanager
+def task_mapper(jobs: int | None, scheduler: str | None
+                ) -> Iterator[Callable[..., Iterator[tuple[int, Any]]] | None]:
+    """`map_tasks` on a `dask_client` of ``jobs`` local worker processes or of the scheduler
+    at ``scheduler``: the ``mapper`` canfdi.tools.evaluate.evaluate takes; None when neither
+    is given (the caller maps in this process, one by one).
+
+    Raises
+    ------
+    NoDask
+        Dask's distributed is not installed.
+    FleetError
+        As `dask_client`: no scheduler there, ``jobs`` < 1.
+    """
+    if jobs is None and scheduler is None:
+        yield None
+        return
+    missing = need_fleet_extra(arrow=False)
+    if missing:
+        raise NoDask(missing)
+    with dask_client(jobs, scheduler) as client:
+        yield functools.partial(map_tasks, client)
 
 
 def warm_up(configs: Sequence[str]) -> None:

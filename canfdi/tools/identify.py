@@ -26,7 +26,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -55,13 +55,19 @@ from canfdi.io.damage import Damage
 from canfdi.tools.calibrate import LogFault, Record, calibrate_records, read_records
 from canfdi.tools.samples import sample_period
 
+if TYPE_CHECKING:
+    from canfdi.tools.configdoc import ConfigDocument
+
 __all__ = [
     "HOLDOUT",
     "MIN_FIT",
     "MIN_SAMPLES",
     "Identification",
     "Refusal",
+    "config_document",
+    "first_faulty_log",
     "identify",
+    "jsonable",
     "period_of",
 ]
 
@@ -134,6 +140,55 @@ def period_of(config: MonitorConfig) -> float:
             return min(cycles) / 1000.0
     raise ConfigError("model.dt", "the sample period is not known: give model.dt (or "
                                   "bus.clock.period for a grid clock)")
+
+
+def first_faulty_log(paths: Sequence[Path]) -> tuple[Path, list[dict]] | None:
+    """The first of the canfdi MCAPs among ``paths`` whose metadata says faults were injected
+    while it was recorded (a demo's, a sim's), with those faults; None when there is none (a
+    model is learned from a healthy drive only)."""
+    from canfdi.io.logs import truth_of
+
+    for path in paths:
+        truth = truth_of(path) if path.suffix.lower() == ".mcap" else None
+        if truth:
+            return path, truth
+    return None
+
+
+def config_document(identification: Identification, document: ConfigDocument, source: Path,
+                    logs: Sequence[Path], output: Path | None, when: str) -> ConfigDocument:
+    """The identified config to write to ``output``: ``document`` (the config as read from
+    ``source``, whose `plain` form `identify` took) with the identified sections set in place
+    (``identification.updates``; None deletes a key), its relative paths pointing at the same
+    files from ``output``'s folder (``source``'s when printed), and a header saying where it
+    came from (date ``when``, config, ``logs``) above the identification's provenance lines.
+    Everything else keeps the user's comments, order and literals.
+
+    Returns
+    -------
+    ``document``, edited.
+    """
+    for key, value in identification.updates.items():
+        if value is None:
+            document.delete(key)
+        else:
+            document.set(key, value)
+    document.relocate_paths(source, output or source)
+    document.header([f"canfdi identify, {when}: {source.name} + "
+                     f"{', '.join(p.name for p in logs)} -> "
+                     f"{(output or Path('stdout')).name}", *identification.header])
+    return document
+
+
+def jsonable(value: Any) -> Any:
+    """What the JSON of an identification's report holds for a value JSON has no form of
+    (``json.dumps(report, default=jsonable)``): a complex number (an eigenvalue) as [real,
+    imaginary], an array as a list, anything else as its text."""
+    if isinstance(value, complex):
+        return [value.real, value.imag]
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return str(value)
 
 
 def _split(records: Sequence[Record], holdout: float) -> tuple[list[Record], list[Record]]:

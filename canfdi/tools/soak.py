@@ -9,9 +9,11 @@ own copy of the diagnoser the config describes (canfdi.methods).
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -23,8 +25,10 @@ from canfdi.methods import build_diagnoser
 
 if TYPE_CHECKING:
     from canfdi.firmware_sim.scenario import Scenario
+    from canfdi.tools.calibrate import Calibration
 
-__all__ = ["PLANT", "SoakArgumentError", "rate_lower_bound", "rate_upper_bound", "soak"]
+__all__ = ["PLANT", "SoakArgumentError", "calibrated", "rate_lower_bound", "rate_upper_bound",
+           "scenario_problem", "soak", "with_noise_scale"]
 
 PLANT = "dc_motor"
 
@@ -32,6 +36,41 @@ PLANT = "dc_motor"
 class SoakArgumentError(ValueError):
     """Arguments the config makes impossible (too few samples per run for its window)."""
 
+
+def scenario_problem(scenario: Scenario) -> str | None:
+    """What makes ``scenario`` no soak of the emulated plant (another plant, faults), or
+    None."""
+    if scenario.plant != PLANT:
+        return f"plant: {scenario.plant!r}; canfdi soak emulates {PLANT}"
+    if scenario.faults:
+        return f"faults: a soak is fault-free; {scenario.name} has {len(scenario.faults)}"
+    return None
+
+
+def with_noise_scale(scenario: Scenario, noise_scale: float) -> Scenario:
+    """``scenario`` with its drive's measurement noise ``noise_scale`` times the scenario's:
+    the drive a config describes wrongly."""
+    return dataclasses.replace(scenario, measurement_std=scenario.measurement_std * noise_scale)
+
+
+def calibrated(config: MonitorConfig, config_path: Path, scenario: Scenario, seconds: float,
+               seed: int, progress: Callable[[str], None] = lambda msg: None) -> Calibration:
+    """`canfdi calibrate` of the config at ``config_path`` on ``seconds`` of a healthy run of
+    the scenario's drive (seeded ``seed + 1``: none of the soak's noise), through the config's
+    bus: the monitor as deployed after calibration.
+
+    Raises
+    ------
+    ValueError
+        The run cannot calibrate the config (too few samples; LogFault: a detection in it).
+    """
+    from canfdi.config import read_yaml
+    from canfdi.tools.calibrate import calibrate_records, scenario_records
+
+    progress(f"calibrating on {seconds:g} s of the healthy drive")
+    records = scenario_records(config, scenario, seconds, seed + 1)
+    return calibrate_records(records, config, read_yaml(config_path, ValueError, "config"),
+                             progress=progress)
 
 
 def soak(config: MonitorConfig, scenario: Scenario, *, samples: int, runs: int, seed: int,

@@ -18,7 +18,9 @@ from canfdi.tools.fleet import (
     ConfigMap,
     FleetError,
     LogTask,
+    NoDask,
     RunningVariance,
+    check_configs,
     diagnose_log,
     drive_of,
     fault_rows,
@@ -29,6 +31,7 @@ from canfdi.tools.fleet import (
     plan_tasks,
     report_dir,
     tables_paths,
+    task_mapper,
 )
 from tests.cli import canfdi_main as main
 from tests.conftest import REPO
@@ -227,3 +230,23 @@ def test_without_the_extra_it_says_what_to_install(tmp_path, capsys, monkeypatch
                  str(tmp_path / "x.parquet")]) == 2
     err = capsys.readouterr().err
     assert "pip install 'canfdi[fleet]'" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_bad_config_stops_the_fleet_before_any_worker(tmp_path):
+    check_configs([str(CONFIG)])  # a good one passes
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("model: {}\n")
+    with pytest.raises(ValueError):
+        check_configs([str(CONFIG), str(bad)])
+
+
+def test_without_jobs_or_a_scheduler_the_tasks_map_here():
+    with task_mapper(None, None) as mapper:
+        assert mapper is None
+
+
+def test_a_mapper_without_dask_says_what_to_install(monkeypatch):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed fails
+    with pytest.raises(NoDask, match=re.escape("pip install 'canfdi[fleet]'")), \
+            task_mapper(2, None):
+        pass
