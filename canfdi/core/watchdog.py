@@ -79,6 +79,14 @@ class NoiseWatchdog:
     block : sample indices per block; blocks : consecutive blocks that must agree (the window
         is block * blocks samples).
 
+    Attributes
+    ----------
+    ratio : (m,) each residual's noise std over its calibrated value at the last block end
+        (NaN while its window has no block to tell).
+    known : (m,) each residual's last ratio that was not NaN: the noise of a residual in
+        mismatch while its blocks are held back under a diagnosis (`scale`).
+    mismatch : (m,) bool, the residuals in mismatch.
+
     Examples
     --------
     >>> rng = np.random.default_rng(0)
@@ -103,11 +111,12 @@ class NoiseWatchdog:
     def reset(self) -> None:
         """Nothing seen: no block, no mismatch."""
         self._open: int | None = None  # the block index being accumulated
-        self._n = np.zeros(self.m)
-        self._s1 = np.zeros(self.m)
-        self._s2 = np.zeros(self.m)
+        # The open block's rows (k, rn) as they came: summed at its close in the order of k,
+        # so that its variance has the same bits whatever chunks (and held rows) brought them.
+        self._rows: list[tuple[NDArray[np.int64], NDArray[np.float64]]] = []
         self._variances: deque[NDArray[np.float64]] = deque(maxlen=self.blocks)
         self.ratio = np.full(self.m, np.nan)
+        self.known = np.full(self.m, np.nan)
         self.mismatch = np.zeros(self.m, dtype=bool)
 
     @property
@@ -116,8 +125,9 @@ class NoiseWatchdog:
         1 otherwise. A residual quieter than calibrated keeps its calibrated noise: a noise
         estimate never tightens a threshold below what the config (and the signals'
         resolution, which it includes) allow; rounding noise that shrinks with the values
-        comes back when they grow."""
-        return np.where(self.mismatch, np.maximum(self.ratio, 1.0), 1.0)
+        comes back when they grow. While a window has no verdict on a residual in mismatch
+        (its blocks held back under a diagnosis), the ratio it last had (`known`)."""
+        return np.where(self.mismatch, np.maximum(self.known, 1.0), 1.0)
 
     @property
     def judged(self) -> bool:
@@ -139,13 +149,15 @@ class NoiseWatchdog:
     def close(self, k: int) -> WatchdogChange | None:
         """End the open block (sample k is in a later one): judge the window; the change, if
         the set of residuals in mismatch moved."""
-        var = _variance(self._n, self._s1, self._s2, self.block)
+        var = self._open_variance()
         # Sample k's block is open now, whether or not samples reach it (a diagnosis holds
         # them back).
-        self._open, self._n[:], self._s1[:], self._s2[:] = k // self.block, 0.0, 0.0, 0.0
+        self._open, self._rows = k // self.block, []
         self._variances.append(var)
         recent = np.array(self._variances)
         self.ratio = _ratio(recent)
+        seen = np.isfinite(self.ratio)
+        self.known[seen] = self.ratio[seen]
         if len(recent) < self.blocks:
             return None
         out, inside = self._verdicts(recent)
@@ -174,11 +186,16 @@ class NoiseWatchdog:
         if not len(k):
             return
         self._open = int(k[-1]) // self.block
-        have = ~np.isnan(rn)
-        x = np.where(have, rn, 0.0)
-        self._n += have.sum(axis=0)
-        self._s1 += x.sum(axis=0)
-        self._s2 += (x * x).sum(axis=0)
+        self._rows.append((np.array(k, dtype=np.int64), rn.copy()))
+
+    def _open_variance(self) -> NDArray[np.float64]:
+        """(m,) the open block's variance (`_variance`), its rows summed in the order of k."""
+        if not self._rows:
+            return np.full(self.m, np.nan)
+        k = np.concatenate([r[0] for r in self._rows])
+        rn = np.concatenate([r[1] for r in self._rows])[np.argsort(k, kind="stable")]
+        n, s1, s2 = _run_sums(rn, [(0, len(rn))], self.block)
+        return _variance(n[0], s1[0], s2[0], self.block)
 
     def add_late(self, k: NDArray[np.int64], rn: NDArray[np.float64]) -> None:
         """Samples k (N,), rn (N, m) held back while a diagnosis ran that ended with no fault
@@ -192,11 +209,8 @@ class NoiseWatchdog:
             if self._open is not None and int(k[lo]) // self.block >= self._open:
                 self.add(k[lo:hi], rn[lo:hi])
                 continue
-            have = ~np.isnan(rn[lo:hi])
-            x = np.where(have, rn[lo:hi], 0.0)
-            n = have.sum(axis=0)
-            self._variances.append(_variance(n, x.sum(axis=0), (x * x).sum(axis=0),
-                                             self.block))
+            n, s1, s2 = _run_sums(rn[lo:hi], [(0, hi - lo)], self.block)
+            self._variances.append(_variance(n[0], s1[0], s2[0], self.block))
 
     def update(self, k: NDArray[np.int64], rn: NDArray[np.float64],
                stop_on_change: bool = False) -> list[WatchdogChange]:
@@ -231,7 +245,7 @@ class NoiseWatchdog:
         # before these samples, the others are runs 1..R-2 whole.
         starts = np.array([a for a, _ in runs[1:]])
         var = np.empty((len(starts), self.m))
-        var[0] = _variance(self._n, self._s1, self._s2, self.block)
+        var[0] = self._open_variance()
         if len(runs) > 2:
             n, s1, s2 = _run_sums(rn, runs[1:-1], self.block)
             var[1:] = _variance(n, s1, s2, self.block)
@@ -260,9 +274,12 @@ class NoiseWatchdog:
         # The state the closes leave (the last one, or the change it stopped at).
         self._variances.extend(var[max(0, end - B): end].copy())
         self.ratio = ratio[end - 1].copy()
+        seen = np.isfinite(ratio[:end])
+        last = end - 1 - np.argmax(seen[::-1], axis=0)  # each residual's last known close
+        self.known = np.where(seen.any(axis=0), ratio[last, np.arange(self.m)], self.known)
         self.mismatch = state[end - 1].copy()
         self._open = int(k[starts[end - 1]]) // self.block
-        self._n[:], self._s1[:], self._s2[:] = 0.0, 0.0, 0.0
+        self._rows = []
         if not stop:
             self.add(k[runs[-1][0]:], rn[runs[-1][0]:])
         return out
@@ -281,7 +298,8 @@ def _ratio(recent: NDArray[np.float64]) -> NDArray[np.float64]:
 def _run_sums(rn: NDArray[np.float64], runs: list[tuple[int, int]], block: int
               ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """(R, m) count, sum and sum of squares of the non-NaN values of each run of rows of rn,
-    as `NoiseWatchdog.add` sums them (row after row: the same bits)."""
+    the same bits for a block whatever runs it is summed among (a block's rows at its close,
+    `NoiseWatchdog._open_variance`, or many blocks at once in `NoiseWatchdog.update`)."""
     a, b = runs[0][0], runs[-1][1]
     have = ~np.isnan(rn[a:b])
     full = bool(have.all())

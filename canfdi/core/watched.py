@@ -193,9 +193,8 @@ class NoiseWatched(Supervision):
 
         lo = 0
         if self._check is not None and len(k):
-            lo, said, probe = self._checked(k, t_ns, U, Z, gap)
-            take(0, BlockResult([], probe.residuals[:lo], probe.normalized[:lo],
-                                probe.statistic[:lo]))
+            lo, said, probed = self._checked(k, t_ns, U, Z, gap)
+            take(0, probed)
             events += said
         while lo < len(k):
             events += self._close_before(int(k[lo]), int(t_ns[lo]))
@@ -310,17 +309,19 @@ class NoiseWatched(Supervision):
         running when the window ends; a mismatch sets the probe's noise), block by block; the
         check ends (`_arm`) at the first block end from ``end`` on where the watchdog has a
         whole window to judge, or at ``cap`` whatever it has. Returns how many of these
-        samples the check took, the events its end said and the probe's result (its first
-        rows those of the samples taken)."""
+        samples the check took, the events its end said and the probe's result on them.
+
+        The probe runs one watchdog block at a time, after that block's start closed the one
+        before: a mismatch found at a block end of the check widens it from the next sample
+        on, whatever blocks the samples arrive in (its diagnoses, held rows and so the noise
+        the check finds are the same)."""
         check, wd, probe = self._check, self.watchdog, self._inner
         if check.end is None:
             first = int(k[0])
             check.end = first // wd.block + wd.blocks + (1 if first % wd.block else 0)
             check.cap = check.end + wd.blocks + -(-self.longest_diagnosis // wd.block)
-        before = probe.mode == DIAGNOSE
-        result = probe.update_block(k, t_ns, U, Z, gap)
-        raw = result.normalized * probe.noise_scale
-        quiet = monitoring_rows(k, result.events, before)
+        parts: list[BlockResult] = []
+        taken, said = len(k), []
         for a, b in block_runs(k, wd.block):
             if wd.due(int(k[a])):
                 if int(k[a]) // wd.block >= check.end and self._held:
@@ -335,13 +336,22 @@ class NoiseWatched(Supervision):
                 self._widen()
                 block = int(k[a]) // wd.block
                 if block >= check.cap or (block >= check.end and wd.judged):
-                    if a:
-                        check.kept.append((k[:a], t_ns[:a], U[:a], Z[:a], gap[:a]))
-                    return a, self._arm(int(t_ns[a])), result
-            self._watch(k[a:b], raw[a:b], quiet[a:b],
-                        [e for e in result.events if k[a] <= e.sample <= k[b - 1]])
-        check.kept.append((k, t_ns, U, Z, gap))
-        return len(k), [], result
+                    taken = a
+                    break
+            before = probe.mode == DIAGNOSE
+            result = probe.update_block(k[a:b], t_ns[a:b], U[a:b], Z[a:b], gap[a:b])
+            self._watch(k[a:b], result.normalized * probe.noise_scale,
+                        monitoring_rows(k[a:b], result.events, before), result.events)
+            parts.append(result)
+        if taken:
+            check.kept.append((k[:taken], t_ns[:taken], U[:taken], Z[:taken], gap[:taken]))
+        if taken < len(k):
+            said = self._arm(int(t_ns[taken]))
+        m = len(self.residual_names)
+        probed = BlockResult(
+            [], *(np.concatenate([np.empty((0, m))] + [getattr(r, f) for r in parts])
+                  for f in ("residuals", "normalized", "statistic")))
+        return taken, said, probed
 
     def _arm(self, t_ns: int) -> list[FaultEvent]:
         """End the check (the watchdog has just closed the block it ended with): what the
