@@ -14,22 +14,8 @@ Profile 2 (`AutosarP02`; E2E_P02ConfigType):
   configurable, SWS_E2E_00152), counting 0..15 (SWS_E2E_00128);
 * options: ``data_id_list`` (16 bytes, required), ``data_length`` (default: the message's).
 
-The receiver's state machine of the profile (MaxDeltaCounterInit, SyncCounterInit, ...) is not
-here: a profile checks one frame and reads its counter; canfdi judges counter steps itself
-(the assembler).
-
-Sources: the AUTOSAR documents themselves were not at hand; the requirement texts cited above
-are as quoted in the ``@req`` comments of ArcCore's Arctic Core ``E2E_P01.c`` and
-``E2E_P02.c`` (written against R4.3.0). The tests check these profiles against an independent
-implementation, the ``autosar-e2e`` package on PyPI (Artur Drogunow, MIT licence; C code,
-github.com/zariiii9003/autosar-e2e), frame for frame on random data, and against the worked
-examples of its own test suite; the CRCs against their published check values
-(``crc8(b"123456789") == 0x4B``, ``crc8h2f(b"123456789") == 0xDF``, AUTOSAR SWS CRC Library).
-
-References
-----------
-AUTOSAR CP R4.3.0, *Specification of SW-C End-to-End Communication Protection Library*
-(Profiles 1 and 2); *Specification of CRC Routines* (CRC8, CRC8H2F).
+The receiver's state machine is not here, and the sources and references are those of Profile 1:
+see canfdi.bus.e2e.autosar_p01.
 """
 
 from __future__ import annotations
