@@ -293,12 +293,16 @@ class NoiseWatched(Supervision):
         for e in events:
             if e.kind not in DECISIONS or not self._held:
                 continue
-            kh = np.concatenate([h[0] for h in self._held])
-            rh = np.concatenate([h[1] for h in self._held])
+            kh, rh = self._held_rows()
             mine = kh <= e.sample
             if e.kind == "unexplained":
                 wd.add_late(kh[mine], rh[mine])
             self._held = [(kh[~mine], rh[~mine])] if (~mine).any() else []
+
+    def _held_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """(k (N,), residuals (N, m)) of the rows held back under diagnoses, in order."""
+        return (np.concatenate([h[0] for h in self._held]),
+                np.concatenate([h[1] for h in self._held]))
 
     # -- the check of the configured noise -------------------------------------------------
     def _checked(self, k: np.ndarray, t_ns: np.ndarray, U: np.ndarray, Z: np.ndarray,
@@ -329,8 +333,7 @@ class NoiseWatched(Supervision):
                     # samples count as noise (a drive far noisier than configured alarms at
                     # once and would hold them all back; a real fault's step shows in one
                     # block only, and the quietest block sets the scale).
-                    wd.add_late(np.concatenate([h[0] for h in self._held]),
-                                np.concatenate([h[1] for h in self._held]))
+                    wd.add_late(*self._held_rows())
                     self._held = []
                 check.changes.append(wd.close(int(k[a])))
                 self._widen()
