@@ -47,10 +47,10 @@ __all__ = [
     "decode_frames",
     "decode_residual_block",
     "decode_sample_block",
+    "earliest_time",
     "encode_frame_block",
     "encode_json",
     "encode_message",
-    "first_time",
     "float_row",
     "gathered",
     "no_frames",
@@ -65,8 +65,17 @@ FRAME_SIZE = FRAME_DTYPE.itemsize
 """Bytes of one packed frame record (24)."""
 pack_frame = struct.Struct("<qIBBBx8s").pack
 """Pack (t_ns, id, dlc, flags, status code, 8 data bytes) as one `FRAME_DTYPE` record."""
-first_time = struct.Struct("<q").unpack_from
-"""The t_ns of the record at an offset of a packed buffer (a 1-tuple)."""
+
+
+def earliest_time(records: bytes | bytearray | memoryview) -> int:
+    """The earliest t_ns of packed `FRAME_DTYPE` records (at least one): a block's timestamp.
+
+    Not the first frame's: `canfdi run` records the frames it sends at the wall clock's now,
+    ahead of the received frames still queued behind them, and a block that began with one
+    would be stamped later than the block after it.
+    """
+    return int(np.frombuffer(records, dtype=FRAME_DTYPE)["t_ns"].min())
+
 assert struct.calcsize("<qIBBBx8s") == FRAME_SIZE == 24
 
 # ------------------------------------------------------------------------------------------
@@ -245,7 +254,7 @@ def encode_frame_block(
     count : int
         Frames in the block.
     t0 : int
-        The first frame's t_ns: the block's timestamp.
+        The block's timestamp: its earliest frame's t_ns (`earliest_time`), or later.
     statuses_json : bytes
         The JSON list of status names the records' status codes index.
     long : mapping of int to bytes, optional
@@ -281,7 +290,8 @@ def split_frame_block(data: bytes, t_ns: int, max_bytes: int) -> list[tuple[int,
     -------
     list of (int, bytes)
         (timestamp ns, message) of each piece, in order: the frames of ``data``, each once,
-        with their statuses. ``data`` alone when it is small enough already.
+        with their statuses. ``data`` alone when it is small enough already. A piece's
+        timestamp is its earliest frame's, never earlier than ``t_ns`` or the piece before.
     """
     if len(data) <= max_bytes:
         return [(t_ns, data)]
@@ -299,9 +309,9 @@ def split_frame_block(data: bytes, t_ns: int, max_bytes: int) -> list[tuple[int,
     cuts = np.searchsorted(np.cumsum(cost), room * np.arange(1, cost.sum() // room + 2),
                            side="right")
     pieces = []
-    start = 0
+    start, t0 = 0, t_ns
     for stop in sorted({int(c) for c in cuts if 0 < c < count} | {count}):
-        (t0,) = first_time(records, start * FRAME_SIZE)
+        t0 = max(t0, earliest_time(records[start * FRAME_SIZE: stop * FRAME_SIZE]))
         mine = {row - start: d for row, d in long.items() if start <= row < stop}
         pieces.append((t0, encode_frame_block(records[start * FRAME_SIZE: stop * FRAME_SIZE],
                                               stop - start, t0, statuses, mine)))

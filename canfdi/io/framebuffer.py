@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canfdi.bus.frames import MAX_DATA, FrameBlock
-from canfdi.io.blocks import FRAME_SIZE, first_time, pack_frame
+from canfdi.io.blocks import FRAME_SIZE, earliest_time, pack_frame
 from canfdi.io.schemas import FRAME_DTYPE, FRAME_STATUSES
 
 __all__ = ["MAX_STATUSES", "FrameBuffer", "FrameRecords"]
@@ -24,8 +24,8 @@ MAX_STATUSES = 256
 """Statuses one table holds: a frame's status is a uint8 code."""
 
 FrameRecords = tuple[int, bytes, int, dict[int, bytes] | None, bytes]
-"""What `FrameBuffer.take` returns: (first frame's t_ns, packed records, count, full payloads by
-row or None, JSON list of the status names the codes index)."""
+"""What `FrameBuffer.take` returns: (the earliest frame's t_ns, packed records, count, full
+payloads by row or None, JSON list of the status names the codes index)."""
 
 
 class FrameBuffer:
@@ -121,7 +121,7 @@ class FrameBuffer:
             long = {row: data for row, data in self._long.items() if row < n}
             self._long = {row - n: d for row, d in self._long.items() if row >= n}
         del self._records[:end]
-        return first_time(records, 0)[0], records, n, long, self.statuses_json
+        return earliest_time(records), records, n, long, self.statuses_json
 
     # -- the status table ------------------------------------------------------------------
 

@@ -24,7 +24,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from canfdi.io.blocks import Rows, gathered
+from canfdi.io.blocks import NS_PER_S, Rows, gathered
 from canfdi.io.damage import Damage
 from canfdi.io.framereader import iter_frame_blocks, mcap_frame_blocks, read_frames
 from canfdi.io.logreader import LogReader, log_files, read_log, read_metadata
@@ -155,6 +155,11 @@ def _row_values(layout: RowLayout, msg: Mapping[str, Any], log_time: int,
     ints = [msg.get(key, layout.defaults[key]) if key in layout.defaults else msg[key]
             for key in layout.ints]
     groups = [[msg[key][name] for name in names[which]] for key, which in layout.groups]
+    # The row's own time: its log time may have been held at the one before it (a clock that
+    # stepped back, two drives' rows interleaved; canfdi.io.writer keeps log times in order).
+    stamp = msg.get("timestamp")
+    if isinstance(stamp, Mapping):
+        log_time = int(stamp["sec"]) * NS_PER_S + int(stamp["nsec"])
     return (log_time, *ints, *groups)
 
 

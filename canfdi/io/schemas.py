@@ -15,7 +15,9 @@ Topics
 The topic names and message shapes are a contract other code (replay, dashboards) relies on.
 The busiest topic, the raw frames, is a *block* topic: one MCAP message holds many frames (an
 MCAP message costs the writer a few microseconds, a row of a block well under one), and its
-``timestamp`` and log_time are those of its first frame. Samples and residuals are one message
+``timestamp`` is its earliest frame's. On every topic a message's log time is its own time,
+held at the one before it on its topic when that is later (canfdi.io.writer): every reader in
+log-time order reads each topic in the order it was written. Samples and residuals are one message
 per row, so that Foxglove plots every one. Read them back with canfdi.io.reader's
 `read_frames`, `read_samples` and `read_residuals`, which also read the older layouts.
 

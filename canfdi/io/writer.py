@@ -72,22 +72,40 @@ log_time_ns, message bytes)`` (a live Foxglove server, say)."""
 
 
 class _TappedFile:
-    """Where the channels' messages go: the tap, then the file."""
+    """Where the channels' messages go: the tap, then the file, each topic's log times never
+    going back.
 
-    __slots__ = ("file", "tap")
+    A topic's messages are written in the order they happened to the monitor, but their own
+    times need not follow it: `canfdi run` stamps the frames it sends with the wall clock's
+    now, ahead of the received frames still queued; a drive's clock may step back. MCAP's
+    readers order by log time (mcap's and Foxglove's always, canfdi's for a file killed before
+    its summary), so a message stamped earlier than the one before it on its topic is logged at
+    that one's time: every reader then reads each topic in the order it was written. The
+    message keeps its own time in its fields (``timestamp``, a frame's ``t_ns``).
+    """
+
+    __slots__ = ("_last", "file", "tap")
 
     def __init__(self, file: SegmentedFile, tap: Tap | None) -> None:
         self.file = file
         self.tap = tap
+        self._last: dict[str, int] = {}  # topic -> its latest log time
 
     def message(self, topic: str, schema: Schema, timestamp_ns: int, data: bytes, rows: int,
                 now: float) -> None:
+        timestamp_ns = max(timestamp_ns, self._last.get(topic, timestamp_ns))
+        self._last[topic] = timestamp_ns
         if self.tap is not None:
             self.tap(topic, schema, timestamp_ns, data)
         self.file.add_message(topic, schema, timestamp_ns, data, rows, now)
 
     def row_messages(self, topic: str, schema: Schema, t_ns: np.ndarray, data: list[bytes],
                      now: float) -> None:
+        if len(t_ns):
+            floor = self._last.get(topic, int(t_ns[0]))
+            if t_ns[0] < floor or np.any(t_ns[1:] < t_ns[:-1]):
+                t_ns = np.maximum.accumulate(np.maximum(t_ns, floor))
+            self._last[topic] = int(t_ns[-1])
         if self.tap is not None:
             tap = self.tap
             for t, d in zip(t_ns.tolist(), data, strict=True):

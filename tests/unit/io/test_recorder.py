@@ -781,6 +781,96 @@ def test_explicit_flush_writes_the_buffers_and_ends_the_chunk(tmp_path: Path) ->
     rec.close()
 
 
+SECOND = 1_000_000_000
+AHEAD = 1_500_000_000  # how far the monitor's now runs ahead of the frames still queued
+
+
+def record_a_run(rec: McapRecorder, clock: FakeClock, seconds: int, sent_in: set[int]
+                 ) -> tuple[list[int], list[int]]:
+    """What `canfdi run` records (issue 40): received frames at the bus's time, 300 a second,
+    and the frames it sends stamped with the wall clock's now, AHEAD of the received frames
+    still waiting in its queue. A timed flush ends the chunk each second; in the seconds of
+    ``sent_in`` the monitor sends right after the flush, so the next chunk begins with a frame
+    whose time is later than the following chunk's first frame. Returns the payload numbers of
+    the received and the sent frames, in the order written."""
+    received, sent = [], []
+    n = 0
+    for second in range(seconds):
+        clock.t += 1.0  # the next write finds the flush due
+        t = T0 + second * SECOND
+        if second in sent_in:
+            rec.write_frame(t + AHEAD, 0x080, (10**6 + n).to_bytes(4, "big"), "sent")
+            sent.append(10**6 + n)
+        for i in range(300):
+            rec.write_frame(t + i * 3_333_333, 0x100 + i % 7, n.to_bytes(4, "big"), "ok")
+            received.append(n)
+            n += 1
+    return received, sent
+
+
+def test_a_log_cut_before_its_summary_reads_what_the_bus_carried_in_order(tmp_path: Path
+                                                                           ) -> None:
+    """Issue 40: a chunk that begins with a frame the monitor sent must not be read after the
+    chunk that follows it. Before the fix its log time was that frame's (1.5 s late), and a
+    file without a summary was read in the order of its chunks' message times: a second of
+    received frames came back after the next one."""
+    path = tmp_path / "run.mcap"
+    clock = FakeClock()
+    rec = McapRecorder(path, flush_interval=1.0, clock=clock)
+    received, sent = record_a_run(rec, clock, 8, {2, 3, 5})
+    killed = tmp_path / "killed.mcap"
+    killed.write_bytes(path.read_bytes())  # what a SIGKILL now leaves: no summary
+    rec.close()
+
+    reader = read_log(killed)
+    list(reader)
+    assert reader.truncated and not reader.complete
+    frames = read_frames(killed)
+    got = frames.select(frames.status != "sent")
+    # Seven whole seconds were flushed; the eighth is lost with the kill.
+    assert indices(got) == received[: 7 * 300]
+    assert indices(frames.select(frames.status == "sent")) == sent
+    assert frames.t_ns[frames.status != "sent"].tolist() == sorted(got.t_ns.tolist())
+    # The complete file reads the same, through canfdi's reader and mcap's own in log-time
+    # order (as Foxglove reads); the blocks' log times never go back.
+    assert indices(read_frames(path).received()) == received
+    with open(path, "rb") as f:
+        blocks = [(m.log_time, json.loads(m.data)) for _, _, m in
+                  make_reader(f).iter_messages(topics=[TOPIC_FRAMES], log_time_order=True)]
+    times = [t for t, _ in blocks]
+    assert times == sorted(times)
+    records = np.concatenate([np.frombuffer(__import__("base64").b64decode(m["frames"]),
+                                            dtype=FRAME_DTYPE) for _, m in blocks])
+    kept = records["status"] != blocks[0][1]["statuses"].index("sent")
+    assert [int.from_bytes(bytes(d[:4]), "big") for d in records["data"][kept]] == received
+    # A block's timestamp is its earliest frame's (the received one after the sent one).
+    assert [m["timestamp"] for _, m in blocks[2:4]] == [stamp(T0 + 2 * SECOND),
+                                                        stamp(T0 + 3 * SECOND)]
+
+
+def test_rows_keep_their_own_times_when_the_log_time_is_held(tmp_path: Path) -> None:
+    """A drive's clock that steps back: the samples' log times are held at the latest (so
+    every reader reads them in the order written), and each sample keeps its own time."""
+    path = tmp_path / "run.mcap"
+    clock = FakeClock()
+    times = [T0 + 10 * SECOND, T0 + 11 * SECOND, T0, T0 + SECOND, T0 + 12 * SECOND]
+    with McapRecorder(path, flush_interval=1.0, clock=clock) as rec:
+        for k, t in enumerate(times):
+            clock.t += 1.0  # a chunk per sample
+            rec.write_sample(Sample(k=k, timestamp_ns=t, u=np.zeros(2), z=np.zeros(2)),
+                             INPUTS, OUTPUTS)
+        clock.t += 1.0
+        rec.flush()
+        killed = path.read_bytes()
+    (tmp_path / "killed.mcap").write_bytes(killed)
+    for log in (path, tmp_path / "killed.mcap"):
+        samples = read_samples(log)
+        assert samples.k.tolist() == [0, 1, 2, 3, 4]
+        assert samples.t_ns.tolist() == times
+    logged = [t for t, _ in topic_messages(path, TOPIC_SAMPLES)]
+    assert logged == [times[0], times[1], times[1], times[1], times[4]]
+
+
 CHILD = """
 import sys, time
 from canfdi.io.writer import McapRecorder
