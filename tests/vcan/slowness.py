@@ -28,7 +28,7 @@ def _seconds() -> float:
 
 @functools.cache
 def slowness() -> float:
-    """This machine's time for `CPU_LOOP` over the host's (at least 1.0)."""
+    """This machine's time for the loop over the host's (at least 1.0)."""
     host = os.environ.get("VCAN_HARNESS_HOST_CPU_S")
     if not host:
         return 1.0

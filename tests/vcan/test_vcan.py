@@ -22,6 +22,7 @@ import yaml
 
 from canfdi.io.reader import read_frames, read_log
 from tests.conftest import REPO
+from tests.vcan.drain import drain
 from tests.vcan.slowness import slowness
 
 pytestmark = pytest.mark.vcan
@@ -68,26 +69,6 @@ class Monitor:
     def events(self) -> list[dict]:
         return [m for topic, _, m in read_log(self.log) if topic == "/canfdi/events"]
 
-    def received(self) -> int:
-        """Frames its log holds so far that the monitor received (it flushes each second)."""
-        if not self.log.exists():
-            return 0
-        frames = read_frames(self.log)
-        return int((frames.status != "sent").sum())
-
-    def drain(self, expected: int) -> int:
-        """Wait until the monitor has handled ``expected`` received frames (its log says so),
-        or until its log has not grown for a while: a slow machine (the harness's software
-        CPU) leaves it seconds behind the bus after a diagnosis, and SIGTERM closes the bus
-        before the frames still in its socket are read. Returns the count reached."""
-        quiet = 3.0 * slowness()
-        count, since = self.received(), time.monotonic()
-        while count < expected and time.monotonic() - since < quiet:
-            time.sleep(1.0)
-            now = self.received()
-            if now != count:
-                count, since = now, time.monotonic()
-        return count
 
 
 def sim(scenario: str, *extra: str, truth: Path | None = None) -> subprocess.CompletedProcess:
@@ -290,7 +271,7 @@ def run_with_candump(tmp_path: Path, config: Path, scenario: str, *, witness: bo
         assert res.returncode == 0, res.stderr
         out = json.loads(res.stdout)
         time.sleep(2.0)
-        monitor.drain(out["frames_sent"] - heartbeats * (out["samples"] // 10))
+        drain(monitor.log, out["frames_sent"] - heartbeats * (out["samples"] // 10))
         took = monitor.stop()
     finally:
         if candump is not None:

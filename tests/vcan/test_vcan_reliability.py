@@ -38,6 +38,7 @@ import pytest
 from canfdi.io.reader import read_frames, read_log
 from canfdi.io.segments import log_segments
 from tests.conftest import REPO
+from tests.vcan.drain import drain
 from tests.vcan.slowness import slowness
 
 pytestmark = pytest.mark.vcan
@@ -191,21 +192,6 @@ def received(log: Path):
     return frames.select(frames.status != "sent")
 
 
-def drained(log: Path, timeout: float = 600.0) -> None:
-    """Wait until the received frames in the monitor's log have not grown for a while (at
-    least 2 s; its own FDI_STATUS goes on each second): a slow machine (the harness's
-    software CPU) leaves it seconds behind the bus after a diagnosis, and SIGTERM closes the
-    bus before the frames still in its socket are read."""
-    quiet = max(2.0, 3.0 * slowness())
-    count, start = -1, time.monotonic()
-    since = start
-    while time.monotonic() - since < quiet and time.monotonic() - start < timeout:
-        time.sleep(1.0)
-        now = received(log).size
-        if now != count:
-            count, since = now, time.monotonic()
-
-
 def lag(log: Path, until: float | None = None) -> float:
     """How far behind the bus the monitor ran in the last second of its log before ``until``
     (epoch seconds; None: the log's end), in seconds: ``run`` records a frame it sends at the
@@ -213,12 +199,13 @@ def lag(log: Path, until: float | None = None) -> float:
     stamped when they arrived. The largest such gap (0.0 for a capture, which sends nothing)."""
     frames = read_frames(log)
     t, sent = frames.t_ns.astype(float) / 1e9, frames.status == "sent"
-    gaps = [(t[i], t[i] - t[:i][~sent[:i]].max()) for i in np.flatnonzero(sent)
-            if (~sent[:i]).any() and (until is None or t[i] < until)]
-    if not gaps:
+    # The newest received frame before each frame (-inf before the first).
+    newest = np.maximum.accumulate(np.concatenate([[-np.inf], np.where(sent, -np.inf, t)]))
+    at = np.flatnonzero(sent & (newest[:-1] > -np.inf) & (until is None or t < until))
+    if not at.size:
         return 0.0
-    end = gaps[-1][0]
-    return max(0.0, *(gap for when, gap in gaps if when > end - 1.0))
+    recent = at[t[at] > t[at[-1]] - 1.0]
+    return max(0.0, float((t[recent] - newest[recent]).max()))
 
 
 def keys(frames) -> list[tuple[int, bytes]]:
@@ -375,7 +362,7 @@ def test_full_disk_fault_frames_go_on_and_recording_resumes(tmp_path, small_disk
         resume_seen = mon.wait_for("canfdi.io.writer", "resumed", timeout=60)
         emulator.proc.wait(timeout=180)
         assert emulator.proc.returncode == 0, emulator.text()
-        drained(log)
+        drain(log)
         code = mon.stop(signal.SIGTERM)
     finally:
         for p in (mon, emulator):
