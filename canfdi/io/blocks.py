@@ -311,10 +311,10 @@ def split_frame_block(data: bytes, t_ns: int, max_bytes: int) -> list[tuple[int,
     pieces = []
     start, t0 = 0, t_ns
     for stop in sorted({int(c) for c in cuts if 0 < c < count} | {count}):
-        t0 = max(t0, earliest_time(records[start * FRAME_SIZE: stop * FRAME_SIZE]))
+        piece = records[start * FRAME_SIZE: stop * FRAME_SIZE]
+        t0 = max(t0, earliest_time(piece))
         mine = {row - start: d for row, d in long.items() if start <= row < stop}
-        pieces.append((t0, encode_frame_block(records[start * FRAME_SIZE: stop * FRAME_SIZE],
-                                              stop - start, t0, statuses, mine)))
+        pieces.append((t0, encode_frame_block(piece, stop - start, t0, statuses, mine)))
         start = stop
     return pieces
 
