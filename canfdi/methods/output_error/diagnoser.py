@@ -113,6 +113,7 @@ from canfdi.core.records import (
     Sample,
     compensate,
     compensated,
+    fault_onset,
     fold,
 )
 from canfdi.methods.output_error.model import (
@@ -629,9 +630,8 @@ class OutputErrorDiagnoser(DetectorBacked):
         return bool(compensated(self.compensation, h.target, h.index))
 
     def _accepted_onset(self, target: str, index: int) -> int | None:
-        """The onset of the fault accepted on this channel, None when there is none."""
-        return min((c.onset for c in self.compensation
-                    if c.target == target and c.index == index), default=None)
+        """The onset of the latest fault accepted on this channel, None when there is none."""
+        return fault_onset(self.compensation, target, index)
 
     def _onsets(self, target: str, index: int) -> list[int]:
         """The onsets tried for a hypothesis: the diagnosis' candidates and, for a channel
@@ -734,13 +734,16 @@ class OutputErrorDiagnoser(DetectorBacked):
                 candidates: tuple[dict, ...] = ()) -> list[FaultEvent]:
         d = self._diag
         onset = h.onset
-        kind, total = fold(self.compensation, Compensation(
+        # Dated at the channel's fault's own onset (`_onsets` tries it), the diagnosis found
+        # what that fault's estimate left.
+        leftover = onset == self._accepted_onset(h.target, h.index)
+        kind, estimates, variances = fold(self.compensation, Compensation(
             h.target, h.index, onset, lam=h.estimates.get("lambda", 0.0),
-            bias=h.estimates.get("bias", 0.0)))
+            bias=h.estimates.get("bias", 0.0), variances=dict(h.variances),
+            correction=leftover))
         event = FaultEvent(kind=kind, sample=k, timestamp_ns=t, target=h.target,
-                           index=h.index, name=h.name,
-                           estimates=dict(h.estimates) if kind == "accepted" else total,
-                           variances=dict(h.variances), onset_sample=onset,
+                           index=h.index, name=h.name, estimates=estimates,
+                           variances=variances, onset_sample=onset,
                            detected_sample=d.k_d, accepted_sample=k, candidates=candidates)
         if h.target == "actuator" and self._states is not None:
             # Section 3.3 by superposition: the models' state after sample k moves by lambda

@@ -484,13 +484,12 @@ class UioDiagnoser:
         # a sensor fault at once.
         onset = fit.onset - (1 if target == "actuator" else 0)
         key = "lambda" if target == "actuator" else "bias"
-        kind, total = fold(self.compensation, Compensation(
+        kind, estimates, variances = fold(self.compensation, Compensation(
             target, index, onset, lam=est if target == "actuator" else 0.0,
-            bias=est if target == "sensor" else 0.0))
+            bias=est if target == "sensor" else 0.0, variances={key: se**2}))
         event = FaultEvent(kind=kind, sample=k, timestamp_ns=t, target=target,
-                           index=index, name=name,
-                           estimates={key: est} if kind == "accepted" else total,
-                           variances={key: se**2}, onset_sample=onset,
+                           index=index, name=name, estimates=estimates,
+                           variances=variances, onset_sample=onset,
                            detected_sample=self._diag.k_d, accepted_sample=k)
         # The angles are no candidates in the FaultEvent sense (channels explaining the data
         # equally well: the monitor prints them as such); they go with the event here.
