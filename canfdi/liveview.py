@@ -26,7 +26,8 @@ def snapshot(monitor: Any, condition: str | None = None) -> dict[str, Any]:
 
     Returns
     -------
-    dict with ``state`` ("monitoring" / "diagnosing" / "teaching" / "checking" / "mismatch" /
+    dict with ``state`` ("monitoring" / "diagnosing" / "named" / "teaching" / "checking" /
+    "mismatch" /
     "quiet" (the noise watchdog's) / "capturing", or the condition: "no_traffic" /
     "bus_error" / "degraded"),
     ``residuals`` (one dict per
@@ -62,7 +63,7 @@ def render(snap: dict[str, Any], title: str = "canfdi") -> Any:
     from rich.table import Table
     from rich.text import Text
 
-    style = {"monitoring": "green", "diagnosing": "yellow", "capturing": "cyan",
+    style = {"monitoring": "green", "diagnosing": "yellow", "named": "yellow", "capturing": "cyan",
              "teaching": "cyan", "checking": "cyan", "mismatch": "magenta",
              "quiet": "blue", "no_traffic": "red",
              "bus_error": "red", "degraded": "red"}[snap["state"]]

@@ -54,10 +54,11 @@ __all__ = ["Drive", "Monitor", "OutFrame", "RecordSink", "Teacher", "summary_jso
 
 
 _KIND = {"actuator": 1, "sensor": 2}
-_STATE = {"detected": 1, "accepted": 3}
+_STATE = {"detected": 1, "named": 2, "accepted": 3}
 _PARAM = {"eta": 0, "lambda": 1, "bias": 2}
 _STATUS = {"starting": 0, "monitoring": 1, "diagnosing": 2, "degraded": 3, "bus_error": 4,
-           "teaching": 5, "mismatch": 6, "no_traffic": 7, "checking": 8, "quiet": 9}
+           "teaching": 5, "mismatch": 6, "no_traffic": 7, "checking": 8, "quiet": 9,
+           "named": 10}
 
 
 class RecordSink(Protocol):
@@ -109,7 +110,7 @@ class Drive:
 
     @property
     def state(self) -> str:
-        """"teaching", "checking", "diagnosing", "mismatch", "quiet" or "monitoring"
+        """"teaching", "checking", "diagnosing", "named", "mismatch", "quiet" or "monitoring"
         (FDI_STATUS's State names; canfdi.core.protocol.STATES)."""
         return "monitoring" if self.diagnoser is None else self.diagnoser.state
 
@@ -503,24 +504,33 @@ def _active_faults(drive: Drive) -> int:
 
 def summary_json(events: list[FaultEvent], frame_stats: dict, dt: float,
                  truth: list[dict] | None, samples: int) -> dict[str, Any]:
-    """{"faults": [...], "unexplained": [...], "refined": [...] (updates of a fault's estimate),
+    """{"faults": [...] (each with its named_sample: when its component was named, at its
+    acceptance at the latest), "named": [...] (faults named before they were identified),
+    "unexplained": [...], "refined": [...] (updates of a fault's estimate),
     "mismatches": [...] (the noise watchdog's: noisier than configured), "quiet": [...]
     (quieter than configured), "detections": N, "frames": {...},
     "samples": N, "truth": [...] when known}."""
-    detections = {e.sample: e for e in events if e.kind == "detected"}
+    detections = {(e.drive, e.sample): e for e in events if e.kind == "detected"}
+    named_at = {(e.drive, e.detected_sample): e.sample for e in events if e.kind == "named"}
     faults = []
     for e in events:
         if e.kind != "accepted":
             continue
-        detected = detections.get(e.detected_sample)
+        detected = detections.get((e.drive, e.detected_sample))
         faults.append({
             "kind": e.target, "index": e.index, "name": e.name, "drive": e.drive,
             "onset_sample": e.onset_sample, "detected_sample": e.detected_sample,
+            "named_sample": named_at.get((e.drive, e.detected_sample), e.accepted_sample),
             "accepted_sample": e.accepted_sample,
             "detected_time": (detected.timestamp_ns / 1e9 if detected is not None else None),
             "estimate": dict(e.estimates), "variance": dict(e.variances),
             "candidates": list(e.candidates),
         })
+    named = [{"kind": e.target, "index": e.index, "name": e.name, "drive": e.drive,
+              "sample": e.sample, "onset_sample": e.onset_sample,
+              "detected_sample": e.detected_sample, "estimate": dict(e.estimates),
+              "variance": dict(e.variances), "undecided": list(e.undecided),
+              "candidates": list(e.candidates)} for e in events if e.kind == "named"]
     unexplained = [e.as_dict() for e in events if e.kind == "unexplained"]
     refined = [{"kind": e.target, "index": e.index, "name": e.name, "drive": e.drive,
                 "onset_sample": e.onset_sample, "detected_sample": e.detected_sample,
@@ -530,6 +540,7 @@ def summary_json(events: list[FaultEvent], frame_stats: dict, dt: float,
     quiet = [e.as_dict() for e in events if e.kind == "quiet"]
     out: dict[str, Any] = {
         "faults": faults,
+        "named": named,
         "unexplained": unexplained,
         "refined": refined,
         "mismatches": mismatches,

@@ -13,13 +13,15 @@ from canfdi.core.records import FaultEvent
 __all__ = ["estimates_text", "event_level", "event_line"]
 
 _LEVELS = {"detected": "info", "matched": "info", "taught": "info", "quiet": "info"}
+_UNDECIDED = {"form": "scale or offset (waiting for the command to move)",
+              "size": "its size (the estimate still settling)"}
 
 
 def event_level(event: FaultEvent) -> str:
     """How loud a diagnosis is, as a log level: a change detected, noise back at its value or
-    quieter than configured, or the noise taught are news ("info"); a fault, a refinement, an
-    unexplained change, a noise mismatch or a failed teach-in need someone's attention
-    ("warning")."""
+    quieter than configured, or the noise taught are news ("info"); a fault named or accepted,
+    a refinement, an unexplained change, a noise mismatch or a failed teach-in need someone's
+    attention ("warning")."""
     return _LEVELS.get(event.kind, "warning")
 
 
@@ -36,6 +38,17 @@ def event_line(event: FaultEvent, dt: float, show_drive: bool = False) -> str:
     if event.kind == "detected":
         return (f"  t={t:8.2f} s  k={event.sample:<7d} {who}DETECTED   change near k="
                 f"{event.onset_sample} in {', '.join(event.residuals)}")
+    if event.kind == "named":
+        waits = [_UNDECIDED[u] for u in event.undecided if u in _UNDECIDED]
+        line = (f"  t={t:8.2f} s  k={event.sample:<7d} {who}NAMED      {event.target} "
+                f"{event.index} ({event.name}): acts as {estimates_text(event.estimates)} now, "
+                f"onset k={event.onset_sample}"
+                + (f"; undecided: {', '.join(waits)}" if waits else ""))
+        if event.candidates:
+            alts = "; ".join(f"{c['name']} {estimates_text(c['estimates'])}"
+                             for c in event.candidates)
+            line += f"\n{'':33}indistinguishable from the bus: {alts}"
+        return line
     if event.kind == "accepted":
         line = (f"  t={t:8.2f} s  k={event.sample:<7d} {who}FAULT      {event.target} "
                 f"{event.index} ({event.name}): {estimates_text(event.estimates)}, "

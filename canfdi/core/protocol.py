@@ -28,14 +28,30 @@ import numpy as np
 
 from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample
 
-__all__ = ["DIAGNOSE", "MODES", "MONITOR", "STATES", "Diagnoser", "Supervisor", "deepcopy_sharing"]
+__all__ = ["DIAGNOSE", "MODES", "MONITOR", "STATES", "Diagnoser", "Supervisor", "deepcopy_sharing",
+           "diagnosis_state"]
 
 MONITOR, DIAGNOSE = "monitor", "diagnose"
 MODES = (MONITOR, DIAGNOSE)
 """`Diagnoser.mode`: watching for a change, or diagnosing one that was detected."""
 
-STATES = ("monitoring", "diagnosing", "teaching", "checking", "mismatch", "quiet")
+STATES = ("monitoring", "diagnosing", "named", "teaching", "checking", "mismatch", "quiet")
 """`Supervisor.state`: what a drive's diagnosis is doing (FDI_STATUS's State names)."""
+
+
+def diagnosis_state(diagnoser: Any) -> str | None:
+    """"named" while a diagnosis has named its fault and waits to identify it (a diagnoser
+    that names, such as the parity method's, says so by a true ``named``), "diagnosing" while
+    it diagnoses, None while it monitors.
+
+    >>> class Busy:
+    ...     mode, named = DIAGNOSE, True
+    >>> diagnosis_state(Busy()), Busy.__name__
+    ('named', 'Busy')
+    """
+    if diagnoser.mode != DIAGNOSE:
+        return None
+    return "named" if getattr(diagnoser, "named", False) else "diagnosing"
 
 
 @runtime_checkable

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from canfdi.core.protocol import DIAGNOSE, Diagnoser
+from canfdi.core.protocol import Diagnoser, diagnosis_state
 from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample
 
 __all__ = ["Supervision"]
@@ -46,8 +46,9 @@ class Supervision:
     # -- what the monitor asks of a supervisor ---------------------------------------------
     @property
     def state(self) -> str:
-        """"diagnosing" while the diagnoser diagnoses a detected change, else "monitoring"."""
-        return "diagnosing" if self._inner.mode == DIAGNOSE else "monitoring"
+        """"diagnosing" while the diagnoser diagnoses a detected change ("named" once it named
+        the fault: protocol.diagnosis_state), else "monitoring"."""
+        return diagnosis_state(self._inner) or "monitoring"
 
     @property
     def diagnoser(self) -> Diagnoser:

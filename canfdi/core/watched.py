@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from canfdi.core.protocol import DIAGNOSE, Diagnoser
+from canfdi.core.protocol import DIAGNOSE, Diagnoser, diagnosis_state
 from canfdi.core.records import BlockResult, Compensation, FaultEvent, Sample
 from canfdi.core.supervision import Supervision
 from canfdi.core.watchdog import (
@@ -118,12 +118,13 @@ class NoiseWatched(Supervision):
     # -- what the monitor reads ------------------------------------------------------------
     @property
     def state(self) -> str:
-        """"checking", "diagnosing", "mismatch", "quiet" (every residual in mismatch is
-        quieter than configured) or "monitoring"."""
+        """"checking", "diagnosing" (or "named": protocol.diagnosis_state), "mismatch",
+        "quiet" (every residual in mismatch is quieter than configured) or "monitoring"."""
         if self._check is not None:
             return "checking"
-        if self._inner.mode == DIAGNOSE:
-            return "diagnosing"
+        diagnosing = diagnosis_state(self._inner)
+        if diagnosing is not None:
+            return diagnosing
         wd = self.watchdog
         if not wd.mismatch.any():
             return "monitoring"

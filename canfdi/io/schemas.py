@@ -395,7 +395,7 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
         _object(
             "canfdi.FaultEvent",
             {
-                "kind": {"type": "string", "enum": ["detected", "accepted", "refined",
+                "kind": {"type": "string", "enum": ["detected", "named", "accepted", "refined",
                                                     "unexplained", "mismatch", "quiet", "matched",
                                                     "taught", "teach_failed"]},
                 "sample": _INT,
@@ -411,9 +411,11 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
                 "candidates": {"type": "array", "items": _CANDIDATE},
                 "residuals": {"type": "array", "items": _STR},
                 "drive": _DRIVE,
+                "undecided": {"type": "array", "items": {"type": "string",
+                                                         "enum": ["form", "size"]}},
             },
             optional=("target", "index", "name", "onset_sample", "detected_sample",
-                      "accepted_sample", "drive"),
+                      "accepted_sample", "drive", "undecided"),
         ),
     ),
     TOPIC_STATUS: (

@@ -144,6 +144,7 @@ def _event(message: dict) -> FaultEvent:
     kw = {k: v for k, v in message.items() if k in fields}
     kw["candidates"] = tuple(kw.get("candidates") or ())
     kw["residuals"] = tuple(kw.get("residuals") or ())
+    kw["undecided"] = tuple(kw.get("undecided") or ())
     kw["estimates"] = dict(kw.get("estimates") or {})
     kw["variances"] = dict(kw.get("variances") or {})
     return FaultEvent(**kw)
@@ -434,6 +435,8 @@ def _marks(contents: LogContents, lo: float | None = None, hi: float | None = No
     for e in contents.events:
         if e.kind == "detected":
             out.append((e.sample, "detected", "tab:red", "--"))
+        elif e.kind == "named":
+            out.append((e.sample, "named", "tab:cyan", ":"))
         elif e.kind == "accepted":
             out.append((e.sample, "accepted", "tab:green", "-"))
         elif e.kind == "refined":

@@ -180,14 +180,19 @@ def test_events_are_well_formed_and_the_fault_is_diagnosed(example: Example, wra
     times = dict(zip(example.k.tolist(), example.t_ns.tolist(), strict=True))
     previous = -math.inf
     for e in events:
-        assert e.kind in ("detected", "accepted", "refined", "unexplained")
+        assert e.kind in ("detected", "named", "accepted", "refined", "unexplained")
         assert e.sample >= previous and e.timestamp_ns == times[e.sample]
         previous = e.sample
         json.dumps(e.as_dict())  # the JSON contract of replay --json and the log
         if e.kind == "detected":
             assert e.residuals and set(e.residuals) <= set(dg.residual_names)
             assert e.detected_sample == e.sample
-        elif e.kind == "refined":  # an accepted channel's new total
+        elif e.kind == "named":  # the component, before its form or size is known
+            assert e.target in names and names[e.target][e.index] == e.name
+            assert e.undecided and set(e.undecided) <= {"form", "size"}
+            assert e.onset_sample <= e.detected_sample < e.sample
+            assert all(math.isfinite(v) for v in e.estimates.values())
+        elif e.kind == "refined":  # an accepted fault's updated size
             assert (e.target, e.index) in {(a.target, a.index) for a in events
                                            if a.kind == "accepted" and a.sample <= e.sample}
             assert all(math.isfinite(v) for v in e.estimates.values())

@@ -118,13 +118,16 @@ def test_a_small_sensor_bias_is_detected_sooner_and_diagnosed_the_same(seed):
     for on in (False, True):
         dg = build_diagnoser(_with_signatures(on))
         res = dg.update_block(run.k, (run.t * 1e9).astype(np.int64), run.u_c, run.z)
-        kinds = [e.kind for e in res.events]
+        events = [e for e in res.events if e.kind != "named"]
+        kinds = [e.kind for e in events]
         assert kinds[:2] == ["detected", "accepted"], (on, kinds)
-        acc = res.events[1]
+        acc = events[1]
         assert (acc.target, acc.name) == ("sensor", "i_f")
         assert abs(acc.onset_sample - 500) <= 10
         sd = acc.variances["bias"] ** 0.5
-        assert abs(acc.estimates["bias"] - 0.0093) <= 3.0 * sd <= 0.2 * 0.0093 * 3.0 / 1.2
+        # Settled at 0.2 noise units (17 % of this fault) by the long-run sandwich; the
+        # deviation reported counts the transient's correlation lag by lag, a little more.
+        assert abs(acc.estimates["bias"] - 0.0093) <= 3.0 * sd <= 0.25 * 0.0093 * 3.0
         found[on] = res.events[0].sample - 500
     assert found[True] < found[False], found
 

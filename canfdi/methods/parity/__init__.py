@@ -22,7 +22,11 @@ from canfdi.methods import EstimateHistory, Method
 from canfdi.methods.parity.diagnoser import ParityDiagnoser, ParitySettings
 from canfdi.methods.parity.history import estimate_history
 from canfdi.methods.parity.signatures import DRIFTS, signature_columns
-from canfdi.methods.parity.thresholds import calibrate_thresholds, long_run_covariance
+from canfdi.methods.parity.thresholds import (
+    calibrate_thresholds,
+    lagged_covariance,
+    long_run_covariance,
+)
 
 __all__ = ["METHOD", "ParityDiagnoser", "ParitySettings", "build", "calibrate_thresholds"]
 
@@ -59,7 +63,7 @@ def build(config: MonitorConfig) -> ParityDiagnoser:
                                       settings.drift, settings.false_alarm_interval,
                                       signatures=signatures)
     return ParityDiagnoser(design, settings, thresholds, long_run_covariance(bank, meas),
-                           signatures)
+                           signatures, lagged_covariance(bank, meas))
 
 
 def describe(config: MonitorConfig) -> dict:

@@ -32,8 +32,11 @@ ACCEPT. The estimate is folded into a compensation applied from k_f on (z_j - b,
 u_j = eta u_cj + lambda), the residual window is rebuilt from compensated samples and the
 detector restarts (seed 003 Section 3.3), so a later fault on any channel is diagnosed on top of
 the ones already found, repaired or not. A later diagnosis on a channel already compensated
-(what a not quite exact estimate leaves of a large fault) refines it: a "refined" event with the
-channel's updated total (canfdi.core.records.fold), not a new fault. Between diagnoses the
+is a fault of its own when its size differs from none beyond what the earlier estimate's
+uncertainty explains ("accepted", its own size, whatever was accepted before on the channel or
+on a look-alike the same name stands for); otherwise it is what a not quite exact estimate left
+of the earlier fault and refines it: a "refined" event with that fault's updated size
+(canfdi.core.records.fold). Between diagnoses the
 accepted faults go on being estimated on the compensated residuals, and a significant
 correction is folded in the same way (canfdi.methods.parity.tracking): a "refined" event with no
 detection.
@@ -57,6 +60,7 @@ from canfdi.core.records import (
     FaultEvent,
     Sample,
     compensate,
+    fault_onset,
     fold,
 )
 from canfdi.core.residuals import ResidualBank
@@ -72,6 +76,11 @@ from canfdi.methods.parity.signatures import SignatureColumns
 from canfdi.methods.parity.tracking import AcceptedFaultTracker, Tracked
 
 __all__ = ["Diagnosis", "ParityDiagnoser", "ParitySettings"]
+
+LOOKBACK = 256
+"""Samples before the change point a diagnosis also fits when channels are compensated: over
+them a compensated channel's leftover (acting from its fault's onset) and a new fault (acting
+from its own) differ."""
 
 
 @dataclass(frozen=True)
@@ -128,8 +137,11 @@ class Diagnosis:
     onsets : (K,) candidate fault onsets; info : the information of every hypothesis and onset,
     batch shape (H, K) (canfdi.core.identify, P reset at the alarm); meat : (H, K, d, d) sum of
     phi^T Gamma phi, Gamma the residuals' long-run covariance: the middle of the estimates'
-    sandwich covariance P meat P; u_abs, n_u : (p,) sum of |u_c| and count of known commands
-    since the alarm (the scale an actuator's lambda is judged against).
+    sandwich covariance P meat P, which the settling test judges by; u_abs, n_u : (p,) sum of
+    |u_c| and count of known commands since the alarm (the scale an actuator's lambda is judged
+    against); named : whether the fault was named (`ParityDiagnoser._name`); lagged_meat : the
+    same middle counting the residuals' correlation lag by lag (sum_k sum_l phi_k^T C[k - l]
+    phi_l), what the estimates the events report vary by (None: ``meat``).
 
     Examples
     --------
@@ -146,6 +158,8 @@ class Diagnosis:
     meat: np.ndarray
     u_abs: np.ndarray
     n_u: np.ndarray
+    named: bool = False
+    lagged_meat: np.ndarray | None = None
 
 
 class ParityDiagnoser(DetectorBacked):
@@ -162,6 +176,11 @@ class ParityDiagnoser(DetectorBacked):
         None: white, independent residuals.
     signatures : the signature CUSUMs detection runs beside the residuals' (signatures.
         signature_columns); None: Page-Hinkley on the residuals alone.
+    lagged : (S+1, m, m) the normalised residuals' autocovariances at lags 0..S (thresholds.
+        lagged_covariance): a diagnosis' estimates then vary as the residuals' correlation
+        across the fault's transient says; None: as ``long_run`` says at every sample (right
+        for steady regressors only: the transient's information is overstated where the
+        residuals' long-run variance is far below their variance, as on the winding machine).
 
     Examples
     --------
@@ -191,7 +210,8 @@ class ParityDiagnoser(DetectorBacked):
 
     def __init__(self, design: Design, settings: ParitySettings, thresholds: np.ndarray,
                  long_run: np.ndarray | None = None,
-                 signatures: SignatureColumns | None = None) -> None:
+                 signatures: SignatureColumns | None = None,
+                 lagged: np.ndarray | None = None) -> None:
         self.design = design
         self.settings = settings
         self.bank = ResidualBank(design)
@@ -255,6 +275,9 @@ class ParityDiagnoser(DetectorBacked):
         self._projection = None if signatures is None else signatures.projection
         self.tracker = AcceptedFaultTracker(self.bank, long_run, settings.settle_noise / 4.0,
                                             self._projection)
+        self._lagged = None if lagged is None else np.asarray(lagged, dtype=float).reshape(
+            self.bank.S + 1, self.bank.m, self.bank.m)
+        self._lag_rows: deque = deque(maxlen=self.bank.S)  # (k, rows) of a diagnosis' last S
         self.reset()
 
     # -- state ---------------------------------------------------------------------------
@@ -419,8 +442,15 @@ class ParityDiagnoser(DetectorBacked):
         s = self.settings
         onsets = onset_candidates(change_point, k, self._recent.first, s.onset_before,
                                   s.max_onsets, keep="ends")
-        self._start_diagnosis(k, onsets)
-        for kk, window, rnn in self._recent.since(min(onsets)):
+        # The compensated channels' faults are tried at their own onsets too, over the samples
+        # before the change point: what an estimate left acts from that fault's onset on, a new
+        # fault from its own (`_leftover`).
+        earlier = sorted({o for c in self.compensation
+                          if (o := fault_onset(self.compensation, c.target, c.index)) is not None
+                          and o < onsets[0]})
+        start = max(earlier[0], onsets[0] - LOOKBACK) if earlier else onsets[0]
+        self._start_diagnosis(k, earlier + onsets)
+        for kk, window, rnn in self._recent.since(start):
             self._accumulate(kk, window, rnn)
         event = FaultEvent(kind="detected", sample=k, timestamp_ns=t, detected_sample=k,
                            onset_sample=change_point,
@@ -432,9 +462,12 @@ class ParityDiagnoser(DetectorBacked):
     def _start_diagnosis(self, k: int, onsets: list[int]) -> None:
         H, K = len(self.hypotheses), len(onsets)
         self.mode = DIAGNOSE
+        self._lag_rows.clear()
         self._diag = Diagnosis(k_d=k, onsets=np.array(onsets),
                                info=rls_init(self.d, self.settings.prior_precision, shape=(H, K)),
                                meat=np.zeros((H, K, self.d, self.d)),
+                               lagged_meat=(None if self._lagged is None
+                                            else np.zeros((H, K, self.d, self.d))),
                                u_abs=np.zeros(self.p), n_u=np.zeros(self.p))
 
     def _accumulate(self, k: int, window: np.ndarray, rn: np.ndarray) -> None:
@@ -445,8 +478,19 @@ class ParityDiagnoser(DetectorBacked):
         u_now = window[-1, self.q :]
         seen = ~np.isnan(u_now)
         rows = phi * (~np.isnan(rn))[:, None]  # a missing residual: no equation
-        meat = d.meat + np.swapaxes(rows, -1, -2) @ (self.tracker.gamma @ rows)
-        self._diag = replace(d, info=rls_update(d.info, phi, rn), meat=meat,
+        rows_t = np.swapaxes(rows, -1, -2)
+        meat = d.meat + rows_t @ (self.tracker.gamma @ rows)
+        lagged = d.lagged_meat
+        if lagged is not None:
+            # sum_k sum_l phi_k' C[k - l] phi_l over the rows within a window of each other.
+            lagged = lagged + rows_t @ (self._lagged[0] @ rows)
+            for kk, before in self._lag_rows:
+                lag = k - kk
+                if 0 < lag <= self.bank.S:
+                    cross = rows_t @ (self._lagged[lag] @ before)
+                    lagged = lagged + cross + np.swapaxes(cross, -1, -2)
+            self._lag_rows.append((k, rows))
+        self._diag = replace(d, info=rls_update(d.info, phi, rn), meat=meat, lagged_meat=lagged,
                              u_abs=d.u_abs + np.where(seen, np.abs(np.nan_to_num(u_now)), 0.0),
                              n_u=d.n_u + seen)
 
@@ -486,9 +530,11 @@ class ParityDiagnoser(DetectorBacked):
         else:
             size = np.abs(th[:n_b])
         unit = noise_units(self.bank, h_best, u_mean, self._projection)
-        settled = bool(np.all((sd <= s.settle_rel_std * size) | _within(sd, s.settle_noise, unit)))
-        if settled and h_best.target == "actuator_bias":
-            settled = self._scale_ruled_out(fit, best_onset, cost, d, h_best.index)
+        size_known = bool(np.all((sd <= s.settle_rel_std * size)
+                                 | _within(sd, s.settle_noise, unit)))
+        form_known = (h_best.target != "actuator_bias"
+                      or self._scale_ruled_out(fit, best_onset, cost, d, h_best.index))
+        settled = size_known and form_known
         # The fault against no fault at all, by the same margin in the fit's own noise (an F
         # test): a burst of noise (a drive gone noisier) trips Page-Hinkley too, and a step
         # fitted to it explains little of what it leaves.
@@ -496,16 +542,66 @@ class ParityDiagnoser(DetectorBacked):
         fits = (scale <= s.max_fit_variance
                 and (rr - float(cost[best, kb])) / scale >= s.isolation_margin)
         if margin_ok and fits and (settled or since >= s.max_samples):
-            return self._accept(k, t, best, kb, theta, var, scale, best_onset, cost_h)
+            return self._accept(k, t, best, kb, theta, self._reported(fit, cost, best, kb), scale,
+                                best_onset, cost_h, cost[best])
+        if (margin_ok and fits and not d.named and h_best.target != "sensors"
+                and not self._leftover(_channel(h_best), h_best.index, cost[best], kb)):
+            # (What an earlier estimate left is no new component to name: it is refined.)
+            return self._name(k, t, fit, cost, best_onset, best, size_known, form_known)
         if fits and since >= s.max_samples:
             # Near twins: what tells them apart (a transient) is buried in the noise, and
             # max_samples of data did not decide. The fault is there and fits: name the best
             # with every channel within the margin as its candidates rather than none.
             near = [i for i in outside if cost_h[i] - cost_h[best] < s.isolation_margin]
-            return self._accept(k, t, best, kb, theta, var, scale, best_onset, cost_h, near)
+            return self._accept(k, t, best, kb, theta, self._reported(fit, cost, best, kb), scale,
+                                best_onset, cost_h, cost[best], near)
         if since >= s.max_samples:
             return self._unexplained(k, t, theta, best_onset, order)
         return []
+
+    def _name(self, k: int, t: int, fit, cost: np.ndarray, best_onset: np.ndarray, best: int,
+              size_known: bool, form_known: bool) -> list[FaultEvent]:
+        """NAMED: the sequential test names the faulty component (the best fit's group ahead
+        of every other by the isolation margin, and a fault, not noise) before its form and
+        size are known, once per diagnosis. Its size is the one it acts with now: a sensor's
+        bias; an actuator's offset (its bias-only fit: a scale acts as one while the command
+        holds). ``undecided``: "form" while a scale is not ruled out, "size" while the estimate
+        has not settled. (A joint fit of several sensors is named when accepted.)"""
+        d = self._diag
+        self._diag = replace(d, named=True)
+        h = self.hypotheses[best]
+        src = best
+        if h.target == "actuator":
+            src = next((i for i, g in enumerate(self.hypotheses)
+                        if g.target == "actuator_bias" and g.index == h.index), best)
+        g = self.hypotheses[src]
+        kb = int(best_onset[src])
+        desc = self._describe(g, fit.theta[src, kb], self._reported(fit, cost, src, kb))
+        estimates, variances = desc["estimates"], desc["variances"]
+        candidates: tuple[dict, ...] = ()
+        if g.target == "sensor":
+            candidates = self._sensor_twins(g.index, estimates["bias"])
+        else:  # the offset it acts as now; its scale is what "form" waits for
+            estimates = {"lambda": estimates["lambda"]}
+            variances = {"lambda": variances["lambda"]}
+        undecided = (("form",) if not form_known else ()) + (("size",) if not size_known
+                                                             else ())
+        event = FaultEvent(kind="named", sample=k, timestamp_ns=t, target=desc["target"],
+                           index=g.index, name=g.name, estimates=estimates,
+                           variances=variances, onset_sample=int(d.onsets[kb]),
+                           detected_sample=d.k_d, candidates=candidates, undecided=undecided)
+        self.events.append(event)
+        return [event]
+
+    def _reported(self, fit, cost: np.ndarray, h: int, kb: int) -> np.ndarray:
+        """(d,) the variances an event reports for hypothesis h at onset kb (`_spread`,
+        lag by lag)."""
+        return _spread(fit, cost, self._diag, h, kb, self.hypotheses[h].n_params, lagged=True)[0]
+
+    @property
+    def named(self) -> bool:
+        """Whether the diagnosis under way has named its fault (FDI_STATUS "named")."""
+        return self._diag is not None and self._diag.named
 
     def _full_actuator(self, j: int) -> int | None:
         """The index of actuator j's full hypothesis (eta and lambda), if it has one."""
@@ -603,8 +699,20 @@ class ParityDiagnoser(DetectorBacked):
                         "estimates": {"lambda" if actuator else "bias": bias * ratio}})
         return tuple(out)
 
+    def _leftover(self, target: str, index: int, cost_k: np.ndarray, kb: int) -> bool:
+        """Whether a diagnosis of a compensated channel finds what its latest fault's estimate
+        left rather than a new fault: dated at that fault's onset, the fit costs less than the
+        isolation margin more than at its best onset (``cost_k``: (K,) the hypothesis' cost at
+        each onset, ``kb`` the best). A new fault leaves the samples before its onset as they
+        were; what an estimate left was there all along."""
+        onset = fault_onset(self.compensation, target, index)
+        hit = np.flatnonzero(self._diag.onsets == onset) if onset is not None else []
+        if len(hit) == 0:
+            return False
+        return float(cost_k[hit[0]] - cost_k[kb]) < self.settings.isolation_margin
+
     def _accept(self, k: int, t: int, best: int, kb: int, theta: np.ndarray, var: np.ndarray,
-                scale: float, best_onset: np.ndarray, cost_h: np.ndarray,
+                scale: float, best_onset: np.ndarray, cost_h: np.ndarray, cost_k: np.ndarray,
                 near: list[int] = ()) -> list[FaultEvent]:
         d = self._diag
         h = self.hypotheses[best]
@@ -639,11 +747,18 @@ class ParityDiagnoser(DetectorBacked):
         # the information over the cost's scale), for the tracker's prior.
         info = d.info.J[best, kb] / scale
         accepted_now = {}
-        for target, index, *_rest in faults:
+        for target, index, est, variances, candidates in faults:
+            names = self.design.input_names if target == "actuator" else self.design.output_names
+            leftover = h.target != "sensors" and self._leftover(target, index, cost_k, kb)
+            kind, shown, shown_var = self._fold(target, index, onset, est, variances, leftover)
+            events.append(FaultEvent(
+                kind=kind, sample=k, timestamp_ns=t, target=target, index=index,
+                name=names[index], estimates=shown, variances=shown_var, onset_sample=onset,
+                detected_sample=d.k_d, accepted_sample=k, candidates=candidates))
             if h.target == "sensors":
                 hyp = Hypothesis("sensor", index, self.design.output_names[index])
                 col = h.members.index(index)
-                accepted_now[(target, index)] = (hyp, info[col: col + 1, col: col + 1])
+                precision = info[col: col + 1, col: col + 1]
             elif (h.target == "actuator_bias" and self._projection is not None
                   and (full := self._full_actuator(index)) is not None):
                 # A bias is a scale not yet ruled out over every command the drive will use.
@@ -652,18 +767,10 @@ class ParityDiagnoser(DetectorBacked):
                 # and folds it rather than have it re-detected. (Page-Hinkley alone does not
                 # see it, and there a two-parameter tracker only risks taking a later small
                 # fault for a scale: one more missed fault in 131 on the DC motor.)
-                accepted_now[(target, index)] = (self.hypotheses[full],
-                                                 d.info.J[full, kb, :2, :2] / scale)
+                hyp, precision = self.hypotheses[full], d.info.J[full, kb, :2, :2] / scale
             else:
-                accepted_now[(target, index)] = (h, info[: h.n_params, : h.n_params])
-        for target, index, est, variances, candidates in faults:
-            names = self.design.input_names if target == "actuator" else self.design.output_names
-            kind, total = self._fold(target, index, onset, est)
-            events.append(FaultEvent(
-                kind=kind, sample=k, timestamp_ns=t, target=target, index=index,
-                name=names[index], estimates=est if kind == "accepted" else total,
-                variances=variances, onset_sample=onset, detected_sample=d.k_d,
-                accepted_sample=k, candidates=candidates))
+                hyp, precision = h, info[: h.n_params, : h.n_params]
+            accepted_now[(target, index)] = (hyp, precision, kind == "accepted")
         self._reload_window()
         self.mode = MONITOR
         self._restart_detector(k)
@@ -671,12 +778,15 @@ class ParityDiagnoser(DetectorBacked):
         self.events.extend(events)
         return events
 
-    def _fold(self, target: str, index: int, onset: int, est: dict[str, float]
-              ) -> tuple[str, dict[str, float]]:
-        """Fold estimates (named as in FaultEvent) into the compensation (records.fold)."""
+    def _fold(self, target: str, index: int, onset: int, est: dict[str, float],
+              variances: dict[str, float], correction: bool = False
+              ) -> tuple[str, dict[str, float], dict[str, float]]:
+        """Fold estimates and their variances (named as in FaultEvent) into the compensation:
+        (kind, estimates, variances) of the event that says so (records.fold)."""
         return fold(self.compensation, Compensation(
             target, index, onset, eta=est.get("eta", 1.0), lam=est.get("lambda", 0.0),
-            bias=est.get("bias", 0.0), scale=target == "actuator"))
+            bias=est.get("bias", 0.0), scale=target == "actuator", variances=dict(variances),
+            correction=correction))
 
     def _reload_window(self) -> None:
         """Seed 003 Section 3.3: rebuild the window from compensated samples."""
@@ -696,31 +806,39 @@ class ParityDiagnoser(DetectorBacked):
 
     def _track_compensated(self, accepted_now: dict) -> None:
         """Restart the tracker over every compensated channel: the ones just accepted with
-        their fit's information (added to what an earlier acceptance of the same kind knew),
-        the others as they were tracked."""
+        their fit's information (a refinement's added to what the channel's tracking knew; a
+        new fault on a channel tracked already adds its uncertainty to the earlier one's: the
+        channel's remaining error is the sum of both estimates' errors), the others as they
+        were tracked."""
         tracked = {("actuator" if t.hypothesis.target == "actuator_bias"
                     else t.hypothesis.target, t.hypothesis.index): t
                    for t in self.tracker.tracked}
-        for key, (hyp, precision) in accepted_now.items():
+        for key, (hyp, precision, new_fault) in accepted_now.items():
             before = tracked.get(key)
             if before is not None and before.hypothesis.target == hyp.target:
-                precision = precision + before.precision
+                if new_fault:
+                    precision = np.linalg.inv(np.linalg.inv(precision)
+                                              + np.linalg.inv(before.precision))
+                else:
+                    precision = precision + before.precision
             onset = min(c.onset for c in self.compensation if (c.target, c.index) == key)
             tracked[key] = Tracked(hyp, onset, precision)
         self.tracker.restart([tracked[key] for key in sorted(tracked)])
 
     def _refine_tracked(self, k: int, t: int) -> list[FaultEvent]:
         """A tracker checkpoint: fold its significant corrections into the compensation,
-        each announced as a "refined" event with the channel's new total."""
+        each announced as a "refined" event with the updated size of the channel's latest
+        fault (records.latest_fault)."""
         corrections = self.tracker.correction()
         events = []
         for c in corrections:
             h = c.tracked.hypothesis
             desc = self._describe(h, c.delta, c.variances)
-            _, total = self._fold(desc["target"], h.index, c.tracked.onset, desc["estimates"])
+            _, size, variances = self._fold(desc["target"], h.index, c.tracked.onset,
+                                            desc["estimates"], desc["variances"], correction=True)
             events.append(FaultEvent(
                 kind="refined", sample=k, timestamp_ns=t, target=desc["target"], index=h.index,
-                name=h.name, estimates=total, variances=desc["variances"],
+                name=h.name, estimates=size, variances=variances,
                 onset_sample=c.tracked.onset, accepted_sample=k))
         if events:
             self._reload_window()
@@ -728,15 +846,26 @@ class ParityDiagnoser(DetectorBacked):
         return events
 
 
-def _spread(fit, cost: np.ndarray, d: Diagnosis, h: int, kb: int, n_params: int
-            ) -> tuple[np.ndarray, float]:
+def _channel(h: Hypothesis) -> str:
+    """The compensation's target of a hypothesis ("actuator" for a bias-only actuator)."""
+    return "actuator" if h.target == "actuator_bias" else h.target
+
+
+def _spread(fit, cost: np.ndarray, d: Diagnosis, h: int, kb: int, n_params: int,
+            lagged: bool = False) -> tuple[np.ndarray, float]:
     """(d,) the variances of hypothesis h's estimates at onset kb, and the fit's noise scale
     (cost per degree of freedom). The sandwich: least squares takes the residuals for white
     and independent, but parity residuals over a window are correlated in time (and with each
-    other), so a sum of them varies as the long-run covariance says, not as P alone."""
+    other), so a sum of them varies as the long-run covariance says, not as P alone. That holds
+    for steady regressors; across a fault's transient the correlation lag by lag counts
+    (``lagged``: Diagnosis.lagged_meat, what the events report). The settling test keeps the
+    long-run form, which the shipped configs' settle_rel_std and settle_noise were set by: on
+    the winding machine the lagged variances of a sensor bias 50 samples after its onset are
+    40 times the long-run ones (and match the spread of the estimates over seeds)."""
     P = fit.P[h, kb]
     scale = max(float(cost[h, kb]) / max(d.info.n_eq - n_params, 1), 1e-300)
-    return np.diag(P @ d.meat[h, kb] @ P) * scale, scale
+    meat = d.lagged_meat if lagged and d.lagged_meat is not None else d.meat
+    return np.diag(P @ meat[h, kb] @ P) * scale, scale
 
 
 def _within(sd: np.ndarray | float, fraction: float, unit: np.ndarray | float) -> np.ndarray:

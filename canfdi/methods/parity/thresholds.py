@@ -18,7 +18,7 @@ from canfdi.core.residuals import ResidualBank
 if TYPE_CHECKING:
     from canfdi.methods.parity.signatures import SignatureColumns
 
-__all__ = ["calibrate_thresholds", "instant_covariance", "long_run_covariance"]
+__all__ = ["calibrate_thresholds", "instant_covariance", "lagged_covariance", "long_run_covariance"]
 
 
 def calibrate_thresholds(bank: ResidualBank, measurement_std: np.ndarray,
@@ -128,6 +128,29 @@ def long_run_covariance(bank: ResidualBank, measurement_std: np.ndarray) -> np.n
     coef, var = _noise_coefficients(bank, measurement_std)
     gain = coef.sum(axis=1) / bank.sigma[:, None]  # (m, q)
     return (gain * var[None, :]) @ gain.T
+
+
+def lagged_covariance(bank: ResidualBank, measurement_std: np.ndarray) -> np.ndarray:
+    """(S+1, m, m) autocovariances C[lag] = E[r(k) r(k - lag)^T] of the normalised residuals
+    under white measurement noise, lag 0..S (none beyond: a window holds S+1 samples). A fit
+    whose regressors change within S samples (a fault's transient) varies as these say; the
+    long-run covariance, C[0] + sum_lag (C[lag] + C[lag]^T), holds for steady ones only.
+
+    >>> from canfdi.core.design import design_bank
+    >>> from canfdi.core.model import StateSpace
+    >>> bank = ResidualBank(design_bank(StateSpace(A=[[0.9]], B=[[1.0]], C=[[1.0], [1.0]]),
+    ...                                 ["u"], ["y0", "y1"]))
+    >>> C = lagged_covariance(bank, np.ones(2))
+    >>> total = C[0] + (C[1:] + np.swapaxes(C[1:], 1, 2)).sum(axis=0)
+    >>> bool(np.allclose(total, long_run_covariance(bank, np.ones(2))))
+    True
+    """
+    coef, var = _noise_coefficients(bank, measurement_std)
+    c = coef / bank.sigma[:, None, None]
+    width = bank.S + 1
+    # r_i(k) holds x(k - S + l) with c[i, l]; r_j(k - lag) holds it with c[j, l + lag].
+    return np.stack([np.einsum("ilc,jlc,c->ij", c[:, : width - lag], c[:, lag:], var)
+                     for lag in range(width)])
 
 
 def instant_covariance(bank: ResidualBank, measurement_std: np.ndarray) -> np.ndarray:

@@ -384,7 +384,7 @@ MONITOR = {
         **HEADER,
         "Kind": (16, 2, False, False, 0, 2, KIND),
         "State": (18, 2, False, False, 0, 3,
-                  {0: "cleared", 1: "detected", 2: "isolated", 3: "accepted"}),
+                  {0: "cleared", 1: "detected", 2: "named", 3: "accepted"}),
         "Drive": (20, 3, False, False, 0, 7, None),
         "Index": (24, 8, False, False, 0, 255, None),
         "Sample": (32, 32, False, False, 0, 2**32 - 1, None),
@@ -403,7 +403,7 @@ MONITOR = {
         "State": (16, 4, False, False, 0, 15, {0: "starting", 1: "monitoring", 2: "diagnosing",
                                               3: "degraded", 4: "bus_error", 5: "teaching",
                                               6: "mismatch", 7: "no_traffic", 8: "checking",
-                                              9: "quiet"}),
+                                              9: "quiet", 10: "named"}),
         "Drive": (20, 3, False, False, 0, 7, None),
         "ActiveFaults": (23, 4, False, False, 0, 15, None),
         "Samples": (27, 21, False, False, 0, 2**21 - 1, None),
@@ -431,7 +431,7 @@ def test_cantools_dump_cli_accepts_the_monitor_dbc() -> None:
 def test_monitor_dbc_has_the_monitor_node_and_its_four_messages(monitor_db: Database) -> None:
     assert [node.name for node in monitor_db.nodes] == ["FDI"]
     assert monitor_db.nodes[0].comment
-    assert monitor_db.version == "canfdi monitor 5"
+    assert monitor_db.version == "canfdi monitor 6"
     # In the order bus.monitor.base numbers them: base, base + 1, ... (the defaults from 0x080).
     assert [m.name for m in monitor_db.messages] == list(MONITOR) == list(MONITOR_MESSAGES)
     assert [m.frame_id for m in monitor_db.messages] == [0x080, 0x081, 0x082, 0x083]
