@@ -324,6 +324,9 @@ def print_report(r: dict[str, Any]) -> None:
         ("CUSUM bound", f"delay / bound median {_f(r['delay_over_bound_median'])}, p95 "
                         f"{_f(r['delay_over_bound_p95'])} (bound: ln(false-alarm interval) / "
                         "(FNR^2 / 2) samples)"),
+        ("named", f"from onset median {_f(r['named_delay_median_samples'])}, p95 "
+                  f"{_f(r['named_delay_p95_samples'])} (samples: the faulty component said, "
+                  "before its form and size are known)"),
         ("to acceptance", f"from detection median {_f(r['acceptance_delay_median_samples'])},"
                           f" p95 {_f(r['acceptance_delay_p95_samples'])}; from onset median "
                           f"{_f(r['diagnosis_delay_median_samples'])}, p95 "
@@ -342,6 +345,8 @@ def print_report(r: dict[str, Any]) -> None:
                         "estimate (not counted as false alarms)"),
         ("estimate error", f"median {_pct(r['estimate_error_median'])}, p95 "
                            f"{_pct(r['estimate_error_p95'])} over {r['estimate_errors']} faults"),
+        ("confidence", f"{_pct(r['estimates_within_3_std'])} of {r['estimates_judged']} "
+                       "estimates within 3 of their standard deviations of the truth"),
     ]
     for name, value in rows:
         print(f"  {name:<17}{value}")

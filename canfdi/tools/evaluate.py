@@ -318,7 +318,12 @@ class FaultOutcome:
     estimate : the estimates of the accepted (or candidate) channel that matched the truth.
     errors : relative estimate error per parameter (relative_errors); error : their maximum.
     final_estimate, final_errors : the same after the refinements of the accepted channel
-        before the next onset (its last "refined" total; a twin candidate's scaled alike).
+        before the next onset (its last "refined" size; a twin candidate's scaled alike).
+    named_sample : when a diagnosis of its own named its channel rightly (a "named" event
+        naming it or a candidate of it; its acceptance at the latest; None: never).
+    estimate_std : the standard deviation the diagnoser gave each estimate (its event's
+        variances; a twin candidate's scaled as its estimate is); within_3_std : whether every
+        estimate lies within 3 of them of the truth (None: no estimate to judge).
     """
 
     fault: InjectedFault
@@ -333,6 +338,23 @@ class FaultOutcome:
     extra_channels: int = 0
     final_estimate: dict[str, float] = field(default_factory=dict)
     final_errors: dict[str, float] = field(default_factory=dict)
+    estimate_std: dict[str, float] = field(default_factory=dict)
+    named_sample: int | None = None
+
+    @property
+    def named_delay(self) -> int | None:
+        """Samples from the onset to the fault's channel named (None: never)."""
+        return None if self.named_sample is None else self.named_sample - self.fault.onset_sample
+
+    @property
+    def within_3_std(self) -> bool | None:
+        """Whether each judged estimate (those `relative_errors` judges) lies within 3 of its
+        standard deviations of the truth; None without an estimate and its deviation."""
+        keys = [k for k in self.errors if k in self.estimate_std]
+        if not keys:
+            return None
+        return all(abs(self.estimate[k] - float(self.fault.params[k]))
+                   <= 3.0 * self.estimate_std[k] for k in keys)
 
     @property
     def detected(self) -> bool:
@@ -369,9 +391,11 @@ class FaultOutcome:
         out.update(detected_sample=self.detected_sample, delay=self.delay,
                    decision=self.decision, diagnosed=self.diagnosed, isolation=self.isolation,
                    accepted_sample=self.accepted_sample, acceptance_delay=self.acceptance_delay,
-                   diagnosis_delay=self.diagnosis_delay,
+                   diagnosis_delay=self.diagnosis_delay, named_sample=self.named_sample,
+                   named_delay=self.named_delay,
                    estimate=dict(self.estimate), errors=dict(self.errors), error=self.error,
                    final_estimate=dict(self.final_estimate), final_error=self.final_error,
+                   estimate_std=dict(self.estimate_std), within_3_std=self.within_3_std,
                    extra_channels=self.extra_channels)
         return out
 
@@ -408,6 +432,39 @@ def relative_errors(fault: InjectedFault, estimates: dict[str, float]) -> dict[s
     return out
 
 
+def _std_of(estimate: dict[str, float], matched: FaultEvent) -> dict[str, float]:
+    """The standard deviations of ``estimate`` (the matched event's own, or a twin
+    candidate's: the event's estimate times a fixed ratio, its deviation scaled alike)."""
+    out = {}
+    for key, value in estimate.items():
+        var = matched.variances.get(key)
+        own = matched.estimates.get(key)
+        if var is None:  # a twin candidate of the other kind: bias <-> lambda
+            other = next((k for k in ("bias", "lambda") if k in matched.variances
+                          and matched.estimates.get(k)), None)
+            if other is None:
+                continue
+            var, own = matched.variances[other], matched.estimates[other]
+        if own is None or own == 0.0 or var is None:
+            continue
+        out[key] = float(np.sqrt(max(var, 0.0)) * abs(value / own))
+    return out
+
+
+def _increment(before: dict[str, float], after: dict[str, float]) -> dict[str, float]:
+    """What a refinement added to a fault's estimate (the inverse of records.fold's
+    composition): biases and lambdas subtract; an actuator's eta2 (eta1 u + lam1) + lam2 has
+    eta2 = eta / eta1, lam2 = lam - eta2 lam1."""
+    if "bias" in after:
+        return {"bias": after["bias"] - before.get("bias", 0.0)}
+    eta1, lam1 = before.get("eta", 1.0), before.get("lambda", 0.0)
+    eta2 = after.get("eta", 1.0) / eta1 if eta1 else 1.0
+    out = {"lambda": after.get("lambda", 0.0) - eta2 * lam1}
+    if "eta" in after:
+        out["eta"] = eta2
+    return out
+
+
 def _isolate(fault: InjectedFault, accepted: list[FaultEvent],
              twins: dict[str, frozenset[str]] | None, names: dict | None
              ) -> tuple[str, str, dict[str, float], int, FaultEvent | None]:
@@ -435,8 +492,9 @@ def _isolate(fault: InjectedFault, accepted: list[FaultEvent],
 def _refined(estimate: dict[str, float], matched: FaultEvent, exact: bool,
              later: Sequence[FaultEvent]) -> dict[str, float]:
     """The estimate of a fault after the refinements of its accepted channel that follow
-    (``later``: "refined" events, in order, each with the channel's total): the last total
-    for the channel itself (``exact``); for a twin candidate (whose size is the named
+    (``later``: "refined" events, in order, each with the updated size of the channel's
+    latest fault, which this one is until the next onset): the last size for the channel
+    itself (``exact``); for a twin candidate (whose size is the named
     channel's times a fixed ratio) its estimate scaled as the named channel's own size moved."""
     mine = [e for e in later if (e.target, e.index) == (matched.target, matched.index)]
     if not mine:
@@ -468,20 +526,40 @@ def _fault_outcome(f: InjectedFault, own: list[FaultEvent], accepted_at: int | N
     if not own:
         return FaultOutcome(f, None, None, "none", "none", None)
     first = own[0].sample
+    mine = {d.sample for d in own}
+    named = [e.sample for e in events if e.kind == "named" and e.detected_sample in mine
+             and _explains(f, [e])]
     decided = next((d for d in own if d.sample in accepted_by), None)
     if decided is None:
         decision = "unexplained" if any(d.sample in unexplained for d in own) else "none"
-        return FaultOutcome(f, first, first - f.onset_sample, decision, decision, None)
+        return FaultOutcome(f, first, first - f.onset_sample, decision, decision, None,
+                            named_sample=min(named, default=None))
     acc = accepted_by[decided.sample]
     isolation, diagnosed, est, extra, matched = _isolate(f, acc, twins, names)
+    std = _std_of(est, matched) if matched is not None else {}
+    if matched is not None and matched.kind == "refined":
+        # A fault on a channel compensated already, within what the earlier estimate left:
+        # the bus cannot tell it from more of the same. Its own size is what the refinement
+        # added to the channel's latest fault.
+        prior = [e for e in events if e.kind in ("accepted", "refined")
+                 and (e.target, e.index) == (matched.target, matched.index)
+                 and e.sample < matched.sample]
+        if prior:
+            scale = {k: v / matched.estimates[k] for k, v in est.items()
+                     if matched.estimates.get(k)}
+            own = _increment(prior[-1].estimates, matched.estimates)
+            est = {k: v * scale.get(k, 1.0) for k, v in own.items() if k in est}
     errors = relative_errors(f, est) if isolation in ("exact", "candidate") else {}
     final, final_errors = dict(est), dict(errors)
     if matched is not None and accepted_at is not None:
         later = [e for e in events if e.kind == "refined" and accepted_at < e.sample < end]
         final = _refined(est, matched, isolation == "exact", later)
         final_errors = relative_errors(f, final)
+    if isolation in ("exact", "candidate") and accepted_at is not None:
+        named.append(accepted_at)
     return FaultOutcome(f, first, first - f.onset_sample, "accepted", diagnosed, isolation,
-                        accepted_at, est, errors, extra, final, final_errors)
+                        accepted_at, est, errors, extra, final, final_errors, std,
+                        min(named, default=None))
 
 
 def match_run(faults: Sequence[InjectedFault], events: Sequence[FaultEvent], samples: int,
@@ -600,6 +678,7 @@ def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = 
     timed = [o for o in accepted if o.accepted_sample is not None]
     to_accept = _stats([o.acceptance_delay for o in timed])
     to_diagnose = _stats([o.diagnosis_delay for o in timed])
+    to_name = _stats([o.named_delay for o in outs if o.named_delay is not None])
     bounds = ([(o.delay, cusum_bound(o.fault.fnr, false_alarm_interval)) for o in detected]
               if false_alarm_interval else [])
     bounds = [(d, b) for d, b in bounds if math.isfinite(b)]
@@ -610,6 +689,7 @@ def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = 
     delays = _stats([o.delay for o in detected])
     errors = _stats([o.error for o in outs if o.error is not None])
     final = _stats([o.final_error for o in outs if o.final_error is not None])
+    judged = [o.within_3_std for o in outs if o.within_3_std is not None]
     return {
         "faults": n, "detected": len(detected), "missed": n - len(detected),
         "detection_rate": _ratio(len(detected), n),
@@ -621,6 +701,8 @@ def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = 
         "acceptance_delay_p95_samples": to_accept["p95"],
         "diagnosis_delay_median_samples": to_diagnose["median"],
         "diagnosis_delay_p95_samples": to_diagnose["p95"],
+        "named_delay_median_samples": to_name["median"],
+        "named_delay_p95_samples": to_name["p95"],
         "accepted": len(accepted),
         "unexplained": sum(o.decision == "unexplained" for o in outs),
         "undecided": sum(o.detected and o.decision == "none" for o in outs),
@@ -632,6 +714,8 @@ def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = 
         "final_estimate_error_median": final["median"],
         "final_estimate_error_p95": final["p95"],
         "estimate_errors": sum(o.error is not None for o in outs),
+        "estimates_within_3_std": _ratio(sum(judged), len(judged)),
+        "estimates_judged": len(judged),
     }
 
 

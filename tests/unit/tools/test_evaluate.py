@@ -208,6 +208,67 @@ def test_a_refinement_after_the_next_onset_is_not_the_earlier_faults():
     assert first.final_error == pytest.approx(0.1)
 
 
+def test_each_estimate_carries_its_std_and_whether_the_truth_lies_within_3_of_them():
+    # A: i_f 0.55 (sd 0.01) for a true 0.5: 5 sd off. B: i_f_plus_i_a +1.2 named with sd 0.1,
+    # its twin candidate i_a -1.2 (ratio -1: sd 0.1) for a true -1: 2 sd, within.
+    f, e, n = RUN_A
+    e = [e[0], FaultEvent(**{**e[1].__dict__, "variances": {"bias": 1e-4}})]
+    (a,) = match_run(f, e, n, first_monitored=8).faults
+    assert a.estimate_std == pytest.approx({"bias": 0.01}) and a.within_3_std is False
+    f, e, n = RUN_B
+    e = [e[0], FaultEvent(**{**e[1].__dict__, "variances": {"bias": 0.01}}), e[2]]
+    r = match_run(f, e, n, first_monitored=8, twins=TWINS, names=NAMES)
+    twin = r.faults[1]
+    assert twin.estimate_std == pytest.approx({"bias": 0.1}) and twin.within_3_std is True
+    assert twin.as_dict()["estimate_std"] == pytest.approx({"bias": 0.1})
+    m = aggregate([match_run(*RUN_A[:1], [RUN_A[1][0], FaultEvent(**{
+        **RUN_A[1][1].__dict__, "variances": {"bias": 1e-4}})], RUN_A[2], first_monitored=8),
+        r], DT)
+    assert (m["estimates_within_3_std"], m["estimates_judged"]) == (0.5, 2)
+    # The missed fault of B has no estimate to judge; a fault without variances neither.
+    assert r.faults[0].within_3_std is None
+    assert _runs()[0].faults[0].within_3_std is None
+
+
+def test_a_second_fault_the_bus_takes_for_more_of_the_first_is_scored_by_its_own_size():
+    # i_f +0.5 at 100 accepted 0.5; i_f +0.004 more at 3000, re-detected and folded as a
+    # refinement (within the first estimate's uncertainty): 0.505 is the updated size of the
+    # first, so the second's own estimate is 0.005 (error 0.25), not 0.505.
+    f = [fault("sensor", 0, "sensor_bias", 100, 30.0, bias=0.5),
+         fault("sensor", 0, "sensor_bias", 3000, 1.0, bias=0.004)]
+    events = [det(105), acc(300, 105, "sensor", 0, {"bias": 0.5}), det(3050),
+              FaultEvent(kind="refined", sample=3100, timestamp_ns=3100, target="sensor",
+                         index=0, name="i_f", estimates={"bias": 0.505},
+                         variances={"bias": 1e-6}, detected_sample=3050, accepted_sample=3100)]
+    first, second = match_run(f, events, 5000, first_monitored=8, names=NAMES).faults
+    assert first.estimate == {"bias": 0.5}
+    assert second.decision == "accepted" and second.isolation == "exact"
+    assert second.estimate == pytest.approx({"bias": 0.005})
+    assert second.error == pytest.approx(0.25)
+
+
+def test_a_fault_is_named_when_a_named_event_of_its_own_says_its_channel():
+    # A: i_f named at 1012 (10 after its detection), accepted at 1202: named delay 12. A named
+    # event of another channel does not count; without one, the acceptance names it.
+    f, e, n = RUN_A
+
+    def named(k, index):
+        return FaultEvent(kind="named", sample=k, timestamp_ns=k, target="sensor", index=index,
+                          name=NAMES["sensor"][index], estimates={"bias": 0.5},
+                          detected_sample=1002, undecided=("size",))
+    (o,) = match_run(f, [e[0], named(1012, 0), e[1]], n, first_monitored=8).faults
+    assert (o.named_sample, o.named_delay) == (1012, 12)
+    assert o.as_dict()["named_delay"] == 12
+    (o,) = match_run(f, [e[0], named(1010, 3), e[1]], n, first_monitored=8).faults
+    assert o.named_sample == 1202
+    (o,) = match_run(f, [e[0], named(1012, 0)], n, first_monitored=8).faults
+    assert o.decision == "none" and o.named_sample == 1012
+    m = aggregate(_runs(), DT)
+    # Named at acceptance: A 202, B's twin 210, C wrong (never named rightly).
+    assert (m["named_delay_median_samples"], m["named_delay_p95_samples"]) == (
+        206.0, pytest.approx(209.6))
+
+
 def test_fnr_outside_the_bins_goes_to_the_end_bins():
     runs = [match_run([fault("sensor", 0, "sensor_bias", 100, fnr, bias=1.0)],
                       [det(101), acc(301, 101, "sensor", 0, {"bias": 1.0})], 3000)
