@@ -18,6 +18,7 @@ __all__ = [
     "compensated",
     "fault_onset",
     "fold",
+    "increment",
     "latest_fault",
 ]
 
@@ -215,6 +216,12 @@ def compensate(entries: tuple[Compensation, ...] | list[Compensation], k: np.nda
     return Z, U
 
 
+def _on_channel(entries: list[Compensation] | tuple[Compensation, ...], target: str,
+                index: int) -> list[Compensation]:
+    """The entries of one channel, oldest first."""
+    return [c for c in entries if c.target == target and c.index == index]
+
+
 def _composed(same: list[Compensation]) -> dict[str, float]:
     """The entries of one channel composed in the order `compensate` applies them: sensor
     biases add; an actuator's ``eta2 (eta1 u + lam1) + lam2`` is eta = eta1 eta2,
@@ -228,6 +235,26 @@ def _composed(same: list[Compensation]) -> dict[str, float]:
     return {key: float(v) for key, v in out.items()}
 
 
+def increment(before: dict[str, float], after: dict[str, float]) -> dict[str, float]:
+    """What was composed onto a channel's estimate ``before`` to give ``after`` (the inverse
+    of `_composed`, keys as `Compensation.estimates`): biases and lambdas subtract; an
+    actuator's ``eta2 (eta1 u + lam1) + lam2`` has eta2 = eta / eta1, lam2 = lam - eta2 lam1.
+
+    >>> increment({"bias": 0.9}, {"bias": 1.1})["bias"] == 1.1 - 0.9
+    True
+    >>> increment({"eta": 0.5, "lambda": 1.0}, {"eta": 0.25, "lambda": 0.0})
+    {'lambda': -0.5, 'eta': 0.5}
+    """
+    if "bias" in after:
+        return {"bias": after["bias"] - before.get("bias", 0.0)}
+    eta1, lam1 = before.get("eta", 1.0), before.get("lambda", 0.0)
+    eta2 = after.get("eta", 1.0) / eta1 if eta1 else 1.0
+    out = {"lambda": after.get("lambda", 0.0) - eta2 * lam1}
+    if "eta" in after:
+        out["eta"] = eta2
+    return out
+
+
 def compensated(entries: list[Compensation] | tuple[Compensation, ...], target: str,
                 index: int) -> dict[str, float]:
     """The total fault already compensated on one channel ({} when none): every entry on it
@@ -238,7 +265,7 @@ def compensated(entries: list[Compensation] | tuple[Compensation, ...], target: 
     >>> compensated(comp, "sensor", 1), compensated(comp, "sensor", 0)
     ({'bias': 1.1}, {})
     """
-    same = [c for c in entries if c.target == target and c.index == index]
+    same = _on_channel(entries, target, index)
     return _composed(same) if same else {}
 
 
@@ -252,7 +279,7 @@ def latest_fault(entries: list[Compensation] | tuple[Compensation, ...], target:
     >>> {k: round(v, 6) for k, v in latest_fault(comp, "sensor", 1).items()}
     {'bias': 0.19}
     """
-    same = [c for c in entries if c.target == target and c.index == index]
+    same = _on_channel(entries, target, index)
     starts = [i for i, c in enumerate(same) if not c.correction]
     return _composed(same[starts[-1] if starts else 0:]) if same else {}
 
@@ -267,7 +294,7 @@ def fault_onset(entries: list[Compensation] | tuple[Compensation, ...], target: 
     >>> fault_onset(comp, "sensor", 1), fault_onset(comp, "sensor", 0)
     (900, None)
     """
-    same = [c for c in entries if c.target == target and c.index == index and not c.correction]
+    same = [c for c in _on_channel(entries, target, index) if not c.correction]
     return same[-1].onset if same else None
 
 
@@ -328,7 +355,7 @@ def fold(entries: list[Compensation], new: Compensation) -> tuple[str, dict[str,
     >>> [c.correction for c in comp]
     [False, True, False]
     """
-    same = [c for c in entries if c.target == new.target and c.index == new.index]
+    same = _on_channel(entries, new.target, new.index)
     if same and not new.correction:
         known = same[-1].variances
         if _own_fault(new, known):

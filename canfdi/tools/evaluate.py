@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
-from canfdi.core.records import FaultEvent
+from canfdi.core.records import FaultEvent, increment
 from canfdi.methods import DEFAULT, FAULT_KINDS
 
 if TYPE_CHECKING:
@@ -433,35 +433,17 @@ def relative_errors(fault: InjectedFault, estimates: dict[str, float]) -> dict[s
 
 
 def _std_of(estimate: dict[str, float], matched: FaultEvent) -> dict[str, float]:
-    """The standard deviations of ``estimate`` (the matched event's own, or a twin
-    candidate's: the event's estimate times a fixed ratio, its deviation scaled alike)."""
+    """The standard deviations of ``estimate``: the matched event's own for its parameters;
+    for a twin candidate's (the event's estimate times a fixed ratio, possibly of the other
+    kind: a bias for a lambda) the event's deviation scaled by the same ratio."""
     out = {}
     for key, value in estimate.items():
-        var = matched.variances.get(key)
-        own = matched.estimates.get(key)
-        if var is None:  # a twin candidate of the other kind: bias <-> lambda
-            other = next((k for k in ("bias", "lambda") if k in matched.variances
-                          and matched.estimates.get(k)), None)
-            if other is None:
-                continue
-            var, own = matched.variances[other], matched.estimates[other]
-        if own is None or own == 0.0 or var is None:
+        ref = key if key in matched.variances else next(
+            (k for k in ("bias", "lambda") if k in matched.variances), None)
+        own = matched.estimates.get(ref) if ref is not None else None
+        if not own:
             continue
-        out[key] = float(np.sqrt(max(var, 0.0)) * abs(value / own))
-    return out
-
-
-def _increment(before: dict[str, float], after: dict[str, float]) -> dict[str, float]:
-    """What a refinement added to a fault's estimate (the inverse of records.fold's
-    composition): biases and lambdas subtract; an actuator's eta2 (eta1 u + lam1) + lam2 has
-    eta2 = eta / eta1, lam2 = lam - eta2 lam1."""
-    if "bias" in after:
-        return {"bias": after["bias"] - before.get("bias", 0.0)}
-    eta1, lam1 = before.get("eta", 1.0), before.get("lambda", 0.0)
-    eta2 = after.get("eta", 1.0) / eta1 if eta1 else 1.0
-    out = {"lambda": after.get("lambda", 0.0) - eta2 * lam1}
-    if "eta" in after:
-        out["eta"] = eta2
+        out[key] = float(np.sqrt(max(matched.variances[ref], 0.0)) * abs(value / own))
     return out
 
 
@@ -547,7 +529,7 @@ def _fault_outcome(f: InjectedFault, own: list[FaultEvent], accepted_at: int | N
         if prior:
             scale = {k: v / matched.estimates[k] for k, v in est.items()
                      if matched.estimates.get(k)}
-            own = _increment(prior[-1].estimates, matched.estimates)
+            own = increment(prior[-1].estimates, matched.estimates)
             est = {k: v * scale.get(k, 1.0) for k, v in own.items() if k in est}
     errors = relative_errors(f, est) if isolation in ("exact", "candidate") else {}
     final, final_errors = dict(est), dict(errors)
