@@ -324,6 +324,9 @@ def print_report(r: dict[str, Any]) -> None:
         ("CUSUM bound", f"delay / bound median {_f(r['delay_over_bound_median'])}, p95 "
                         f"{_f(r['delay_over_bound_p95'])} (bound: ln(false-alarm interval) / "
                         "(FNR^2 / 2) samples)"),
+        ("bank's bound", f"delay / bound median {_f(r['delay_over_bank_bound_median'])}, p95 "
+                         f"{_f(r['delay_over_bank_bound_p95'])} (the same at the FNR the parity "
+                         "bank sees in the long run: channels' bank_information)"),
         ("named", f"from onset median {_f(r['named_delay_median_samples'])}, p95 "
                   f"{_f(r['named_delay_p95_samples'])} (samples: the faulty component said, "
                   "before its form and size are known)"),
@@ -352,11 +355,12 @@ def print_report(r: dict[str, Any]) -> None:
         print(f"  {name:<17}{value}")
     print("\nby fault-to-noise ratio:")
     print(f"  {'FNR':<11}{'faults':>7}{'detected':>10}{'delay mean':>12}{'delay p95':>11}"
-          f"{'/ bound':>9}{'to accept':>11}{'isolated':>10}{'est. err':>10}")
+          f"{'/ bound':>9}{'/ bank':>8}{'to accept':>11}{'isolated':>10}{'est. err':>10}")
     for b in r["by_fnr"]:
         print(f"  {b['fnr_lo']:>4g}-{b['fnr_hi']:<5g}{b['faults']:>7}"
               f"{_pct(b['detection_rate']):>10}{_f(b['delay_mean_samples']):>12}"
               f"{_f(b['delay_p95_samples']):>11}{_f(b['delay_over_bound_median']):>9}"
+              f"{_f(b['delay_over_bank_bound_median']):>8}"
               f"{_f(b['acceptance_delay_median_samples']):>11}"
               f"{_pct(b['isolation_accuracy']):>10}{_pct(b['estimate_error_median']):>10}")
     print("\nby kind / channel:")

@@ -42,7 +42,10 @@ import numpy as np
 import yaml
 
 from canfdi.core.records import FaultEvent, increment
+from canfdi.core.residuals import ResidualBank
 from canfdi.methods import DEFAULT, FAULT_KINDS
+from canfdi.methods.parity.hypotheses import steady_response
+from canfdi.methods.parity.thresholds import long_run_covariance
 
 if TYPE_CHECKING:
     from canfdi.core.design import Design
@@ -59,6 +62,7 @@ __all__ = [
     "RunOutcome",
     "RunSpec",
     "aggregate",
+    "bank_information",
     "cusum_bound",
     "default_config",
     "evaluate",
@@ -96,6 +100,8 @@ class InjectedFault:
     kind : one of FAULT_KINDS. onset_sample : first faulty sample k.
     params : the true parameters: {"eta", "lambda"} for actuators, {"bias"} for sensors.
     fnr : fault-to-noise ratio (module docstring).
+    bank_fnr : the fault-to-noise ratio the parity bank sees in the long run, fnr *
+        sqrt(information) (`Channel.information`; None where unknown): the bank's bound's.
     """
 
     target: str
@@ -105,6 +111,7 @@ class InjectedFault:
     onset_sample: int
     params: dict[str, float]
     fnr: float = math.nan
+    bank_fnr: float | None = None
 
     @property
     def label(self) -> str:
@@ -124,7 +131,7 @@ class InjectedFault:
     def as_dict(self) -> dict[str, Any]:
         return {"target": self.target, "index": self.index, "name": self.name,
                 "channel": self.label, "kind": self.kind, "onset_sample": self.onset_sample,
-                "params": dict(self.params), "fnr": self.fnr}
+                "params": dict(self.params), "fnr": self.fnr, "bank_fnr": self.bank_fnr}
 
 
 @dataclass(frozen=True)
@@ -152,7 +159,9 @@ class RunSpec:
 @dataclass(frozen=True)
 class Channel:
     """A fault channel of the design: its unit gap G (residual noise stds per unit constant
-    fault, at the config's noise) and whether the design says it is detectable."""
+    fault, at the config's noise), whether the design says it is detectable, and the
+    information per sample its constant fault of FNR 1 gives the whole bank in the long run
+    (`bank_information`)."""
 
     target: str
     index: int
@@ -160,6 +169,7 @@ class Channel:
     gap: float
     detectable: bool
     reason: str = ""
+    information: float | None = None
 
     @property
     def label(self) -> str:
@@ -212,6 +222,8 @@ def setup_from_config(config: MonitorConfig, plant: str, design: Design | None =
             else np.asarray(plant_obj.noise_defaults().measurement, dtype=float))
     responds = design.responds
     sigma = np.array([r.noise_std for r in design.actuators + design.sensors])
+    bank = ResidualBank(design)
+    omega = long_run_covariance(bank, meas)
     p = design.model.p
     channels = []
     for kind, j, det in design.detectability:
@@ -223,7 +235,9 @@ def setup_from_config(config: MonitorConfig, plant: str, design: Design | None =
         names = design.input_names if kind == "actuator" else design.output_names
         detectable = bool(det.detectable) and bool(responds[:, col].any()) and gap > 0
         reason = "" if detectable else (det.reason or "no residual responds to it")
-        channels.append(Channel(kind, j, names[j], gap, detectable, reason))
+        info = bank_information(bank, omega, kind, j, gap) if detectable else math.nan
+        info = info if math.isfinite(info) else None
+        channels.append(Channel(kind, j, names[j], gap, detectable, reason, info))
     confused = design.confused_with()
     labels = [c.label for c in channels]
     order = {(c.target, c.index): i for i, c in enumerate(channels)}
@@ -291,7 +305,8 @@ def plan_runs(setup: EvaluationSetup, runs: int, seed: int, *, max_faults: int =
                     params = {"eta": float(1.0 + sign * d), "lambda": 0.0}
                 else:
                     kind, params = "actuator_bias", {"eta": 1.0, "lambda": float(sign * size)}
-            faults.append(InjectedFault(c.target, c.index, c.name, kind, k, params, fnr))
+            seen = None if c.information is None else fnr * math.sqrt(c.information)
+            faults.append(InjectedFault(c.target, c.index, c.name, kind, k, params, fnr, seen))
             k += setup.spacing + int(rng.integers(0, setup.spacing // 10 + 1))
         samples = k if faults else lead + setup.spacing
         out.append(RunSpec(run=i, seed=int(rng.integers(0, 2**31 - 1)), samples=samples,
@@ -639,6 +654,44 @@ def _ratio(num: int, den: int) -> float | None:
     return num / den if den else None
 
 
+INFORMATION_RCOND = 1e-9
+"""Eigenvalues of the residuals' long-run covariance below this share of the largest count as
+none: the bank's residuals are linear in fewer noises than there are residuals."""
+
+
+def bank_information(bank: ResidualBank, long_run: np.ndarray, target: str, index: int,
+                     gap: float) -> float:
+    """The information per sample a constant fault of FNR 1 on one channel gives the whole
+    residual bank in the long run: mu' Omega^+ mu / 1, mu the steady change of the normalised
+    residuals (m,) under the fault of size 1 / ``gap``, Omega (m, m) their long-run covariance
+    under white measurement noise (``long_run``: thresholds.long_run_covariance). The KL rate of
+    the change is half of it times FNR^2: against 1/2 FNR^2 for the white residual `cusum_bound`
+    assumes, it says how much of the fault's energy the residuals carry once their correlation
+    in time and across the bank is counted. NaN for a channel of no gap.
+
+    >>> from canfdi.core.design import design_bank
+    >>> from canfdi.core.model import StateSpace
+    >>> from canfdi.methods.parity.thresholds import long_run_covariance
+    >>> bank = ResidualBank(design_bank(StateSpace(A=[[0.5]], B=[[1.0]], C=[[1.0], [1.0]]),
+    ...                                 ["u"], ["y0", "y1"]))
+    >>> omega = long_run_covariance(bank, np.ones(2))
+    >>> gap = float(np.max(np.abs(steady_response(bank, "sensor", 0))))  # s:y1 sees it best
+    >>> round(bank_information(bank, omega, "sensor", 0, gap), 6)
+    5.0
+
+    (Its residuals, y(k) - 0.5 y(k - 1) - u(k - 1) and alike, hold half of each noise sample
+    in the long run: a long-run variance of a fifth of their variance, so five times the
+    information a white residual would carry.)
+    """
+    if not gap > 0.0:
+        return math.nan
+    mu = steady_response(bank, target, index) / gap
+    w, v = np.linalg.eigh(long_run)
+    keep = w > INFORMATION_RCOND * max(float(w.max()), 0.0)
+    coef = v[:, keep].T @ mu
+    return float(np.sum(coef * coef / w[keep]))
+
+
 def cusum_bound(fnr: float, false_alarm_interval: float) -> float:
     """Samples a CUSUM tuned to a fault's mean change needs to detect it with false alarms
     ``false_alarm_interval`` samples apart: ln(interval) / (fnr^2 / 2), Lorden's asymptotic
@@ -653,7 +706,8 @@ def cusum_bound(fnr: float, false_alarm_interval: float) -> float:
 def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = None
              ) -> dict[str, Any]:
     """Detection, delay, isolation and error figures of a set of fault outcomes; with the
-    detectors' ``false_alarm_interval``, each detection delay over its fault's `cusum_bound`."""
+    detectors' ``false_alarm_interval``, each detection delay over its fault's `cusum_bound`,
+    at its FNR (the whole fault's energy) and at the FNR the bank sees (``bank_fnr``)."""
     n = len(outs)
     detected = [o for o in outs if o.detected]
     accepted = [o for o in outs if o.decision == "accepted"]
@@ -665,6 +719,10 @@ def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = 
               if false_alarm_interval else [])
     bounds = [(d, b) for d, b in bounds if math.isfinite(b)]
     over = _stats([max(d, 0) / b for d, b in bounds])
+    bank = ([(o.delay, cusum_bound(o.fault.bank_fnr, false_alarm_interval)) for o in detected
+             if o.fault.bank_fnr is not None] if false_alarm_interval else [])
+    bank = [(d, b) for d, b in bank if math.isfinite(b)]
+    over_bank = _stats([max(d, 0) / b for d, b in bank])
     iso = {k: sum(o.isolation == k for o in accepted)
            for k in ("exact", "candidate", "design_twin", "wrong")}
     correct = iso["exact"] + iso["candidate"]
@@ -679,6 +737,9 @@ def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = 
         "delay_p95_samples": delays["p95"], "delay_max_samples": delays["max"],
         "cusum_bound_median_samples": _stats([b for _, b in bounds])["median"],
         "delay_over_bound_median": over["median"], "delay_over_bound_p95": over["p95"],
+        "bank_bound_median_samples": _stats([b for _, b in bank])["median"],
+        "delay_over_bank_bound_median": over_bank["median"],
+        "delay_over_bank_bound_p95": over_bank["p95"],
         "acceptance_delay_median_samples": to_accept["median"],
         "acceptance_delay_p95_samples": to_accept["p95"],
         "diagnosis_delay_median_samples": to_diagnose["median"],
@@ -910,12 +971,15 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
                      "quantized": preprocess is not None, "dt": setup.dt},
         "channels": [{"channel": c.label, "target": c.target, "index": c.index,
                       "unit_fault_to_noise": c.gap, "detectable": c.detectable,
-                      "reason": c.reason} for c in setup.channels],
+                      "reason": c.reason,
+                      "bank_information": c.information} for c in setup.channels],
         "undetectable": [c.label for c in setup.channels if not c.detectable],
     }
     result.update(metrics)
     result["fault_list"] = [dict(f.as_dict(), run=o.run, noise_scale=o.noise_scale,
-                                 cusum_bound=cusum_bound(f.fault.fnr, interval))
+                                 cusum_bound=cusum_bound(f.fault.fnr, interval),
+                                 bank_bound=None if f.fault.bank_fnr is None
+                                 else cusum_bound(f.fault.bank_fnr, interval))
                             for o in outcomes for f in o.faults]
     result["false_alarm_list"] = [dict(a, run=o.run) for o in outcomes for a in o.false_alarms]
     return result

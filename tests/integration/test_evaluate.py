@@ -245,3 +245,31 @@ def test_parity_names_near_twins_that_max_samples_did_not_tell_apart():
         assert o.decision == "accepted" and o.isolation in ("exact", "candidate"), run
         assert o.error < 0.1, run
         assert out.false_alarms == (), run
+
+
+def test_the_dc_motors_bank_carries_a_part_of_each_faults_energy():
+    """The long-run information per sample of a fault of FNR 1 (bank_information): 1.22 for V,
+    0.6 for i_f, 0.3 for i_a and its look-alike (issue 41's figures). The fully decoupled
+    residuals of the sensors carry less than a white residual would (1): decoupling i_a from
+    the other faults leaves it the part of its effect the others cannot make, and that part is
+    the same at longer windows (8 and 12 against the design's 4 and 8)."""
+    import dataclasses
+
+    from canfdi.config import load_config
+    from canfdi.core.design import design_bank
+    from canfdi.tools.evaluate import setup_from_config
+
+    config = load_config(REPO / "deploy" / "config" / "dc_motor.yaml")
+    setup = setup_from_config(config, "dc_motor")
+    info = {c.label: c.information for c in setup.detectable}
+    assert info == pytest.approx({"a:V": 1.2186, "s:i_f": 0.6, "s:i_a": 0.3,
+                                  "s:i_f_plus_i_a": 0.3}, rel=1e-3)
+    longer = dataclasses.replace(config.design, actuator_window=12, sensor_window=8,
+                                 max_window=12)
+    wide = setup_from_config(config, "dc_motor",
+                             design_bank(config.model, config.inputs, config.outputs, longer))
+    # Per unit fault (information * gap^2: FNR is counted in each design's best residual).
+    per_unit = {c.label: c.information * c.gap ** 2 for c in setup.detectable}
+    assert {c.label: c.information * c.gap ** 2 for c in wide.detectable} == pytest.approx(
+        per_unit, rel=1e-6)
+

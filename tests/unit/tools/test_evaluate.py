@@ -164,7 +164,24 @@ def test_acceptance_and_diagnosis_delays_and_the_cusum_bound_by_hand():
     assert a.faults[0].as_dict()["diagnosis_delay"] == 202
     # Without the interval there is no bound to compare with.
     assert aggregate(_runs(), DT)["delay_over_bound_median"] is None
+    assert aggregate(_runs(), DT)["delay_over_bank_bound_median"] is None
     assert np.isnan(cusum_bound(0.0, 1e6))
+
+
+def test_the_bank_bound_is_the_cusum_bound_at_the_fnr_the_bank_sees():
+    # RUN_A's fault at FNR 30, of which the bank sees 0.3 of the energy: FNR sqrt(9) ... 16.4.
+    import dataclasses
+
+    faults, events, n = RUN_A
+    seen = [dataclasses.replace(faults[0], bank_fnr=30.0 * np.sqrt(0.3))]
+    m = aggregate([match_run(seen, events, n, first_monitored=8, twins=TWINS, names=NAMES)],
+                  DT, false_alarm_interval=1e6)
+    assert m["bank_bound_median_samples"] == pytest.approx(np.log(1e6) / (0.3 * 900 / 2))
+    assert m["delay_over_bank_bound_median"] == pytest.approx(2 / cusum_bound(30 * 0.3 ** 0.5,
+                                                                              1e6))
+    assert m["delay_over_bank_bound_median"] == pytest.approx(
+        m["delay_over_bound_median"] / 0.3 ** -1)
+    assert seen[0].as_dict()["bank_fnr"] == pytest.approx(30.0 * np.sqrt(0.3))
 
 
 def refined(k, target, index, estimates):
