@@ -338,8 +338,21 @@ def fill(directory: Path) -> Path:
     return filler
 
 
+def _timeline(start: float, bus, mon: Proc, **moments: float) -> str:
+    """What happened when, in s of scenario time: the test's moments, every FDI_FAULT and the
+    monitor's log lines (a failure message that says which came first)."""
+    rows = [(t - start, f"test: {name}") for name, t in moments.items()]
+    rows += [(t - start, "FDI_FAULT kind {} state {} index {}".format(*decode_fault(d)))
+             for t, i, d in bus if i == FDI_FAULT]
+    rows += [(t - start, f"monitor: {line.rstrip()}") for t, line in mon.stderr]
+    return "\n".join(f"{t:8.3f}  {what}" for t, what in sorted(rows, key=lambda r: r[0]))
+
+
 FILL_AT = 4.0  # s of scenario time: before the first fault (10 s)
-FREE_AT = 25.0  # after the second fault is accepted (22 s), before the third (30 s)
+# The disk is freed once the monitor has announced the second fault (20 s) accepted, and
+# before it reaches the third (30 s): under qemu's software CPU it runs seconds behind the
+# bus while it diagnoses (6 s measured), so a fixed time cannot say when that is.
+THIRD_ONSET = 3000  # the third fault's onset sample (30 s at 100 Hz)
 
 
 def test_full_disk_fault_frames_go_on_and_recording_resumes(tmp_path, small_disk):
@@ -355,8 +368,11 @@ def test_full_disk_fault_frames_go_on_and_recording_resumes(tmp_path, small_disk
         fill_start = time.time()
         fill(small_disk)
         fail_seen = mon.wait_for("canfdi.io.writer", "failed", timeout=60)
-        sleep_until(start + FREE_AT)
-        assert time.time() < start + 29.0, "freeing the disk came too late for the test"
+        mon.wait_for('"kind": "accepted"', '"name": "i_f"', timeout=120)
+        reached = max(json.loads(ln.split("event ", 1)[1])["sample"]
+                      for ln in mon.lines() if "canfdi.run: event " in ln)
+        assert reached < THIRD_ONSET, ("the monitor reached the third fault before the disk "
+                                       f"was freed: recording resumed too late\n{mon.text()}")
         free_time = time.time()
         filler.unlink()
         resume_seen = mon.wait_for("canfdi.io.writer", "resumed", timeout=60)
@@ -382,10 +398,12 @@ def test_full_disk_fault_frames_go_on_and_recording_resumes(tmp_path, small_disk
         kind, state, index = decode_fault(d) if i == FDI_FAULT else (0, 0, 0)
         if state == 3:
             accepted.setdefault((kind, index), t)
-    assert set(accepted) == {(1, 0), (2, 0), (2, 1)}, accepted
-    assert fail_seen < accepted[(1, 0)] < free_time
-    assert fail_seen < accepted[(2, 0)] < free_time
-    assert accepted[(2, 1)] > resume_seen
+    timeline = _timeline(start, bus, mon, fill=fill_start, failed=fail_seen, freed=free_time,
+                         resumed=resume_seen)
+    assert set(accepted) == {(1, 0), (2, 0), (2, 1)}, timeline
+    assert fail_seen < accepted[(1, 0)] < free_time, timeline
+    assert fail_seen < accepted[(2, 0)] < free_time, timeline
+    assert accepted[(2, 1)] > resume_seen, timeline
 
     # FDI_STATUS: degraded from the failure to the resumption, and only then.
     status = [(t, d[2] & 0x07) for t, i, d in bus if i == FDI_STATUS]  # State: bits 16-18
