@@ -334,6 +334,10 @@ def print_report(r: dict[str, Any]) -> None:
                           f" p95 {_f(r['acceptance_delay_p95_samples'])}; from onset median "
                           f"{_f(r['diagnosis_delay_median_samples'])}, p95 "
                           f"{_f(r['diagnosis_delay_p95_samples'])} (samples)"),
+        ("excitation", f"onset to acceptance over onset to the excitation bound median "
+                       f"{_f(r['acceptance_over_excitation_median'])}, p95 "
+                       f"{_f(r['acceptance_over_excitation_p95'])} (the bound: least squares "
+                       "that knows the fault's form and onset settles on the run's commands)"),
         ("decisions", f"{r['accepted']} accepted, {r['unexplained']} unexplained, "
                       f"{r['undecided']} undecided"),
         ("isolation", f"{_pct(r['isolation_accuracy'])} of accepted ({iso['exact']} exact, "

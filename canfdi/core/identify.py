@@ -157,7 +157,8 @@ class RlsBatchResult:
     """What `rls_batch` produced for N samples.
 
     theta : (N, ..., d) estimate after each sample; variances : (N, ..., d) ``diag(P)`` after
-    each sample (up to the noise variance); cost : (N, ...) residual cost after each sample;
+    each sample (up to the noise variance); P : (N, d, d) the covariance itself (``J^{-1}``,
+    for a sandwich); cost : (N, ...) residual cost after each sample;
     innovations : (N, ..., m) a-priori residuals ``r_k - phi_k theta_{k-1}`` (NaN for missing
     rows); state : the state after the last sample, to pass to the next call.
 
@@ -175,6 +176,7 @@ class RlsBatchResult:
     cost: FloatArray
     innovations: FloatArray
     state: RlsState
+    P: FloatArray
 
 
 def rls_init(d: int, prior_precision: float = DEFAULT_PRIOR_PRECISION,
@@ -292,7 +294,7 @@ def rls_batch(state: RlsState, Phi: ArrayLike, R: ArrayLike) -> RlsBatchResult:
     final = (RlsState(J=J[-1], h=h[-1], rr=rr[-1], n=state.n + n, n_eq=int(n_eq[-1]))
              if n else state)
     return RlsBatchResult(theta=theta, variances=np.diagonal(P, axis1=1, axis2=2).copy(),
-                          cost=cost, innovations=innovations, state=final)
+                          cost=cost, innovations=innovations, state=final, P=P)
 
 
 @dataclass(frozen=True, eq=False)

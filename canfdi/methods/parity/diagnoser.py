@@ -72,6 +72,7 @@ from canfdi.methods.parity.hypotheses import (
     regressors,
 )
 from canfdi.methods.parity.recent import RecentWindows
+from canfdi.methods.parity.settling import excitation_bound, settle_sizes, settled, within
 from canfdi.methods.parity.signatures import SignatureColumns
 from canfdi.methods.parity.tracking import AcceptedFaultTracker, Tracked
 
@@ -522,26 +523,19 @@ class ParityDiagnoser(DetectorBacked):
         sd = np.sqrt(var[:n_b])
         u_mean = None
         if h_best.target == "actuator":
-            # A pure scale fault has lambda = 0: judge lambda against a tenth of the offset the
-            # scale puts on the mean command when that is larger than lambda itself.
             u_mean = d.u_abs[h_best.index] / max(d.n_u[h_best.index], 1.0)
-            lam_scale = max(abs(th[1]), 0.1 * abs(th[0]) * u_mean)
-            size = np.array([abs(1.0 + th[0]), lam_scale])
-        else:
-            size = np.abs(th[:n_b])
         unit = noise_units(self.bank, h_best, u_mean, self._projection)
-        size_known = bool(np.all((sd <= s.settle_rel_std * size)
-                                 | _within(sd, s.settle_noise, unit)))
+        size_known = bool(settled(sd, settle_sizes(h_best, th[:n_b], u_mean), unit, s))
         form_known = (h_best.target != "actuator_bias"
                       or self._scale_ruled_out(fit, best_onset, cost, d, h_best.index))
-        settled = size_known and form_known
+        known = size_known and form_known
         # The fault against no fault at all, by the same margin in the fit's own noise (an F
         # test): a burst of noise (a drive gone noisier) trips Page-Hinkley too, and a step
         # fitted to it explains little of what it leaves.
         rr = float(np.broadcast_to(d.info.rr, cost.shape)[best, kb])
         fits = (scale <= s.max_fit_variance
                 and (rr - float(cost[best, kb])) / scale >= s.isolation_margin)
-        if margin_ok and fits and (settled or since >= s.max_samples):
+        if margin_ok and fits and (known or since >= s.max_samples):
             return self._accept(k, t, best, kb, theta, self._reported(fit, cost, best, kb), scale,
                                 best_onset, cost_h, cost[best])
         if (margin_ok and fits and not d.named and h_best.target != "sensors"
@@ -598,6 +592,23 @@ class ParityDiagnoser(DetectorBacked):
         lag by lag)."""
         return _spread(fit, cost, self._diag, h, kb, self.hypotheses[h].n_params, lagged=True)[0]
 
+    def excitation_bound(self, kind: str, index: int, params: dict[str, float], onset: int,
+                         U: np.ndarray, noise_scale: float = 1.0) -> int | None:
+        """The first sample at which least squares that knows the fault (``kind`` of
+        canfdi.methods.FAULT_KINDS on channel ``index``, true ``params``) and its ``onset``
+        settles on the commands ``U`` (N, p) of samples 0..N-1, the run's noise
+        ``noise_scale`` times the config's (canfdi.methods.parity.settling.excitation_bound);
+        None when not within max_samples."""
+        if kind == "sensor_bias":
+            h, theta = Hypothesis("sensor", index, ""), [params["bias"]]
+        elif kind == "actuator_bias":
+            h, theta = Hypothesis("actuator_bias", index, ""), [params["lambda"]]
+        else:
+            h, theta = (Hypothesis("actuator", index, ""),
+                        [params["eta"] - 1.0, params.get("lambda", 0.0)])
+        return excitation_bound(self.bank, self.settings, self.tracker.gamma, self._projection,
+                                h, np.asarray(theta, dtype=float), onset, U, noise_scale)
+
     @property
     def named(self) -> bool:
         """Whether the diagnosis under way has named its fault (FDI_STATUS "named")."""
@@ -625,7 +636,7 @@ class ParityDiagnoser(DetectorBacked):
         u_mean = d.u_abs[j] / max(d.n_u[j], 1.0)
         unit = noise_units(self.bank, self.hypotheses[full], u_mean, self._projection)[0]
         eta_minus_1 = float(fit.theta[full, kb, 0])
-        return bool((sd_eta <= s.settle_rel_std or _within(sd_eta, s.settle_noise, unit))
+        return bool((sd_eta <= s.settle_rel_std or within(sd_eta, s.settle_noise, unit))
                     and abs(eta_minus_1) <= 3.0 * sd_eta)
 
     def _named(self, best: int, cost_h: np.ndarray) -> int:
@@ -866,11 +877,3 @@ def _spread(fit, cost: np.ndarray, d: Diagnosis, h: int, kb: int, n_params: int,
     scale = max(float(cost[h, kb]) / max(d.info.n_eq - n_params, 1), 1e-300)
     meat = d.lagged_meat if lagged and d.lagged_meat is not None else d.meat
     return np.diag(P @ meat[h, kb] @ P) * scale, scale
-
-
-def _within(sd: np.ndarray | float, fraction: float, unit: np.ndarray | float) -> np.ndarray:
-    """Whether standard deviations are within ``fraction`` of their noise units (never, for a
-    fraction of 0: no noise-unit test)."""
-    if fraction <= 0.0:
-        return np.zeros(np.shape(sd), dtype=bool)
-    return np.asarray(sd) <= fraction * np.asarray(unit)

@@ -59,7 +59,7 @@ def steady_response(bank: ResidualBank, target: str, j: int) -> np.ndarray:
     return G[j].sum(axis=-1) / bank.sigma
 
 
-def noise_units(bank: ResidualBank, h: Hypothesis, u_mean: float | None = None,
+def noise_units(bank: ResidualBank, h: Hypothesis, u_mean: float | np.ndarray | None = None,
                 projection: np.ndarray | None = None) -> np.ndarray:
     """(n_params,) each parameter's noise unit: the size whose steady change in the statistic
     most sensitive to it is one noise standard deviation: a residual (normalised with the
@@ -67,7 +67,7 @@ def noise_units(bank: ResidualBank, h: Hypothesis, u_mean: float | None = None,
     the detector's signature projections (``projection`` (m, c), canfdi.methods.parity.
     signatures: unit variance). inf where nothing sees it. An actuator's eta - 1 moves its
     command by (eta - 1) u: its unit is lambda's over the command's mean size ``u_mean`` (inf
-    without one).
+    without one; an array of them (...) gives (..., 2)).
 
     A fault known to within a small part of its noise units leaves, once compensated, a change
     far below what detection sees, however large the fault.
@@ -86,8 +86,9 @@ def noise_units(bank: ResidualBank, h: Hypothesis, u_mean: float | None = None,
     lam = unit("actuator", h.index)
     if h.target == "actuator_bias":
         return np.array([lam])
-    eta = lam / u_mean if u_mean else np.inf
-    return np.array([eta, lam])
+    u = np.asarray(0.0 if u_mean is None else u_mean, dtype=float)
+    eta = np.divide(lam, u, out=np.full(u.shape, np.inf), where=u > 0.0)
+    return np.stack([eta, np.full(u.shape, lam)], axis=-1)
 
 
 def proportional(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> bool:

@@ -169,19 +169,40 @@ def test_acceptance_and_diagnosis_delays_and_the_cusum_bound_by_hand():
 
 
 def test_the_bank_bound_is_the_cusum_bound_at_the_fnr_the_bank_sees():
-    # RUN_A's fault at FNR 30, of which the bank sees 0.3 of the energy: FNR sqrt(9) ... 16.4.
+    # RUN_A's fault (detected 2 samples after its onset) at FNR 3, of which the bank sees 0.3
+    # of the energy: FNR 3 sqrt(0.3), a bound of ln(1e6) / (0.3 * 9 / 2) = 10.2 samples.
     import dataclasses
 
     faults, events, n = RUN_A
-    seen = [dataclasses.replace(faults[0], bank_fnr=30.0 * np.sqrt(0.3))]
+    seen = [dataclasses.replace(faults[0], fnr=3.0, bank_fnr=3.0 * np.sqrt(0.3))]
     m = aggregate([match_run(seen, events, n, first_monitored=8, twins=TWINS, names=NAMES)],
                   DT, false_alarm_interval=1e6)
-    assert m["bank_bound_median_samples"] == pytest.approx(np.log(1e6) / (0.3 * 900 / 2))
-    assert m["delay_over_bank_bound_median"] == pytest.approx(2 / cusum_bound(30 * 0.3 ** 0.5,
+    assert m["bank_bound_median_samples"] == pytest.approx(np.log(1e6) / (0.3 * 9 / 2))
+    assert m["delay_over_bank_bound_median"] == pytest.approx(2 / cusum_bound(3 * 0.3 ** 0.5,
                                                                               1e6))
-    assert m["delay_over_bank_bound_median"] == pytest.approx(
-        m["delay_over_bound_median"] / 0.3 ** -1)
-    assert seen[0].as_dict()["bank_fnr"] == pytest.approx(30.0 * np.sqrt(0.3))
+    assert m["delay_over_bank_bound_median"] == pytest.approx(0.3 * m["delay_over_bound_median"])
+    assert seen[0].as_dict()["bank_fnr"] == pytest.approx(3.0 * np.sqrt(0.3))
+    # A bound under one sample counts as one: the faulty sample itself.
+    louder = [dataclasses.replace(faults[0], bank_fnr=1000.0)]
+    m = aggregate([match_run(louder, events, n, first_monitored=8, twins=TWINS, names=NAMES)],
+                  DT, false_alarm_interval=1e6)
+    assert m["bank_bound_median_samples"] == 1.0 and m["delay_over_bank_bound_median"] == 2.0
+
+
+def test_acceptance_over_the_excitation_bound_by_hand():
+    # RUN_A's fault (onset 1000, accepted 1202): had least squares that knew it settled at
+    # 1045, the diagnosis took 202 / 45 of what the data allowed.
+    faults, events, n = RUN_A
+    run = match_run(faults, events, n, first_monitored=8, twins=TWINS, names=NAMES,
+                    excitation={1000: 1045})
+    (f,) = run.faults
+    assert f.excitation_sample == 1045
+    assert f.acceptance_over_excitation == pytest.approx(202 / 45)
+    assert f.as_dict()["acceptance_over_excitation"] == pytest.approx(202 / 45)
+    m = aggregate([run], DT)
+    assert m["acceptance_over_excitation_median"] == pytest.approx(202 / 45)
+    # Without a bound (another method, or none within max_samples) there is no ratio.
+    assert aggregate(_runs(), DT)["acceptance_over_excitation_median"] is None
 
 
 def refined(k, target, index, estimates):
