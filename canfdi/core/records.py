@@ -149,6 +149,9 @@ class Compensation:
     variances : the estimates' variances, keyed as `as_dict` names them ({}: unknown).
     correction : False for a fault of its own; True for a correction of the channel's latest
         fault (what its estimate left, found later: `fold`).
+    fixed : the parameters its hypothesis held rather than estimated (("eta",): an actuator's
+        bias accepted alone, eta = 1 while the command had not moved enough to tell a scale;
+        its variance is what the data left it).
 
     Examples
     --------
@@ -168,6 +171,7 @@ class Compensation:
     scale: bool = False
     variances: dict[str, float] = field(default_factory=dict, compare=False)
     correction: bool = False
+    fixed: tuple[str, ...] = ()
 
     def as_dict(self) -> dict[str, float | int | str]:
         """{"target", "index", "onset"} and the estimates, named as in FaultEvent."""
@@ -307,20 +311,23 @@ when they are honest; `canfdi evaluate` finds 89-98 % of the shipped methods' es
 refined into the first (its size then the difference of the two events)."""
 
 
-def _own_fault(new: Compensation, known: dict[str, float]) -> bool:
+def _own_fault(new: Compensation, latest: Compensation) -> bool:
     """Whether a diagnosis on a compensated channel is a fault of its own rather than what the
     channel's latest estimate left: its parameters relative to the compensation (eta - 1,
     lambda; a bias) differ from none significantly (chi-square at the `OWN_FAULT_SIGMA`
-    level), their variance the diagnosis' own plus the latest estimate's (``known``: what an
-    estimate leaves is distributed as its error). An estimate that held a parameter fixed (an
-    actuator's eta at 1, variance 0: a bias, while the command had not moved enough to tell it
-    from a scale) knew nothing of it: a diagnosis that now estimates it completes that fault's
-    form."""
+    level), their variance the diagnosis' own plus the channel's latest estimate's
+    (``latest``: what an estimate leaves is distributed as its error). An estimate that held a
+    parameter fixed (`Compensation.fixed`: an actuator's eta at 1, a bias taken while the
+    command had not moved enough to tell it from a scale) did not estimate it: a diagnosis
+    that now estimates it completes that fault's form (its offset, measured against the
+    compensation, moves with the scale it finds: their joint uncertainty, not each one's,
+    would judge it)."""
+    known = latest.variances
     delta = {"eta": new.eta - 1.0, "lambda": new.lam, "bias": new.bias}
     stat, d = 0.0, 0
     for key in new.estimates:
         own = new.variances.get(key, 0.0)
-        if key in known and known[key] == 0.0 and own > 0.0:
+        if key in latest.fixed and key not in new.fixed and own > 0.0:
             return False
         var = own + known.get(key, 0.0)
         if var > 0.0 and np.isfinite(var):
@@ -358,7 +365,7 @@ def fold(entries: list[Compensation], new: Compensation) -> tuple[str, dict[str,
     same = _on_channel(entries, new.target, new.index)
     if same and not new.correction:
         known = same[-1].variances
-        if _own_fault(new, known):
+        if _own_fault(new, same[-1]):
             new = replace(new, variances={k: v + known.get(k, 0.0)
                                           for k, v in new.variances.items()})
         else:

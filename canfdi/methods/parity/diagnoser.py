@@ -537,7 +537,8 @@ class ParityDiagnoser(DetectorBacked):
                 and (rr - float(cost[best, kb])) / scale >= s.isolation_margin)
         if margin_ok and fits and (known or since >= s.max_samples):
             return self._accept(k, t, best, kb, theta, self._reported(fit, cost, best, kb), scale,
-                                best_onset, cost_h, cost[best])
+                                best_onset, cost_h, cost[best],
+                                eta_var=self._bias_eta_variance(fit, cost, best_onset, h_best))
         if (margin_ok and fits and not d.named and h_best.target != "sensors"
                 and not self._leftover(_channel(h_best), h_best.index, cost[best], kb)):
             # (What an earlier estimate left is no new component to name: it is refined.)
@@ -548,7 +549,8 @@ class ParityDiagnoser(DetectorBacked):
             # with every channel within the margin as its candidates rather than none.
             near = [i for i in outside if cost_h[i] - cost_h[best] < s.isolation_margin]
             return self._accept(k, t, best, kb, theta, self._reported(fit, cost, best, kb), scale,
-                                best_onset, cost_h, cost[best], near)
+                                best_onset, cost_h, cost[best], near,
+                                self._bias_eta_variance(fit, cost, best_onset, h_best))
         if since >= s.max_samples:
             return self._unexplained(k, t, theta, best_onset, order)
         return []
@@ -586,6 +588,18 @@ class ParityDiagnoser(DetectorBacked):
                            detected_sample=d.k_d, candidates=candidates, undecided=undecided)
         self.events.append(event)
         return [event]
+
+    def _bias_eta_variance(self, fit, cost: np.ndarray, best_onset: np.ndarray,
+                           h: Hypothesis) -> float:
+        """The variance of eta = 1 in a bias accepted alone: what the full fit (eta and
+        lambda) knows of eta at its own onset, as reported (`_reported`). The bias was taken
+        because that fit found eta - 1 within 3 of its standard deviations of 0, so a scale
+        of up to that size is still possible: eta = 1 is known this well, not exactly. 0 for
+        any other hypothesis, or without a full one."""
+        full = self._full_actuator(h.index) if h.target == "actuator_bias" else None
+        if full is None:
+            return 0.0
+        return float(self._reported(fit, cost, full, int(best_onset[full]))[0])
 
     def _reported(self, fit, cost: np.ndarray, h: int, kb: int) -> np.ndarray:
         """(d,) the variances an event reports for hypothesis h at onset kb (`_spread`,
@@ -666,16 +680,17 @@ class ParityDiagnoser(DetectorBacked):
         self._restart_detector(k)
         return [event]
 
-    def _describe(self, h: Hypothesis, th: np.ndarray, var: np.ndarray | None = None
-                  ) -> dict:
+    def _describe(self, h: Hypothesis, th: np.ndarray, var: np.ndarray | None = None,
+                  eta_var: float = 0.0) -> dict:
         """{target, index, name, estimates (and variances)} of a hypothesis' parameters
-        ``th`` (for an actuator, eta - 1 and lambda) and their variances ``var`` (diagonal)."""
+        ``th`` (for an actuator, eta - 1 and lambda) and their variances ``var`` (diagonal);
+        a bias alone gives eta = 1 with the variance ``eta_var`` (`_bias_eta_variance`)."""
         if h.target == "actuator":
             est = {"eta": float(1.0 + th[0]), "lambda": float(th[1])}
             variances = {"eta": float(var[0]), "lambda": float(var[1])} if var is not None else {}
         elif h.target == "actuator_bias":
             est = {"eta": 1.0, "lambda": float(th[0])}
-            variances = {"eta": 0.0, "lambda": float(var[0])} if var is not None else {}
+            variances = {"eta": eta_var, "lambda": float(var[0])} if var is not None else {}
         elif h.target == "sensor":
             est = {"bias": float(th[0])}
             variances = {"bias": float(var[0])} if var is not None else {}
@@ -724,7 +739,7 @@ class ParityDiagnoser(DetectorBacked):
 
     def _accept(self, k: int, t: int, best: int, kb: int, theta: np.ndarray, var: np.ndarray,
                 scale: float, best_onset: np.ndarray, cost_h: np.ndarray, cost_k: np.ndarray,
-                near: list[int] = ()) -> list[FaultEvent]:
+                near: list[int] = (), eta_var: float = 0.0) -> list[FaultEvent]:
         d = self._diag
         h = self.hypotheses[best]
         onset = int(d.onsets[kb])
@@ -735,7 +750,7 @@ class ParityDiagnoser(DetectorBacked):
                  if (c["target"], c["index"]) != (named["target"], named["index"])]
         faults = []  # (target, index, estimates, variances, candidates)
         if h.target in ("actuator", "actuator_bias"):
-            desc = self._describe(h, th, var)
+            desc = self._describe(h, th, var, eta_var)
             faults.append(("actuator", h.index, desc["estimates"], desc["variances"],
                            (named, *alike) if alike else ()))
         else:
@@ -761,7 +776,8 @@ class ParityDiagnoser(DetectorBacked):
         for target, index, est, variances, candidates in faults:
             names = self.design.input_names if target == "actuator" else self.design.output_names
             leftover = h.target != "sensors" and self._leftover(target, index, cost_k, kb)
-            kind, shown, shown_var = self._fold(target, index, onset, est, variances, leftover)
+            kind, shown, shown_var = self._fold(target, index, onset, est, variances, leftover,
+                                                ("eta",) if h.target == "actuator_bias" else ())
             events.append(FaultEvent(
                 kind=kind, sample=k, timestamp_ns=t, target=target, index=index,
                 name=names[index], estimates=shown, variances=shown_var, onset_sample=onset,
@@ -790,14 +806,14 @@ class ParityDiagnoser(DetectorBacked):
         return events
 
     def _fold(self, target: str, index: int, onset: int, est: dict[str, float],
-              variances: dict[str, float], correction: bool = False
-              ) -> tuple[str, dict[str, float], dict[str, float]]:
+              variances: dict[str, float], correction: bool = False,
+              fixed: tuple[str, ...] = ()) -> tuple[str, dict[str, float], dict[str, float]]:
         """Fold estimates and their variances (named as in FaultEvent) into the compensation:
         (kind, estimates, variances) of the event that says so (records.fold)."""
         return fold(self.compensation, Compensation(
             target, index, onset, eta=est.get("eta", 1.0), lam=est.get("lambda", 0.0),
             bias=est.get("bias", 0.0), scale=target == "actuator", variances=dict(variances),
-            correction=correction))
+            correction=correction, fixed=fixed))
 
     def _reload_window(self) -> None:
         """Seed 003 Section 3.3: rebuild the window from compensated samples."""

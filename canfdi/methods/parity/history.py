@@ -32,8 +32,10 @@ def _group(accepted: list[FaultEvent], event: FaultEvent) -> list[FaultEvent]:
 
 def _hypothesis(event: FaultEvent, group: list[FaultEvent]) -> Hypothesis:
     if event.target == "actuator":
-        # The bias-only hypothesis fixes eta at 1 (variance 0): one parameter, lambda.
-        bias_only = event.variances.get("eta") == 0.0
+        # The bias-only hypothesis fixes eta at exactly 1 (one parameter, lambda; the variance
+        # it reports for eta is what the full fit knew of it, 0 in logs before issue 41): a
+        # fitted eta is 1 + (eta - 1), never exactly 1 where the command moved at all.
+        bias_only = event.estimates.get("eta") == 1.0
         return Hypothesis("actuator_bias" if bias_only else "actuator", event.index, event.name)
     if len(group) > 1:
         members = tuple(e.index for e in group)

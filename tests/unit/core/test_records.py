@@ -35,10 +35,11 @@ def test_without_variances_a_second_diagnosis_refines():
 
 
 def test_a_scale_completing_an_accepted_bias_refines_it_a_bias_after_a_scale_is_new():
-    # V accepted as a bias (eta held at 1, variance 0) while the command stood still; once it
-    # moves, the diagnosis finds the scale: the same fault's form, not a new one.
+    # V accepted as a bias (eta held at 1, what the data knew of it its variance) while the
+    # command stood still; once it moves, the diagnosis finds the scale: the same fault's
+    # form, not a new one.
     comp = [Compensation("actuator", 0, 3629, eta=1.0, lam=-0.9486, scale=True,
-                         variances={"eta": 0.0, "lambda": 5.7e-4})]
+                         variances={"eta": 2e-5, "lambda": 5.7e-4}, fixed=("eta",))]
     kind, size, _ = fold(comp, Compensation("actuator", 0, 4000, eta=0.987, lam=0.9363,
                                             scale=True,
                                             variances={"eta": 1e-6, "lambda": 1e-3}))
