@@ -305,7 +305,7 @@ def fault_onset(entries: list[Compensation] | tuple[Compensation, ...], target: 
 OWN_FAULT_SIGMA = 4.0
 """The level (in standard deviations) at which a diagnosis on a compensated channel is a fault
 of its own. What an estimate left lies within 3 of its standard deviations 99.7 % of the time
-when they are honest; `canfdi evaluate` finds 89-98 % of the shipped methods' estimates within
+when they are honest; `canfdi evaluate` finds 91-99 % of the shipped methods' estimates within
 3 of theirs (estimates_within_3_std), and at 3 the uio method took two leftovers of 3.3 and
 3.4 of them for new faults in 100 VTOL runs. 4 holds them; a second fault that small is
 refined into the first (its size then the difference of the two events)."""
