@@ -242,6 +242,7 @@ def _configured_noise(ex: Example) -> np.ndarray:
     return np.asarray(std, dtype=float)
 
 
+@pytest.mark.slow  # output_error in 37-sample chunks: over a minute
 def test_wrapped_a_noisier_drive_is_said_and_diagnosed_the_same_whatever_the_chunks(
         example: Example):
     """The drive twice as noisy as configured from the start: the watchdog's check says so
