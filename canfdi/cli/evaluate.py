@@ -59,6 +59,12 @@ CUSUM bound: no detector of a fault's mean change, at the config's false-alarm i
 (detection.false_alarm_interval), detects it in fewer than ln(T) / (FNR^2 / 2) samples on
 average (Lorden; Basseville and Nikiforov ch. 5); "delay / bound" is each detection's delay
 over its fault's bound (1 is optimal; the bound counts the most sensitive residual alone).
+The bank's bound is the same at the FNR the parity bank sees in the long run (FNR sqrt(I), I
+the channel's bank_information: the information the whole bank carries, its residuals'
+correlation in time and across the bank counted), at least one sample. Excitation bound: the
+first sample at which least squares that knows a fault's form and onset settles, by the parity
+method's acceptance test, on the run's recorded commands; "excitation" is onset to acceptance
+over onset to that bound (parity only: what the data allowed, against what the diagnoser took).
 
 --method chooses the default config among the shipped ones (canfdi.configs, deploy/config/ in
 a checkout): <plant>.yaml (parity), <plant>_oe.yaml (output_error) or <plant>_uio.yaml (uio);
