@@ -326,8 +326,10 @@ def _own_fault(new: Compensation, latest: Compensation) -> bool:
     delta = {"eta": new.eta - 1.0, "lambda": new.lam, "bias": new.bias}
     stat, d = 0.0, 0
     for key in new.estimates:
+        if key in new.fixed:  # held, not estimated: no evidence either way
+            continue
         own = new.variances.get(key, 0.0)
-        if key in latest.fixed and key not in new.fixed and own > 0.0:
+        if key in latest.fixed and own > 0.0:
             return False
         var = own + known.get(key, 0.0)
         if var > 0.0 and np.isfinite(var):

@@ -1,6 +1,7 @@
 """canfdi.core.records.fold: a diagnosis on a compensated channel is a fault of its own or what
 the earlier estimate left, by the earlier estimate's uncertainty (issue 41)."""
 
+import numpy as np
 import pytest
 
 from canfdi.core.records import Compensation, compensated, fold, latest_fault
@@ -55,3 +56,17 @@ def test_a_scale_completing_an_accepted_bias_refines_it_a_bias_after_a_scale_is_
     assert var == pytest.approx({"eta": 1e-6, "lambda": 1e-2 + 1e-4})
     # The channel's total composes both in the order they act: eta 1.2, lambda 2.
     assert compensated(comp, "actuator", 0) == pytest.approx({"eta": 1.2, "lambda": 2.0})
+
+
+def test_a_parameter_held_fixed_is_no_evidence_for_a_new_fault():
+    # Two biases accepted alone on V (eta held at 1 both times, each with the variance the
+    # data left it): the second is judged on lambda alone, one degree of freedom, as if eta
+    # were not there; a lambda of 4.2 sd (beyond OWN_FAULT_SIGMA on one, within it on two) is
+    # a fault of its own.
+    held = {"eta": 1e-4, "lambda": 1e-4}
+    comp = [Compensation("actuator", 0, 100, eta=1.0, lam=1.0, scale=True, variances=held,
+                         fixed=("eta",))]
+    second = Compensation("actuator", 0, 3000, eta=1.0, lam=4.2 * np.sqrt(2e-4), scale=True,
+                          variances=held, fixed=("eta",))
+    assert fold(comp, second)[0] == "accepted"
+
