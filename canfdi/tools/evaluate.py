@@ -62,6 +62,7 @@ __all__ = [
     "RunOutcome",
     "RunSpec",
     "aggregate",
+    "bank_bound",
     "bank_information",
     "cusum_bound",
     "default_config",
@@ -235,8 +236,7 @@ def setup_from_config(config: MonitorConfig, plant: str, design: Design | None =
         names = design.input_names if kind == "actuator" else design.output_names
         detectable = bool(det.detectable) and bool(responds[:, col].any()) and gap > 0
         reason = "" if detectable else (det.reason or "no residual responds to it")
-        info = bank_information(bank, omega, kind, j, gap) if detectable else math.nan
-        info = info if math.isfinite(info) else None
+        info = bank_information(bank, omega, kind, j, gap) if detectable else None
         channels.append(Channel(kind, j, names[j], gap, detectable, reason, info))
     confused = design.confused_with()
     labels = [c.label for c in channels]
@@ -677,7 +677,7 @@ none: the bank's residuals are linear in fewer noises than there are residuals."
 def bank_information(bank: ResidualBank, long_run: np.ndarray, target: str, index: int,
                      gap: float) -> float:
     """The information per sample a constant fault of FNR 1 on one channel gives the whole
-    residual bank in the long run: mu' Omega^+ mu / 1, mu the steady change of the normalised
+    residual bank in the long run: mu' Omega^+ mu, mu the steady change of the normalised
     residuals (m,) under the fault of size 1 / ``gap``, Omega (m, m) their long-run covariance
     under white measurement noise (``long_run``: thresholds.long_run_covariance). The KL rate of
     the change is half of it times FNR^2: against 1/2 FNR^2 for the white residual `cusum_bound`
@@ -718,6 +718,22 @@ def cusum_bound(fnr: float, false_alarm_interval: float) -> float:
     return math.log(false_alarm_interval) / (fnr * fnr / 2.0)
 
 
+def bank_bound(bank_fnr: float, false_alarm_interval: float) -> float:
+    """`cusum_bound` at the FNR the parity bank sees (``bank_fnr``), floored at one sample: no
+    detection comes before the faulty sample itself, and where the residuals difference the
+    noise away (the VTOL's carry 400 to 26,000 times FNR^2 in the long run) Lorden's
+    asymptotic figure falls far below it."""
+    return max(cusum_bound(bank_fnr, false_alarm_interval), 1.0)
+
+
+def _over_bound(detected: Sequence[FaultOutcome], bound: Callable[[FaultOutcome], float | None]
+                ) -> tuple[list[float], dict[str, float | None]]:
+    """The finite bounds of the detected faults (``bound``: None or NaN where there is none)
+    and the statistics of each detection delay over its bound."""
+    pairs = [(o.delay, b) for o in detected if (b := bound(o)) is not None and math.isfinite(b)]
+    return [b for _, b in pairs], _stats([max(d, 0) / b for d, b in pairs])
+
+
 def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = None
              ) -> dict[str, Any]:
     """Detection, delay, isolation and error figures of a set of fault outcomes; with the
@@ -732,17 +748,12 @@ def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = 
     to_name = _stats([o.named_delay for o in outs if o.named_delay is not None])
     over_excitation = _stats([o.acceptance_over_excitation for o in outs
                               if o.correct and o.acceptance_over_excitation is not None])
-    bounds = ([(o.delay, cusum_bound(o.fault.fnr, false_alarm_interval)) for o in detected]
-              if false_alarm_interval else [])
-    bounds = [(d, b) for d, b in bounds if math.isfinite(b)]
-    over = _stats([max(d, 0) / b for d, b in bounds])
-    # The bank's bound floored at one sample: no detection comes before the faulty sample
-    # itself, and where the residuals difference the noise away (the VTOL's carry 400 to 26,000
-    # times FNR^2 in the long run) Lorden's asymptotic figure falls far below it.
-    bank = ([(o.delay, max(cusum_bound(o.fault.bank_fnr, false_alarm_interval), 1.0))
-             for o in detected if o.fault.bank_fnr is not None] if false_alarm_interval else [])
-    bank = [(d, b) for d, b in bank if math.isfinite(b)]
-    over_bank = _stats([max(d, 0) / b for d, b in bank])
+    fai = false_alarm_interval
+    bounds, over = _over_bound(detected if fai else [],
+                               lambda o: cusum_bound(o.fault.fnr, fai))
+    bank, over_bank = _over_bound(detected if fai else [],
+                                  lambda o: None if o.fault.bank_fnr is None
+                                  else bank_bound(o.fault.bank_fnr, fai))
     iso = {k: sum(o.isolation == k for o in accepted)
            for k in ("exact", "candidate", "design_twin", "wrong")}
     correct = iso["exact"] + iso["candidate"]
@@ -755,9 +766,9 @@ def _summary(outs: Sequence[FaultOutcome], false_alarm_interval: float | None = 
         "detection_rate": _ratio(len(detected), n),
         "delay_mean_samples": delays["mean"], "delay_median_samples": delays["median"],
         "delay_p95_samples": delays["p95"], "delay_max_samples": delays["max"],
-        "cusum_bound_median_samples": _stats([b for _, b in bounds])["median"],
+        "cusum_bound_median_samples": _stats(bounds)["median"],
         "delay_over_bound_median": over["median"], "delay_over_bound_p95": over["p95"],
-        "bank_bound_median_samples": _stats([b for _, b in bank])["median"],
+        "bank_bound_median_samples": _stats(bank)["median"],
         "delay_over_bank_bound_median": over_bank["median"],
         "delay_over_bank_bound_p95": over_bank["p95"],
         "acceptance_delay_median_samples": to_accept["median"],
@@ -1005,7 +1016,7 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
     result["fault_list"] = [dict(f.as_dict(), run=o.run, noise_scale=o.noise_scale,
                                  cusum_bound=cusum_bound(f.fault.fnr, interval),
                                  bank_bound=None if f.fault.bank_fnr is None
-                                 else cusum_bound(f.fault.bank_fnr, interval))
+                                 else bank_bound(f.fault.bank_fnr, interval))
                             for o in outcomes for f in o.faults]
     result["false_alarm_list"] = [dict(a, run=o.run) for o in outcomes for a in o.false_alarms]
     return result

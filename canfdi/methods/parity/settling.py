@@ -84,6 +84,7 @@ def excitation_bound(bank: ResidualBank, settings: ParitySettings, long_run: np.
     """
     S = bank.S
     U = np.asarray(U, dtype=float)
+    theta = np.asarray(theta, dtype=float)
     first = max(int(onset), S)
     last = min(int(onset) + settings.max_samples, len(U) - 1)
     if last < first:
@@ -97,14 +98,14 @@ def excitation_bound(bank: ResidualBank, settings: ParitySettings, long_run: np.
     var = np.diagonal(fit.P @ meat @ fit.P, axis1=1, axis2=2) * noise_scale ** 2
     # The prior's pull, P J0 theta: where the commands leave a parameter unidentified (a scale
     # under a constant command) the noise does not move its estimate, the prior holds it at 0.
-    pull = fit.P @ (settings.prior_precision * np.asarray(theta, dtype=float))
+    pull = fit.P @ (settings.prior_precision * theta)
     sd = np.sqrt(np.maximum(var, 0.0) + pull ** 2)
     u_mean = None
     if h.target in ("actuator", "actuator_bias"):
         u_abs = np.abs(np.nan_to_num(U[k, h.index]))
         u_mean = np.cumsum(u_abs) / np.arange(1, len(k) + 1)
     unit = noise_units(bank, h, u_mean, projection)
-    size = settle_sizes(h, np.asarray(theta, dtype=float), u_mean)
+    size = settle_sizes(h, theta, u_mean)
     ok = settled(sd, size, unit, settings) & (k - onset >= settings.min_samples)
     hits = np.flatnonzero(ok)
     return int(k[hits[0]]) if hits.size else None
