@@ -225,14 +225,17 @@ def _rows(phi: ArrayLike, r: ArrayLike, d: int) -> tuple[FloatArray, FloatArray,
     return phi_a * valid[..., None], np.where(valid, r_a, 0.0), valid
 
 
-def rls_update(state: RlsState, phi: ArrayLike, r: ArrayLike) -> RlsState:
-    """Absorb one sample: ``m`` residual rows ``r = phi theta + noise``.
+def rls_update(state: RlsState, phi: ArrayLike, r: ArrayLike, samples: int = 1) -> RlsState:
+    """Absorb one sample: ``m`` residual rows ``r = phi theta + noise`` (or ``samples`` of
+    them at once, their rows stacked: the information form is a sum, so one update of the
+    stack is that many updates in a row).
 
     Parameters
     ----------
     state : the estimator(s), batch shape (...).
     phi : (..., m, d) regressor rows (broadcast against the state's batch shape).
     r : (m,) or (..., m) residuals; NaN marks a missing row (no equation).
+    samples : how many samples the rows are.
 
     Returns
     -------
@@ -242,7 +245,7 @@ def rls_update(state: RlsState, phi: ArrayLike, r: ArrayLike) -> RlsState:
     J = state.J + np.einsum("...mi,...mj->...ij", phi_a, phi_a)
     h = state.h + np.einsum("...mi,...m->...i", phi_a, r_a)
     rr = state.rr + np.einsum("...m,...m->...", r_a, r_a)
-    return RlsState(J=J, h=h, rr=rr, n=state.n + 1, n_eq=state.n_eq + int(valid.sum()))
+    return RlsState(J=J, h=h, rr=rr, n=state.n + samples, n_eq=state.n_eq + int(valid.sum()))
 
 
 def rls_solve(state: RlsState) -> RlsSolution:

@@ -1,11 +1,13 @@
 """The diagnoser alone, on batch simulations (no bus)."""
 
+import copy
 import dataclasses
 
 import numpy as np
 import pytest
 
 from canfdi.config import load_config
+from canfdi.core.protocol import DIAGNOSE
 from canfdi.core.records import Sample, compensated
 from canfdi.firmware_sim.scenario import parse_scenario
 from canfdi.firmware_sim.simulate import simulate
@@ -136,6 +138,31 @@ def test_refinements_are_the_same_streaming_and_by_the_block():
     for a, b in zip(blocked, streaming, strict=True):
         for key, value in b.estimates.items():
             assert a.estimates[key] == pytest.approx(value, rel=1e-9, abs=1e-12)
+
+
+def test_a_diagnosis_absorbs_a_block_as_it_absorbs_its_samples_one_by_one():
+    """The look-back a diagnosis starts with is absorbed as one block: the same information,
+    sandwich middle, command sums and lagged middle as sample by sample (to rounding)."""
+    run = simulate(_scenario([{"target": "actuator", "index": 0, "onset": 5.0, "eta": 1.2,
+                               "lambda": 0.5}], duration=8.0))
+    diagnoser = build_diagnoser(CONFIG)
+    assert diagnoser._lagged is not None
+    alarm = next(i for i in range(len(run.k)) if diagnoser.update(Sample(
+        k=int(run.k[i]), timestamp_ns=int(run.t[i] * 1e9), u=run.u_c[i], z=run.z[i])))
+    assert diagnoser.mode == DIAGNOSE
+    kept = list(diagnoser._recent.since(int(run.k[alarm]) - 40))[-30:]
+    ks, windows, rns = (np.stack(c) for c in zip(*kept, strict=True))
+    block, single = copy.deepcopy(diagnoser), copy.deepcopy(diagnoser)
+    block._accumulate(ks, windows, rns)
+    for i in range(len(ks)):
+        single._accumulate(ks[i:i + 1], windows[i:i + 1], rns[i:i + 1])
+    a, b = block._diag, single._diag
+    for x, y in [(a.info.J, b.info.J), (a.info.h, b.info.h), (a.info.rr, b.info.rr),
+                 (a.meat, b.meat), (a.u_abs, b.u_abs), (a.n_u, b.n_u)]:
+        np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-12)
+    assert (a.info.n, a.info.n_eq) == (b.info.n, b.info.n_eq)
+    assert a.info.n - diagnoser._diag.info.n == len(ks)
+    np.testing.assert_allclose(block._lagged_meat(0, 0), single._lagged_meat(0, 0), rtol=1e-12)
 
 
 def test_a_gap_restarts_the_window_and_raises_no_alarm():

@@ -66,14 +66,16 @@ from canfdi.core.records import (
 from canfdi.core.residuals import ResidualBank
 from canfdi.methods.parity.hypotheses import (
     Hypothesis,
+    block_regressors,
     independent_sensors,
     noise_units,
     proportional,
-    regressors,
+    row_regressors,
 )
 from canfdi.methods.parity.recent import RecentWindows
 from canfdi.methods.parity.settling import excitation_bound, settle_sizes, settled, within
 from canfdi.methods.parity.signatures import SignatureColumns
+from canfdi.methods.parity.thresholds import lagged_middle
 from canfdi.methods.parity.tracking import AcceptedFaultTracker, Tracked
 
 __all__ = ["Diagnosis", "ParityDiagnoser", "ParitySettings"]
@@ -140,9 +142,9 @@ class Diagnosis:
     phi^T Gamma phi, Gamma the residuals' long-run covariance: the middle of the estimates'
     sandwich covariance P meat P, which the settling test judges by; u_abs, n_u : (p,) sum of
     |u_c| and count of known commands since the alarm (the scale an actuator's lambda is judged
-    against); named : whether the fault was named (`ParityDiagnoser._name`); lagged_meat : the
-    same middle counting the residuals' correlation lag by lag (sum_k sum_l phi_k^T C[k - l]
-    phi_l), what the estimates the events report vary by (None: ``meat``).
+    against); named : whether the fault was named (`ParityDiagnoser._name`). (The same middle
+    counting the residuals' correlation lag by lag, what the estimates the events report vary
+    by, is formed only for the hypothesis an event reports: `ParityDiagnoser._lagged_meat`.)
 
     Examples
     --------
@@ -160,7 +162,6 @@ class Diagnosis:
     u_abs: np.ndarray
     n_u: np.ndarray
     named: bool = False
-    lagged_meat: np.ndarray | None = None
 
 
 class ParityDiagnoser(DetectorBacked):
@@ -278,7 +279,10 @@ class ParityDiagnoser(DetectorBacked):
                                             self._projection)
         self._lagged = None if lagged is None else np.asarray(lagged, dtype=float).reshape(
             self.bank.S + 1, self.bank.m, self.bank.m)
-        self._lag_rows: deque = deque(maxlen=self.bank.S)  # (k, rows) of a diagnosis' last S
+        # (k, commands' window, residual seen, sigma) of every sample a diagnosis absorbed: the
+        # lagged sandwich of the one hypothesis an event reports is formed from them when it
+        # reports (lag by lag over every hypothesis and onset at each sample cost 4x the fit).
+        self._absorbed: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
         self.reset()
 
     # -- state ---------------------------------------------------------------------------
@@ -306,6 +310,7 @@ class ParityDiagnoser(DetectorBacked):
         """Zero the Page-Hinkley statistics; a change point cannot predate sample k."""
         self._detector.reset(k)
         self._diag = None
+        self._absorbed.clear()
 
     @property
     def residual_names(self) -> list[str]:
@@ -451,8 +456,10 @@ class ParityDiagnoser(DetectorBacked):
                           and o < onsets[0]})
         start = max(earlier[0], onsets[0] - LOOKBACK) if earlier else onsets[0]
         self._start_diagnosis(k, earlier + onsets)
-        for kk, window, rnn in self._recent.since(start):
-            self._accumulate(kk, window, rnn)
+        kept = list(self._recent.since(start))
+        if kept:
+            ks, windows, rns = zip(*kept, strict=True)
+            self._accumulate(np.array(ks), np.stack(windows), np.stack(rns))
         event = FaultEvent(kind="detected", sample=k, timestamp_ns=t, detected_sample=k,
                            onset_sample=change_point,
                            residuals=tuple(self.bank.names[i] for i in sorted(
@@ -463,41 +470,39 @@ class ParityDiagnoser(DetectorBacked):
     def _start_diagnosis(self, k: int, onsets: list[int]) -> None:
         H, K = len(self.hypotheses), len(onsets)
         self.mode = DIAGNOSE
-        self._lag_rows.clear()
+        self._absorbed.clear()
         self._diag = Diagnosis(k_d=k, onsets=np.array(onsets),
                                info=rls_init(self.d, self.settings.prior_precision, shape=(H, K)),
                                meat=np.zeros((H, K, self.d, self.d)),
-                               lagged_meat=(None if self._lagged is None
-                                            else np.zeros((H, K, self.d, self.d))),
                                u_abs=np.zeros(self.p), n_u=np.zeros(self.p))
 
-    def _accumulate(self, k: int, window: np.ndarray, rn: np.ndarray) -> None:
-        """Absorb sample k's residuals into every hypothesis' fit (a missing residual: no
-        equation)."""
+    def _accumulate(self, k: np.ndarray, windows: np.ndarray, rn: np.ndarray) -> None:
+        """Absorb samples k (N,) into every hypothesis' fit: their windows (N, S+1, q+p) and
+        normalised residuals (N, m), a missing residual no equation. (The information form is
+        a sum: a block is absorbed at once, as sample by sample.)"""
         d = self._diag
-        phi = regressors(self.bank, self.hypotheses, self.d, k, d.onsets, window[:, self.q:])
-        u_now = window[-1, self.q :]
+        U = windows[:, :, self.q:]
+        phi = block_regressors(self.bank, self.hypotheses, self.d, k, d.onsets, U)
+        seen_r = ~np.isnan(rn)  # (N, m)
+        rows = phi * seen_r[:, None, None, :, None]
+        meat = d.meat + np.einsum("nhkmd,nhkme->hkde", rows, self.tracker.gamma @ rows)
+        if self._lagged is not None:
+            sigma = self.bank.sigma.copy()
+            self._absorbed.extend(zip(k.tolist(), U.copy(), seen_r, [sigma] * len(k),
+                                      strict=True))
+        n, H, K, m, dd = phi.shape
+        stacked = np.moveaxis(phi, 0, 2).reshape(H, K, n * m, dd)
+        u_now = U[:, -1]
         seen = ~np.isnan(u_now)
-        rows = phi * (~np.isnan(rn))[:, None]  # a missing residual: no equation
-        rows_t = np.swapaxes(rows, -1, -2)
-        meat = d.meat + rows_t @ (self.tracker.gamma @ rows)
-        lagged = d.lagged_meat
-        if lagged is not None:
-            # sum_k sum_l phi_k' C[k - l] phi_l over the rows within a window of each other.
-            lagged = lagged + rows_t @ (self._lagged[0] @ rows)
-            for kk, before in self._lag_rows:
-                lag = k - kk
-                if 0 < lag <= self.bank.S:
-                    cross = rows_t @ (self._lagged[lag] @ before)
-                    lagged = lagged + cross + np.swapaxes(cross, -1, -2)
-            self._lag_rows.append((k, rows))
-        self._diag = replace(d, info=rls_update(d.info, phi, rn), meat=meat, lagged_meat=lagged,
-                             u_abs=d.u_abs + np.where(seen, np.abs(np.nan_to_num(u_now)), 0.0),
-                             n_u=d.n_u + seen)
+        self._diag = replace(d, info=rls_update(d.info, stacked, rn.reshape(n * m), samples=n),
+                             meat=meat,
+                             u_abs=d.u_abs + np.where(seen, np.abs(np.nan_to_num(u_now)),
+                                                      0.0).sum(axis=0),
+                             n_u=d.n_u + seen.sum(axis=0))
 
     def _diagnose(self, k: int, t: int, window: np.ndarray, rn: np.ndarray
                   ) -> list[FaultEvent]:
-        self._accumulate(k, window, rn)
+        self._accumulate(np.array([k]), window[None], rn[None])
         d, s = self._diag, self.settings
         since = k - d.k_d
         if since < s.min_samples:
@@ -604,7 +609,23 @@ class ParityDiagnoser(DetectorBacked):
     def _reported(self, fit, cost: np.ndarray, h: int, kb: int) -> np.ndarray:
         """(d,) the variances an event reports for hypothesis h at onset kb (`_spread`,
         lag by lag)."""
-        return _spread(fit, cost, self._diag, h, kb, self.hypotheses[h].n_params, lagged=True)[0]
+        return _spread(fit, cost, self._diag, h, kb, self.hypotheses[h].n_params,
+                       self._lagged_meat(h, kb))[0]
+
+    def _lagged_meat(self, h: int, kb: int) -> np.ndarray | None:
+        """(d, d) the sandwich's middle of hypothesis h at onset kb counting the residuals'
+        correlation lag by lag (thresholds.lagged_middle) over the samples the diagnosis
+        absorbed; None without the lagged autocovariances."""
+        if self._lagged is None or not self._absorbed:
+            return None
+        g = self.hypotheses[h]
+        singles = ([Hypothesis("sensor", j, "") for j in g.members] if g.target == "sensors"
+                   else [g])
+        k, U, seen, sigma = (np.stack(c) for c in zip(*self._absorbed, strict=True))
+        rows = row_regressors(self.bank, singles, [int(self._diag.onsets[kb])] * len(singles),
+                              k, U, sigma) * seen[:, :, None]
+        rows = np.pad(rows, ((0, 0), (0, 0), (0, self.d - rows.shape[-1])))
+        return lagged_middle(rows, k, self._lagged)
 
     def excitation_bound(self, kind: str, index: int, params: dict[str, float], onset: int,
                          U: np.ndarray, noise_scale: float = 1.0) -> int | None:
@@ -879,17 +900,18 @@ def _channel(h: Hypothesis) -> str:
 
 
 def _spread(fit, cost: np.ndarray, d: Diagnosis, h: int, kb: int, n_params: int,
-            lagged: bool = False) -> tuple[np.ndarray, float]:
+            lagged: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """(d,) the variances of hypothesis h's estimates at onset kb, and the fit's noise scale
     (cost per degree of freedom). The sandwich: least squares takes the residuals for white
     and independent, but parity residuals over a window are correlated in time (and with each
     other), so a sum of them varies as the long-run covariance says, not as P alone. That holds
     for steady regressors; across a fault's transient the correlation lag by lag counts
-    (``lagged``: Diagnosis.lagged_meat, what the events report). The settling test keeps the
+    (``lagged``: (d, d) that middle, `ParityDiagnoser._lagged_meat`, what the events report;
+    None: the long-run one, Diagnosis.meat). The settling test keeps the
     long-run form, which the shipped configs' settle_rel_std and settle_noise were set by: on
     the winding machine the lagged variances of a sensor bias 50 samples after its onset are
     40 times the long-run ones (and match the spread of the estimates over seeds)."""
     P = fit.P[h, kb]
     scale = max(float(cost[h, kb]) / max(d.info.n_eq - n_params, 1), 1e-300)
-    meat = d.lagged_meat if lagged and d.lagged_meat is not None else d.meat
-    return np.diag(P @ meat[h, kb] @ P) * scale, scale
+    meat = d.meat[h, kb] if lagged is None else lagged
+    return np.diag(P @ meat @ P) * scale, scale

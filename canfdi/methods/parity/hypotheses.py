@@ -15,8 +15,8 @@ import numpy as np
 
 from canfdi.core.residuals import ResidualBank
 
-__all__ = ["Hypothesis", "independent_sensors", "noise_units", "proportional", "regressors",
-           "row_regressors", "steady_response"]
+__all__ = ["Hypothesis", "block_regressors", "independent_sensors", "noise_units", "proportional",
+           "regressors", "row_regressors", "steady_response"]
 
 
 @dataclass(frozen=True)
@@ -114,7 +114,8 @@ def independent_sensors(bank: ResidualBank, sensors: list[int]) -> list[int]:
 
 def regressors(bank: ResidualBank, hypotheses: list[Hypothesis], d: int, k: int,
                onsets: np.ndarray, u_window: np.ndarray) -> np.ndarray:
-    """(H, K, m, d) normalised regressors of every hypothesis and onset at sample k.
+    """(H, K, m, d) normalised regressors of every hypothesis and onset at sample k
+    (`block_regressors` of one sample).
 
     Parameters
     ----------
@@ -125,32 +126,41 @@ def regressors(bank: ResidualBank, hypotheses: list[Hypothesis], d: int, k: int,
     u_window : (S+1, p) the (compensated) commands of samples k-S..k; NaN (lost) is taken as
         0, since a lost command only enters residuals that are missing anyway.
     """
+    return block_regressors(bank, hypotheses, d, np.array([k]), onsets,
+                            np.asarray(u_window)[None])[0]
+
+
+def block_regressors(bank: ResidualBank, hypotheses: list[Hypothesis], d: int, k: np.ndarray,
+                     onsets: np.ndarray, u_windows: np.ndarray) -> np.ndarray:
+    """(N, H, K, m, d) normalised regressors of every hypothesis and onset at samples k (N,),
+    u_windows (N, S+1, p) the commands of each sample's window (as in `regressors`)."""
     S = bank.S
-    positions = k - S + np.arange(S + 1)
-    mask = (positions[None, :] >= onsets[:, None]).astype(float)  # (K, S+1)
+    positions = np.asarray(k)[:, None] - S + np.arange(S + 1)  # (N, S+1)
+    mask = (positions[:, None, :] >= np.asarray(onsets)[None, :, None]).astype(float)
     # Every sensor's and actuator's signature under every onset at once (einsum rather than a
     # Python loop over hypotheses: this runs for each sample of a diagnosis).
-    zs = np.einsum("jms,ks->jkm", bank.Gz, mask)  # (q, K, m)
-    u = np.nan_to_num(u_window)  # (S+1, p)
-    ua = np.einsum("jms,ks,sj->jkm", bank.Gu, mask, u)  # (p, K, m)
-    ub = np.einsum("jms,ks->jkm", bank.Gu, mask)
-    out = np.zeros((len(hypotheses), len(onsets), bank.m, d))
+    zs = np.einsum("jms,nks->njkm", bank.Gz, mask)  # (N, q, K, m)
+    u = np.nan_to_num(u_windows)  # (N, S+1, p)
+    ua = np.einsum("jms,nks,nsj->njkm", bank.Gu, mask, u)  # (N, p, K, m)
+    ub = np.einsum("jms,nks->njkm", bank.Gu, mask)
+    out = np.zeros((len(positions), len(hypotheses), len(onsets), bank.m, d))
     for h_i, h in enumerate(hypotheses):
         if h.target == "sensor":
-            out[h_i, :, :, 0] = zs[h.index]
+            out[:, h_i, :, :, 0] = zs[:, h.index]
         elif h.target == "sensors":
             for c, j in enumerate(h.members):
-                out[h_i, :, :, c] = zs[j]
+                out[:, h_i, :, :, c] = zs[:, j]
         elif h.target == "actuator_bias":
-            out[h_i, :, :, 0] = ub[h.index]
+            out[:, h_i, :, :, 0] = ub[:, h.index]
         else:
-            out[h_i, :, :, 0] = ua[h.index]
-            out[h_i, :, :, 1] = ub[h.index]
-    return out / bank.sigma[None, None, :, None]
+            out[:, h_i, :, :, 0] = ua[:, h.index]
+            out[:, h_i, :, :, 1] = ub[:, h.index]
+    return out / bank.sigma[None, None, None, :, None]
 
 
 def row_regressors(bank: ResidualBank, hypotheses: list[Hypothesis], onsets: list[int],
-                   k: np.ndarray, u_windows: np.ndarray) -> np.ndarray:
+                   k: np.ndarray, u_windows: np.ndarray, sigma: np.ndarray | None = None
+                   ) -> np.ndarray:
     """(N, m, D) normalised regressors of several hypotheses at once, each at its own onset,
     for N samples: the columns of `regressors` side by side (D = the hypotheses' parameters
     in all), one row block per sample. What a fit of several faults together (the accepted
@@ -162,6 +172,8 @@ def row_regressors(bank: ResidualBank, hypotheses: list[Hypothesis], onsets: lis
     onsets : their fault onsets.
     k : (N,) samples; u_windows : (N, S+1, p) the (compensated) commands of samples k-S..k of
         each, NaN taken as 0 (as in `regressors`).
+    sigma : (m,) or (N, m) the residuals' noise each sample was normalised by; None: the
+        bank's now.
     """
     k = np.asarray(k, dtype=np.int64)
     S = bank.S
@@ -179,4 +191,5 @@ def row_regressors(bank: ResidualBank, hypotheses: list[Hypothesis], onsets: lis
         else:
             raise ValueError(f"hypotheses: {h.label} is not a single channel")
     out = np.stack(cols, axis=-1) if cols else np.zeros((len(k), bank.m, 0))
-    return out / bank.sigma[None, :, None]
+    sigma = bank.sigma if sigma is None else np.asarray(sigma, dtype=float)
+    return out / np.broadcast_to(sigma, (len(k), bank.m))[:, :, None]

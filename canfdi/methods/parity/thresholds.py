@@ -18,7 +18,10 @@ from canfdi.core.residuals import ResidualBank
 if TYPE_CHECKING:
     from canfdi.methods.parity.signatures import SignatureColumns
 
-__all__ = ["calibrate_thresholds", "instant_covariance", "lagged_covariance", "long_run_covariance"]
+__all__ = [
+    "calibrate_thresholds", "instant_covariance", "lagged_covariance", "lagged_middle",
+    "long_run_covariance",
+]
 
 
 def calibrate_thresholds(bank: ResidualBank, measurement_std: np.ndarray,
@@ -151,6 +154,34 @@ def lagged_covariance(bank: ResidualBank, measurement_std: np.ndarray) -> np.nda
     # r_i(k) holds x(k - S + l) with c[i, l]; r_j(k - lag) holds it with c[j, l + lag].
     return np.stack([np.einsum("ilc,jlc,c->ij", c[:, : width - lag], c[:, lag:], var)
                      for lag in range(width)])
+
+
+def lagged_middle(rows: np.ndarray, k: np.ndarray, lagged: np.ndarray) -> np.ndarray:
+    """(d, d) sum_i sum_j rows_i^T C[k_i - k_j] rows_j over the pairs of samples within S of
+    each other (C[-lag] = C[lag]^T): the middle of the sandwich covariance of least squares on
+    residuals correlated as ``lagged`` says, lag by lag.
+
+    rows : (N, m, d) the regressors of samples ``k`` (N,), strictly increasing (gaps allowed);
+    lagged : (S+1, m, m) the residuals' autocovariances (`lagged_covariance`).
+
+    >>> rng = np.random.default_rng(0)
+    >>> rows, k, C = rng.normal(size=(6, 2, 1)), np.array([0, 1, 2, 5, 6, 9]), rng.normal(
+    ...     size=(3, 2, 2))
+    >>> brute = sum(rows[i].T @ (C[k[i] - k[j]] if k[i] >= k[j] else C[k[j] - k[i]].T)
+    ...             @ rows[j] for i in range(6) for j in range(6) if abs(k[i] - k[j]) <= 2)
+    >>> bool(np.allclose(lagged_middle(rows, k, C), brute))
+    True
+    """
+    rows = np.asarray(rows, dtype=float)
+    k = np.asarray(k, dtype=np.int64)
+    out = np.einsum("nmd,nme->de", rows, lagged[0] @ rows)
+    for lag in range(1, lagged.shape[0]):
+        j = np.searchsorted(k, k - lag)
+        i = np.flatnonzero((j < k.size) & (k[np.minimum(j, k.size - 1)] == k - lag))
+        if i.size:
+            cross = np.einsum("nmd,nme->de", rows[i], lagged[lag] @ rows[j[i]])
+            out += cross + cross.T
+    return out
 
 
 def instant_covariance(bank: ResidualBank, measurement_std: np.ndarray) -> np.ndarray:
