@@ -139,3 +139,45 @@ def test_bad_options_name_their_field(options, field):
     with pytest.raises(ConfigError) as info:
         parse_uio_options(options)
     assert info.value.field == field
+
+
+def test_front_end_covariances_are_the_ones_of_its_moving_average(design):
+    """front_cov (diagonal: front_std^2) against the front end's outputs on white sensor
+    noise; long_run_cov (diagonal: long_run_std^2) against the moving average's own long-run
+    form, its DC gain's H(1)^T S H(1) (an empirical long-run figure is too noisy here: the
+    outputs difference the noise away, long-run variance 1/600 of the variance)."""
+    np.testing.assert_allclose(np.diag(design.front_cov), design.front_std**2, rtol=1e-12)
+    np.testing.assert_allclose(np.diag(design.long_run_cov), design.long_run_std**2,
+                               rtol=1e-9, atol=1e-15)
+    m, p, var = design.m, design.p, np.full(design.m, 0.01**2)
+    dc = design.fir.coef[:, :m, :].sum(axis=0)  # (m, p+m)
+    np.testing.assert_allclose(design.long_run_cov, dc.T @ np.diag(var) @ dc,
+                               rtol=1e-9, atol=1e-12 * np.abs(design.long_run_cov).max())
+    rng = np.random.default_rng(0)
+    n = 400_000
+    v = np.hstack([0.01 * rng.standard_normal((n, m)), np.zeros((n, p))])
+    o = design.fir.batch(v)[design.fir.S:]
+    scale = np.sqrt(np.outer(design.front_std, design.front_std))
+    assert np.abs(np.cov(o.T) - design.front_cov).max() / scale.max() < 0.02
+
+
+def test_a_sensor_bias_estimate_varies_as_its_reported_std_says(config):
+    """Over seeds, (estimate - truth) / reported std has about unit spread: the std counts
+    the outputs' correlation and the random walk under the hinge's slope."""
+    from canfdi.firmware_sim.scenario import parse_scenario
+    from canfdi.firmware_sim.simulate import Simulator
+
+    z = []
+    for seed in range(40):
+        sc = parse_scenario({"name": "t", "plant": "vtol", "duration": 6.0, "seed": seed,
+                             "faults": [{"target": "sensor", "index": 1, "onset": 2.0,
+                                         "bias": 0.2}]})
+        ch = Simulator(sc).advance(600)
+        dg = build_uio_diagnoser(config)
+        events = dg.update_block(ch.k, ch.k * 10_000_000, ch.u_c, ch.z).events
+        accepted = [e for e in events if e.kind == "accepted"]
+        assert accepted and accepted[0].index == 1
+        e = accepted[0]
+        z.append((e.estimates["bias"] - 0.2) / np.sqrt(e.variances["bias"]))
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.65 < rms < 1.4, (rms, np.round(z, 2))

@@ -44,7 +44,7 @@ d = [0 0.5 0 2] x varies within it, which leaves an O(dt^2) leak the tests bound
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -265,6 +265,9 @@ class UioDesign:
     W0 : (p, m) the FIDF's left inverse of M1 = H C B.
     noise_std : (p+m,) std of r for the measurement noise; front_std : (p+m,) of o;
     long_run_std : (p+m,) sqrt of the long-run variance of o (and r) (sum of autocovariances).
+    front_cov, long_run_cov : (p+m, p+m) the same as covariances across the outputs (their
+        diagonals the squares of front_std and long_run_std): an estimate that combines the
+        outputs varies as these say, not as if they were independent.
 
     Examples
     --------
@@ -295,6 +298,17 @@ class UioDesign:
     front_std: np.ndarray
     long_run_std: np.ndarray
     names: list[str] = field(default_factory=list)
+    front_cov: np.ndarray | None = None
+    long_run_cov: np.ndarray | None = None
+
+    def scaled(self, factor: np.ndarray) -> UioDesign:
+        """This design with each output's noise ``factor`` (p+m,) times as large."""
+        f = np.broadcast_to(np.asarray(factor, dtype=float), self.noise_std.shape)
+        ff = np.outer(f, f)
+        return replace(self, noise_std=self.noise_std * f, front_std=self.front_std * f,
+                       long_run_std=self.long_run_std * f,
+                       front_cov=None if self.front_cov is None else self.front_cov * ff,
+                       long_run_cov=None if self.long_run_cov is None else self.long_run_cov * ff)
 
 
 def _grgs_scheme(A, B, C, E, i: int) -> tuple[Lti, np.ndarray]:
@@ -376,11 +390,12 @@ def design_uio(A: np.ndarray, B: np.ndarray, C: np.ndarray, E: np.ndarray, dt: f
     a = np.array([lowpass_coefficient(actuator_pole, dt)] * p
                  + [lowpass_coefficient(sensor_pole, dt)] * m)
     front_std, noise_std, long_run = _noise(coef, sig, a, m)
+    front_cov, long_run_cov = _covariances(coef, sig, m)
     names = [f"fidf:{n}" for n in input_names] + [f"grgs:{n}" for n in output_names]
     return UioDesign(p=p, m=m, dt=dt, fir=fir, a=a, fault_dc=fault_dc,
                      Hf0=fault_dc[p:, p:], W0=W0, grgs_rows=np.array(rows),
                      noise_std=noise_std, front_std=front_std, long_run_std=long_run,
-                     names=names)
+                     names=names, front_cov=front_cov, long_run_cov=long_run_cov)
 
 
 def _noise(coef: np.ndarray, sig: np.ndarray, a: np.ndarray, m: int
@@ -400,6 +415,18 @@ def _noise(coef: np.ndarray, sig: np.ndarray, a: np.ndarray, m: int
     low = np.sqrt((1 - a) ** 2 / (1 - a**2) * acc)
     long_run = np.sqrt(np.maximum(gamma[0] + 2.0 * gamma[1:].sum(axis=0), 0.0))
     return front, low, long_run
+
+
+def _covariances(coef: np.ndarray, sig: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n_out, n_out) covariance of the front end o at one sample, and its long-run
+    covariance (sum over every lag), for white sensor noise: G(tau) = sum_l M_l^T S M_{l+tau},
+    long run G(0) + sum_tau (G(tau) + G(tau)^T)."""
+    Mz = coef[:, :m, :]
+    var = sig**2
+    S1 = Mz.shape[0]
+    gamma = np.array([np.einsum("lco,c,lcq->oq", Mz[: S1 - t], var, Mz[t:]) for t in range(S1)])
+    lagged = gamma[1:].sum(axis=0)
+    return gamma[0], gamma[0] + lagged + lagged.T
 
 
 def flag_function(r: np.ndarray) -> np.ndarray:

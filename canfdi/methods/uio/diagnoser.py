@@ -29,7 +29,7 @@ samples counts as NaN rows; a longer one (or k going back) restarts the window.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import special  # quantiles: 30 ms to import where scipy.stats takes 0.6 s
@@ -74,7 +74,8 @@ class UioDiagnosis:
 class StepMeans:
     """The hinge fit of the front-end outputs: the best onset (the first sample whose outputs
     carry the fault), the means mu (p+m,) after it, their standard errors se (p+m,), and the
-    number n of samples after the onset's transient.
+    number n of samples after the onset's transient; cov (p+m, p+m) the means' covariance
+    (None: independent, se^2 on the diagonal).
 
     Examples
     --------
@@ -87,6 +88,7 @@ class StepMeans:
     mu: np.ndarray
     se: np.ndarray
     n: int
+    cov: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -247,10 +249,7 @@ class UioDiagnoser:
 
     @noise_scale.setter
     def noise_scale(self, value: np.ndarray) -> None:
-        d0 = self._design0
-        f = np.broadcast_to(np.asarray(value, dtype=float), d0.noise_std.shape)
-        self.design = replace(d0, noise_std=d0.noise_std * f, front_std=d0.front_std * f,
-                              long_run_std=d0.long_run_std * f)
+        self.design = self._design0.scaled(value)
 
     @property
     def residual_names(self) -> list[str]:
@@ -395,8 +394,17 @@ class UioDiagnoser:
         if best is None:
             return None
         _, kf, mu, n_post = best
+        # The slope of a line through n cumulative sums of correlated noise (a random walk
+        # of the long-run covariance) varies as 6/5 of that covariance over n; the moving
+        # average's bounded part as the white noise on a line, 12 / n^3.
+        dz = self.design
+        lrc = np.diag(lr**2) if dz.long_run_cov is None else dz.long_run_cov
+        fc = np.diag(fs**2) if dz.front_cov is None else dz.front_cov
+        cov = 1.2 * lrc / n_post + 12.0 * fc / n_post**3
+        # The isolation's weights and the settling test keep the independent outputs' form
+        # (the shipped settle_rel_std was set by it); the events report the covariance's.
         se = np.sqrt(lr**2 / n_post + 12.0 * fs**2 / n_post**3)
-        return StepMeans(onset=kf, mu=mu, se=np.maximum(se, 1e-300), n=n_post)
+        return StepMeans(onset=kf, mu=mu, se=np.maximum(se, 1e-300), n=n_post, cov=cov)
 
     def _isolate(self, k: int, t: int) -> list[FaultEvent]:
         d, s = self._diag, self.settings
@@ -429,10 +437,22 @@ class UioDiagnoser:
         actuator the FIDF's own residual carries the diagonal map (residual j estimates
         actuator j's fault: `_own_estimate`), but the GRGS outputs see the same step with
         far less noise, and a compensation that leaves them off by more than their noise
-        raises the next alarm at once."""
+        raises the next alarm at once. (Its error takes the outputs for independent, as the
+        settling test was set by; `_reported_std` does not.)"""
         col = self.design.fault_dc[:, c] / fit.se
         cc = float(col @ col)
-        return float((fit.mu / fit.se) @ col) / cc, 1.0 / np.sqrt(cc)
+        weights = col / fit.se / cc  # the estimate is weights @ mu
+        return float(fit.mu @ weights), 1.0 / np.sqrt(cc)
+
+    def _reported_std(self, c: int, fit: StepMeans) -> float:
+        """The standard deviation of `_estimate`'s bias as the means' covariance says (the
+        outputs correlated, the slope of a random walk's line 6/5 as uncertain as white
+        noise's): what an event reports."""
+        col = self.design.fault_dc[:, c] / fit.se
+        weights = col / fit.se / float(col @ col)
+        if fit.cov is None:
+            return float(np.sqrt(weights**2 @ fit.se**2))
+        return float(np.sqrt(max(float(weights @ fit.cov @ weights), 0.0)))
 
     def _own_estimate(self, c: int, fit: StepMeans) -> float:
         """The paper's estimate: actuator j's own FIDF residual, or sensor i's GRGS means
@@ -479,7 +499,8 @@ class UioDiagnoser:
     def _accept(self, k: int, t: int, c: int, fit: StepMeans, angles: np.ndarray,
                 order: np.ndarray) -> list[FaultEvent]:
         target, index, name = self.hypotheses[c]
-        est, se = self._estimate(c, fit)
+        est, _ = self._estimate(c, fit)
+        se = self._reported_std(c, fit)
         # The front end sees an actuator fault one sample after it acts (through x(k+1)),
         # a sensor fault at once.
         onset = fit.onset - (1 if target == "actuator" else 0)
