@@ -163,6 +163,7 @@ def _with(tmp_path, **changes):
     ({"models__0__f": [-1.2]}, "output_error.models[0].f"),
     ({"models__0__output": "T9"}, "output_error.models[0].output"),
     ({"models__0__delay": -1}, "output_error.models[0].delay"),
+    ({"models__0__gain_std": -0.1}, "output_error.models[0].gain_std"),
     ({"residual_std": [1e-4, 0.0, 1e-4]}, "output_error.residual_std"),
     ({"operating_point": {"u": [0.01]}}, "output_error.operating_point.u"),
     ({"bogus": 1}, "output_error.bogus"),
@@ -172,3 +173,20 @@ def test_a_bad_output_error_section_names_the_field(tmp_path, change, field):
     with pytest.raises(ConfigError) as info:
         _with(tmp_path, **change)
     assert info.value.field == field
+
+
+def test_identify_writes_each_gain_std_and_the_config_reads_it_back(tmp_path):
+    """The fit's static-gain deviations go into the section and come back on the pairs: what
+    an accepted actuator estimate adds to its variance for the model's uncertainty."""
+    from canfdi.methods.output_error.config import output_error_section
+    from canfdi.methods.output_error.model import OeModel, OePair
+
+    config = load_config(CONFIG)
+    assert all(p.gain_std > 0 for p in config.method_options.model.pairs)
+    model = OeModel(pairs=(OePair(0, 0, (0.45,), (-0.85,), 1, gain_std=0.0016),),
+                    u0=np.zeros(3), y0=np.zeros(3))
+    section = output_error_section(model, np.full(3, 1e-4), np.ones(3), config.inputs,
+                                   config.outputs)
+    assert section["models"][0]["gain_std"] == 0.0016
+    back = _with(tmp_path, models=section["models"]).method_options.model.pairs
+    assert [p.gain_std for p in back] == [0.0016]

@@ -5,7 +5,8 @@ Layout (``canfdi identify`` writes it from a fault-free log)::
     method: output_error
     output_error:
       models:                          # one entry per (output, input) pair
-        - {output: T1, input: u1, b: [0.45], f: [-0.85], delay: 1}   # B(q)/F(q) q^-delay
+        - {output: T1, input: u1, b: [0.45], f: [-0.85], delay: 1, gain_std: 0.0003}
+          # B(q)/F(q) q^-delay; gain_std: its static gain's std from the fit (default 0: exact)
         - {output: T1, input: u3, path: false}                      # no path (also: unlisted)
       operating_point: {u: [...], y: [...]}   # y_hat = y + sum G (u_c - u)
       residual_std: [...]              # per output; default: the config's noise.measurement
@@ -105,7 +106,8 @@ def _numbers(value: Any, field: str, size: int | None = None) -> list[float]:
 def _pair(entry: Any, where: str, inputs: list[str], outputs: list[str]) -> OePair | None:
     if not isinstance(entry, dict):
         raise ConfigError(where, "expected a mapping {output, input, b, f, delay}")
-    opts = parse_options(entry, {"path": Option(bool), "delay": Option(int, 0, 1000)}, where,
+    opts = parse_options(entry, {"path": Option(bool), "delay": Option(int, 0, 1000),
+                                 "gain_std": Option(float, lo=0.0)}, where,
                          extra=("output", "input", "b", "f"))
     path = opts.get("path", True)
     for key, names in (("output", outputs), ("input", inputs)):
@@ -119,7 +121,7 @@ def _pair(entry: Any, where: str, inputs: list[str], outputs: list[str]) -> OePa
     f = _numbers(entry.get("f", []), f"{where}.f")
     delay = opts.get("delay", 1)
     pair = OePair(output=outputs.index(entry["output"]), input=inputs.index(entry["input"]),
-                  b=tuple(b), f=tuple(f), delay=delay)
+                  b=tuple(b), f=tuple(f), delay=delay, gain_std=opts.get("gain_std", 0.0))
     if f and pair.pole_radius >= 1.0:
         raise ConfigError(f"{where}.f", f"F(q) is not stable (a pole of modulus "
                                         f"{pair.pole_radius:.4g}): an OE model must be")
@@ -203,7 +205,8 @@ def output_error_section(model: OeModel, sigma: np.ndarray, long_run: np.ndarray
             else:
                 entries.append({"output": out, "input": inp,
                                 "b": [float(f"{x:.10g}") for x in pr.b],
-                                "f": [float(f"{x:.10g}") for x in pr.f], "delay": pr.delay})
+                                "f": [float(f"{x:.10g}") for x in pr.f], "delay": pr.delay,
+                                "gain_std": float(f"{pr.gain_std:.4g}")})
     sec: dict[str, Any] = {
         "models": entries,
         "operating_point": {"u": [float(f"{x:.10g}") for x in model.u0],

@@ -96,7 +96,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import special  # chi-square quantiles: 30 ms to import where scipy.stats takes 0.6 s
@@ -134,7 +134,7 @@ SHAPE_TAIL = 1.0e-3
 degrees of freedom) fails a right shape this rarely."""
 
 __all__ = ["EVIDENCE_MARGIN", "SHAPE_TAIL", "HypothesisTest", "OeDiagnosis", "OeSettings",
-           "OutputErrorDiagnoser", "oe_thresholds", "settling_samples"]
+           "OutputErrorDiagnoser", "oe_thresholds", "onset_spread", "settling_samples"]
 
 
 @dataclass(frozen=True)
@@ -208,7 +208,9 @@ class HypothesisTest:
     estimates, variances : {"lambda"} for an actuator, {"bias"} for a sensor (physical units);
     cost : least-squares cost of the normalised residuals; distance : the kappa test's
     normalised parameter distance; gamma_ok, fits : the gamma and fit-variance tests; passes :
-    all of them.
+    all of them. extra_variance : what the estimate's reported variance adds to the tests'
+    one, the noise's alone (their gamma was set on it): the identified models' gain
+    uncertainty (OePair.gain_std) and the onset's (`onset_spread`).
 
     Examples
     --------
@@ -229,11 +231,38 @@ class HypothesisTest:
     gamma_ok: bool
     fits: bool
     passes: bool
+    extra_variance: float = 0.0
 
     def candidate(self) -> dict:
         """The FaultEvent candidate entry of an "unexplained" event."""
         return {"target": self.target, "index": self.index, "name": self.name,
                 "estimates": dict(self.estimates), "onset": self.onset}
+
+
+def onset_spread(chosen: HypothesisTest, tried: list[HypothesisTest]) -> HypothesisTest:
+    """``chosen`` with the onset's uncertainty in its extra variance: the onsets tried for
+    its channel weighted by their likelihood, exp(-cost / 2) (normalised residuals), the
+    mean square of their estimates about the chosen one, plus their own variances, less the
+    chosen's. An actuator's first response sample is often at the noise's level: the onset a
+    sample off moves a slow path's estimate by a few percent, several of its noise deviations.
+
+    >>> tests = [HypothesisTest("sensor", 0, "y", kf, {"bias": b}, {"bias": 1e-6}, cost,
+    ...                         0.0, True, True, True) for kf, b, cost in
+    ...          [(499, 0.09, 50.0), (500, 0.1, 48.0), (501, 0.11, 60.0)]]
+    >>> round(onset_spread(tests[1], tests).extra_variance, 7)  # about 0.01^2 e^-1 / (1 + e^-1)
+    2.7e-05
+    """
+    key = "lambda" if chosen.target == "actuator" else "bias"
+    ok = [h for h in tried if np.isfinite(h.cost) and np.isfinite(h.variances[key])]
+    if len(ok) < 2:
+        return chosen
+    cost = np.array([h.cost for h in ok])
+    w = np.exp(-(cost - cost.min()) / 2.0)
+    w /= w.sum()
+    est = np.array([h.estimates[key] for h in ok])
+    var = np.array([h.variances[key] for h in ok])
+    spread = float(w @ (var + (est - chosen.estimates[key]) ** 2)) - chosen.variances[key]
+    return replace(chosen, extra_variance=chosen.extra_variance + max(spread, 0.0))
 
 
 def settling_samples(radius: float, settle: float) -> int:
@@ -559,12 +588,14 @@ class OutputErrorDiagnoser(DetectorBacked):
             # refinement's, where the rest it measures fits best.
             rank = ((lambda h: (h.passes, -h.cost)) if self._accepted_onset("actuator", i)
                     is not None else (lambda h: (h.passes, -h.distance)))
-            best_h = None
+            best_h, results = None, []
             for kf in self._onsets("actuator", i):
                 res = self._actuator_test(i, outs, kf, kk, Rn, Rv, valid, zero_cost, n_eq)
+                results.append(res)
                 actuator_cost = min(actuator_cost, res.cost)
                 if best_h is None or rank(res) > rank(best_h):
                     best_h = res
+            best_h = onset_spread(best_h, results)
             tried.append(best_h)
             if best_h.passes:
                 passing.append(best_h)
@@ -575,11 +606,13 @@ class OutputErrorDiagnoser(DetectorBacked):
         # named beside it (`alike`).
         sensors = []
         for j in range(self.q):
-            best_h = None
+            best_h, results = None, []
             for kf in self._onsets("sensor", j):
                 res = self._sensor_test(j, kf, kk, Rv, valid, zero_cost, n_eq)
+                results.append(res)
                 if best_h is None or res.cost < best_h.cost:
                     best_h = res
+            best_h = onset_spread(best_h, results)
             tried.append(best_h)
             # Not a sensor while an actuator's step response fits the data better by the
             # margin, even one whose shape tests fail: a small fault's free fit is loose,
@@ -656,10 +689,19 @@ class OutputErrorDiagnoser(DetectorBacked):
             step[after] = pair.step_response(int(kk[-1] - kf + 1))[kk[after] - kf]
             X[:, j] = step / self.sigma[j]
         X = X * valid
+        model_var = 0.0
         if X.any():
             amp = least_squares(X.reshape(-1, 1), Rv.reshape(-1))
             lam, cost = float(amp.theta[0]), amp.cost
             var = cost / max(n_eq - 1, 1) * float(amp.covariance[0, 0])
+            # lambda is seen through each path's gain: a relative error delta_j of it moves
+            # the estimate by lambda delta_j times that output's share of the information.
+            share = (X**2).sum(axis=0) / float((X**2).sum())
+            rel = np.zeros(len(share))
+            for j in outs:
+                pair = self._pair_of[(int(j), i)]
+                rel[j] = pair.gain_std / max(abs(pair.static_gain), 1e-300)
+            model_var = lam**2 * float(np.sum((share * rel) ** 2))
         else:
             lam, cost, var = 0.0, float((Rv**2).sum()), np.inf
         scale = cost / max(n_eq - 1, 1)
@@ -670,7 +712,8 @@ class OutputErrorDiagnoser(DetectorBacked):
             # is left is an amplitude, judged against the channel's whole fault.
             passes = bool(fits and np.sqrt(var) <= s.gamma * max(abs(lam), abs(total["lambda"])))
             return HypothesisTest("actuator", i, self.input_names[i], int(kf), {"lambda": lam},
-                                  {"lambda": float(var)}, cost, 0.0, True, fits, passes)
+                                  {"lambda": float(var)}, cost, 0.0, True, fits, passes,
+                                  model_var)
         # (b) the free fit of the residual's step response on each output the path reaches.
         gamma_ok, distance, shape_ok = True, 0.0, True
         for j in outs:
@@ -697,7 +740,8 @@ class OutputErrorDiagnoser(DetectorBacked):
         # Eq. 16 for the amplitude, as for a sensor's bias: a fault that differs from zero.
         passes = bool(fits and gamma_ok and shape_ok and np.sqrt(var) <= s.gamma * abs(lam))
         return HypothesisTest("actuator", i, self.input_names[i], int(kf), {"lambda": lam},
-                              {"lambda": float(var)}, cost, distance, gamma_ok, fits, passes)
+                              {"lambda": float(var)}, cost, distance, gamma_ok, fits, passes,
+                              model_var)
 
     def _sensor_test(self, j, kf, kk, Rv, valid, zero_cost, n_eq) -> HypothesisTest:
         s = self.settings
@@ -739,7 +783,8 @@ class OutputErrorDiagnoser(DetectorBacked):
         leftover = onset == self._accepted_onset(h.target, h.index)
         kind, estimates, variances = fold(self.compensation, Compensation(
             h.target, h.index, onset, lam=h.estimates.get("lambda", 0.0),
-            bias=h.estimates.get("bias", 0.0), variances=dict(h.variances),
+            bias=h.estimates.get("bias", 0.0),
+            variances={key: v + h.extra_variance for key, v in h.variances.items()},
             correction=leftover))
         event = FaultEvent(kind=kind, sample=k, timestamp_ns=t, target=h.target,
                            index=h.index, name=h.name, estimates=estimates,

@@ -67,6 +67,9 @@ class OePair:
     output, input : 0-based indices.
     b : (nb,) numerator b_0..b_{nb-1}; f : (nf,) denominator f_1..f_nf (monic F, the 1 implied).
     delay : d >= 0 samples.
+    gain_std : the standard deviation of its static gain as its identification left it (0:
+        known exactly): a fault's size seen through the path is uncertain by as much,
+        relatively.
 
     Examples
     --------
@@ -82,6 +85,7 @@ class OePair:
     b: tuple[float, ...]
     f: tuple[float, ...]
     delay: int = 1
+    gain_std: float = 0.0
 
     @property
     def num(self) -> np.ndarray:
@@ -410,14 +414,14 @@ def fit_miso(U_dev: np.ndarray, y_dev: np.ndarray, structure: list[tuple[int, in
     pred, _, parts = _simulate_terms(theta, st, U_dev, True)
     pairs, gain_std, at = [], [], 0
     for s, (b, f) in zip(st, parts, strict=True):
-        pairs.append(OePair(output=output, input=s.input, b=tuple(map(float, b)),
-                            f=tuple(map(float, f)), delay=s.delay))
         # Static gain K = sum b / (1 + sum f): gradient 1/F(1) on b, -K/F(1) on f.
         f1 = 1.0 + float(np.sum(f))
         grad = np.zeros(len(theta))
         grad[at: at + s.nb] = 1.0 / f1
         grad[at + s.nb: at + s.nb + s.nf] = -float(np.sum(b)) / f1**2
         gain_std.append(float(np.sqrt(max(grad @ cov @ grad, 0.0))))
+        pairs.append(OePair(output=output, input=s.input, b=tuple(map(float, b)),
+                            f=tuple(map(float, f)), delay=s.delay, gain_std=gain_std[-1]))
         at += s.nb + s.nf
     residual = y_dev - pred
     return MisoFit(pairs=tuple(pairs), offset=float(theta[-1]), cov=cov, residual=residual,
