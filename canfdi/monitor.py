@@ -42,7 +42,9 @@ from canfdi.bus.frames import (
     frame_counters,
 )
 from canfdi.bus.monitorframes import MonitorFrames
+from canfdi.core import kernel as kernels
 from canfdi.core.eventtext import event_level, event_line
+from canfdi.core.kernel import Kernel
 from canfdi.core.protocol import Diagnoser, Supervisor
 from canfdi.core.records import BlockResult, FaultEvent, Sample
 from canfdi.core.settings import MonitorConfig
@@ -128,6 +130,8 @@ class Monitor:
         diagnosed (FDI_STATUS "teaching"); then ``teach.learn`` gives the drive its diagnoser
         and the learned values go to the log's metadata ("canfdi.teach.<drive>") and
         ``self.taught``.
+    kernel : the kernel the diagnosers' block forms run on (canfdi.core.kernel); the numpy
+        reference by default.
 
     Raises
     ------
@@ -137,8 +141,9 @@ class Monitor:
 
     def __init__(self, config: MonitorConfig, sink: RecordSink | None = None,
                  record_residuals: bool = True, diagnose: bool = True,
-                 teach: Teacher | None = None) -> None:
+                 teach: Teacher | None = None, kernel: Kernel | None = None) -> None:
         self.config = config
+        self.kernel = kernel or kernels.get("python")
         self.method = methods.get(config.method)
         self.dt = config.model.dt or 1.0
         if config.bus.dbc is None:
@@ -188,6 +193,7 @@ class Monitor:
         w = cfg.watchdog
 
         def run(dg: Diagnoser, check: bool) -> Supervisor:
+            self.kernel.use_on(dg)
             if not w.enabled:
                 return Supervision(dg)
             return NoiseWatched(dg, w.factor, w.block, w.blocks, check=check,

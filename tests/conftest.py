@@ -1,4 +1,5 @@
-"""Shared pytest configuration: the `vcan` marker skips where there is no vcan0."""
+"""Shared pytest configuration: the `vcan` marker skips where there is no vcan0, the `c` marker
+where the C kernel (canfdi._ckernel) was not built."""
 
 from __future__ import annotations
 
@@ -20,15 +21,26 @@ def _has_vcan0() -> bool:
     return Path("/sys/class/net/vcan0").exists()
 
 
+def _has_c_kernel() -> bool:
+    from canfdi.core import kernel
+
+    return "c" in kernel.available()
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    if _has_vcan0():
-        return
-    skip = pytest.mark.skip(
-        reason="no vcan0 on this host (kernel without SocketCAN); run through deploy/vcan-harness"
-    )
+    skips = {}
+    if not _has_vcan0():
+        skips["vcan"] = pytest.mark.skip(
+            reason="no vcan0 on this host (kernel without SocketCAN); run through "
+                   "deploy/vcan-harness")
+    if not _has_c_kernel():
+        skips["c"] = pytest.mark.skip(
+            reason="the C kernel was not built (no C compiler at install): pip install -e . "
+                   "with gcc or clang on the PATH")
     for item in items:
-        if "vcan" in item.keywords:
-            item.add_marker(skip)
+        for marker, skip in skips.items():
+            if marker in item.keywords:
+                item.add_marker(skip)
 
 
 def feed_frame_log(monitor, log, block: int = 4096):

@@ -17,7 +17,9 @@ D. Siegmund, *Sequential Analysis: Tests and Confidence Intervals*, Springer, 19
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -25,9 +27,11 @@ from numpy.typing import ArrayLike, NDArray
 from canfdi.core._check import check_shape
 
 __all__ = [
+    "ChangePointBlock",
     "ChangePointDetector",
     "DetectorBacked",
     "PageHinkleyResult",
+    "change_point_block",
     "onset_candidates",
     "page_hinkley_batch",
 ]
@@ -327,6 +331,60 @@ def page_hinkley_batch(
     return _run_plain(u, d, hh, g0)
 
 
+@dataclass(frozen=True)
+class ChangePointBlock:
+    """What `change_point_block` gives: the rows before the first alarm row (``done``, the
+    block's length without one), the statistics g_up and g_down (rows, c) of those rows and
+    of the alarm row (rows = done + 1 with an alarm, else done), the alarm row's signs
+    ``alarm`` (c,) (zeros without one), and the state and last zeros after the done rows.
+
+    Examples
+    --------
+    >>> blk = change_point_block(np.arange(3), np.array([[1.0], [3.0], [3.0]]), np.array([0.5]),
+    ...                          np.array([4.0]), np.zeros((1, 2)), np.full((1, 2), -1))
+    >>> blk.done, blk.g_up[:, 0], blk.alarm, blk.state
+    (2, array([0.5, 3. , 5.5]), array([1], dtype=int8), array([[3., 0.]]))
+    """
+
+    done: int
+    g_up: NDArray[np.float64]
+    g_down: NDArray[np.float64]
+    alarm: NDArray[np.int8]
+    state: NDArray[np.float64]
+    last_zero: NDArray[np.int64]
+
+
+def change_point_block(k: NDArray[np.int64], x: NDArray[np.float64], delta: NDArray[np.float64],
+                       h: NDArray[np.float64], state: NDArray[np.float64],
+                       last_zero: NDArray[np.int64]) -> ChangePointBlock:
+    """Two-sided Page-Hinkley over rows k (N,), x (N, c) (NaN missing) to the first alarm row,
+    with drifts delta and thresholds h (c,), from state (c, 2) and last zeros (c, 2) (the last
+    sample each statistic was zero after a present value): `ChangePointBlock`. The numpy
+    reference of the kernels' detector block (canfdi.core.kernel); inputs are not modified."""
+    ph = page_hinkley_batch(x, delta, h, state=state)
+    width = x.shape[1]
+    # The first alarm row: the first nonzero of the flat (row-major) alarms (argmax stops
+    # there; a reduction along the short axis costs a pass per row).
+    flat = ph.alarms.reshape(-1) != 0
+    first = int(flat.argmax()) if flat.size else 0
+    done = first // width if flat.size and flat[first] else len(x)
+    last_zero = last_zero.copy()
+    new_state = state.copy()
+    if done > 0:
+        valid = ~np.isnan(x[:done])
+        cols = np.arange(width)
+        for d, traj in enumerate((ph.g_up[:done], ph.g_down[:done])):
+            zero = ((traj == 0.0) & valid)[::-1]
+            back = np.argmax(zero, axis=0)  # rows from the end to each one's last zero
+            any_zero = zero[back, cols]
+            last_zero[any_zero, d] = k[done - 1 - back[any_zero]]
+        new_state = np.stack([ph.g_up[done - 1], ph.g_down[done - 1]], axis=1)
+    rows = min(done + 1, len(x))
+    alarm = ph.alarms[done] if done < len(x) else np.zeros(width, dtype=np.int8)
+    return ChangePointBlock(done, ph.g_up[:rows], ph.g_down[:rows], alarm, new_state,
+                            last_zero)
+
+
 class ChangePointDetector:
     """Two-sided Page-Hinkley per residual that also dates the change: for each statistic it
     keeps the last sample where it was zero after a (non-missing) residual, so an alarm's change
@@ -379,6 +437,8 @@ class ChangePointDetector:
                                       np.asarray(drifts, dtype=float).reshape(c)])
         self._h = np.concatenate([np.asarray(h, dtype=float).reshape(m),
                                   np.asarray(h_projected, dtype=float).reshape(c)])
+        # The block form's kernel (canfdi.core.kernel): the numpy reference unless set.
+        self.block: Callable[..., ChangePointBlock] = change_point_block
         self.reset()
 
     @property
@@ -419,27 +479,16 @@ class ChangePointDetector:
         return alarm
 
     def update_block(self, k: NDArray[np.int64], rn: NDArray[np.float64]
-                     ) -> tuple[PageHinkleyResult, int]:
-        """Rows of samples k (N,), residuals rn (N, m): the batch result over the (N, m + c)
-        statistics and ``done``, the rows before the first alarm row (N without one). The state
-        advances over those rows only: the alarm row is left for `update`."""
-        x = self._columns(rn)
-        ph = page_hinkley_batch(x, self._delta, self._h, state=self._state)
-        # The first alarm row: the first nonzero of the flat (row-major) alarms (argmax stops
-        # there; a reduction along the short axis costs a pass per row).
-        flat = ph.alarms.reshape(-1) != 0
-        first = int(flat.argmax())
-        done = first // self._width if flat[first] else len(rn)
-        if done > 0:
-            valid = ~np.isnan(x[:done])
-            cols = np.arange(self._width)
-            for d, traj in enumerate((ph.g_up[:done], ph.g_down[:done])):
-                zero = ((traj == 0.0) & valid)[::-1]
-                back = np.argmax(zero, axis=0)  # rows from the end to each one's last zero
-                any_zero = zero[back, cols]
-                self._last_zero[any_zero, d] = k[done - 1 - back[any_zero]]
-            self._state = np.stack([ph.g_up[done - 1], ph.g_down[done - 1]], axis=1)
-        return ph, done
+                     ) -> ChangePointBlock:
+        """Rows of samples k (N,), residuals rn (N, m): the `ChangePointBlock` of the (N, m + c)
+        statistics' columns. The state advances over the rows before the first alarm row
+        only (``done``): the alarm row is left for `update`."""
+        x = np.ascontiguousarray(self._columns(rn), dtype=np.float64)
+        _check_finite(x, "x", missing_ok=True)
+        blk = self.block(np.ascontiguousarray(k, dtype=np.int64), x, self._delta, self._h,
+                         self._state, self._last_zero)
+        self._state, self._last_zero = blk.state, blk.last_zero
+        return blk
 
     def change_point(self, alarm: NDArray[np.int8]) -> int:
         """The earliest sample after which an alarming statistic last was zero, plus one."""
@@ -479,6 +528,10 @@ class DetectorBacked:
     def statistics(self) -> NDArray[np.float64]:
         """(m,) the larger Page-Hinkley statistic of each residual."""
         return self._detector.statistics
+
+    def use_kernel(self, kernel: Any) -> None:
+        """Run the detector's block form on ``kernel`` (canfdi.core.kernel.Kernel)."""
+        kernel.install(detectors=(self._detector,))
 
 
 def onset_candidates(change_point: int, k: int, first: int, before: int,

@@ -22,12 +22,14 @@ Gu_j = -(M's u_j columns) = v^T Hc on actuator j.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from canfdi.core.design import Design
 from canfdi.core.parity import parity_matrices
 
-__all__ = ["ResidualBank"]
+__all__ = ["ResidualBank", "fir_rows"]
 
 
 class ResidualBank:
@@ -88,11 +90,13 @@ class ResidualBank:
         scale = np.abs(coef).reshape(m, -1).max(axis=1)
         coef[np.abs(coef) <= 1e-12 * scale[:, None, None]] = 0.0
         self.M = coef.reshape(m, (S + 1) * width)
-        self._blocks_T = np.ascontiguousarray(coef.transpose(1, 2, 0))  # (S+1, q+p, m)
+        self.blocks = np.ascontiguousarray(coef.transpose(1, 2, 0))  # (S+1, q+p, m)
         # Which entries each residual reads: a missing one there makes the residual missing.
         uses = (coef != 0).astype(float)
         self._uses = uses.reshape(m, (S + 1) * width)
-        self._uses_T = np.ascontiguousarray(uses.transpose(1, 2, 0))
+        self.uses = np.ascontiguousarray(uses.transpose(1, 2, 0))  # (S+1, q+p, m), 0 or 1
+        # The block form's kernel (canfdi.core.kernel): the numpy reference unless set.
+        self.fir_rows: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] = fir_rows
         self.Gz = np.ascontiguousarray(coef[:, :, :q].transpose(2, 0, 1))
         self.Gu = np.ascontiguousarray(-coef[:, :, q:].transpose(2, 0, 1))
         self._ring = np.full((S + 1, width), np.nan)
@@ -160,18 +164,28 @@ class ResidualBank:
         """
         if len(x) <= self.S:
             return np.zeros((0, self.m))
-        missing = np.isnan(x)
-        if missing.any():
-            out = self._fir(np.where(missing, 0.0, x), self._blocks_T)
-            out[self._fir(missing.astype(float), self._uses_T) > 0] = np.nan
-            return out
-        return self._fir(x, self._blocks_T)
+        return self.fir_rows(x, self.blocks, self.uses)
 
-    def _fir(self, x: np.ndarray, blocks: np.ndarray) -> np.ndarray:
-        # M w(k) split by window position: sum over l of x(k - S + l) M_l^T, S+1 thin products
-        # over the whole record instead of copying every window into a ((S+1)(q+p))-wide row.
-        n = len(x) - self.S
-        out = x[: n] @ blocks[0]
-        for lag in range(1, self.S + 1):
-            out += x[lag : lag + n] @ blocks[lag]
+
+def fir_rows(x: np.ndarray, blocks: np.ndarray, uses: np.ndarray) -> np.ndarray:
+    """(N - S, m) the residuals of every full window of x (N, q+p), NaN missing: row j is
+    sum_l x(j + l) blocks[l], NaN where a residual reads a missing value (uses (S+1, q+p, m),
+    1 where it reads an entry). The numpy reference of the kernels' block form
+    (canfdi.core.kernel); N > S."""
+    missing = np.isnan(x)
+    if missing.any():
+        out = _fir(np.where(missing, 0.0, x), blocks)
+        out[_fir(missing.astype(float), uses) > 0] = np.nan
         return out
+    return _fir(x, blocks)
+
+
+def _fir(x: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+    # M w(k) split by window position: sum over l of x(k - S + l) M_l^T, S+1 thin products
+    # over the whole record instead of copying every window into a ((S+1)(q+p))-wide row.
+    S = len(blocks) - 1
+    n = len(x) - S
+    out = x[:n] @ blocks[0]
+    for lag in range(1, S + 1):
+        out += x[lag: lag + n] @ blocks[lag]
+    return out

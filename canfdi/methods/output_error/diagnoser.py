@@ -508,7 +508,8 @@ class OutputErrorDiagnoser(DetectorBacked):
         j, or the row of the alarm, which ``update`` then takes."""
         before = self._snapshot()
         res, rn = self._residuals(k[i:j], U[i:j], Z[i:j])
-        ph, done = self._detector.update_block(k[i:j], rn)
+        blk = self._detector.update_block(k[i:j], rn)
+        done = blk.done
         alarmed = done < j - i
         if alarmed:
             # Redo the models up to the alarm row only: update() takes the alarm sample.
@@ -516,7 +517,7 @@ class OutputErrorDiagnoser(DetectorBacked):
             if done:
                 self._residuals(k[i:i + done], U[i:i + done], Z[i:i + done])
         if done > 0:
-            rows.stat[i: i + done] = np.maximum(ph.g_up[:done], ph.g_down[:done])
+            rows.stat[i: i + done] = np.maximum(blk.g_up[:done], blk.g_down[:done])
             rows.R[i: i + done] = res[:done]
             rows.Rn[i: i + done] = rn[:done]
             have = ~np.isnan(rn[:done]).all(axis=1)

@@ -316,6 +316,11 @@ class ParityDiagnoser(DetectorBacked):
     def residual_names(self) -> list[str]:
         return self.bank.names
 
+    def use_kernel(self, kernel) -> None:
+        """Run the residual bank's and the detector's block forms on ``kernel``
+        (canfdi.core.kernel.Kernel)."""
+        kernel.install(bank=self.bank, detectors=(self._detector,))
+
     @property
     def noise_scale(self) -> np.ndarray:
         """(m,) each residual's noise over the design's (settable: the noise watchdog widens
@@ -378,10 +383,11 @@ class ParityDiagnoser(DetectorBacked):
                 cap = int(reach[0])
             if cap == 0:
                 return i
-        ph, done = self._detector.update_block(k[i: i + cap], rn[:cap])
+        blk = self._detector.update_block(k[i: i + cap], rn[:cap])
+        done = blk.done
         if done > 0:
             m = self.bank.m
-            rows.stat[i: i + done] = np.maximum(ph.g_up[:done, :m], ph.g_down[:done, :m])
+            rows.stat[i: i + done] = np.maximum(blk.g_up[:done, :m], blk.g_down[:done, :m])
             rows.R[i: i + done] = res[:done]
             rows.Rn[i: i + done] = rn[:done]
             # Bring the streaming state up to date with rows i..i+done-1.

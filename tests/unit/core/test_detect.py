@@ -428,13 +428,14 @@ def test_change_point_detector_block_form_leaves_the_streaming_state():
     k = np.arange(1000, 1400)
     h = np.array([40.0, 8.0, 40.0])
     block, stream = ChangePointDetector(3, 0.5, h), ChangePointDetector(3, 0.5, h)
-    ph, done = block.update_block(k, rn)
-    assert 300 < done < 320 and ph.alarms[done].any() and not ph.alarms[:done].any()
+    blk = block.update_block(k, rn)
+    done = blk.done
+    assert 300 < done < 320 and blk.alarm.any() and len(blk.g_up) == done + 1
     for r in range(done):
         assert not stream.update(int(k[r]), rn[r]).any()
     np.testing.assert_array_equal(change_points(block, 3), change_points(stream, 3))
     alarm = block.update(int(k[done]), rn[done])
-    np.testing.assert_array_equal(alarm, ph.alarms[done])
+    np.testing.assert_array_equal(alarm, blk.alarm)
     np.testing.assert_array_equal(stream.update(int(k[done]), rn[done]), alarm)
     assert alarm[1] == 1 and abs(stream.change_point(alarm) - 1300) <= 5
     assert block.change_point(alarm) == stream.change_point(alarm)
@@ -475,9 +476,10 @@ def test_change_point_detector_with_projections_block_and_stream_agree():
     args = (3, 0.5, np.full(3, 40.0))
     kw = {"projection": proj, "drifts": [0.25, 0.5], "h_projected": [12.0, 10.0]}
     block, stream = ChangePointDetector(*args, **kw), ChangePointDetector(*args, **kw)
-    ph, done = block.update_block(k, rn)
-    assert ph.alarms.shape == (600, 5) and 400 < done < 600
-    assert not ph.alarms[done, :3].any() and ph.alarms[done, 3:].any()  # the sum saw it
+    blk = block.update_block(k, rn)
+    done = blk.done
+    assert blk.g_up.shape == (done + 1, 5) and 400 < done < 600
+    assert not blk.alarm[:3].any() and blk.alarm[3:].any()  # the sum saw it
     for r in range(done):
         stream.update(int(k[r]), rn[r])
     np.testing.assert_array_equal(change_points(block, 5), change_points(stream, 5))

@@ -1,0 +1,140 @@
+"""The kernels the monitor's hot path runs on, chosen by name here and nowhere else.
+
+- ``python``: the numpy reference (canfdi.core.residuals.fir_rows,
+  canfdi.core.detect.change_point_block).
+- ``c``: the C core (canfdi/_c, built as canfdi._ckernel by the package's own build where a
+  compiler exists): the same functions over the same arrays. The detector's statistics are
+  numpy's bit for bit (the same closed form, op for op); the residuals agree to rounding
+  (numpy's BLAS may order or fuse a row's sum otherwise).
+
+A diagnoser takes a kernel by name (its ``kernel`` property, canfdi.core.protocol), which
+installs the kernel's functions on its residual bank and detectors (`Kernel.install`). The
+command line resolves the name (`resolve`): ``--kernel``, else CANFDI_KERNEL, else ``c`` where
+built.
+
+Examples
+--------
+>>> get("python").name, "python" in available()
+('python', True)
+>>> try:
+...     get("fortran")
+... except KernelError as exc:
+...     print(exc)
+kernel: expected one of c, python, got 'fortran'
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from canfdi.core.detect import ChangePointBlock, change_point_block
+from canfdi.core.residuals import fir_rows
+
+__all__ = ["ENV", "Kernel", "KernelError", "available", "get", "resolve"]
+
+ENV = "CANFDI_KERNEL"
+
+try:  # built by setup.py where a compiler was found at install; optional by design
+    from canfdi import _ckernel
+except ImportError:  # pragma: no cover - exercised by the no-compiler install check
+    _ckernel = None
+
+
+class KernelError(ValueError):
+    """A kernel name that is not one, or one not built in this install."""
+
+
+@dataclass(frozen=True)
+class Kernel:
+    """One kernel: its name and its block functions (the signatures of the numpy ones)."""
+
+    name: str
+    fir_rows: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+    change_point_block: Callable[..., ChangePointBlock]
+
+    def install(self, *, bank: Any = None, detectors: tuple[Any, ...] = ()) -> None:
+        """Make ``bank`` (a ResidualBank) and ``detectors`` (ChangePointDetector) run on this
+        kernel."""
+        if bank is not None:
+            bank.fir_rows = self.fir_rows
+        for det in detectors:
+            det.block = self.change_point_block
+
+    def use_on(self, diagnoser: Any) -> Any:
+        """``diagnoser`` (a method's) with its block forms on this kernel, where it has any
+        to speed up (its ``use_kernel``); returned for chaining."""
+        use = getattr(diagnoser, "use_kernel", None)
+        if use is not None:
+            use(self)
+        return diagnoser
+
+
+def _c_fir_rows(x: np.ndarray, blocks: np.ndarray, uses: np.ndarray) -> np.ndarray:
+    """fir_rows in C (cfdi_fir_block)."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    S1, width, m = blocks.shape
+    if x.ndim != 2 or x.shape[1] != width:
+        raise ValueError(f"x: expected shape (N, {width}), got {x.shape}")
+    out = np.empty((len(x) - S1 + 1, m))
+    _ckernel.fir_block(x, len(x), width, np.ascontiguousarray(blocks, dtype=np.float64),
+                       _as_u8(uses), S1 - 1, m, out)
+    return out
+
+
+def _as_u8(uses: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(uses != 0, dtype=np.uint8)
+
+
+def _c_change_point_block(k: np.ndarray, x: np.ndarray, delta: np.ndarray, h: np.ndarray,
+                          state: np.ndarray, last_zero: np.ndarray) -> ChangePointBlock:
+    """change_point_block in C (cfdi_ph_block)."""
+    k = np.ascontiguousarray(k, dtype=np.int64)
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    n, c = x.shape
+    if k.shape != (n,):
+        raise ValueError(f"k: expected shape ({n},), got {k.shape}")
+    st = np.array(state, dtype=np.float64, order="C").reshape(c, 2)
+    lz = np.array(last_zero, dtype=np.int64, order="C").reshape(c, 2)
+    g_up, g_down = np.empty((n, c)), np.empty((n, c))
+    alarm = np.zeros(c, dtype=np.int8)
+    done = _ckernel.ph_block(k, x, n, c, np.ascontiguousarray(delta, dtype=np.float64),
+                             np.ascontiguousarray(h, dtype=np.float64), st, lz, g_up, g_down,
+                             alarm)
+    rows = min(done + 1, n)
+    return ChangePointBlock(done, g_up[:rows], g_down[:rows], alarm, st, lz)
+
+
+_KERNELS: dict[str, Kernel | None] = {
+    "c": None if _ckernel is None else Kernel("c", _c_fir_rows, _c_change_point_block),
+    "python": Kernel("python", fir_rows, change_point_block),
+}
+
+
+def available() -> list[str]:
+    """The kernels built in this install, by name."""
+    return sorted(name for name, k in _KERNELS.items() if k is not None)
+
+
+def get(name: str) -> Kernel:
+    """The kernel ``name``; KernelError when it is none, or not built here."""
+    if name not in _KERNELS:
+        raise KernelError(f"kernel: expected one of {', '.join(sorted(_KERNELS))}, "
+                          f"got {name!r}")
+    kernel = _KERNELS[name]
+    if kernel is None:
+        raise KernelError(f"kernel {name}: not built in this install (no C compiler when "
+                          f"canfdi was installed); use --kernel python")
+    return kernel
+
+
+def resolve(choice: str | None = None, env: Mapping[str, str] | None = None) -> Kernel:
+    """The kernel a command runs on: ``choice`` (its --kernel), else the environment's
+    CANFDI_KERNEL, else ``c`` where built, else ``python``."""
+    env = os.environ if env is None else env
+    name = choice or env.get(ENV) or ("c" if _KERNELS["c"] is not None else "python")
+    return get(name)

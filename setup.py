@@ -1,0 +1,16 @@
+"""The package's one compiled part, canfdi._ckernel (the C core in canfdi/_c), as an optional
+setuptools Extension: where no compiler exists the build goes on without it and the numpy
+kernel runs (everything else is in pyproject.toml)."""
+from setuptools import Extension, setup
+
+setup(ext_modules=[Extension(
+    "canfdi._ckernel",
+    sources=["canfdi/_c/_kernel.c", "canfdi/_c/bank.c", "canfdi/_c/detect.c"],
+    depends=["canfdi/_c/cfdi.h"],
+    include_dirs=["canfdi/_c"],
+    define_macros=[("Py_LIMITED_API", "0x030B0000")],
+    py_limited_api=True,
+    extra_compile_args=["-std=c99", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off",
+                        "-fno-strict-aliasing"],
+    optional=True,
+)])

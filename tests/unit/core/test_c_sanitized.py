@@ -1,0 +1,98 @@
+"""The C core built alone with -std=c99 -pedantic -Werror under AddressSanitizer and
+UndefinedBehaviorSanitizer (any out-of-bounds access or undefined operation aborts), run on
+the cases of test_kernel.py and hostile sizes, its results against the numpy reference."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from canfdi.core.detect import change_point_block
+from canfdi.core.residuals import fir_rows
+from tests.conftest import REPO
+from tests.unit.core.test_kernel import _bank_case, _detector_case
+
+CORE = REPO / "canfdi" / "_c"
+DRIVER = Path(__file__).parent / "c" / "sanitized_main.c"
+CC = shutil.which("gcc") or shutil.which("cc")
+FLAGS = ["-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off", "-g",
+         "-O1", "-fsanitize=address,undefined", "-fno-sanitize-recover=all",
+         "-fno-omit-frame-pointer"]
+
+pytestmark = pytest.mark.skipif(CC is None, reason="no C compiler (gcc or cc) on the PATH")
+
+
+@pytest.fixture(scope="module")
+def driver(tmp_path_factory) -> Path:
+    exe = tmp_path_factory.mktemp("csan") / "sanitized"
+    res = subprocess.run([CC, *FLAGS, f"-I{CORE}", str(DRIVER), str(CORE / "bank.c"),
+                          str(CORE / "detect.c"), "-lm", "-o", str(exe)],
+                         capture_output=True, text=True, timeout=300)
+    if res.returncode != 0 and "asan" in res.stderr.lower():
+        pytest.skip(f"the compiler has no sanitizer runtime: {res.stderr.strip()[:200]}")
+    assert res.returncode == 0, res.stderr
+    return exe
+
+
+def _run(exe: Path, mode: str, payload: bytes) -> bytes:
+    res = subprocess.run([str(exe), mode], input=payload, capture_output=True, timeout=120)
+    assert res.returncode == 0, res.stderr.decode(errors="replace")[-2000:]
+    return res.stdout
+
+
+def _i64(*values: int) -> bytes:
+    return np.array(values, dtype=np.int64).tobytes()
+
+
+@pytest.mark.parametrize(("S", "width", "m", "rows", "lost"),
+                         [(0, 1, 1, 1, 0.0), (4, 6, 5, 300, 0.0), (8, 9, 12, 400, 0.02),
+                          (10, 4, 2, 11, 1.0)])
+def test_residuals_under_the_sanitizers_are_numpys(driver, S, width, m, rows, lost):
+    x, blocks, uses = _bank_case(np.random.default_rng(S * 100 + width), S, width, m, rows, lost)
+    out = _run(driver, "f", _i64(rows, width, S, m) + x.tobytes() + blocks.tobytes()
+               + (uses != 0).astype(np.uint8).tobytes())
+    assert np.frombuffer(out[:8], np.int64)[0] == 0
+    got = np.frombuffer(out[8:], np.float64).reshape(rows - S, m)
+    ref = fir_rows(x, blocks, uses)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * np.nanmax(np.abs(ref),
+                                                                             initial=1.0))
+
+
+def test_sizes_that_do_not_fit_are_a_status_not_a_crash(driver):
+    """rows <= S and zero widths come back as a negative status, nothing read past the
+    buffers the sizes describe."""
+    for rows, width, S, m in [(3, 2, 3, 1), (0, 2, 0, 1), (5, 0, 1, 1), (5, 1, 1, 0)]:
+        x = np.zeros(rows * width)
+        coef = np.zeros((S + 1) * width * m)
+        out = _run(driver, "f", _i64(rows, width, S, m) + x.tobytes() + coef.tobytes()
+                   + np.zeros(coef.size, np.uint8).tobytes())
+        assert np.frombuffer(out[:8], np.int64)[0] < 0, (rows, width, S, m)
+
+
+@pytest.mark.parametrize(("n", "c", "lost", "jump_at"),
+                         [(0, 1, 0.0, None), (1, 3, 0.0, None), (500, 4, 0.05, 300),
+                          (9000, 2, 0.0, 8500), (200, 6, 1.0, None)])
+def test_page_hinkley_under_the_sanitizers_is_numpys_bit_for_bit(driver, n, c, lost, jump_at):
+    k, x, delta, h, state, last_zero = _detector_case(np.random.default_rng(n + c), n, c, lost,
+                                                      jump_at)
+    out = _run(driver, "p", _i64(n, c) + k.astype(np.int64).tobytes() + x.tobytes()
+               + delta.tobytes() + h.tobytes() + state.tobytes()
+               + last_zero.astype(np.int64).tobytes())
+    ref = change_point_block(k, x, delta, h, state, last_zero)
+    status, done = np.frombuffer(out[:16], np.int64)
+    assert status == 0 and done == ref.done
+    rows = len(ref.g_up)
+    at = 16
+    for name, dtype, count in (("g_up", np.float64, rows * c), ("g_down", np.float64, rows * c),
+                               ("alarm", np.int8, c), ("state", np.float64, 2 * c),
+                               ("last_zero", np.int64, 2 * c)):
+        size = np.dtype(dtype).itemsize * count
+        got = np.frombuffer(out[at: at + size], dtype)
+        np.testing.assert_array_equal(got, np.asarray(getattr(ref, name)).ravel(), err_msg=name)
+        at += size
+    assert at == len(out)
