@@ -42,8 +42,9 @@ def console() -> None:
         # Answered before the verbs' modules (numpy, scipy, python-can) are imported: a
         # supervisor's or a packager's version check takes milliseconds, not a second.
         from canfdi import __version__
+        from canfdi.core.kernelchoice import version_line
 
-        print(f"canfdi {__version__}")
+        print(f"canfdi {__version__}\n{version_line()}")
         sys.exit(0)
     _guarded("canfdi", "canfdi.cli")
 

@@ -12,6 +12,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from canfdi import __version__
 from canfdi.cli import bench, capture, dbc, demo, design, export, replay, report, run, sim, soak
+from canfdi.core.kernelchoice import version_line
 
 # isort: split
 from canfdi.cli import identify  # the output_error method's model fitting (the output-error paper)
@@ -39,11 +40,12 @@ VERBS = {
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="canfdi",
+        prog="canfdi", formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Model-based fault detection, isolation and identification on CAN buses "
                     "with fully decoupled parity equations.",
     )
-    parser.add_argument("--version", action="version", version=f"canfdi {__version__}")
+    parser.add_argument("--version", action="version",
+                        version=f"canfdi {__version__}\n{version_line()}")
     sub = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
     for module in VERBS.values():
         module.add_parser(sub)

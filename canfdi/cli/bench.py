@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from canfdi.cli.common import config_error, load_config_or_exit
+from canfdi.cli.common import add_kernel_option, config_error, kernel_or_exit, load_config_or_exit
 from canfdi.configs import CONFIG_DIR
 
 DAEMON_BUS = ("udp_multicast", "239.74.163.2")
@@ -72,6 +72,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="measure throughput, latency, decode, capture, replay",
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_kernel_option(p)
     p.add_argument("--quick", action="store_true", help="a short run (about 10^5 frames)")
     p.add_argument("--frames", type=int, metavar="N",
                    help="frames for the throughput run (default 10^6, 10^5 with --quick)")
@@ -112,6 +113,9 @@ def run(args: argparse.Namespace) -> int:
     config = load_config_or_exit(args.config, "bench")
     if isinstance(config, int):
         return config
+    kernel = kernel_or_exit(args, "bench")
+    if isinstance(kernel, int):
+        return kernel
     if args.fleet is not None:
         return _fleet(args)
     frames = args.frames or (100_000 if args.quick else 1_000_000)
@@ -146,7 +150,8 @@ def run(args: argparse.Namespace) -> int:
         result = run_bench(config, frames=frames, quick=args.quick, progress=progress,
                            scenario=scenario, faulty=faulty, identify=identify,
                            identify_config=CONFIG_DIR / "servo_axis_odrive.yaml",
-                           daemon_bus=None if args.no_daemon else tuple(args.daemon_bus))
+                           daemon_bus=None if args.no_daemon else tuple(args.daemon_bus),
+                           kernel=kernel)
     except ValueError as exc:
         return config_error(exc, "bench")
     result["elapsed_s"] = time.monotonic() - start
@@ -181,10 +186,16 @@ def run(args: argparse.Namespace) -> int:
                      f"{' on one core' if r['identify_one_core'] else ''} "
                      f"({r['identify_cpu_s']:.1f} CPU s; {r['identify_path']})"),
     ]
+    rows += [(f"kernel {name}" + (" (measured)" if name == r["kernel"] else ""),
+              f"{k['monitor_fps']:,.0f} frames/s monitoring "
+              f"({k['monitor_cpu_s_per_1e6_frames']:.2f} CPU s per 10^6), "
+              f"{k['faulty_fps']:,.0f} frames/s diagnosing ({k['faults']:.0f} faults)")
+             for name, k in r["kernels"].items()]
     rows += _daemon_rows(r)
     for name, value in rows:
         print(f"{name:<26}{value}")
-    print(f"({r['frames']:,} frames of {r['scenario']}, {r['elapsed_s']:.0f} s)")
+    print(f"({r['frames']:,} frames of {r['scenario']}, {r['elapsed_s']:.0f} s; kernel "
+          f"{r['kernel']})")
     return 0
 
 

@@ -10,9 +10,11 @@ from pathlib import Path
 
 from canfdi.cli.common import (
     add_bus_overrides,
+    add_kernel_option,
     add_retry_option,
     bus_request,
     fail,
+    kernel_or_exit,
     load_config_or_exit,
 )
 from canfdi.tools.session import (
@@ -40,6 +42,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", required=True, type=Path, metavar="FILE", help="monitor config")
     p.add_argument("-o", "--output", required=True, type=Path, metavar="OUT.mcap")
+    add_kernel_option(p)
     add_bus_overrides(p)
     add_retry_option(p)
     p.add_argument("--duration", type=float, metavar="T", help="stop after T seconds")
@@ -52,9 +55,13 @@ def run(args: argparse.Namespace) -> int:
     config = load_config_or_exit(args.config, "capture")
     if isinstance(config, int):
         return config
+    kernel = kernel_or_exit(args, "capture")
+    if isinstance(kernel, int):
+        return kernel
     try:
         session = open_session(config, "capture", diagnose=False, bus=bus_request(args),
-                               filters=False, recording=Recording(args.output, log_lines=False))
+                               filters=False, recording=Recording(args.output, log_lines=False),
+                               kernel=kernel)
     except SessionError as exc:
         return fail("capture", exc.message, exc.status)
     except CannotRecord as exc:

@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING
 
 from canfdi.core.eventtext import estimates_text
 from canfdi.core.eventtext import event_line as format_event
+from canfdi.core.kernel import Kernel, KernelError
+from canfdi.core.kernel import resolve as resolve_kernel
 from canfdi.tools.session import BusRequest
 
 if TYPE_CHECKING:
@@ -20,11 +22,13 @@ __all__ = [
     "RETRY_FOR_S",
     "add_bus_overrides",
     "add_foxglove_option",
+    "add_kernel_option",
     "add_retry_option",
     "bus_request",
     "config_error",
     "fail",
     "format_event",
+    "kernel_or_exit",
     "load_config_or_exit",
     "print_comparison",
     "say",
@@ -91,6 +95,23 @@ def fail(verb: str, message: str, status: int = 2) -> int:
     """``status`` after one line ``canfdi VERB: MESSAGE`` on stderr."""
     print(f"canfdi {verb}: {message}", file=sys.stderr)
     return status
+
+
+def add_kernel_option(p: argparse.ArgumentParser) -> None:
+    """--kernel: what the hot path (residuals and detectors) runs on."""
+    p.add_argument("--kernel", choices=("c", "python"),
+                   help="the kernel the residuals and detectors run on: c (the C core, where "
+                        "the install built it) or python (numpy, the reference); default: "
+                        "$CANFDI_KERNEL, else c where built (canfdi --version names it)")
+
+
+def kernel_or_exit(args: argparse.Namespace, verb: str) -> Kernel | int:
+    """The kernel --kernel or CANFDI_KERNEL asks for (canfdi.core.kernel.resolve), or 2 after
+    one line saying why it cannot be had."""
+    try:
+        return resolve_kernel(getattr(args, "kernel", None))
+    except KernelError as exc:
+        return fail(verb, str(exc))
 
 
 def config_error(exc: Exception, verb: str) -> int:

@@ -10,9 +10,11 @@ from pathlib import Path
 
 from canfdi.cli.common import (
     add_foxglove_option,
+    add_kernel_option,
     config_error,
     fail,
     format_event,
+    kernel_or_exit,
     load_config_or_exit,
     print_comparison,
     say,
@@ -44,6 +46,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scenario", default="dc_motor_consecutive", metavar="FILE",
                    help="scenario YAML or shipped name (default: dc_motor_consecutive)")
+    add_kernel_option(p)
     p.add_argument("--config", type=Path, metavar="FILE",
                    help="monitor config (default: the one in deploy/config/ that reads the "
                         "scenario's bus)")
@@ -68,6 +71,9 @@ def run(args: argparse.Namespace) -> int:
         return fail("demo", f"scenario error: {exc}")
     if args.speed < 0:
         return fail("demo", "--speed: must be >= 0")
+    kernel = kernel_or_exit(args, "demo")
+    if isinstance(kernel, int):
+        return kernel
     if args.config is None:
         from canfdi.tools.pairing import NoPairing, config_for
 
@@ -80,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         return config
     stop = StopEvent()
     try:
-        outcome = _play(args, scenario, config, stop)
+        outcome = _play(args, scenario, config, stop, kernel)
     except SessionError as exc:
         return fail("demo", exc.message, exc.status)
     except ValueError as exc:
@@ -99,13 +105,15 @@ def run(args: argparse.Namespace) -> int:
     return stop.exit_status
 
 
-def _play(args: argparse.Namespace, scenario, config, stop: StopEvent) -> tuple[dict, list]:
+def _play(args: argparse.Namespace, scenario, config, stop: StopEvent, kernel
+          ) -> tuple[dict, list]:
     """The demo's session, played: (the monitor's summary with the emitter's counters, the
     injected faults)."""
     quiet = args.json
     truth = demo_truth(scenario)
     session = open_session(
         config, "demo", foxglove=args.foxglove, truth=truth, notice=say("demo"),
+        kernel=kernel,
         recording=Recording(args.output) if args.output else None,
         view=scenario.name if not quiet and not args.no_live and sys.stdout.isatty() else None)
     dt = scenario.make_plant().dt

@@ -17,7 +17,12 @@ from pathlib import Path
 from typing import Any
 
 from canfdi import methods
-from canfdi.cli.common import config_error, load_config_or_exit
+from canfdi.cli.common import (
+    add_kernel_option,
+    config_error,
+    kernel_or_exit,
+    load_config_or_exit,
+)
 from canfdi.config import ConfigError
 from canfdi.configs import CONFIG_DIR
 
@@ -125,6 +130,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", type=Path, default=None, metavar="DIR",
                    help="write <plant>_<method>.png and .json into DIR")
     p.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
+    add_kernel_option(p)
     where = p.add_mutually_exclusive_group()
     where.add_argument("--jobs", type=int, metavar="N",
                        help="run on a local Dask cluster of N worker processes")
@@ -209,7 +215,7 @@ def _monitored(args: argparse.Namespace, path: Path, config, progress):
         return _fail(f"--calibrate: {exc}")
 
 
-def _evaluate(args: argparse.Namespace, chosen, progress) -> dict[str, Any] | int:
+def _evaluate(args: argparse.Namespace, chosen, progress, kernel) -> dict[str, Any] | int:
     """canfdi.tools.evaluate.evaluate of the chosen monitor, on the engine --jobs or
     --scheduler ask for; the result, or the exit status after one error line."""
     from canfdi.tools.evaluate import evaluate
@@ -222,7 +228,7 @@ def _evaluate(args: argparse.Namespace, chosen, progress) -> dict[str, Any] | in
                             noise_spread=args.noise_spread, kinds=args.kinds,
                             spacing=args.spacing, quantize=not args.no_quantize,
                             noise_scale=args.noise_scale, monitor=chosen.monitor,
-                            progress=progress, mapper=mapper)
+                            progress=progress, mapper=mapper, kernel=kernel)
     except NoDask as exc:
         return _fail(f"--jobs/--scheduler {exc}")
     except FleetError as exc:  # no scheduler there
@@ -266,10 +272,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"canfdi evaluate [{time.monotonic() - start:6.1f} s] {msg}", file=sys.stderr,
                   flush=True)
 
+    kernel = kernel_or_exit(args, "evaluate")
+    if isinstance(kernel, int):
+        return kernel
     chosen = _monitored(args, path, config, progress)
     if isinstance(chosen, int):
         return chosen
-    result = _evaluate(args, chosen, progress)
+    result = _evaluate(args, chosen, progress, kernel)
     if isinstance(result, int):
         return result
     config, calibration = chosen.drawn, chosen.calibration

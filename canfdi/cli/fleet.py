@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from canfdi.cli.common import config_error
+from canfdi.cli.common import add_kernel_option, config_error, kernel_or_exit
 
 HELP = """\
 Diagnose many logs at once: every log (any format canfdi replay reads: canfdi's MCAP, candump
@@ -73,6 +73,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--drive-pattern", metavar="REGEX",
                    help="regular expression with a group (?P<drive>...) naming a log's drive "
                         "in its path")
+    add_kernel_option(p)
     p.add_argument("-o", "--output", required=True, type=Path, metavar="OUT.parquet",
                    help="faults table; OUT.logs.parquet (per log) and OUT-report/ (HTML) "
                         "beside it")
@@ -111,11 +112,14 @@ def run(args: argparse.Namespace) -> int:
         return _fail("--jobs: at least 1 worker")
     if not args.output.name.endswith(".parquet"):
         return _fail(f"-o {args.output}: a file name ending in .parquet")
+    kernel = kernel_or_exit(args, "fleet")
+    if isinstance(kernel, int):
+        return kernel
     try:
         pattern = parse_drive_pattern(args.drive_pattern) if args.drive_pattern else None
         mapping = ConfigMap.load(args.config_map) if args.config_map is not None else None
         tasks = plan_tasks(find_logs(args.logs), config=args.config, config_map=mapping,
-                           pattern=pattern)
+                           pattern=pattern, kernel=kernel.name)
     except FleetError as exc:
         return _fail(str(exc))
     try:

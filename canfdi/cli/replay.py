@@ -10,8 +10,10 @@ import time
 from pathlib import Path
 
 from canfdi.cli.common import (
+    add_kernel_option,
     config_error,
     format_event,
+    kernel_or_exit,
     load_config_or_exit,
     print_comparison,
 )
@@ -56,6 +58,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="write the diagnosis as a live run's MCAP (for report and Foxglove)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
+    add_kernel_option(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,13 +71,16 @@ def run(args: argparse.Namespace) -> int:
                                     == args.log.resolve()):
         print(f"canfdi replay: -o {args.output}: exists (not overwritten)", file=sys.stderr)
         return 2
+    kernel = kernel_or_exit(args, "replay")
+    if isinstance(kernel, int):
+        return kernel
     with tempfile.TemporaryDirectory(prefix="canfdi-replay-") as scratch:
         config = (load_config_or_exit(args.config, "replay") if args.config is not None
                   else _recorded_config(args.log, Path(scratch)))
         if isinstance(config, int):
             return config
         try:
-            monitor = Monitor(config, record_residuals=args.output is not None)
+            monitor = Monitor(config, record_residuals=args.output is not None, kernel=kernel)
         except ValueError as exc:
             return config_error(exc, "replay")
         return _replay(args, monitor)

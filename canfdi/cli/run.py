@@ -13,10 +13,12 @@ from canfdi.bus.traffic import NO_TRAFFIC_MIN_S, NO_TRAFFIC_PERIODS, no_traffic_
 from canfdi.cli.common import (
     add_bus_overrides,
     add_foxglove_option,
+    add_kernel_option,
     add_retry_option,
     bus_request,
     fail,
     format_event,
+    kernel_or_exit,
     load_config_or_exit,
     say,
 )
@@ -69,6 +71,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", required=True, type=Path, metavar="FILE", help="monitor config")
     add_bus_overrides(p)
+    add_kernel_option(p)
     add_retry_option(p)
     p.add_argument("--no-traffic", type=float, metavar="SECONDS",
                    help="say no_traffic after this many seconds without a frame of the drives "
@@ -123,9 +126,13 @@ def run(args: argparse.Namespace) -> int:
     if isinstance(config, int):
         return config
     log = logging.getLogger("canfdi.run")
+    kernel = kernel_or_exit(args, "run")
+    if isinstance(kernel, int):
+        return kernel
     try:
         session = open_session(
-            config, "run", teach=args.teach, cache_designs=True, bus=bus_request(args),
+            config, "run", teach=args.teach, kernel=kernel, cache_designs=True,
+            bus=bus_request(args),
             filters=not args.no_filters, foxglove=args.foxglove, systemd=True,
             recording=None if args.no_record else run_recording(config, args.output,
                                                                  args.log_dir, log),

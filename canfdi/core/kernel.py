@@ -25,7 +25,6 @@ kernel: expected one of c, python, got 'fortran'
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -33,20 +32,15 @@ from typing import Any
 import numpy as np
 
 from canfdi.core.detect import ChangePointBlock, change_point_block
+from canfdi.core.kernelchoice import ENV, KernelError, choose
 from canfdi.core.residuals import fir_rows
 
 __all__ = ["ENV", "Kernel", "KernelError", "available", "get", "resolve"]
-
-ENV = "CANFDI_KERNEL"
 
 try:  # built by setup.py where a compiler was found at install; optional by design
     from canfdi import _ckernel
 except ImportError:  # pragma: no cover - exercised by the no-compiler install check
     _ckernel = None
-
-
-class KernelError(ValueError):
-    """A kernel name that is not one, or one not built in this install."""
 
 
 @dataclass(frozen=True)
@@ -122,19 +116,15 @@ def available() -> list[str]:
 
 def get(name: str) -> Kernel:
     """The kernel ``name``; KernelError when it is none, or not built here."""
-    if name not in _KERNELS:
-        raise KernelError(f"kernel: expected one of {', '.join(sorted(_KERNELS))}, "
-                          f"got {name!r}")
-    kernel = _KERNELS[name]
-    if kernel is None:
-        raise KernelError(f"kernel {name}: not built in this install (no C compiler when "
-                          f"canfdi was installed); use --kernel python")
+    kernel = _KERNELS.get(choose(name, env={}))
+    if kernel is None:  # built, yet it did not load (a broken extension)
+        raise KernelError(f"kernel {name}: canfdi._ckernel does not load here; use "
+                          f"--kernel python")
     return kernel
 
 
 def resolve(choice: str | None = None, env: Mapping[str, str] | None = None) -> Kernel:
-    """The kernel a command runs on: ``choice`` (its --kernel), else the environment's
-    CANFDI_KERNEL, else ``c`` where built, else ``python``."""
-    env = os.environ if env is None else env
-    name = choice or env.get(ENV) or ("c" if _KERNELS["c"] is not None else "python")
-    return get(name)
+    """The kernel a command runs on (canfdi.core.kernelchoice.choose): ``choice`` (its
+    --kernel), else the environment's CANFDI_KERNEL, else ``c`` where built, else
+    ``python``."""
+    return get(choose(choice, env))

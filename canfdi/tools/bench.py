@@ -22,6 +22,7 @@ import numpy as np
 from canfdi.bus.frames import FLAG_EXTENDED, FLAG_REMOTE, FrameBlock
 
 if TYPE_CHECKING:
+    from canfdi.core.kernel import Kernel
     from canfdi.firmware_sim.scenario import Scenario
 
 __all__ = ["bench_scenarios", "bus_limit", "data_lengths", "make_traffic", "run_bench",
@@ -118,7 +119,7 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
               scenario: Scenario | str = "dc_motor_nominal",
               faulty: Scenario | str = "dc_motor_consecutive",
               identify: Callable | None = None, identify_config: Path | None = None,
-              daemon_bus: tuple[str, str] | None = None) -> dict:
+              daemon_bus: tuple[str, str] | None = None, kernel: Kernel | None = None) -> dict:
     """Measure everything; returns the JSON-ready result.
 
     ``scenario`` plays the config's bus fault-free (throughput, decode, capture, replay);
@@ -126,13 +127,16 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     canfdi.tools.identify.identify, handed in by the verb (one verb's library does not import
     another's), timed with ``identify_config`` (the servo axis's) on a commissioning log of
     the servo axis (`identify_time`). ``daemon_bus`` (interface, channel): measure `canfdi
-    run` as its own process on that bus too (canfdi.tools.daemonbench)."""
+    run` as its own process on that bus too (canfdi.tools.daemonbench). ``kernel``: what the
+    monitors measured run on (canfdi.core.kernel; numpy's by default); every kernel built is
+    also timed side by side (`kernel_comparison`)."""
     from canfdi.io.writer import McapRecorder
     from canfdi.monitor import Monitor
 
     say = progress or (lambda msg: None)
     tmp = Path(workdir or tempfile.mkdtemp(prefix="canfdi-bench-"))
-    out: dict = {"frames": frames, "quick": quick}
+    out: dict = {"frames": frames, "quick": quick,
+                 "kernel": "python" if kernel is None else kernel.name}
 
     say(f"generating {frames:,} drive frames")
     traffic = make_traffic(frames, scenario)
@@ -146,7 +150,7 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
 
     # -- throughput from memory: decode -> assemble -> diagnose -> record ------------------
     say("throughput from memory (decode, assemble, diagnose, record)")
-    monitor = Monitor(config)  # calibration happens here, outside the timing
+    monitor = Monitor(config, kernel=kernel)  # calibration happens here, outside the timing
     log_path = tmp / "bench.mcap"
     recorder = McapRecorder(log_path, metadata=monitor.metadata())
     monitor.sink = recorder
@@ -179,9 +183,10 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     capturer.sink = cap_recorder
     _feed(capturer, traffic)
     cap_recorder.close()
-    out.update(_replay_rates(config, capture_path, "replay", runs=3 if quick else 5,
+    out.update(_replay_rates(config, capture_path, "replay", kernel, runs=3 if quick else 5,
                              one_core=True))
-    out.update(_replay_rates(config, log_path, "replay_monitor_log", runs=1, one_core=False))
+    out.update(_replay_rates(config, log_path, "replay_monitor_log", kernel, runs=1,
+                             one_core=False))
 
     # -- decode: ours (vectorised, precompiled) against cantools --------------------------
     say("decode: canfdi against cantools")
@@ -240,9 +245,12 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
 
     # -- over the virtual bus, and latency at 50 % load --------------------------------------
     say("over python-can's virtual bus")
-    out.update(_virtual_bus(config, traffic, sub))
+    out.update(_virtual_bus(config, traffic, sub, kernel))
     say("latency at 50% bus load")
-    out.update(_latency(config, plain, faulty, seconds=2.0 if quick else 6.0))
+    out.update(_latency(config, plain, faulty, seconds=2.0 if quick else 6.0, kernel=kernel))
+    say("the kernels side by side")
+    out["kernels"] = kernel_comparison(config, traffic, make_traffic(min(n, 200_000), faulty),
+                                       repeats=3)
     if identify is not None and identify_config is not None:
         minutes = 2.0 if quick else 10.0
         say(f"identify: {minutes:g} minutes of a 100 Hz drive, on one core")
@@ -303,7 +311,8 @@ def identify_time(identify: Callable, config_path: Path, workdir: Path, minutes:
             "identify_path": found["path"]}
 
 
-def _replay_rates(config, path: Path, key: str, runs: int, one_core: bool) -> dict:
+def _replay_rates(config, path: Path, key: str, kernel: Kernel | None, runs: int,
+                  one_core: bool) -> dict:
     """`canfdi replay`'s block path over a log (read, decode, assemble, residuals, detection,
     diagnosis; no recording), the median of ``runs`` runs: samples/s on every core this
     process may use (the log is read ahead on a second one), samples per CPU second of
@@ -313,7 +322,7 @@ def _replay_rates(config, path: Path, key: str, runs: int, one_core: bool) -> di
     from canfdi.monitor import Monitor
 
     def once() -> tuple[float, float, int]:
-        replayer = Monitor(config, record_residuals=False)  # built outside the timing
+        replayer = Monitor(config, record_residuals=False, kernel=kernel)  # outside the timing
 
         def replay() -> None:
             for block in frame_blocks(path):
@@ -342,7 +351,34 @@ def _replay_rates(config, path: Path, key: str, runs: int, one_core: bool) -> di
     return out
 
 
-def _virtual_bus(config, traffic: FrameBlock, count: int) -> dict:
+def kernel_comparison(config, nominal: FrameBlock, faulty: FrameBlock, repeats: int = 3
+                      ) -> dict[str, dict[str, float]]:
+    """Every kernel built, timed side by side on the same frames (best of ``repeats``,
+    interleaved, as one shared machine's load swings one timing): decode, assemble and
+    diagnose from memory, no recording, on ``nominal`` (monitoring) and ``faulty`` (with
+    diagnoses). {kernel: {"monitor_fps", "monitor_cpu_s_per_1e6_frames", "faulty_fps",
+    "faults"}}."""
+    from canfdi.core import kernel as kernels
+    from canfdi.monitor import Monitor
+
+    best: dict[str, dict[str, float]] = {}
+    for _ in range(repeats):
+        for name in kernels.available():
+            row = best.setdefault(name, {"monitor_fps": 0.0, "faulty_fps": 0.0,
+                                         "monitor_cpu_s_per_1e6_frames": math.inf})
+            for key, traffic in (("monitor", nominal), ("faulty", faulty)):
+                monitor = Monitor(config, record_residuals=False, kernel=kernels.get(name))
+                wall, cpu = _timed(lambda m=monitor, t=traffic: (_feed(m, t), m.finish()))
+                row[f"{key}_fps"] = max(row[f"{key}_fps"], traffic.size / wall)
+                if key == "monitor":
+                    row["monitor_cpu_s_per_1e6_frames"] = min(
+                        row["monitor_cpu_s_per_1e6_frames"], cpu / traffic.size * 1e6)
+                else:
+                    row["faults"] = float(sum(e.kind == "accepted" for e in monitor.events))
+    return best
+
+
+def _virtual_bus(config, traffic: FrameBlock, count: int, kernel: Kernel | None = None) -> dict:
     """Frames/s the service consumes from a virtual bus fed as fast as python-can sends."""
     import can
 
@@ -351,7 +387,7 @@ def _virtual_bus(config, traffic: FrameBlock, count: int) -> dict:
 
     channel = f"canfdi-bench-{os.getpid()}"
     messages = traffic.to_messages(count)
-    monitor = Monitor(config)
+    monitor = Monitor(config, kernel=kernel)
 
     async def main() -> float:
         stop = asyncio.Event()
@@ -382,7 +418,8 @@ def _virtual_bus(config, traffic: FrameBlock, count: int) -> dict:
     return {"virtual_bus_fps": len(messages) / wall}
 
 
-def _latency(config, bus_fps: float, faulty: Scenario | str, seconds: float) -> dict:
+def _latency(config, bus_fps: float, faulty: Scenario | str, seconds: float,
+             kernel: Kernel | None = None) -> dict:
     """The live service's reaction time at 50 % of the bus limit.
 
     The faulty scenario's frames are delivered to the service at their scheduled
@@ -403,7 +440,7 @@ def _latency(config, bus_fps: float, faulty: Scenario | str, seconds: float) -> 
     messages = traffic.to_messages()
     channel = f"canfdi-latency-{os.getpid()}"
     latencies: list[int] = []
-    monitor = Monitor(config)
+    monitor = Monitor(config, kernel=kernel)
     sent_before = {}
 
     async def main() -> None:

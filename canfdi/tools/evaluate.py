@@ -49,6 +49,7 @@ from canfdi.methods.parity.thresholds import long_run_covariance
 
 if TYPE_CHECKING:
     from canfdi.core.design import Design
+    from canfdi.core.kernel import Kernel
     from canfdi.core.settings import MonitorConfig
 
 __all__ = [
@@ -969,14 +970,16 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
              quantize: bool = True, noise_scale: float = 1.0,
              monitor: MonitorConfig | None = None,
              progress: Callable[[str], None] = lambda msg: None,
-             mapper: Mapper | None = None) -> dict[str, Any]:
+             mapper: Mapper | None = None, kernel: Kernel | None = None) -> dict[str, Any]:
     """`canfdi evaluate`: plan ``runs`` scenarios for the emulated ``plant``, simulate each,
     diagnose it with a copy of the config's diagnoser and aggregate the metrics (the JSON
     object the CLI prints). kinds default to the config's method's fault model; values are
     rounded to the DBC's resolution unless ``quantize`` is False. ``noise_scale``: the drive's
     noise is that many times the config's (the scenarios come from ``config``); ``monitor``:
     the config of the monitor evaluated, when it is not ``config`` (one calibrated on the
-    drive, say); ``mapper``: how the runs are spread (`Mapper`; default here, one by one)."""
+    drive, say); ``mapper``: how the runs are spread (`Mapper`; default here, one by one);
+    ``kernel``: what the diagnoser's block forms run on (canfdi.core.kernel; numpy's by
+    default)."""
     from canfdi.bus.dbc import BusMap
     from canfdi.methods import build_diagnoser, get
 
@@ -986,6 +989,8 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
     specs = plan_runs(setup, runs, seed, max_faults=max_faults, fnr_range=tuple(fnr),
                       noise_spread=noise_spread, kinds=kinds, noise_scale=noise_scale)
     base = build_diagnoser(monitor or config)
+    if kernel is not None:
+        kernel.use_on(base)
     preprocess = None
     if quantize:
         try:
@@ -1001,6 +1006,7 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
     metrics = aggregate(outcomes, setup.dt, false_alarm_interval=interval)
     result: dict[str, Any] = {
         "plant": plant, "method": config.method, "seed": seed,
+        "kernel": "python" if kernel is None else kernel.name,
         "settings": {"max_faults": max_faults, "fnr_range": list(fnr),
                      "noise_spread": noise_spread, "noise_scale": noise_scale,
                      "kinds": kinds,

@@ -274,12 +274,14 @@ class ConfigMap:
 @dataclass(frozen=True)
 class LogTask:
     """One log to diagnose: its path (absolute, as the workers open it), its name in the
-    tables (as given), its drive and its config file (absolute)."""
+    tables (as given), its drive, its config file (absolute) and the kernel its monitor runs
+    on (canfdi.core.kernel, by name: a worker resolves it)."""
 
     path: str
     log: str
     drive: str
     config: str
+    kernel: str = "python"
 
 
 def check_configs(paths: Sequence[str | Path]) -> None:
@@ -300,9 +302,10 @@ def check_configs(paths: Sequence[str | Path]) -> None:
 
 def plan_tasks(logs: Sequence[tuple[Path, Path | None]], *, config: Path | None = None,
                config_map: ConfigMap | None = None,
-               pattern: re.Pattern[str] | None = None) -> list[LogTask]:
+               pattern: re.Pattern[str] | None = None, kernel: str = "python"
+               ) -> list[LogTask]:
     """One task per log of `find_logs`: its drive (`drive_of`) and its config (``config`` for
-    all, else the first rule of ``config_map`` that matches it).
+    all, else the first rule of ``config_map`` that matches it), run on ``kernel``.
 
     Raises
     ------
@@ -319,7 +322,7 @@ def plan_tasks(logs: Sequence[tuple[Path, Path | None]], *, config: Path | None 
             unmatched.append(path)
             continue
         tasks.append(LogTask(str(path.resolve()), str(path), drive_of(path, root, pattern),
-                             str(Path(cfg).resolve())))
+                             str(Path(cfg).resolve()), kernel))
     if unmatched:
         more = f" and {len(unmatched) - 1} more" if len(unmatched) > 1 else ""
         raise FleetError(f"--config-map {config_map.source}: no pattern matches "
@@ -451,14 +454,15 @@ def _config(path: str) -> MonitorConfig:
 
 
 @functools.lru_cache(maxsize=16)
-def _pristine(path: str) -> Monitor:
+def _pristine(path: str, kernel: str = "python") -> Monitor:
     """A Monitor of a config as built, never fed: a worker builds one per config (the DBC
     parsed, the design and its thresholds computed: 36 ms for the DC motor, a third of a
     5-minute log's diagnosis) and gives each log a deep copy of it (2 ms), which is the state
     of a Monitor built afresh, as `canfdi replay` builds it."""
+    from canfdi.core.kernel import get
     from canfdi.monitor import Monitor
 
-    return Monitor(_config(path), record_residuals=False)
+    return Monitor(_config(path), record_residuals=False, kernel=get(kernel))
 
 
 def fault_rows(events: Iterable[FaultEvent], *, drive: str, log: str, log_start: int | None,
@@ -532,7 +536,7 @@ def diagnose_log(task: LogTask) -> LogResult:
     start = time.perf_counter()
     stats = LogStats()
     try:
-        monitor = copy.deepcopy(_pristine(task.config))
+        monitor = copy.deepcopy(_pristine(task.config, task.kernel))
         monitor.sink, monitor.record_residuals = stats, True
         config = monitor.config
         replayed = replay_log(monitor, task.path)
@@ -793,13 +797,13 @@ def task_mapper(jobs: int | None, scheduler: str | None
         yield functools.partial(map_tasks, client)
 
 
-def warm_up(configs: Sequence[str]) -> None:
-    """Build the Monitor of each config once in this process (`_pristine`: its design and
+def warm_up(configs: Sequence[tuple[str, str]]) -> None:
+    """Build the Monitor of each (config, kernel) once in this process (`_pristine`: its design and
     detection thresholds take seconds of calibration for some methods), which every log of
     the config this process diagnoses then copies: no log's ``seconds`` pays for it."""
-    for path in configs:
+    for path, kernel in configs:
         with contextlib.suppress(ValueError, OSError):  # a bad one is its logs' error
-            _pristine(path)
+            _pristine(path, kernel)
 
 
 def run_fleet(tasks: Sequence[LogTask], client: Any | None,
@@ -807,7 +811,7 @@ def run_fleet(tasks: Sequence[LogTask], client: Any | None,
     """`diagnose_log` over every task on the client's cluster (None: in this process), each
     worker warmed up first (`warm_up` on the tasks' configs); the results in the tasks' order
     whatever order they complete in. ``on_result`` sees each as it comes (a progress bar)."""
-    configs = sorted({t.config for t in tasks})
+    configs = sorted({(t.config, t.kernel) for t in tasks})
     if client is None:
         warm_up(configs)
     else:

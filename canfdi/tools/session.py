@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from canfdi.config import MonitorConfig
+    from canfdi.core.kernel import Kernel
     from canfdi.monitor import Monitor
     from canfdi.service import MonitorService, ServiceStats
 
@@ -584,14 +585,15 @@ def open_session(config: MonitorConfig, verb: str, *, diagnose: bool = True,
                  bus: BusRequest | None = None, filters: bool = True,
                  recording: Recording | None = None, foxglove: str | None = None,
                  view: str | None = None, systemd: bool = False,
-                 truth: list[dict] | None = None,
+                 truth: list[dict] | None = None, kernel: Kernel | None = None,
                  notice: Callable[[str], None] = lambda line: None) -> Session:
     """The session a verb asks for, built in this order: teach-in (``teach`` seconds), the
     design cache (``cache_designs``), the monitor (``diagnose``: False records only), the bus
     (``bus``, with the monitor's receive filters unless ``filters`` is False), the Foxglove
     server (``foxglove``: its [HOST:]PORT), the recorder (``recording``; ``truth``, the
     injected faults, goes into its metadata), systemd's notifier and the live view
-    (``view``: the name in its title).
+    (``view``: the name in its title). ``kernel``: what the monitor's diagnosers run on
+    (canfdi.core.kernel; the numpy reference by default).
 
     Raises SessionError (a bad --teach, config, bus or --foxglove: exit 2) or CannotRecord
     (exit 1); what was opened before is closed again. ``notice`` gets the lines to say on
@@ -602,7 +604,7 @@ def open_session(config: MonitorConfig, verb: str, *, diagnose: bool = True,
     if cache_designs:
         remember_designs()
     try:
-        monitor = Monitor(config, diagnose=diagnose, teach=taught)
+        monitor = Monitor(config, diagnose=diagnose, teach=taught, kernel=kernel)
     except ValueError as exc:
         raise SessionError(f"config error: {exc}") from None
     opened = None

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import sysconfig
@@ -23,6 +24,16 @@ import pytest
 from tests.conftest import REPO
 
 pytestmark = pytest.mark.slow
+
+
+def _clean_copy(tmp: Path) -> Path:
+    """The tree copied without what a build or a developer left in it (an in-place extension
+    must not slip into a wheel that failed to build its own)."""
+    src = tmp / "src"
+    shutil.copytree(REPO, src, ignore=shutil.ignore_patterns(
+        "*.so", ".venv", "build", "dist", "*.egg-info", "__pycache__", ".git", "node_modules",
+        ".pytest_cache", ".ruff_cache", ".hypothesis"))
+    return src
 
 
 def _run(argv: list[str], cwd: Path, env: dict[str, str], timeout: float = 600) -> str:
@@ -58,7 +69,8 @@ def installed(tmp_path_factory) -> tuple[Path, Path, dict[str, str]]:
 
 def test_the_wheel_holds_the_package_data_and_no_generic_top_level_name(tmp_path):
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps",
-                    "-q", "-w", str(tmp_path), str(REPO)], check=True, capture_output=True)
+                    "-q", "-w", str(tmp_path), str(_clean_copy(tmp_path))], check=True,
+                   capture_output=True)
     (wheel,) = tmp_path.glob("canfdi-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     tops = {n.split("/")[0] for n in names}
@@ -68,6 +80,12 @@ def test_the_wheel_holds_the_package_data_and_no_generic_top_level_name(tmp_path
                     "canfdi/firmware_sim/scenarios/dc_motor_consecutive.yaml",
                     "canfdi/firmware_sim/profiles/dc_motor_cia402.eds", "canfdi/py.typed"):
         assert shipped in names, shipped
+    # The C core's sources ship (codegen copies them); the extension where a compiler built it.
+    for shipped in ("canfdi/_c/cfdi.h", "canfdi/_c/bank.c", "canfdi/_c/detect.c",
+                    "canfdi/_c/_kernel.c", "canfdi/_c/README.md"):
+        assert shipped in names, shipped
+    if shutil.which("gcc") or shutil.which("cc"):
+        assert any(n.startswith("canfdi/_ckernel") and n.endswith(".so") for n in names)
     configs = sorted(p.name for p in (REPO / "deploy" / "config").glob("*.yaml"))
     assert sorted(n.split("/")[-1] for n in names if n.startswith("canfdi/configs/")
                   and n.endswith(".yaml")) == configs
@@ -94,3 +112,41 @@ def test_the_installed_verbs_run_outside_the_tree_on_what_ships(installed):
     bench = json.loads(_run([str(bin_dir / "canfdi"), "bench", "--quick", "--json"], work, env))
     assert bench
     assert sorted(p.name for p in work.iterdir()) == ["demo.mcap"]
+
+
+def test_without_a_compiler_the_wheel_installs_and_runs_on_numpy(tmp_path):
+    """CC that cannot compile: the optional extension is left out, the install succeeds, the
+    kernel is python, and asking for c is one line and exit 2."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "CAN_CONFIG")}
+    env["CC"] = "false"
+    src = _clean_copy(tmp_path)
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w",
+                    str(tmp_path / "dist"), str(src)], check=True, capture_output=True,
+                   env=env, cwd=tmp_path)
+    (wheel,) = (tmp_path / "dist").glob("canfdi-*.whl")
+    assert not any(n.endswith(".so") for n in zipfile.ZipFile(wheel).namelist())
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+    bin_dir = venv / "bin"
+    subprocess.run([bin_dir / "python", "-m", "pip", "install", "-q", "--no-deps", "--no-index",
+                    str(wheel)], check=True, capture_output=True)
+    site = subprocess.run([bin_dir / "python", "-c", "import sysconfig; "
+                           "print(sysconfig.get_paths()['purelib'])"], check=True,
+                          capture_output=True, text=True).stdout.strip()
+    (Path(site) / "test-dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    env.pop("CC")
+    env["PATH"] = f"{bin_dir}{os.pathsep}{env.get('PATH', '')}"
+    work = tmp_path / "work"
+    work.mkdir()
+    version = _run([str(bin_dir / "canfdi"), "--version"], work, env).splitlines()
+    assert version[1] == "kernel: python (built: python)"
+    done = subprocess.run([str(bin_dir / "canfdi"), "evaluate", "--plant", "dc_motor", "--runs",
+                           "1", "--kernel", "c", "--no-progress"], cwd=work, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        "canfdi evaluate: kernel c: not built in this install (no C compiler when canfdi was "
+        "installed); use --kernel python"]
+    evaluation = json.loads(_run([str(bin_dir / "canfdi"), "evaluate", "--plant", "dc_motor",
+                                  "--runs", "1", "--json", "--no-progress"], work, env))
+    assert evaluation["kernel"] == "python"
