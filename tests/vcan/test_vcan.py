@@ -24,6 +24,7 @@ from canfdi.io.reader import read_frames, read_log
 from tests.conftest import REPO
 from tests.vcan.drain import drain
 from tests.vcan.slowness import slowness
+from tests.vcan.witness import candump_command, dropped
 
 pytestmark = pytest.mark.vcan
 
@@ -246,6 +247,8 @@ def candump_frames(path: Path) -> list[tuple[int, str]]:
     """(ID, data hex) of each frame of a `candump -L` log (an RTR as data "R")."""
     out = []
     for line in path.read_text().splitlines():
+        if line.startswith("DROPCOUNT"):
+            continue  # the witness's own count of what it missed (tests.vcan.witness)
         frame = line.split()[2]
         can_id, _, data = frame.partition("#")
         out.append((int(can_id, 16), data))
@@ -263,7 +266,7 @@ def run_with_candump(tmp_path: Path, config: Path, scenario: str, *, witness: bo
     candump = None
     if dump is not None:
         with dump.open("w") as out:
-            candump = subprocess.Popen(["candump", "-L", "vcan0"], stdout=out,
+            candump = subprocess.Popen(candump_command(), stdout=out,
                                        stderr=subprocess.DEVNULL)
     monitor = Monitor(tmp_path / "run.mcap", config=config)
     try:
@@ -333,13 +336,17 @@ def test_listen_only_on_a_cia402_bus_diagnoses_and_sends_nothing(tmp_path):
     assert_onsets(accepted(monitor.events()), [
         ("dc_motor_cia402", "actuator", 0, 1000), ("dc_motor_cia402", "sensor", 0, 2000),
         ("dc_motor_cia402", "sensor", 1, 3000)], missed)
-    assert len(heard) == sent["frames_sent"]
+    # Every frame on the bus is one the emulator sent: candump heard it, or the kernel
+    # counted it dropped on candump's socket (a witness behind under a loaded harness).
+    lost = dropped(dump)
+    assert len(heard) + lost == sent["frames_sent"], (len(heard), lost)
     assert {i for i, _ in heard} == {0x080, 0x181, 0x201, 0x281, 0x701}
     frames = read_frames(monitor.log)
     assert (frames.status == "sent").sum() == 0
     # The kernel's receive filters pass the IDs the bus map reads: not the heartbeat (0x701).
     assert set(frames.id.tolist()) == {0x080, 0x181, 0x201, 0x281}
-    assert (frames.status == "ok").sum() == len([f for f in heard if f[0] != 0x701])
+    if lost == 0:  # (with a hole in the witness, only the count above can be checked)
+        assert (frames.status == "ok").sum() == len([f for f in heard if f[0] != 0x701])
 
 
 def test_two_cia402_drives_on_vcan_are_diagnosed_apart(tmp_path):

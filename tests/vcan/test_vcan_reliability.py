@@ -40,6 +40,7 @@ from canfdi.io.segments import log_segments
 from tests.conftest import REPO
 from tests.vcan.drain import drain
 from tests.vcan.slowness import slowness
+from tests.vcan.witness import candump_command, dropped
 
 pytestmark = pytest.mark.vcan
 
@@ -49,7 +50,11 @@ SCENARIO = "dc_motor_consecutive"  # faults at 10 s, 20 s, 30 s; accepted about 
 FDI_IDS = frozenset({0x080, 0x081, 0x082, 0x083})  # the monitor's own frames (canfdi_monitor.dbc)
 FDI_FAULT, FDI_STATUS = 0x080, 0x082
 DEGRADED = 3  # FDI_STATUS State
-FLUSH_BOUND = 1.5  # s: the recorder's 1 s flush interval, with a margin
+# s: the recorder's 1 s flush interval, and half a second for the flush's own work (its zstd
+# and its write) on a real CPU; on the harness's software CPU that work takes as many times
+# longer as Python runs slower there (a loaded run, 4 processes on 2 cores, once logged a
+# frame 0.48 s older than a fixed 1.5 s allowed).
+FLUSH_BOUND = 1.0 + 0.5 * slowness()
 KILL_AFTER = 16.0  # s of scenario time: the first fault is accepted at about 12 s
 
 
@@ -112,9 +117,6 @@ class Proc:
             self.proc.wait()
 
 
-CANDUMP_BUFFER = 8 << 20  # bytes of candump's socket receive buffer: ~100 s of this bus
-
-
 class Candump:
     """`candump -L vcan0` into a file: (kernel time, id, payload) of every frame on vcan0.
 
@@ -125,9 +127,8 @@ class Candump:
     def __init__(self, path: Path) -> None:
         self.path = path
         with path.open("w") as out:
-            self.proc = subprocess.Popen(
-                ["candump", "-L", "-d", "-r", str(CANDUMP_BUFFER), "vcan0"], stdout=out,
-                stderr=subprocess.DEVNULL)
+            self.proc = subprocess.Popen(candump_command(), stdout=out,
+                                         stderr=subprocess.DEVNULL)
 
     def frames(self) -> list[tuple[float, int, bytes]]:
         out = []
@@ -141,10 +142,7 @@ class Candump:
 
     def dropped(self) -> int:
         """Frames the kernel dropped on candump's socket (its last DROPCOUNT total)."""
-        totals = [int(line.rsplit("total drops ", 1)[1].rstrip(")"))
-                  for line in self.path.read_text().splitlines()
-                  if line.startswith("DROPCOUNT") and "total drops " in line]
-        return max(totals, default=0)
+        return dropped(self.path)
 
     def complete(self) -> None:
         """Skip the test, saying why, when candump missed frames: it is no reference then."""
@@ -280,7 +278,7 @@ def test_sigkill_loses_at_most_the_last_flush_interval_and_replays(tmp_path, ver
     print(f"\n{verb}: {before_kill} drive frames on the bus before the kill, {got.size} in the "
           f"log, {before_kill - got.size} lost; newest logged frame {kill_time - newest:.3f} s "
           f"before the kill; the monitor last sent {kill_time - alive:.3f} s before it, "
-          f"{behind:.3f} s behind the bus (bound asserted: {FLUSH_BOUND} s before that, "
+          f"{behind:.3f} s behind the bus (bound asserted: {FLUSH_BOUND:.2f} s before that, "
           f"{must_have} frames); timestamps equal to candump's within {skew * 1e6:.1f} us")
     assert got.size >= must_have > 1000
 
