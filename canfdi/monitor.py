@@ -130,8 +130,9 @@ class Monitor:
         diagnosed (FDI_STATUS "teaching"); then ``teach.learn`` gives the drive its diagnoser
         and the learned values go to the log's metadata ("canfdi.teach.<drive>") and
         ``self.taught``.
-    kernel : the kernel the diagnosers' block forms run on (canfdi.core.kernel); the numpy
-        reference by default.
+    kernel : the kernel the diagnosers' block forms run on (canfdi.core.kernel); by default
+        the one a command would run on (CANFDI_KERNEL, else c where built): a library caller
+        and the command line give the same numbers.
 
     Raises
     ------
@@ -143,7 +144,7 @@ class Monitor:
                  record_residuals: bool = True, diagnose: bool = True,
                  teach: Teacher | None = None, kernel: Kernel | None = None) -> None:
         self.config = config
-        self.kernel = kernel or kernels.get("python")
+        self.kernel = kernel or kernels.resolve()
         self.method = methods.get(config.method)
         self.dt = config.model.dt or 1.0
         if config.bus.dbc is None:

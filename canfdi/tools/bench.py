@@ -128,15 +128,16 @@ def run_bench(config, frames: int = 1_000_000, quick: bool = False,
     another's), timed with ``identify_config`` (the servo axis's) on a commissioning log of
     the servo axis (`identify_time`). ``daemon_bus`` (interface, channel): measure `canfdi
     run` as its own process on that bus too (canfdi.tools.daemonbench). ``kernel``: what the
-    monitors measured run on (canfdi.core.kernel; numpy's by default); every kernel built is
+    monitors measured run on (canfdi.core.kernel; by default a command's); every kernel built is
     also timed side by side (`kernel_comparison`)."""
+    from canfdi.core.kernel import resolve as resolve_kernel
     from canfdi.io.writer import McapRecorder
     from canfdi.monitor import Monitor
 
     say = progress or (lambda msg: None)
     tmp = Path(workdir or tempfile.mkdtemp(prefix="canfdi-bench-"))
-    out: dict = {"frames": frames, "quick": quick,
-                 "kernel": "python" if kernel is None else kernel.name}
+    kernel = kernel or resolve_kernel()
+    out: dict = {"frames": frames, "quick": quick, "kernel": kernel.name}
 
     say(f"generating {frames:,} drive frames")
     traffic = make_traffic(frames, scenario)

@@ -978,9 +978,10 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
     noise is that many times the config's (the scenarios come from ``config``); ``monitor``:
     the config of the monitor evaluated, when it is not ``config`` (one calibrated on the
     drive, say); ``mapper``: how the runs are spread (`Mapper`; default here, one by one);
-    ``kernel``: what the diagnoser's block forms run on (canfdi.core.kernel; numpy's by
-    default)."""
+    ``kernel``: what the diagnoser's block forms run on (canfdi.core.kernel; by default the
+    one a command would run on)."""
     from canfdi.bus.dbc import BusMap
+    from canfdi.core import kernel as kernels
     from canfdi.methods import build_diagnoser, get
 
     progress(f"designing and calibrating the {config.method} monitor")
@@ -989,8 +990,8 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
     specs = plan_runs(setup, runs, seed, max_faults=max_faults, fnr_range=tuple(fnr),
                       noise_spread=noise_spread, kinds=kinds, noise_scale=noise_scale)
     base = build_diagnoser(monitor or config)
-    if kernel is not None:
-        kernel.use_on(base)
+    kernel = kernel or kernels.resolve()
+    kernel.use_on(base)
     preprocess = None
     if quantize:
         try:
@@ -1006,7 +1007,7 @@ def evaluate(config: MonitorConfig, plant: str, *, runs: int, seed: int, max_fau
     metrics = aggregate(outcomes, setup.dt, false_alarm_interval=interval)
     result: dict[str, Any] = {
         "plant": plant, "method": config.method, "seed": seed,
-        "kernel": "python" if kernel is None else kernel.name,
+        "kernel": kernel.name,
         "settings": {"max_faults": max_faults, "fnr_range": list(fnr),
                      "noise_spread": noise_spread, "noise_scale": noise_scale,
                      "kinds": kinds,

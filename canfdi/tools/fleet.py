@@ -275,13 +275,13 @@ class ConfigMap:
 class LogTask:
     """One log to diagnose: its path (absolute, as the workers open it), its name in the
     tables (as given), its drive, its config file (absolute) and the kernel its monitor runs
-    on (canfdi.core.kernel, by name: a worker resolves it)."""
+    on (canfdi.core.kernel, by name; None: the one a command would run on there)."""
 
     path: str
     log: str
     drive: str
     config: str
-    kernel: str = "python"
+    kernel: str | None = None
 
 
 def check_configs(paths: Sequence[str | Path]) -> None:
@@ -302,7 +302,7 @@ def check_configs(paths: Sequence[str | Path]) -> None:
 
 def plan_tasks(logs: Sequence[tuple[Path, Path | None]], *, config: Path | None = None,
                config_map: ConfigMap | None = None,
-               pattern: re.Pattern[str] | None = None, kernel: str = "python"
+               pattern: re.Pattern[str] | None = None, kernel: str | None = None
                ) -> list[LogTask]:
     """One task per log of `find_logs`: its drive (`drive_of`) and its config (``config`` for
     all, else the first rule of ``config_map`` that matches it), run on ``kernel``.
@@ -454,15 +454,15 @@ def _config(path: str) -> MonitorConfig:
 
 
 @functools.lru_cache(maxsize=16)
-def _pristine(path: str, kernel: str = "python") -> Monitor:
+def _pristine(path: str, kernel: str | None = None) -> Monitor:
     """A Monitor of a config as built, never fed: a worker builds one per config (the DBC
     parsed, the design and its thresholds computed: 36 ms for the DC motor, a third of a
     5-minute log's diagnosis) and gives each log a deep copy of it (2 ms), which is the state
     of a Monitor built afresh, as `canfdi replay` builds it."""
-    from canfdi.core.kernel import get
+    from canfdi.core.kernel import resolve
     from canfdi.monitor import Monitor
 
-    return Monitor(_config(path), record_residuals=False, kernel=get(kernel))
+    return Monitor(_config(path), record_residuals=False, kernel=resolve(kernel))
 
 
 def fault_rows(events: Iterable[FaultEvent], *, drive: str, log: str, log_start: int | None,
@@ -797,7 +797,7 @@ def task_mapper(jobs: int | None, scheduler: str | None
         yield functools.partial(map_tasks, client)
 
 
-def warm_up(configs: Sequence[tuple[str, str]]) -> None:
+def warm_up(configs: Sequence[tuple[str, str | None]]) -> None:
     """Build the Monitor of each (config, kernel) once in this process (`_pristine`: its design and
     detection thresholds take seconds of calibration for some methods), which every log of
     the config this process diagnoses then copies: no log's ``seconds`` pays for it."""
@@ -811,7 +811,7 @@ def run_fleet(tasks: Sequence[LogTask], client: Any | None,
     """`diagnose_log` over every task on the client's cluster (None: in this process), each
     worker warmed up first (`warm_up` on the tasks' configs); the results in the tasks' order
     whatever order they complete in. ``on_result`` sees each as it comes (a progress bar)."""
-    configs = sorted({(t.config, t.kernel) for t in tasks})
+    configs = sorted({(t.config, t.kernel) for t in tasks}, key=str)
     if client is None:
         warm_up(configs)
     else:
