@@ -161,6 +161,7 @@ def test_front_end_covariances_are_the_ones_of_its_moving_average(design):
     assert np.abs(np.cov(o.T) - design.front_cov).max() / scale.max() < 0.02
 
 
+@pytest.mark.slow  # 40 seeds of the VTOL: about 20 s
 def test_a_sensor_bias_estimate_varies_as_its_reported_std_says(config):
     """Over seeds, (estimate - truth) / reported std has about unit spread: the std counts
     the outputs' correlation and the random walk under the hinge's slope."""
