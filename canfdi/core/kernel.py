@@ -45,7 +45,16 @@ except ImportError:  # pragma: no cover - exercised by the no-compiler install c
 
 @dataclass(frozen=True)
 class Kernel:
-    """One kernel: its name and its block functions (the signatures of the numpy ones)."""
+    """One kernel: its name and its block functions (the signatures of the numpy ones).
+
+    Examples
+    --------
+    >>> from canfdi.core.detect import ChangePointDetector
+    >>> det = ChangePointDetector(1, 0.5, [4.0])
+    >>> get("python").install(detectors=(det,))
+    >>> det.update_block(np.arange(3), np.array([[1.0], [3.0], [3.0]])).done
+    2
+    """
 
     name: str
     fir_rows: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]

@@ -20,7 +20,16 @@ NAMES = ("c", "python")
 
 
 class KernelError(ValueError):
-    """A kernel name that is not one, or one not built in this install."""
+    """A kernel name that is not one, or one not built in this install.
+
+    Examples
+    --------
+    >>> try:
+    ...     choose("gpu", env={})
+    ... except KernelError as exc:
+    ...     print(exc)
+    kernel: expected one of c, python, got 'gpu'
+    """
 
 
 def built() -> list[str]:
