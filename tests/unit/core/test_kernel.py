@@ -119,3 +119,64 @@ def test_a_detector_on_either_kernel_runs_the_same_blocks():
                 det.reset(int(k[i]))
             i += 1
     assert len(seen) >= 3
+
+
+# -- differential fuzz: random shapes, values and lost entries through both kernels -----------
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+from hypothesis.extra import numpy as hnp  # noqa: E402
+
+FUZZ = settings(max_examples=300, deadline=None, derandomize=True,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+REALS = st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, width=64)
+
+
+@st.composite
+def bank_cases(draw):
+    S = draw(st.integers(0, 12))
+    width, m = draw(st.integers(1, 10)), draw(st.integers(1, 12))
+    rows = draw(st.integers(S + 1, S + 60))
+    blocks = draw(hnp.arrays(np.float64, (S + 1, width, m), elements=REALS))
+    blocks[draw(hnp.arrays(bool, blocks.shape))] = 0.0
+    x = draw(hnp.arrays(np.float64, (rows, width), elements=REALS))
+    x[draw(hnp.arrays(bool, x.shape)) & draw(hnp.arrays(bool, x.shape))] = np.nan
+    return x, blocks, (blocks != 0).astype(float)
+
+
+@pytest.mark.c
+@FUZZ
+@given(bank_cases())
+def test_fuzz_c_residuals_equal_numpys(case):
+    x, blocks, uses = case
+    ref = fir_rows(x, blocks, uses)
+    got = kernel.get("c").fir_rows(x, blocks, uses)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
+    # To rounding of the terms summed: each output's bound is its sum of |terms|.
+    terms = fir_rows(np.abs(np.nan_to_num(x)), np.abs(blocks), uses)
+    present = ~np.isnan(ref)
+    assert np.all(np.abs(got - ref)[present] <= 1e-12 * terms[present] + 1e-300)
+
+
+@st.composite
+def detector_cases(draw):
+    n, c = draw(st.integers(0, 300)), draw(st.integers(1, 8))
+    x = draw(hnp.arrays(np.float64, (n, c), elements=st.floats(-20, 20, allow_nan=False)))
+    x[draw(hnp.arrays(bool, x.shape))] = np.nan
+    delta = draw(hnp.arrays(np.float64, c, elements=st.floats(0.0, 2.0)))
+    h = draw(hnp.arrays(np.float64, c, elements=st.floats(0.01, 200.0)))
+    state = draw(hnp.arrays(np.float64, (c, 2), elements=st.floats(0.0, 50.0)))
+    last_zero = draw(hnp.arrays(np.int64, (c, 2), elements=st.integers(-10, 10)))
+    start = draw(st.integers(-(1 << 40), 1 << 40))
+    return np.arange(start, start + n, dtype=np.int64), x, delta, h, state, last_zero
+
+
+@pytest.mark.c
+@FUZZ
+@given(detector_cases())
+def test_fuzz_c_page_hinkley_is_numpys_bit_for_bit(case):
+    ref = change_point_block(*case)
+    got = kernel.get("c").change_point_block(*case)
+    assert got.done == ref.done
+    for name in ("g_up", "g_down", "alarm", "state", "last_zero"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(ref, name), err_msg=name)
