@@ -24,7 +24,7 @@ from canfdi.io.reader import read_frames, read_log
 from tests.conftest import REPO
 from tests.vcan.drain import drain
 from tests.vcan.slowness import slowness
-from tests.vcan.witness import candump_command, dropped
+from tests.vcan.witness import candump_command, caught_up, dropped
 
 pytestmark = pytest.mark.vcan
 
@@ -48,9 +48,14 @@ class Monitor:
                          daemon=True).start()
         threading.Thread(target=self._pump, args=(self.proc.stderr, self.stderr),
                          daemon=True).start()
-        if not self._ready.wait(timeout=180):
+        # Its start (imports, the design and its calibration) takes seconds on a real CPU;
+        # on the harness's software CPU, loaded, once more than 180 s: as many times longer as
+        # Python runs slower there.
+        wait = 180.0 * slowness()
+        if not self._ready.wait(timeout=wait):
             self.proc.kill()
-            pytest.fail("canfdi run never reported it was monitoring:\n" + "".join(self.stderr))
+            pytest.fail(f"canfdi run never reported it was monitoring within {wait:.0f} s "
+                        f"(slowness {slowness():.1f}):\n" + "".join(self.stderr))
 
     def _pump(self, stream, sink: list[str]) -> None:
         for line in stream:
@@ -278,6 +283,7 @@ def run_with_candump(tmp_path: Path, config: Path, scenario: str, *, witness: bo
         took = monitor.stop()
     finally:
         if candump is not None:
+            caught_up(dump)
             candump.terminate()
             candump.wait(timeout=10)
         if monitor.proc.poll() is None:

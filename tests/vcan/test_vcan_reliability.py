@@ -40,7 +40,7 @@ from canfdi.io.segments import log_segments
 from tests.conftest import REPO
 from tests.vcan.drain import drain
 from tests.vcan.slowness import slowness
-from tests.vcan.witness import candump_command, dropped
+from tests.vcan.witness import candump_command, caught_up, dropped
 
 pytestmark = pytest.mark.vcan
 
@@ -163,6 +163,7 @@ class Candump:
 
     def stop(self) -> None:
         if self.proc.poll() is None:
+            caught_up(self.path)  # nothing left unread in its socket
             self.proc.terminate()  # candump flushes its output on SIGTERM
             self.proc.wait(timeout=30)
 

@@ -5,9 +5,12 @@ from a monitor with one (issue 40)."""
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
-__all__ = ["CANDUMP_BUFFER", "candump_command", "dropped"]
+from tests.vcan.slowness import slowness
+
+__all__ = ["CANDUMP_BUFFER", "candump_command", "caught_up", "dropped"]
 
 CANDUMP_BUFFER = 8 << 20  # bytes of candump's socket receive buffer: ~100 s of these buses
 
@@ -24,3 +27,20 @@ def dropped(path: Path) -> int:
               for line in path.read_text().splitlines()
               if line.startswith("DROPCOUNT") and "total drops " in line]
     return max(totals, default=0)
+
+
+def caught_up(path: Path, quiet: float = 5.0, limit: float = 300.0) -> None:
+    """Wait until candump has read what its socket holds, before it is stopped: with a buffer
+    this large a witness that fell behind would otherwise be stopped with frames still queued,
+    unread and uncounted. Its log (block-buffered: it grows a few kilobytes at a time while
+    candump reads) must not have grown for ``quiet`` seconds, times the harness's slowness; at
+    most ``limit`` seconds."""
+    deadline = time.monotonic() + limit
+    size, still_since = -1, time.monotonic()
+    while time.monotonic() < deadline:
+        now = path.stat().st_size
+        if now != size:
+            size, still_since = now, time.monotonic()
+        elif time.monotonic() - still_since >= quiet * slowness():
+            return
+        time.sleep(0.2)
