@@ -7,10 +7,12 @@
   numpy's bit for bit (the same closed form, op for op); the residuals agree to rounding
   (numpy's BLAS may order or fuse a row's sum otherwise).
 
-A diagnoser takes a kernel by name (its ``kernel`` property, canfdi.core.protocol), which
-installs the kernel's functions on its residual bank and detectors (`Kernel.install`). The
-command line resolves the name (`resolve`): ``--kernel``, else CANFDI_KERNEL, else ``c`` where
-built.
+A diagnoser that has block forms to speed up takes a kernel by its ``use_kernel`` method
+(`Kernel.use_on` calls it where there is one), which installs the kernel's functions on its
+residual bank and detectors (`Kernel.install`). The name is resolved (`resolve`,
+canfdi.core.kernelchoice) as ``--kernel``, else CANFDI_KERNEL, else ``c`` where built; a
+library caller that names none (Monitor, evaluate) gets the same, so a live run and its replay
+give the same numbers.
 
 Examples
 --------
