@@ -297,18 +297,17 @@ class UioDesign:
     noise_std: np.ndarray
     front_std: np.ndarray
     long_run_std: np.ndarray
+    front_cov: np.ndarray
+    long_run_cov: np.ndarray
     names: list[str] = field(default_factory=list)
-    front_cov: np.ndarray | None = None
-    long_run_cov: np.ndarray | None = None
 
     def scaled(self, factor: np.ndarray) -> UioDesign:
         """This design with each output's noise ``factor`` (p+m,) times as large."""
         f = np.broadcast_to(np.asarray(factor, dtype=float), self.noise_std.shape)
         ff = np.outer(f, f)
         return replace(self, noise_std=self.noise_std * f, front_std=self.front_std * f,
-                       long_run_std=self.long_run_std * f,
-                       front_cov=None if self.front_cov is None else self.front_cov * ff,
-                       long_run_cov=None if self.long_run_cov is None else self.long_run_cov * ff)
+                       long_run_std=self.long_run_std * f, front_cov=self.front_cov * ff,
+                       long_run_cov=self.long_run_cov * ff)
 
 
 def _grgs_scheme(A, B, C, E, i: int) -> tuple[Lti, np.ndarray]:
@@ -389,8 +388,8 @@ def design_uio(A: np.ndarray, B: np.ndarray, C: np.ndarray, E: np.ndarray, dt: f
     fault_dc = np.hstack([-dc[:, m:], dc[:, :m]])
     a = np.array([lowpass_coefficient(actuator_pole, dt)] * p
                  + [lowpass_coefficient(sensor_pole, dt)] * m)
-    front_std, noise_std, long_run = _noise(coef, sig, a, m)
-    front_cov, long_run_cov = _covariances(coef, sig, m)
+    front_std, noise_std, long_run, front_cov, long_run_cov = _noise(
+        _lag_covariances(coef, sig, m), a)
     names = [f"fidf:{n}" for n in input_names] + [f"grgs:{n}" for n in output_names]
     return UioDesign(p=p, m=m, dt=dt, fir=fir, a=a, fault_dc=fault_dc,
                      Hf0=fault_dc[p:, p:], W0=W0, grgs_rows=np.array(rows),
@@ -398,35 +397,32 @@ def design_uio(A: np.ndarray, B: np.ndarray, C: np.ndarray, E: np.ndarray, dt: f
                      names=names, front_cov=front_cov, long_run_cov=long_run_cov)
 
 
-def _noise(coef: np.ndarray, sig: np.ndarray, a: np.ndarray, m: int
-           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Stds of the front end o, of the low-passed r, and long-run stds, for white sensor noise.
-
-    o is a moving average of the noise: gamma(tau) = sum_l M_l^T S M_{l+tau} (diagonal), and a
-    first-order low-pass gives var r = (1-a)^2 / (1-a^2) sum_tau gamma(tau) a^|tau|.
-    """
+def _lag_covariances(coef: np.ndarray, sig: np.ndarray, m: int) -> np.ndarray:
+    """(S+1, n_out, n_out) the front end o's autocovariances for white sensor noise: o is a
+    moving average of the noise, G(tau) = sum_l M_l^T S M_{l+tau}."""
     Mz = coef[:, :m, :]  # (S+1, m, n_out)
     var = sig**2
     S1 = Mz.shape[0]
-    gamma = np.array([np.einsum("lco,c,lco->o", Mz[: S1 - t], var, Mz[t:]) for t in range(S1)])
-    front = np.sqrt(gamma[0])
+    return np.array([np.einsum("lco,c,lcq->oq", Mz[: S1 - t], var, Mz[t:])
+                     for t in range(S1)])
+
+
+def _noise(gamma: np.ndarray, a: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """From the autocovariances G (S+1, n_out, n_out) (`_lag_covariances`): the stds of the
+    front end o, of the low-passed r, and the long-run stds; then o's covariance at one sample
+    and its long-run covariance, G(0) + sum_tau (G(tau) + G(tau)^T). A first-order low-pass
+    gives var r = (1-a)^2 / (1-a^2) sum_tau G_ii(tau) a^|tau|.
+    """
+    diag = np.diagonal(gamma, axis1=1, axis2=2)  # (S+1, n_out)
+    S1 = len(gamma)
+    front = np.sqrt(diag[0])
     weights = a[None, :] ** np.arange(S1)[:, None]
-    acc = gamma[0] + 2.0 * (gamma[1:] * weights[1:]).sum(axis=0)
+    acc = diag[0] + 2.0 * (diag[1:] * weights[1:]).sum(axis=0)
     low = np.sqrt((1 - a) ** 2 / (1 - a**2) * acc)
-    long_run = np.sqrt(np.maximum(gamma[0] + 2.0 * gamma[1:].sum(axis=0), 0.0))
-    return front, low, long_run
-
-
-def _covariances(coef: np.ndarray, sig: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """(n_out, n_out) covariance of the front end o at one sample, and its long-run
-    covariance (sum over every lag), for white sensor noise: G(tau) = sum_l M_l^T S M_{l+tau},
-    long run G(0) + sum_tau (G(tau) + G(tau)^T)."""
-    Mz = coef[:, :m, :]
-    var = sig**2
-    S1 = Mz.shape[0]
-    gamma = np.array([np.einsum("lco,c,lcq->oq", Mz[: S1 - t], var, Mz[t:]) for t in range(S1)])
+    long_run = np.sqrt(np.maximum(diag[0] + 2.0 * diag[1:].sum(axis=0), 0.0))
     lagged = gamma[1:].sum(axis=0)
-    return gamma[0], gamma[0] + lagged + lagged.T
+    return front, low, long_run, gamma[0], gamma[0] + lagged + lagged.T
 
 
 def flag_function(r: np.ndarray) -> np.ndarray:

@@ -397,10 +397,7 @@ class UioDiagnoser:
         # The slope of a line through n cumulative sums of correlated noise (a random walk
         # of the long-run covariance) varies as 6/5 of that covariance over n; the moving
         # average's bounded part as the white noise on a line, 12 / n^3.
-        dz = self.design
-        lrc = np.diag(lr**2) if dz.long_run_cov is None else dz.long_run_cov
-        fc = np.diag(fs**2) if dz.front_cov is None else dz.front_cov
-        cov = 1.2 * lrc / n_post + 12.0 * fc / n_post**3
+        cov = 1.2 * self.design.long_run_cov / n_post + 12.0 * self.design.front_cov / n_post**3
         # The isolation's weights and the settling test keep the independent outputs' form
         # (the shipped settle_rel_std was set by it); the events report the covariance's.
         se = np.sqrt(lr**2 / n_post + 12.0 * fs**2 / n_post**3)
