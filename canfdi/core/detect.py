@@ -360,8 +360,11 @@ def change_point_block(k: NDArray[np.int64], x: NDArray[np.float64], delta: NDAr
     """Two-sided Page-Hinkley over rows k (N,), x (N, c) (NaN missing) to the first alarm row,
     with drifts delta and thresholds h (c,), from state (c, 2) and last zeros (c, 2) (the last
     sample each statistic was zero after a present value): `ChangePointBlock`. The numpy
-    reference of the kernels' detector block (canfdi.core.kernel); inputs are not modified."""
-    ph = page_hinkley_batch(x, delta, h, state=state)
+    reference of the kernels' detector block (canfdi.core.kernel): like the C one it takes
+    arrays its caller checked (`ChangePointDetector.update_block`: x finite or NaN, the
+    parameters at construction) and page_hinkley_batch's arithmetic without its checks; inputs
+    are not modified."""
+    ph = _run_plain(x, delta, h, state)
     width = x.shape[1]
     # The first alarm row: the first nonzero of the flat (row-major) alarms (argmax stops
     # there; a reduction along the short axis costs a pass per row).
