@@ -44,14 +44,10 @@ def _run(argv: list[str], cwd: Path, env: dict[str, str], timeout: float = 600) 
     return done.stdout
 
 
-@pytest.fixture(scope="module")
-def installed(tmp_path_factory) -> tuple[Path, Path, dict[str, str]]:
-    """(the venv's bin directory, a working directory outside the tree, the environment)."""
-    tmp = tmp_path_factory.mktemp("wheel")
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps",
-                    "-q", "-w", str(tmp / "dist"), str(REPO)], check=True, cwd=tmp,
-                   capture_output=True)
-    (wheel,) = (tmp / "dist").glob("canfdi-*.whl")
+def _install(wheel: Path, tmp: Path, env: dict[str, str]) -> tuple[Path, Path, dict[str, str]]:
+    """``wheel`` installed in a fresh venv under ``tmp`` (the test dependencies reachable
+    through a .pth): (its bin directory, a working directory outside the tree, ``env`` with
+    that bin directory first on PATH)."""
     venv = tmp / "venv"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
     bin_dir = venv / "bin"
@@ -63,9 +59,24 @@ def installed(tmp_path_factory) -> tuple[Path, Path, dict[str, str]]:
     (Path(site) / "test-dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
     work = tmp / "work"
     work.mkdir()
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "CAN_CONFIG")}
-    env["PATH"] = f"{bin_dir}{os.pathsep}{env.get('PATH', '')}"
+    env = dict(env, PATH=f"{bin_dir}{os.pathsep}{env.get('PATH', '')}")
     return bin_dir, work, env
+
+
+def _plain_env() -> dict[str, str]:
+    """This process's environment without what would let the tree's own code be imported."""
+    return {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "CAN_CONFIG")}
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory) -> tuple[Path, Path, dict[str, str]]:
+    """(the venv's bin directory, a working directory outside the tree, the environment)."""
+    tmp = tmp_path_factory.mktemp("wheel")
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps",
+                    "-q", "-w", str(tmp / "dist"), str(REPO)], check=True, cwd=tmp,
+                   capture_output=True)
+    (wheel,) = (tmp / "dist").glob("canfdi-*.whl")
+    return _install(wheel, tmp, _plain_env())
 
 
 def test_the_wheel_holds_the_package_data_and_no_generic_top_level_name(tmp_path):
@@ -118,27 +129,13 @@ def test_the_installed_verbs_run_outside_the_tree_on_what_ships(installed):
 def test_without_a_compiler_the_wheel_installs_and_runs_on_numpy(tmp_path):
     """CC that cannot compile: the optional extension is left out, the install succeeds, the
     kernel is python, and asking for c is one line and exit 2."""
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "CAN_CONFIG")}
-    env["CC"] = "false"
     src = _clean_copy(tmp_path)
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w",
                     str(tmp_path / "dist"), str(src)], check=True, capture_output=True,
-                   env=env, cwd=tmp_path)
+                   env=dict(_plain_env(), CC="false"), cwd=tmp_path)
     (wheel,) = (tmp_path / "dist").glob("canfdi-*.whl")
     assert not any(n.endswith(".so") for n in zipfile.ZipFile(wheel).namelist())
-    venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
-    bin_dir = venv / "bin"
-    subprocess.run([bin_dir / "python", "-m", "pip", "install", "-q", "--no-deps", "--no-index",
-                    str(wheel)], check=True, capture_output=True)
-    site = subprocess.run([bin_dir / "python", "-c", "import sysconfig; "
-                           "print(sysconfig.get_paths()['purelib'])"], check=True,
-                          capture_output=True, text=True).stdout.strip()
-    (Path(site) / "test-dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
-    env.pop("CC")
-    env["PATH"] = f"{bin_dir}{os.pathsep}{env.get('PATH', '')}"
-    work = tmp_path / "work"
-    work.mkdir()
+    bin_dir, work, env = _install(wheel, tmp_path, _plain_env())
     version = _run([str(bin_dir / "canfdi"), "--version"], work, env).splitlines()
     assert version[1] == "kernel: python (built: python)"
     done = subprocess.run([str(bin_dir / "canfdi"), "evaluate", "--plant", "dc_motor", "--runs",
