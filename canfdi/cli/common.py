@@ -11,12 +11,13 @@ from typing import TYPE_CHECKING
 
 from canfdi.core.eventtext import estimates_text
 from canfdi.core.eventtext import event_line as format_event
-from canfdi.core.kernel import Kernel, KernelError
-from canfdi.core.kernel import resolve as resolve_kernel
+from canfdi.core.kernelchoice import NAMES as KERNEL_NAMES
+from canfdi.core.kernelchoice import KernelError
 from canfdi.tools.session import BusRequest
 
 if TYPE_CHECKING:
     from canfdi.config import MonitorConfig
+    from canfdi.core.kernel import Kernel
 
 __all__ = [
     "RETRY_FOR_S",
@@ -99,7 +100,7 @@ def fail(verb: str, message: str, status: int = 2) -> int:
 
 def add_kernel_option(p: argparse.ArgumentParser) -> None:
     """--kernel: what the hot path (residuals and detectors) runs on."""
-    p.add_argument("--kernel", choices=("c", "python"),
+    p.add_argument("--kernel", choices=KERNEL_NAMES,
                    help="the kernel the residuals and detectors run on: c (the C core, where "
                         "the install built it) or python (numpy, the reference); default: "
                         "$CANFDI_KERNEL, else c where built (canfdi --version names it)")
@@ -108,8 +109,10 @@ def add_kernel_option(p: argparse.ArgumentParser) -> None:
 def kernel_or_exit(args: argparse.Namespace, verb: str) -> Kernel | int:
     """The kernel --kernel or CANFDI_KERNEL asks for (canfdi.core.kernel.resolve), or 2 after
     one line saying why it cannot be had."""
+    from canfdi.core.kernel import resolve  # numpy and the kernels: not for the parser
+
     try:
-        return resolve_kernel(getattr(args, "kernel", None))
+        return resolve(getattr(args, "kernel", None))
     except KernelError as exc:
         return fail(verb, str(exc))
 
