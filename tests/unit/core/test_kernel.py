@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from canfdi.core import kernel
 from canfdi.core.detect import ChangePointDetector, change_point_block
@@ -122,10 +125,6 @@ def test_a_detector_on_either_kernel_runs_the_same_blocks():
 
 
 # -- differential fuzz: random shapes, values and lost entries through both kernels -----------
-
-from hypothesis import HealthCheck, given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-from hypothesis.extra import numpy as hnp  # noqa: E402
 
 FUZZ = settings(max_examples=300, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
