@@ -24,7 +24,7 @@ from canfdi.io.reader import read_frames, read_log
 from tests.conftest import REPO
 from tests.vcan.drain import drain
 from tests.vcan.slowness import slowness
-from tests.vcan.witness import candump_command, caught_up, dropped
+from tests.vcan.witness import candump_command, caught_up, dropped, frames
 
 pytestmark = pytest.mark.vcan
 
@@ -250,14 +250,7 @@ TWO_DRIVES = REPO / "deploy" / "config" / "dc_motor_two_drives_cia402.yaml"
 
 def candump_frames(path: Path) -> list[tuple[int, str]]:
     """(ID, data hex) of each frame of a `candump -L` log (an RTR as data "R")."""
-    out = []
-    for line in path.read_text().splitlines():
-        if line.startswith("DROPCOUNT"):
-            continue  # the witness's own count of what it missed (tests.vcan.witness)
-        frame = line.split()[2]
-        can_id, _, data = frame.partition("#")
-        out.append((int(can_id, 16), data))
-    return out
+    return [(can_id, data) for _, can_id, data in frames(path)]
 
 
 def run_with_candump(tmp_path: Path, config: Path, scenario: str, *, witness: bool = True,

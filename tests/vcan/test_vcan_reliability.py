@@ -40,7 +40,7 @@ from canfdi.io.segments import log_segments
 from tests.conftest import REPO
 from tests.vcan.drain import drain
 from tests.vcan.slowness import slowness
-from tests.vcan.witness import candump_command, caught_up, dropped
+from tests.vcan.witness import candump_command, caught_up, dropped, frames
 
 pytestmark = pytest.mark.vcan
 
@@ -131,14 +131,7 @@ class Candump:
                                          stderr=subprocess.DEVNULL)
 
     def frames(self) -> list[tuple[float, int, bytes]]:
-        out = []
-        for line in self.path.read_text().splitlines():
-            parts = line.split()
-            if len(parts) != 3 or "#" not in parts[2]:
-                continue  # a line still being written, or a DROPCOUNT line
-            frame_id, _, data = parts[2].partition("#")
-            out.append((float(parts[0].strip("()")), int(frame_id, 16), bytes.fromhex(data)))
-        return out
+        return [(t, can_id, bytes.fromhex(data)) for t, can_id, data in frames(self.path)]
 
     def dropped(self) -> int:
         """Frames the kernel dropped on candump's socket (its last DROPCOUNT total)."""

@@ -8,7 +8,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-__all__ = ["CANDUMP_BUFFER", "candump_command", "caught_up", "dropped"]
+__all__ = ["CANDUMP_BUFFER", "candump_command", "caught_up", "dropped", "frames"]
 
 CANDUMP_BUFFER = 8 << 20  # bytes of candump's socket receive buffer: ~100 s of these buses
 
@@ -17,6 +17,19 @@ def candump_command(interface: str = "vcan0") -> list[str]:
     """`candump -L` with a forced receive buffer (``-r``) and the drop count (``-d``: a
     ``DROPCOUNT`` line in its output whenever the kernel dropped frames on its socket)."""
     return ["candump", "-L", "-d", "-r", str(CANDUMP_BUFFER), interface]
+
+
+def frames(path: Path) -> list[tuple[float, int, str]]:
+    """(kernel time, ID, data as candump wrote it: hex, or "R" for an RTR) of each frame of a
+    `candump -L` log; a DROPCOUNT line, or a last line still being written, is none."""
+    out = []
+    for line in path.read_text().splitlines():
+        parts = line.split()
+        if len(parts) != 3 or "#" not in parts[2]:
+            continue
+        frame_id, _, data = parts[2].partition("#")
+        out.append((float(parts[0].strip("()")), int(frame_id, 16), data))
+    return out
 
 
 def dropped(path: Path) -> int:
