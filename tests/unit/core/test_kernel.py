@@ -36,7 +36,9 @@ def _bank_case(rng, S, width, m, rows, lost):
 @pytest.mark.c
 @pytest.mark.parametrize(("S", "width", "m", "rows", "lost"),
                          [(0, 1, 1, 1, 0.0), (4, 6, 5, 300, 0.0), (8, 9, 12, 1000, 0.02),
-                          (3, 2, 3, 50, 0.5), (10, 4, 2, 11, 1.0)])
+                          (3, 2, 3, 50, 0.5), (10, 4, 2, 11, 1.0),
+                          # windows too wide to stage on the stack: the strided path
+                          (30, 12, 3, 203, 0.0), (30, 12, 3, 203, 0.01)])
 def test_c_residuals_are_numpys_to_rounding_and_missing_alike(S, width, m, rows, lost):
     rng = np.random.default_rng(S * 100 + width)
     x, blocks, uses = _bank_case(rng, S, width, m, rows, lost)
