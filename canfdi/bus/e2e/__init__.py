@@ -35,6 +35,7 @@ module             holds
 ``autosar_p02``    `AutosarP02`
 ``bitfield``       `BitField`, a counter or Data ID nibble at any bit of a payload
 ``payloads``       the checks of a block of payloads, lengths and counters
+``cspec``          a profile as the C core's flat tables (``c_spec()``; canfdi/_c/e2e.h)
 =================  ==================================================================
 
 The receivers' state machines of the AUTOSAR profiles (MaxDeltaCounterInit, SyncCounterInit,

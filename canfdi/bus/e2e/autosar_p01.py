@@ -53,6 +53,7 @@ from numpy.typing import NDArray
 from canfdi.bus.e2e.base import HEADER_LENGTH, ProfileBase, SignalPlace, check_multiple, options_of
 from canfdi.bus.e2e.bitfield import BitField
 from canfdi.bus.e2e.crc import TABLE, TABLE_NP, run_columns
+from canfdi.bus.e2e.cspec import KIND_CRC, build_spec
 from canfdi.bus.e2e.payloads import (
     checked_frames,
     counter_values,
@@ -232,6 +233,21 @@ class AutosarP01(ProfileBase):
             self._nibble.write_batch(frames, np.full(frames.shape[0], (self.data_id >> 8) & 0xF))
         frames[:, self._crc_byte] = self._crc_register(frames, values)
         return frames
+
+    def c_spec(self) -> tuple[np.ndarray, np.ndarray]:
+        """The C core's tables: at least data_length / 8 bytes, the counter below 15, the
+        Data ID nibble (``nibble`` mode), the CRC from the seed of the counter's parity over the
+        covered bytes but the CRC byte.
+
+        Returns
+        -------
+        (CFDI_E2E_INTS,) int32 and (CFDI_E2E_BYTES,) uint8 (`canfdi.bus.e2e.cspec`).
+        """
+        return build_spec(KIND_CRC, self._n_bytes, counter=self._counter,
+                          counter_max=_P01_INVALID_COUNTER - 1, extra=self._nibble,
+                          extra_value=(self.data_id >> 8) & 0xF if self._nibble is not None else 0,
+                          table=TABLE, seeds=self._seeds, seed_mask=1,
+                          crc_byte=self._crc_byte, crc_first=0, crc_end=self._n_bytes)
 
     def __repr__(self) -> str:
         return (f"AutosarP01(data_id={self.data_id:#x}, data_length={self.data_length}, "

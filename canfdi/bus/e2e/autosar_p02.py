@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canfdi.bus.e2e.base import HEADER_LENGTH, ProfileBase, SignalPlace, check_multiple, options_of
+from canfdi.bus.e2e.bitfield import BitField
 from canfdi.bus.e2e.crc import (
     CRC8H2F_INIT,
     CRC8H2F_XOROUT,
@@ -35,6 +36,7 @@ from canfdi.bus.e2e.crc import (
     register_after,
     run_columns,
 )
+from canfdi.bus.e2e.cspec import KIND_CRC, build_spec
 from canfdi.bus.e2e.payloads import (
     checked_frames,
     counter_values,
@@ -45,6 +47,8 @@ from canfdi.bus.e2e.payloads import (
 from canfdi.core.settings import ConfigError, Option, parse_options
 
 _P02_MAX_DATA_LENGTH = 8 * 256
+# The counter, the low nibble of byte 1, as a field (for the C core's tables).
+_COUNTER_FIELD = BitField.of(8, 4, "little_endian")
 
 
 class AutosarP02(ProfileBase):
@@ -140,6 +144,19 @@ class AutosarP02(ProfileBase):
         frames[:, 1] = (frames[:, 1] & 0xF0) | values.astype(np.uint8)
         frames[:, 0] = self._crc(frames, values)
         return frames
+
+    def c_spec(self) -> tuple[np.ndarray, np.ndarray]:
+        """The C core's tables: at least data_length / 8 bytes, the CRC-8H2F in byte 0
+        over bytes 1 .. data_length / 8 - 1, then over ``data_id_list[counter]``.
+
+        Returns
+        -------
+        (CFDI_E2E_INTS,) int32 and (CFDI_E2E_BYTES,) uint8 (`canfdi.bus.e2e.cspec`).
+        """
+        return build_spec(KIND_CRC, self._n_bytes, counter=_COUNTER_FIELD,
+                          counter_max=self.counter_modulus - 1, table=TABLE_H2F,
+                          seeds=(CRC8H2F_INIT,), crc_byte=0, crc_first=1, crc_end=self._n_bytes,
+                          trail=self.data_id_list, trail_mask=0xF, xor_out=CRC8H2F_XOROUT)
 
     def __repr__(self) -> str:
         return (f"AutosarP02(data_id_list={list(self.data_id_list)}, "

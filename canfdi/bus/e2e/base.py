@@ -107,6 +107,17 @@ class E2EProfile(Protocol):
         """
         ...
 
+    def c_spec(self) -> tuple[np.ndarray, np.ndarray]:
+        """The profile as the C core's tables, for ``cfdi_e2e_check`` and ``cfdi_e2e_counter``
+        (canfdi/_c/e2e.h; the layout: `canfdi.bus.e2e.cspec`).
+
+        Returns
+        -------
+        spec : (CFDI_E2E_INTS,) int32; bytes : (CFDI_E2E_BYTES,) uint8. With them the C core
+        gives ``check(payload)`` and ``counter(payload)`` (-1 for None) for any payload.
+        """
+        ...
+
 
 ProfileFactory = Callable[[Mapping[str, Any], int, bool, int, Mapping[str, SignalPlace], str],
                           E2EProfile]

@@ -42,6 +42,7 @@ from canfdi.bus.e2e.base import (
     SignalPlace,
     no_options,
 )
+from canfdi.bus.e2e.bitfield import BitField
 from canfdi.bus.e2e.crc import (
     CRC8_INIT,
     CRC8_XOROUT,
@@ -52,6 +53,7 @@ from canfdi.bus.e2e.crc import (
     run_columns,
     run_to_length,
 )
+from canfdi.bus.e2e.cspec import KIND_CRC, build_spec
 from canfdi.bus.e2e.payloads import byte_array, checked_frames, counter_values, padded, padded_bytes
 from canfdi.core._check import check_shape
 from canfdi.core.settings import ConfigError
@@ -59,6 +61,8 @@ from canfdi.core.settings import ConfigError
 # Classic CAN: a payload longer than 8 bytes is a CAN FD frame, which our DBCs do not use.
 _MAX_DLC = 8
 _ALL_IDS = np.arange(2048, dtype=np.int64)
+# The counter, byte 1, as a field (for the C core's tables).
+_COUNTER_FIELD = BitField.of(8, 8, "little_endian")
 # CRC register (before the final XOR) after the Data ID bytes (low, high) of every 11-bit ID.
 _ID_SEEDS: NDArray[np.uint8] = TABLE_NP[
     TABLE_NP[CRC8_INIT ^ (_ALL_IDS & 0xFF)].astype(np.int64) ^ (_ALL_IDS >> 8)
@@ -343,6 +347,18 @@ class CanfdiProfile(ProfileBase):
 
     def protect_batch(self, payloads: np.ndarray, counters: np.ndarray) -> np.ndarray:
         return protect_batch(self.frame_id, payloads, counters)
+
+    def c_spec(self) -> tuple[np.ndarray, np.ndarray]:
+        """The C core's tables: 2..8 bytes, counter byte 1, the CRC in byte 0 over bytes
+        1 .. len - 1 from the register after the Data ID.
+
+        Returns
+        -------
+        (CFDI_E2E_INTS,) int32 and (CFDI_E2E_BYTES,) uint8 (`canfdi.bus.e2e.cspec`).
+        """
+        return build_spec(KIND_CRC, HEADER_LENGTH, _MAX_DLC, counter=_COUNTER_FIELD,
+                          counter_max=self.counter_modulus - 1, table=TABLE, seeds=(self._seed,),
+                          crc_byte=0, crc_first=1, crc_to_length=True, xor_out=CRC8_XOROUT)
 
     def __repr__(self) -> str:
         return f"CanfdiProfile(frame_id={self.frame_id:#x})"

@@ -9,6 +9,7 @@ import numpy as np
 
 from canfdi.bus.e2e.base import ProfileBase, SignalPlace, options_of
 from canfdi.bus.e2e.bitfield import BitField
+from canfdi.bus.e2e.cspec import KIND_COUNTER, build_spec
 from canfdi.bus.e2e.payloads import (
     checked_frames,
     counter_values,
@@ -111,6 +112,16 @@ class AliveCounter(ProfileBase):
         values = counter_values(counters, frames.shape[0]) % self.counter_modulus
         self._field.write_batch(frames, values)
         return frames
+
+    def c_spec(self) -> tuple[np.ndarray, np.ndarray]:
+        """The C core's tables: the signal's field, long enough to hold it, below the modulus.
+
+        Returns
+        -------
+        (CFDI_E2E_INTS,) int32 and (CFDI_E2E_BYTES,) uint8 (`canfdi.bus.e2e.cspec`).
+        """
+        return build_spec(KIND_COUNTER, self._field.n_bytes, counter=self._field,
+                          counter_max=self.counter_modulus - 1)
 
     def __repr__(self) -> str:
         return (f"AliveCounter(signal={self.signal!r}, start={self.start}, length={self.length},"

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from canfdi.bus.e2e.base import ProfileBase, SignalPlace, no_options
+from canfdi.bus.e2e.cspec import KIND_NONE, build_spec
 from canfdi.bus.e2e.payloads import checked_frames, counter_values, protectable
 
 
@@ -50,6 +51,15 @@ class NoProtection(ProfileBase):
         frames = protectable(payloads, 0, "any payload")
         counter_values(counters, frames.shape[0])
         return frames
+
+    def c_spec(self) -> tuple[np.ndarray, np.ndarray]:
+        """The C core's tables: any length passes, no counter.
+
+        Returns
+        -------
+        (CFDI_E2E_INTS,) int32 and (CFDI_E2E_BYTES,) uint8 (`canfdi.bus.e2e.cspec`).
+        """
+        return build_spec(KIND_NONE, 0)
 
     def __repr__(self) -> str:
         return "NoProtection()"

@@ -1,0 +1,124 @@
+/* A test driver for the C core's E2E profiles built alone (tests/unit/bus/test_e2e_c.py):
+ * reads cases from stdin in a plain binary layout, runs them, writes the results to stdout.
+ * Built with -pedantic under AddressSanitizer and UndefinedBehaviorSanitizer: any read or
+ * write outside a buffer, any undefined operation, aborts the run. Every buffer the core sees
+ * is allocated at its exact size (the spec, the bytes table, each payload), so a read one
+ * past its end is caught. (The driver may use stdio; the core not.)
+ *
+ * Mode "r" (rows), cases until the end of the input, each:
+ *   in : int32 spec[CFDI_E2E_INTS], uint8 bytes[CFDI_E2E_BYTES], int64 n,
+ *        n x (uint8 payload[64], int64 length 0..64)
+ *   out: int64 cfdi_e2e_spec_check, n x (int64 check, int64 counter)
+ *   (a payload of length 0 is passed as NULL).
+ * Mode "n" (null pointers), one case:
+ *   in : int32 spec[CFDI_E2E_INTS], uint8 bytes[CFDI_E2E_BYTES]
+ *   out: int64 x 8: check and counter with spec NULL, with bytes NULL, with payload NULL and
+ *        length 5, and spec_check(NULL, NULL), spec_check(spec, bytes).
+ */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "e2e.h"
+
+#define ROW 64
+
+static void put(int64_t v)
+{
+    fwrite(&v, sizeof v, 1, stdout);
+}
+
+/* 1 when count items were read, 0 at a clean end of the input; exits on a partial read. */
+static int read_exact(void *p, size_t size, size_t count, int may_end)
+{
+    size_t got = fread(p, size, count, stdin);
+    if (got == count) {
+        return 1;
+    }
+    if (may_end && got == 0 && feof(stdin)) {
+        return 0;
+    }
+    exit(3);
+}
+
+static void *must_alloc(size_t size)
+{
+    void *p = malloc(size > 0 ? size : 1);
+    if (p == NULL) {
+        exit(4);
+    }
+    return p;
+}
+
+/* One case of mode "r"; 0 at the end of the input. */
+static int run_case(void)
+{
+    int32_t *spec = must_alloc(CFDI_E2E_INTS * sizeof *spec);
+    uint8_t *bytes = must_alloc(CFDI_E2E_BYTES);
+    uint8_t row[ROW];
+    int64_t n = 0, i, length = 0;
+
+    if (!read_exact(spec, sizeof *spec, CFDI_E2E_INTS, 1)) {
+        free(spec);
+        free(bytes);
+        return 0;
+    }
+    read_exact(bytes, 1, CFDI_E2E_BYTES, 0);
+    read_exact(&n, sizeof n, 1, 0);
+    put(cfdi_e2e_spec_check(spec, bytes));
+    for (i = 0; i < n; i++) {
+        uint8_t *payload = NULL;
+        read_exact(row, 1, ROW, 0);
+        read_exact(&length, sizeof length, 1, 0);
+        if (length < 0 || length > ROW) {
+            exit(5);
+        }
+        if (length > 0) {
+            payload = must_alloc((size_t)length);
+            memcpy(payload, row, (size_t)length);
+        }
+        put(cfdi_e2e_check(spec, bytes, payload, (size_t)length));
+        put(cfdi_e2e_counter(spec, bytes, payload, (size_t)length));
+        free(payload);
+    }
+    free(spec);
+    free(bytes);
+    return 1;
+}
+
+static int run_nulls(void)
+{
+    int32_t *spec = must_alloc(CFDI_E2E_INTS * sizeof *spec);
+    uint8_t *bytes = must_alloc(CFDI_E2E_BYTES);
+    uint8_t payload[8] = {0};
+
+    read_exact(spec, sizeof *spec, CFDI_E2E_INTS, 0);
+    read_exact(bytes, 1, CFDI_E2E_BYTES, 0);
+    put(cfdi_e2e_check(NULL, bytes, payload, 8));
+    put(cfdi_e2e_counter(NULL, bytes, payload, 8));
+    put(cfdi_e2e_check(spec, NULL, payload, 8));
+    put(cfdi_e2e_counter(spec, NULL, payload, 8));
+    put(cfdi_e2e_check(spec, bytes, NULL, 5));
+    put(cfdi_e2e_counter(spec, bytes, NULL, 5));
+    put(cfdi_e2e_spec_check(NULL, NULL));
+    put(cfdi_e2e_spec_check(spec, bytes));
+    free(spec);
+    free(bytes);
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    if (argc != 2) {
+        return 2;
+    }
+    if (argv[1][0] == 'r') {
+        while (run_case()) {
+        }
+        return 0;
+    }
+    if (argv[1][0] == 'n') {
+        return run_nulls();
+    }
+    return 2;
+}
