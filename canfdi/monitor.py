@@ -130,9 +130,9 @@ class Monitor:
         diagnosed (FDI_STATUS "teaching"); then ``teach.learn`` gives the drive its diagnoser
         and the learned values go to the log's metadata ("canfdi.teach.<drive>") and
         ``self.taught``.
-    kernel : the kernel the diagnosers' block forms run on (canfdi.core.kernel); by default
-        the one a command would run on (CANFDI_KERNEL, else c where built): a library caller
-        and the command line give the same numbers.
+    kernel : the kernel the frame decode and the diagnosers' block forms run on
+        (canfdi.core.kernel); by default the one a command would run on (CANFDI_KERNEL, else
+        c where built): a library caller and the command line give the same numbers.
 
     Raises
     ------
@@ -160,6 +160,7 @@ class Monitor:
         self.drives: list[Drive] = []
         for index, drive in enumerate(config.drive_list):
             bus_map = BusMap.from_dbc(database, config, drive, label, monitor)
+            self.kernel.install(bus_map=bus_map)
             self.drives.append(Drive(
                 drive.name, index, bus_map, make_clock(bus_map, self.dt, config.bus.clock),
                 self._supervised(drive.name) if diagnose else None))

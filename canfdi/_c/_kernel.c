@@ -7,6 +7,8 @@
 #include <string.h>
 
 #include "cfdi.h"
+#include "decode.h"
+#include "e2e.h"
 
 typedef struct {
     Py_buffer view;
@@ -138,15 +140,109 @@ static PyObject *ph_block(PyObject *self, PyObject *args)
     return PyLong_FromSize_t(done);
 }
 
+PyDoc_STRVAR(decode_block_doc,
+"decode_block(tables, n, id, dlc, flags, data, long_row, longdata, n_long, status, slot,\n"
+"             values, counters)\n\n"
+"Check and decode n frames from a drive's tables (cfdi_decode_block). tables: the tuple\n"
+"(std_entry, ext_id, ext_entry, n_ext, entry, n_entries, n_slots, e2e_spec, e2e_bytes,\n"
+"n_profiles, sig_int, sig_real, n_signals, ids_int, ids_real, n_ids, width) of\n"
+"canfdi.bus.ctables.BusTables; the frames' id (n,) uint32, dlc and flags (n,) uint8, data\n"
+"(n, 8) uint8, long_row (n,) int32, longdata (n_long, 64) uint8; status (n,) int8, slot (n,)\n"
+"int16, values (n, width) float64 and counters (n,) int64 written.");
+
+static PyObject *decode_block(PyObject *self, PyObject *args)
+{
+    PyObject *tables, *oid, *odlc, *oflags, *odata, *olr, *old, *ost, *osl, *ova, *oco;
+    PyObject *t_std, *t_eid, *t_eent, *t_ent, *t_spec, *t_bytes, *t_si, *t_sr, *t_ii, *t_ir;
+    Py_ssize_t n, n_long, n_ext, n_entries, n_slots, n_profiles, n_signals, n_ids, width;
+    held_buffer b[21];
+    cfdi_bus bus;
+    int status;
+    (void)self;
+    memset(b, 0, sizeof b);
+
+    if (!PyArg_ParseTuple(args, "O!nOOOOOOnOOOO", &PyTuple_Type, &tables, &n, &oid, &odlc,
+                          &oflags, &odata, &olr, &old, &n_long, &ost, &osl, &ova, &oco)) {
+        return NULL;
+    }
+    if (!PyArg_ParseTuple(tables, "OOOnOnnOOnOOnOOnn", &t_std, &t_eid, &t_eent, &n_ext, &t_ent,
+                          &n_entries, &n_slots, &t_spec, &t_bytes, &n_profiles, &t_si, &t_sr,
+                          &n_signals, &t_ii, &t_ir, &n_ids, &width)) {
+        return NULL;
+    }
+    if (!sizes_ok(n, 64, 8) || !sizes_ok(n_long, 64, 1) || !sizes_ok(n, width, 8)
+        || !sizes_ok(n_ext, 8, 1) || !sizes_ok(n_entries, CFDI_ENTRY_INTS, 8)
+        || !sizes_ok(n_profiles, CFDI_E2E_INTS + CFDI_E2E_BYTES, 4)
+        || !sizes_ok(n_signals, CFDI_SIG_INTS + CFDI_SIG_REALS, 8) || !sizes_ok(n_ids, 8, 1)
+        || n_slots < 0 || n_slots > n_entries) {
+        PyErr_SetString(PyExc_ValueError, "decode_block: sizes do not fit");
+        return NULL;
+    }
+    if (take(t_std, &b[0], 0, 2048 * 4, "std_entry") < 0
+        || take(t_eid, &b[1], 0, n_ext * 8, "ext_id") < 0
+        || take(t_eent, &b[2], 0, n_ext * 4, "ext_entry") < 0
+        || take(t_ent, &b[3], 0, n_entries * CFDI_ENTRY_INTS * 8, "entry") < 0
+        || take(t_spec, &b[4], 0, n_profiles * CFDI_E2E_INTS * 4, "e2e_spec") < 0
+        || take(t_bytes, &b[5], 0, n_profiles * CFDI_E2E_BYTES, "e2e_bytes") < 0
+        || take(t_si, &b[6], 0, n_signals * CFDI_SIG_INTS * 8, "sig_int") < 0
+        || take(t_sr, &b[7], 0, n_signals * CFDI_SIG_REALS * 8, "sig_real") < 0
+        || take(t_ii, &b[8], 0, n_ids * 8, "ids_int") < 0
+        || take(t_ir, &b[9], 0, n_ids * 8, "ids_real") < 0
+        || take(oid, &b[10], 0, n * 4, "id") < 0 || take(odlc, &b[11], 0, n, "dlc") < 0
+        || take(oflags, &b[12], 0, n, "flags") < 0 || take(odata, &b[13], 0, n * 8, "data") < 0
+        || take(olr, &b[14], 0, n * 4, "long_row") < 0
+        || take(old, &b[15], 0, n_long * 64, "longdata") < 0
+        || take(ost, &b[16], 1, n, "status") < 0 || take(osl, &b[17], 1, n * 2, "slot") < 0
+        || take(ova, &b[18], 1, n * width * 8, "values") < 0
+        || take(oco, &b[19], 1, n * 8, "counters") < 0) {
+        release(b, 21);
+        return NULL;
+    }
+    bus.std_entry = (const int32_t *)b[0].view.buf;
+    bus.ext_id = (const int64_t *)b[1].view.buf;
+    bus.ext_entry = (const int32_t *)b[2].view.buf;
+    bus.n_ext = (size_t)n_ext;
+    bus.entry = (const int64_t *)b[3].view.buf;
+    bus.n_entries = (size_t)n_entries;
+    bus.n_slots = (size_t)n_slots;
+    bus.e2e_spec = (const int32_t *)b[4].view.buf;
+    bus.e2e_bytes = (const uint8_t *)b[5].view.buf;
+    bus.n_profiles = (size_t)n_profiles;
+    bus.sig_int = (const int64_t *)b[6].view.buf;
+    bus.sig_real = (const double *)b[7].view.buf;
+    bus.n_signals = (size_t)n_signals;
+    bus.ids_int = (const int64_t *)b[8].view.buf;
+    bus.ids_real = (const double *)b[9].view.buf;
+    bus.n_ids = (size_t)n_ids;
+    bus.width = (size_t)width;
+    Py_BEGIN_ALLOW_THREADS
+    status = cfdi_decode_block(&bus, (size_t)n, (const uint32_t *)b[10].view.buf,
+                               (const uint8_t *)b[11].view.buf, (const uint8_t *)b[12].view.buf,
+                               (const uint8_t *)b[13].view.buf, (const int32_t *)b[14].view.buf,
+                               (const uint8_t *)b[15].view.buf, (size_t)n_long,
+                               (int8_t *)b[16].view.buf, (int16_t *)b[17].view.buf,
+                               (double *)b[18].view.buf, (int64_t *)b[19].view.buf);
+    Py_END_ALLOW_THREADS
+    release(b, 21);
+    if (status != CFDI_OK) {
+        PyErr_Format(PyExc_ValueError, "decode_block: the tables are malformed (status %d)",
+                     status);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"fir_block", fir_block, METH_VARARGS, fir_block_doc},
     {"ph_block", ph_block, METH_VARARGS, ph_block_doc},
+    {"decode_block", decode_block, METH_VARARGS, decode_block_doc},
     {NULL, NULL, 0, NULL}
 };
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_ckernel",
-    "canfdi's C core (canfdi/_c): the residual bank and the Page-Hinkley detectors.",
+    "canfdi's C core (canfdi/_c): frame decode with E2E, the residual bank and the\n"
+    "Page-Hinkley detectors.",
     -1, methods, NULL, NULL, NULL, NULL
 };
 

@@ -33,12 +33,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 from canfdi.core._check import check_shape
 
-__all__ = ["MessageLayout", "SignalLayout", "compile_layout"]
+__all__ = ["FieldPlan", "MessageLayout", "SignalLayout", "compile_layout"]
 
 _FLOAT_BITS = (16, 32, 64)
 _UINT = {16: np.uint16, 32: np.uint32, 64: np.uint64}
@@ -377,6 +378,29 @@ class _Field:
             return np.trunc(raw.astype(np.float64) * self.scale + self.offset)
 
 
+_C_CONV = {_IDENTITY: "identity", _LINEAR: "linear"}
+
+
+class FieldPlan(NamedTuple):
+    """One compiled signal as `MessageLayout.plan` gives it.
+
+    signal : its layout. conv : "identity", "integer" (raw * iscale + ioffset, exact),
+    "integer_float" (raw * iscale exact, then + offset) or "linear" (raw * scale + offset).
+    parent : the plan's row of the multiplexer that selects it, -1 none. ids : the multiplexer
+    values that select it, as its multiplexer's number kind ("int", "uint" or "real") holds
+    them. never : nothing ever selects it.
+    """
+
+    signal: SignalLayout
+    conv: str
+    iscale: int
+    ioffset: int
+    parent: int
+    ids: tuple
+    number: str
+    never: bool
+
+
 def _fits_int64(lo: int, hi: int, scale: int, offset: int) -> bool:
     ends = (lo * scale + offset, hi * scale + offset, lo * scale, hi * scale)
     return all(-(1 << 63) <= e < (1 << 63) for e in ends)
@@ -520,6 +544,21 @@ class MessageLayout:
     def is_multiplexed(self) -> bool:
         """Some signal is selected by a multiplexer."""
         return any(s.multiplexer_signal is not None for s in self.signals)
+
+    def plan(self) -> tuple[FieldPlan, ...]:
+        """How each compiled signal is read, as the C core's tables take it
+        (canfdi.bus.ctables): multiplexers before what they select."""
+        out = []
+        for f in self._fields:
+            conv = (_C_CONV[f.conv] if f.conv != _INTEGER else
+                    "integer" if f.ioffset is not None else "integer_float")
+            kind = f.number_dtype
+            out.append(FieldPlan(
+                f.sig, conv, f.iscale or 0, f.ioffset or 0, f.parent,
+                () if f.ids is None else tuple(f.ids.tolist()),
+                "real" if kind.kind == "f" else "uint" if kind == np.uint64 else "int",
+                f.never))
+        return tuple(out)
 
     def signal(self, name: str) -> SignalLayout:
         """The compiled signal called ``name`` (KeyError naming the message if none)."""

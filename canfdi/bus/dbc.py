@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import math
 import struct
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canfdi.bus.codec import MessageLayout, SignalLayout, compile_layout
+from canfdi.bus.ctables import BusTables, EntrySpec, SlotSpec, build_tables
 from canfdi.bus.e2e import E2EProfile, make_profile
 from canfdi.bus.frames import (
     FLAG_ERROR,
@@ -414,6 +415,8 @@ p=1, q=4)
                 self._entry_table[fid] = e
         self._ext_ids = np.array([fid for fid, _ in ext], dtype=np.int64)
         self._ext_entry = np.array([e for _, e in ext], dtype=np.int32)
+        self._c_tables: BusTables | None = None
+        self.decoder: Callable[[BusMap, FrameBlock], tuple] = BusMap.decode_frames_reference
 
     @property
     def p(self) -> int:
@@ -596,10 +599,28 @@ p=1, q=4)
             return "saturated", slot, (), -1
         return "ok", slot, values, counter
 
+    def c_tables(self) -> BusTables:
+        """This map as the C core's tables (canfdi.bus.ctables), built once."""
+        if self._c_tables is None:
+            slots = [SlotSpec(s.layout, tuple(name for name, _, _ in s.fields), s.low, s.high,
+                              s.clip_low, s.clip_high, s.checked) for s in self._slots]
+            entries = [EntrySpec(STATUS_CODES[k.kind], k.length, k.fd, k.e2e)
+                       for k in self._entries]
+            self._c_tables = build_tables(entries, slots, self._entry_of, self.n_signals_max)
+        return self._c_tables
+
     def decode_frames(
         self, block: FrameBlock
     ) -> tuple[NDArray[np.int8], NDArray[np.int16], NDArray[np.float64], NDArray[np.int64]]:
-        """`decode_frame` for a whole block at once.
+        """`decode_frame` for a whole block at once, on the kernel installed (``decoder``:
+        `decode_frames_reference` unless canfdi.core.kernel installed another, which gives
+        the same arrays)."""
+        return self.decoder(self, block)
+
+    def decode_frames_reference(
+        self, block: FrameBlock
+    ) -> tuple[NDArray[np.int8], NDArray[np.int16], NDArray[np.float64], NDArray[np.int64]]:
+        """`decode_frame` for a whole block at once, in numpy (the reference).
 
         Returns
         -------

@@ -1,11 +1,12 @@
 """The kernels the monitor's hot path runs on, chosen by name here and nowhere else.
 
 - ``python``: the numpy reference (canfdi.core.residuals.fir_rows,
-  canfdi.core.detect.change_point_block).
+  canfdi.core.detect.change_point_block, canfdi.bus.dbc.BusMap.decode_frames_reference).
 - ``c``: the C core (canfdi/_c, built as canfdi._ckernel by the package's own build where a
   compiler exists): the same functions over the same arrays. The detector's statistics are
   numpy's bit for bit (the same closed form, op for op); the residuals agree to rounding
-  (numpy's BLAS may order or fuse a row's sum otherwise).
+  (numpy's BLAS may order or fuse a row's sum otherwise); the frame decode's statuses,
+  slots, counters and values are numpy's to the bit.
 
 A diagnoser that has block forms to speed up takes a kernel by its ``use_kernel`` method
 (`Kernel.use_on` calls it where there is one), which installs the kernel's functions on its
@@ -61,14 +62,18 @@ class Kernel:
     name: str
     fir_rows: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
     change_point_block: Callable[..., ChangePointBlock]
+    decode_frames: Callable[[Any, Any], tuple]
 
-    def install(self, *, bank: Any = None, detectors: tuple[Any, ...] = ()) -> None:
-        """Make ``bank`` (a ResidualBank) and ``detectors`` (ChangePointDetector) run on this
-        kernel."""
+    def install(self, *, bank: Any = None, detectors: tuple[Any, ...] = (),
+                bus_map: Any = None) -> None:
+        """Make ``bank`` (a ResidualBank), ``detectors`` (ChangePointDetector) and ``bus_map``
+        (canfdi.bus.dbc.BusMap: its frame decode) run on this kernel."""
         if bank is not None:
             bank.fir_rows = self.fir_rows
         for det in detectors:
             det.block = self.change_point_block
+        if bus_map is not None:
+            bus_map.decoder = self.decode_frames
 
     def use_on(self, diagnoser: Any) -> Any:
         """``diagnoser`` (a method's) with its block forms on this kernel, where it has any
@@ -114,9 +119,46 @@ def _c_change_point_block(k: np.ndarray, x: np.ndarray, delta: np.ndarray, h: np
     return ChangePointBlock(done, g_up[:rows], g_down[:rows], alarm, st, lz)
 
 
+def _py_decode_frames(bus_map: Any, block: Any) -> tuple:
+    """A BusMap's frame decode in numpy (BusMap.decode_frames_reference)."""
+    return bus_map.decode_frames_reference(block)
+
+
+_NO_LONG = np.zeros((0, 64), dtype=np.uint8)
+
+
+def _c_decode_frames(bus_map: Any, block: Any) -> tuple:
+    """A BusMap's frame decode in C (cfdi_decode_block) from its tables (BusMap.c_tables);
+    a map beyond the C core's bounds (a slot of over 64 compiled signals) decodes in numpy."""
+    tables = bus_map.c_tables()
+    if not tables.fits:
+        return bus_map.decode_frames_reference(block)
+    n = block.size
+    status = np.empty(n, dtype=np.int8)
+    slot = np.empty(n, dtype=np.int16)
+    values = np.empty((n, tables.width))
+    counters = np.empty(n, dtype=np.int64)
+    long_row = np.full(n, -1, dtype=np.int32)
+    longdata = _NO_LONG
+    if block.long:
+        rows = sorted(block.long)
+        longdata = np.zeros((len(rows), 64), dtype=np.uint8)
+        for i, row in enumerate(rows):
+            data = block.long[row][:64]
+            longdata[i, :len(data)] = np.frombuffer(data, dtype=np.uint8)
+            long_row[row] = i
+    _ckernel.decode_block(tables.c_args, n, np.ascontiguousarray(block.id, dtype=np.uint32),
+                          np.ascontiguousarray(block.dlc, dtype=np.uint8),
+                          np.ascontiguousarray(block.flags, dtype=np.uint8),
+                          np.ascontiguousarray(block.data, dtype=np.uint8), long_row, longdata,
+                          len(longdata), status, slot, values, counters)
+    return status, slot, values, counters
+
+
 _KERNELS: dict[str, Kernel | None] = {
-    "c": None if _ckernel is None else Kernel("c", _c_fir_rows, _c_change_point_block),
-    "python": Kernel("python", fir_rows, change_point_block),
+    "c": None if _ckernel is None else Kernel("c", _c_fir_rows, _c_change_point_block,
+                                              _c_decode_frames),
+    "python": Kernel("python", fir_rows, change_point_block, _py_decode_frames),
 }
 
 

@@ -30,7 +30,8 @@ pytestmark = pytest.mark.skipif(CC is None, reason="no C compiler (gcc or cc) on
 def driver(tmp_path_factory) -> Path:
     exe = tmp_path_factory.mktemp("csan") / "sanitized"
     res = subprocess.run([CC, *FLAGS, f"-I{CORE}", str(DRIVER), str(CORE / "bank.c"),
-                          str(CORE / "detect.c"), "-lm", "-o", str(exe)],
+                          str(CORE / "decode.c"), str(CORE / "detect.c"), str(CORE / "e2e.c"),
+                          "-lm", "-o", str(exe)],
                          capture_output=True, text=True, timeout=300)
     if res.returncode != 0 and "asan" in res.stderr.lower():
         pytest.skip(f"the compiler has no sanitizer runtime: {res.stderr.strip()[:200]}")
@@ -96,3 +97,97 @@ def test_page_hinkley_under_the_sanitizers_is_numpys_bit_for_bit(driver, n, c, l
         np.testing.assert_array_equal(got, np.asarray(getattr(ref, name)).ravel(), err_msg=name)
         at += size
     assert at == len(out)
+
+
+def _decode(driver: Path, tables, block) -> tuple:
+    """cfdi_decode_block under the sanitizers on a drive's tables and a block of frames."""
+    n = block.size
+    rows = sorted(block.long)
+    long_row = np.full(n, -1, np.int32)
+    longdata = np.zeros((len(rows), 64), np.uint8)
+    for i, row in enumerate(rows):
+        longdata[i, :len(block.long[row][:64])] = np.frombuffer(block.long[row][:64], np.uint8)
+        long_row[row] = i
+    t = tables
+    head = _i64(len(t.ext_id), len(t.entry), t.n_slots, len(t.e2e_spec), len(t.sig_int),
+                len(t.ids_int), t.width, n, len(rows))
+    arrays = (t.std_entry, t.ext_id, t.ext_entry, t.entry, t.e2e_spec, t.e2e_bytes, t.sig_int,
+              t.sig_real, t.ids_int, t.ids_real, block.id.astype(np.uint32), block.dlc,
+              block.flags, block.data, long_row, longdata)
+    out = _run(driver, "d", head + b"".join(np.ascontiguousarray(a).tobytes() for a in arrays))
+    rc = np.frombuffer(out[:8], np.int64)[0]
+    if rc != 0:
+        return (rc,)
+    at = 8
+    parts = []
+    for dtype, count in ((np.int8, n), (np.int16, n), (np.float64, n * t.width),
+                         (np.int64, n)):
+        size = np.dtype(dtype).itemsize * count
+        parts.append(np.frombuffer(out[at:at + size], dtype))
+        at += size
+    parts[2] = parts[2].reshape(n, t.width)
+    return tuple(parts)
+
+
+@pytest.mark.parametrize("name", ["dc_motor", "dc_motor_cia402", "dc_motor_float",
+                                  "dc_motor_two_drives_cia402", "vtol"])
+def test_decode_of_hostile_frames_under_the_sanitizers_is_numpys(driver, name):
+    """Every shipped bus profile's traffic with a fifth of its frames damaged (bit flips,
+    wrong lengths, foreign and extended IDs, remote, error and FD flags, garbage, CAN FD
+    payloads to 64 bytes): the C decode reads nothing outside a buffer and gives the numpy
+    reference's statuses, slots, values and counters."""
+    from canfdi.config import load_config
+    from canfdi.configs import CONFIG_DIR
+    from canfdi.core import kernel
+    from canfdi.monitor import Monitor
+    from canfdi.tools.bench import bench_scenarios, make_traffic
+    from tests.unit.core.test_kernel_decode import _hostile, _same_values
+
+    config = load_config(CONFIG_DIR / f"{name}.yaml")
+    _, faulty = bench_scenarios(config)
+    traffic = make_traffic(3000, faulty)
+    monitor = Monitor(config, kernel=kernel.get("python"))
+    rng = np.random.default_rng(11)
+    for d in monitor.drives:
+        block = _hostile(traffic, rng, sorted({k[0] for k in d.bus_map.keys}))
+        got = _decode(driver, d.bus_map.c_tables(), block)
+        ref = d.bus_map.decode_frames_reference(block)
+        for a, b in zip(got, ref, strict=True):
+            if a.dtype == np.float64:
+                _same_values(a, b)
+            else:
+                np.testing.assert_array_equal(a, b)
+
+
+def test_malformed_decode_tables_are_a_status_under_the_sanitizers(driver):
+    """Tables whose indices point outside themselves come back as a negative status, nothing
+    read outside the arrays their sizes describe."""
+    from canfdi.bus import ctables
+    from canfdi.bus.frames import FrameBlock
+    from canfdi.config import load_config
+    from canfdi.configs import CONFIG_DIR
+    from canfdi.monitor import Monitor
+
+    tables = Monitor(load_config(CONFIG_DIR / "dc_motor.yaml")).bus_map.c_tables()
+    block = FrameBlock(np.arange(3), np.array([0x104, 0x105, 0x106]), np.full(3, 8, np.uint8),
+                       np.zeros(3, np.uint8), np.zeros((3, 8), np.uint8))
+    h = ctables.DECODE_H
+    for table, row, col, value in [("sig_int", 0, h["CFDI_SIG_START"], 500),
+                                   ("sig_int", 1, h["CFDI_SIG_IDS_COUNT"], 99),
+                                   ("sig_int", 0, h["CFDI_SIG_COLUMN"], 7),
+                                   ("entry", 0, h["CFDI_ENTRY_SIG_AT"], 40),
+                                   ("entry", 2, h["CFDI_ENTRY_LENGTH"], 65),
+                                   ("ext_entry", None, None, 9),
+                                   ("std_entry", 0x104, None, 1000)]:
+        arrays = dict(vars(tables))
+        a = arrays[table].copy()
+        if table == "ext_entry":
+            a = np.array([9], np.int32)
+            arrays["ext_id"] = np.array([5], np.int64)
+        elif col is None:
+            a[row] = value
+        else:
+            a[row, col] = value
+        arrays[table] = a
+        got = _decode(driver, type(tables)(**arrays), block)
+        assert len(got) == 1 and got[0] < 0, (table, row, col)

@@ -6,6 +6,8 @@
 #include <stdlib.h>
 
 #include "cfdi.h"
+#include "decode.h"
+#include "e2e.h"
 
 static int64_t read_i64(void)
 {
@@ -83,6 +85,83 @@ static int run_ph(void)
     return 0;
 }
 
+/* A drive's tables, then n frames: each array exactly as long as its size says (so that a
+ * read past one is the sanitizer's to see). */
+static int run_decode(void)
+{
+    cfdi_bus bus;
+    size_t n_ext = (size_t)read_i64(), n_entries = (size_t)read_i64();
+    size_t n_slots = (size_t)read_i64(), n_profiles = (size_t)read_i64();
+    size_t n_signals = (size_t)read_i64(), n_ids = (size_t)read_i64();
+    size_t width = (size_t)read_i64(), n = (size_t)read_i64(), n_long = (size_t)read_i64();
+    int32_t *std_entry = read_block(2048, sizeof *std_entry);
+    int64_t *ext_id = read_block(n_ext, sizeof *ext_id);
+    int32_t *ext_entry = read_block(n_ext, sizeof *ext_entry);
+    int64_t *entry = read_block(n_entries * CFDI_ENTRY_INTS, sizeof *entry);
+    int32_t *spec = read_block(n_profiles * CFDI_E2E_INTS, sizeof *spec);
+    uint8_t *bytes = read_block(n_profiles * CFDI_E2E_BYTES, 1);
+    int64_t *sig_int = read_block(n_signals * CFDI_SIG_INTS, sizeof *sig_int);
+    double *sig_real = read_block(n_signals * CFDI_SIG_REALS, sizeof *sig_real);
+    int64_t *ids_int = read_block(n_ids, sizeof *ids_int);
+    double *ids_real = read_block(n_ids, sizeof *ids_real);
+    uint32_t *id = read_block(n, sizeof *id);
+    uint8_t *dlc = read_block(n, 1), *flags = read_block(n, 1), *data = read_block(n * 8, 1);
+    int32_t *long_row = read_block(n, sizeof *long_row);
+    uint8_t *longdata = read_block(n_long * 64, 1);
+    int8_t *status = malloc(n ? n : 1);
+    int16_t *slot = malloc(n ? n * sizeof *slot : 1);
+    double *values = malloc(n * width > 0 ? n * width * sizeof *values : 1);
+    int64_t *counters = malloc(n ? n * sizeof *counters : 1), rc;
+
+    bus.std_entry = std_entry;
+    bus.ext_id = ext_id;
+    bus.ext_entry = ext_entry;
+    bus.n_ext = n_ext;
+    bus.entry = entry;
+    bus.n_entries = n_entries;
+    bus.n_slots = n_slots;
+    bus.e2e_spec = spec;
+    bus.e2e_bytes = bytes;
+    bus.n_profiles = n_profiles;
+    bus.sig_int = sig_int;
+    bus.sig_real = sig_real;
+    bus.n_signals = n_signals;
+    bus.ids_int = ids_int;
+    bus.ids_real = ids_real;
+    bus.n_ids = n_ids;
+    bus.width = width;
+    rc = cfdi_decode_block(&bus, n, id, dlc, flags, data, long_row, longdata, n_long, status,
+                           slot, values, counters);
+    fwrite(&rc, sizeof rc, 1, stdout);
+    if (rc == CFDI_OK) {
+        fwrite(status, 1, n, stdout);
+        fwrite(slot, sizeof *slot, n, stdout);
+        fwrite(values, sizeof *values, n * width, stdout);
+        fwrite(counters, sizeof *counters, n, stdout);
+    }
+    free(std_entry);
+    free(ext_id);
+    free(ext_entry);
+    free(entry);
+    free(spec);
+    free(bytes);
+    free(sig_int);
+    free(sig_real);
+    free(ids_int);
+    free(ids_real);
+    free(id);
+    free(dlc);
+    free(flags);
+    free(data);
+    free(long_row);
+    free(longdata);
+    free(status);
+    free(slot);
+    free(values);
+    free(counters);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     if (argc != 2) {
@@ -93,6 +172,9 @@ int main(int argc, char **argv)
     }
     if (argv[1][0] == 'p') {
         return run_ph();
+    }
+    if (argv[1][0] == 'd') {
+        return run_decode();
     }
     return 2;
 }

@@ -1,0 +1,189 @@
+"""A drive's bus map as the C core's flat tables (canfdi/_c/decode.h; the one place in Python
+that knows their layout).
+
+`BusTables` holds the arrays `cfdi_decode_block` reads: which entry each ID is, each entry's
+length, FD flag, E2E profile and compiled signals, each signal's place, conversion,
+multiplexer and ranges. The extension decodes frames from them (canfdi.core.kernel) and
+``canfdi codegen`` writes them as const data: tables, never logic.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from canfdi.bus.codec import MessageLayout
+from canfdi.bus.e2e import E2EProfile
+from canfdi.bus.nodeid import MAX_STANDARD_ID
+
+__all__ = ["DECODE_H", "BusTables", "build_tables"]
+
+# decode.h's indices and sizes (a test reads them from the header and compares).
+DECODE_H = {
+    "CFDI_ENTRY_KIND": 0, "CFDI_ENTRY_LENGTH": 1, "CFDI_ENTRY_FD": 2, "CFDI_ENTRY_PROFILE": 3,
+    "CFDI_ENTRY_SIG_AT": 4, "CFDI_ENTRY_SIG_COUNT": 5, "CFDI_ENTRY_COLUMNS": 6,
+    "CFDI_ENTRY_CHECKED": 7, "CFDI_ENTRY_INTS": 8,
+    "CFDI_SIG_START": 0, "CFDI_SIG_LENGTH": 1, "CFDI_SIG_FLAGS": 2, "CFDI_SIG_CONV": 3,
+    "CFDI_SIG_ISCALE": 4, "CFDI_SIG_IOFFSET": 5, "CFDI_SIG_PARENT": 6, "CFDI_SIG_IDS_AT": 7,
+    "CFDI_SIG_IDS_COUNT": 8, "CFDI_SIG_NUMBER": 9, "CFDI_SIG_COLUMN": 10, "CFDI_SIG_INTS": 11,
+    "CFDI_SIGF_BIG": 1, "CFDI_SIGF_SIGNED": 2, "CFDI_SIGF_FLOAT": 4, "CFDI_SIGF_NEVER": 8,
+    "CFDI_SIGF_MUX": 16,
+    "CFDI_CONV_IDENTITY": 0, "CFDI_CONV_INTEGER": 1, "CFDI_CONV_INTEGER_FLOAT": 2,
+    "CFDI_CONV_LINEAR": 3,
+    "CFDI_NUM_INT": 0, "CFDI_NUM_UINT": 1, "CFDI_NUM_REAL": 2,
+    "CFDI_SIG_SCALE": 0, "CFDI_SIG_OFFSET": 1, "CFDI_SIG_LOW": 2, "CFDI_SIG_HIGH": 3,
+    "CFDI_SIG_CLIP_LOW": 4, "CFDI_SIG_CLIP_HIGH": 5, "CFDI_SIG_REALS": 6,
+    "CFDI_SLOT_SIGNALS": 64, "CFDI_MAX_PAYLOAD": 64,
+}
+_H = DECODE_H
+_CONV = {"identity": _H["CFDI_CONV_IDENTITY"], "integer": _H["CFDI_CONV_INTEGER"],
+         "integer_float": _H["CFDI_CONV_INTEGER_FLOAT"], "linear": _H["CFDI_CONV_LINEAR"]}
+_NUMBER = {"int": _H["CFDI_NUM_INT"], "uint": _H["CFDI_NUM_UINT"], "real": _H["CFDI_NUM_REAL"]}
+
+
+@dataclass(frozen=True)
+class SlotSpec:
+    """What the tables need of one slot: its layout, its model fields in the order values
+    come out, and each field's plausible range and clip limits (canfdi.bus.dbc._Slot)."""
+
+    layout: MessageLayout
+    fields: tuple[str, ...]
+    low: tuple[float, ...]
+    high: tuple[float, ...]
+    clip_low: tuple[float, ...]
+    clip_high: tuple[float, ...]
+    checked: bool
+
+
+@dataclass(frozen=True)
+class EntrySpec:
+    """One known message: the status its good frames get, its length, FD flag and profile."""
+
+    kind: int
+    length: int
+    fd: bool
+    e2e: E2EProfile
+
+
+@dataclass(frozen=True)
+class BusTables:
+    """The arrays of a ``cfdi_bus`` (canfdi/_c/decode.h names each column), C-contiguous.
+
+    std_entry (2048,) int32; ext_id (X,) int64 ascending, ext_entry (X,) int32; entry
+    (E, CFDI_ENTRY_INTS) int64 with n_slots of them slots; e2e_spec (P, CFDI_E2E_INTS) int32,
+    e2e_bytes (P, CFDI_E2E_BYTES) uint8; sig_int (S, CFDI_SIG_INTS) int64, sig_real
+    (S, CFDI_SIG_REALS) float64; ids_int (I,) int64, ids_real (I,) float64; width: the values'
+    columns.
+    """
+
+    std_entry: np.ndarray
+    ext_id: np.ndarray
+    ext_entry: np.ndarray
+    entry: np.ndarray
+    n_slots: int
+    e2e_spec: np.ndarray
+    e2e_bytes: np.ndarray
+    sig_int: np.ndarray
+    sig_real: np.ndarray
+    ids_int: np.ndarray
+    ids_real: np.ndarray
+    width: int
+
+    @property
+    def c_args(self) -> tuple:
+        """The tables as canfdi._ckernel.decode_block takes them."""
+        return (self.std_entry, self.ext_id, self.ext_entry, len(self.ext_id), self.entry,
+                len(self.entry), self.n_slots, self.e2e_spec, self.e2e_bytes,
+                len(self.e2e_spec), self.sig_int, self.sig_real, len(self.sig_int),
+                self.ids_int, self.ids_real, len(self.ids_int), self.width)
+
+    @property
+    def fits(self) -> bool:
+        """Whether every slot is within the C core's bounds (CFDI_SLOT_SIGNALS signals)."""
+        count = self.entry[:, _H["CFDI_ENTRY_SIG_COUNT"]]
+        return bool((count <= _H["CFDI_SLOT_SIGNALS"]).all())
+
+
+def build_tables(entries: Sequence[EntrySpec], slots: Sequence[SlotSpec],
+                 entry_of: dict[tuple[int, bool], int], width: int) -> BusTables:
+    """The tables of a bus map: ``entries`` (the slots first, entry = slot), ``slots`` their
+    layouts and fields, ``entry_of`` (ID, extended) -> entry, ``width`` the values' columns.
+
+    Examples
+    --------
+    >>> from canfdi.bus.dbc import BusMap
+    >>> from canfdi.config import load_config
+    >>> from canfdi.configs import CONFIG_DIR
+    >>> tables = BusMap.from_config(load_config(CONFIG_DIR / "dc_motor.yaml")).c_tables()
+    >>> int(tables.std_entry[0x105]), tables.n_slots, tables.width, tables.sig_int.shape
+    (1, 3, 2, (5, 11))
+    """
+    std = np.full(MAX_STANDARD_ID + 1, -1, dtype=np.int32)
+    ext = sorted((fid, e) for (fid, extended), e in entry_of.items() if extended)
+    for (fid, extended), e in entry_of.items():
+        if not extended:
+            std[fid] = e
+    profiles: list[tuple[np.ndarray, np.ndarray]] = []
+    seen: dict[tuple[bytes, bytes], int] = {}
+    entry = np.zeros((len(entries), _H["CFDI_ENTRY_INTS"]), dtype=np.int64)
+    sig_int: list[list[int]] = []
+    sig_real: list[list[float]] = []
+    ids_int: list[int] = []
+    ids_real: list[float] = []
+    for e, known in enumerate(entries):
+        spec, table = known.e2e.c_spec()
+        key = (spec.tobytes(), table.tobytes())
+        if key not in seen:
+            seen[key] = len(profiles)
+            profiles.append((spec, table))
+        row = entry[e]
+        row[_H["CFDI_ENTRY_KIND"]] = known.kind
+        row[_H["CFDI_ENTRY_LENGTH"]] = known.length
+        row[_H["CFDI_ENTRY_FD"]] = int(known.fd)
+        row[_H["CFDI_ENTRY_PROFILE"]] = seen[key]
+        row[_H["CFDI_ENTRY_SIG_AT"]] = len(sig_int)
+        if e >= len(slots):
+            continue
+        slot = slots[e]
+        plan = slot.layout.plan()
+        column = {name: c for c, name in enumerate(slot.fields)}
+        for item in plan:
+            sig = item.signal
+            c = column.get(sig.name, -1)
+            flags = ((_H["CFDI_SIGF_BIG"] if sig.is_big_endian else 0)
+                     | (_H["CFDI_SIGF_SIGNED"] if sig.signed and not sig.is_float else 0)
+                     | (_H["CFDI_SIGF_FLOAT"] if sig.is_float else 0)
+                     | (_H["CFDI_SIGF_NEVER"] if item.never else 0)
+                     | (_H["CFDI_SIGF_MUX"] if sig.is_multiplexer else 0))
+            parent_kind = plan[item.parent].number if item.parent >= 0 else "int"
+            sig_int.append([sig.start, sig.length, flags, _CONV[item.conv], item.iscale,
+                            item.ioffset, item.parent, len(ids_int), len(item.ids),
+                            _NUMBER[item.number], c])
+            for v in item.ids:
+                if parent_kind == "real":
+                    ids_int.append(0)
+                    ids_real.append(float(v))
+                else:
+                    ids_int.append(int(np.array(v, dtype=np.uint64 if parent_kind == "uint"
+                                                else np.int64).view(np.int64)))
+                    ids_real.append(float(v))
+            lo, hi, clo, chi = ((slot.low[c], slot.high[c], slot.clip_low[c], slot.clip_high[c])
+                                if c >= 0 else (-math.inf, math.inf, -math.inf, math.inf))
+            sig_real.append([sig.scale, sig.offset, lo, hi, clo, chi])
+        row[_H["CFDI_ENTRY_SIG_COUNT"]] = len(plan)
+        row[_H["CFDI_ENTRY_COLUMNS"]] = len(slot.fields)
+        row[_H["CFDI_ENTRY_CHECKED"]] = int(slot.checked)
+    return BusTables(
+        std_entry=std,
+        ext_id=np.array([fid for fid, _ in ext], dtype=np.int64),
+        ext_entry=np.array([e for _, e in ext], dtype=np.int32),
+        entry=entry, n_slots=len(slots),
+        e2e_spec=np.ascontiguousarray(np.array([p[0] for p in profiles], dtype=np.int32)),
+        e2e_bytes=np.ascontiguousarray(np.array([p[1] for p in profiles], dtype=np.uint8)),
+        sig_int=np.array(sig_int, dtype=np.int64).reshape(-1, _H["CFDI_SIG_INTS"]),
+        sig_real=np.array(sig_real, dtype=np.float64).reshape(-1, _H["CFDI_SIG_REALS"]),
+        ids_int=np.array(ids_int, dtype=np.int64), ids_real=np.array(ids_real),
+        width=width)
