@@ -31,16 +31,19 @@ def _traffic(frames: int, scenario: str):
 
 
 class Decode:
-    """The drive's frames to values (BusMap.decode_frames), FRAMES frames."""
+    """The drive's frames checked and decoded to values (BusMap.decode_frames), FRAMES
+    frames."""
 
     timeout = 120
+    params = KERNELS
+    param_names = ("kernel",)
 
-    def setup(self) -> None:
-        self.monitor = Monitor(load_config(CONFIG), diagnose=False)
+    def setup(self, kernel: str) -> None:
+        self.monitor = Monitor(load_config(CONFIG), diagnose=False, kernel=kernels.get(kernel))
         self.bus_map = self.monitor.drives[0].bus_map
         self.traffic = _traffic(FRAMES, "dc_motor_nominal")
 
-    def time_decode_frames(self) -> None:
+    def time_decode_frames(self, kernel: str) -> None:
         self.bus_map.decode_frames(self.traffic)
 
 
