@@ -136,8 +136,9 @@ def test_decode_of_hostile_frames_under_the_sanitizers_is_numpys(driver, name):
     wrong lengths, foreign and extended IDs, remote, error and FD flags, garbage, CAN FD
     payloads to 64 bytes): the C decode reads nothing outside a buffer and gives the numpy
     reference's statuses, slots, values and counters."""
-    from canfdi.config import load_config
     from canfdi.configs import CONFIG_DIR
+
+    from canfdi.config import load_config
     from canfdi.core import kernel
     from canfdi.monitor import Monitor
     from canfdi.tools.bench import bench_scenarios, make_traffic
@@ -162,10 +163,11 @@ def test_decode_of_hostile_frames_under_the_sanitizers_is_numpys(driver, name):
 def test_malformed_decode_tables_are_a_status_under_the_sanitizers(driver):
     """Tables whose indices point outside themselves come back as a negative status, nothing
     read outside the arrays their sizes describe."""
+    from canfdi.configs import CONFIG_DIR
+
     from canfdi.bus import ctables
     from canfdi.bus.frames import FrameBlock
     from canfdi.config import load_config
-    from canfdi.configs import CONFIG_DIR
     from canfdi.monitor import Monitor
 
     tables = Monitor(load_config(CONFIG_DIR / "dc_motor.yaml")).bus_map.c_tables()
