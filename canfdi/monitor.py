@@ -160,10 +160,10 @@ class Monitor:
         self.drives: list[Drive] = []
         for index, drive in enumerate(config.drive_list):
             bus_map = BusMap.from_dbc(database, config, drive, label, monitor)
-            self.kernel.install(bus_map=bus_map)
-            self.drives.append(Drive(
-                drive.name, index, bus_map, make_clock(bus_map, self.dt, config.bus.clock),
-                self._supervised(drive.name) if diagnose else None))
+            clock = make_clock(bus_map, self.dt, config.bus.clock)
+            self.kernel.install(bus_map=bus_map, gate=clock.gate)
+            self.drives.append(Drive(drive.name, index, bus_map, clock,
+                                     self._supervised(drive.name) if diagnose else None))
         # Which drives a frame goes to: (ID, extended) -> bit mask of drive indices. A message
         # several drives share (a CANopen SYNC that triggers all) goes to each; a frame of no
         # drive goes to the first, which only counts it.

@@ -232,17 +232,67 @@ static PyObject *decode_block(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(gate_block_doc,
+"gate_block(state, bound, confirm, t, n_t, rows, n_rows, out, dropped, steps) -> (n_dropped,\n"
+"n_steps, done)\n\n"
+"The time gate over a block (cfdi_gate_block): state (7,) int64 updated, t (n_t,) int64,\n"
+"rows (n_rows,) int64, out (n_t,) int64 written at rows, dropped (n_rows,) int64 and steps\n"
+"(n_rows, 2) int64 written.");
+
+static PyObject *gate_block(PyObject *self, PyObject *args)
+{
+    PyObject *ost, *ot, *orows, *oout, *odr, *osteps;
+    Py_ssize_t n_t, n_rows;
+    long long bound, confirm;
+    held_buffer b[6];
+    size_t n_dropped = 0, n_steps = 0, done = 0;
+    int status;
+    (void)self;
+    memset(b, 0, sizeof b);
+
+    if (!PyArg_ParseTuple(args, "OLLOnOnOOO", &ost, &bound, &confirm, &ot, &n_t, &orows, &n_rows,
+                          &oout, &odr, &osteps)) {
+        return NULL;
+    }
+    if (!sizes_ok(n_t, 8, 1) || !sizes_ok(n_rows, 16, 1)) {
+        PyErr_SetString(PyExc_ValueError, "gate_block: sizes do not fit");
+        return NULL;
+    }
+    if (take(ost, &b[0], 1, CFDI_GATE_STATE * 8, "state") < 0
+        || take(ot, &b[1], 0, n_t * 8, "t") < 0 || take(orows, &b[2], 0, n_rows * 8, "rows") < 0
+        || take(oout, &b[3], 1, n_t * 8, "out") < 0
+        || take(odr, &b[4], 1, n_rows * 8, "dropped") < 0
+        || take(osteps, &b[5], 1, n_rows * 16, "steps") < 0) {
+        release(b, 6);
+        return NULL;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    status = cfdi_gate_block((int64_t *)b[0].view.buf, (int64_t)bound, (int64_t)confirm,
+                             (const int64_t *)b[1].view.buf, (size_t)n_t,
+                             (const int64_t *)b[2].view.buf, (size_t)n_rows,
+                             (int64_t *)b[3].view.buf, (int64_t *)b[4].view.buf, &n_dropped,
+                             (int64_t *)b[5].view.buf, &n_steps, &done);
+    Py_END_ALLOW_THREADS
+    release(b, 6);
+    if (status != CFDI_OK) {
+        PyErr_Format(PyExc_ValueError, "gate_block: status %d", status);
+        return NULL;
+    }
+    return Py_BuildValue("nnn", (Py_ssize_t)n_dropped, (Py_ssize_t)n_steps, (Py_ssize_t)done);
+}
+
 static PyMethodDef methods[] = {
     {"fir_block", fir_block, METH_VARARGS, fir_block_doc},
     {"ph_block", ph_block, METH_VARARGS, ph_block_doc},
     {"decode_block", decode_block, METH_VARARGS, decode_block_doc},
+    {"gate_block", gate_block, METH_VARARGS, gate_block_doc},
     {NULL, NULL, 0, NULL}
 };
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_ckernel",
-    "canfdi's C core (canfdi/_c): frame decode with E2E, the residual bank and the\n"
-    "Page-Hinkley detectors.",
+    "canfdi's C core (canfdi/_c): frame decode with E2E, the time gate, the residual bank\n"
+    "and the Page-Hinkley detectors.",
     -1, methods, NULL, NULL, NULL, NULL
 };
 

@@ -15,6 +15,35 @@
 typedef float cfdi_real;
 #else
 typedef double cfdi_real;
+/* The time gate over a block (canfdi.bus.timegate.TimeGate.step frame by frame).
+ *
+ * state : int64 [CFDI_GATE_STATE], the gate's, updated: whether it has a reference, the
+ *         reference (the drive's time), the offset, the chain of frames beyond the bound (its
+ *         length, first and last raw times) and the jumps counted.
+ * bound, confirm : the gate's bound (ns, > 0) and the frames that confirm a step (>= 1).
+ * t     : (n_t,) raw times; rows : (n_rows,) the positions of the frames to check, in order.
+ * out   : (n_t,) the checked frames' corrected times written at their rows.
+ * dropped : (n_rows,) the positions among rows of the frames dropped, *n_dropped of them.
+ * steps : (n_rows, 2) the clock steps followed (raw time of the first frame after it, its
+ *         size), *n_steps of them.
+ * done  : the frames checked: n_rows, or fewer when a time, offset or reference reached
+ *         CFDI_GATE_SAFE in magnitude (beyond it int64 could wrap; the caller goes on exactly,
+ *         from the state left).
+ * Returns CFDI_OK, or a negative status for a null pointer, a bad bound or a row outside t. */
+#define CFDI_GATE_HAS_REF 0
+#define CFDI_GATE_REF 1
+#define CFDI_GATE_OFFSET 2
+#define CFDI_GATE_CHAIN_COUNT 3
+#define CFDI_GATE_CHAIN_FIRST 4
+#define CFDI_GATE_CHAIN_LAST 5
+#define CFDI_GATE_JUMPS 6
+#define CFDI_GATE_STATE 7
+#define CFDI_GATE_SAFE ((int64_t)1 << 61)
+int cfdi_gate_block(int64_t *state, int64_t bound, int64_t confirm, const int64_t *t,
+                    size_t n_t, const int64_t *rows, size_t n_rows, int64_t *out,
+                    int64_t *dropped, size_t *n_dropped, int64_t *steps, size_t *n_steps,
+                    size_t *done);
+
 #endif
 
 /* Statuses: 0 is success; a negative value names what the caller got wrong. */
@@ -57,5 +86,34 @@ int cfdi_ph_block(const int64_t *k, const cfdi_real *x, size_t n, size_t c,
                   const cfdi_real *delta, const cfdi_real *h, cfdi_real *state,
                   int64_t *last_zero, cfdi_real *g_up, cfdi_real *g_down, int8_t *alarm,
                   size_t *done);
+
+/* The time gate over a block (canfdi.bus.timegate.TimeGate.step frame by frame).
+ *
+ * state : int64 [CFDI_GATE_STATE], the gate's, updated: whether it has a reference, the
+ *         reference (the drive's time), the offset, the chain of frames beyond the bound (its
+ *         length, first and last raw times) and the jumps counted.
+ * bound, confirm : the gate's bound (ns, > 0) and the frames that confirm a step (>= 1).
+ * t     : (n_t,) raw times; rows : (n_rows,) the positions of the frames to check, in order.
+ * out   : (n_t,) the checked frames' corrected times written at their rows.
+ * dropped : (n_rows,) the positions among rows of the frames dropped, *n_dropped of them.
+ * steps : (n_rows, 2) the clock steps followed (raw time of the first frame after it, its
+ *         size), *n_steps of them.
+ * done  : the frames checked: n_rows, or fewer when a time, offset or reference reached
+ *         CFDI_GATE_SAFE in magnitude (beyond it int64 could wrap; the caller goes on exactly,
+ *         from the state left).
+ * Returns CFDI_OK, or a negative status for a null pointer, a bad bound or a row outside t. */
+#define CFDI_GATE_HAS_REF 0
+#define CFDI_GATE_REF 1
+#define CFDI_GATE_OFFSET 2
+#define CFDI_GATE_CHAIN_COUNT 3
+#define CFDI_GATE_CHAIN_FIRST 4
+#define CFDI_GATE_CHAIN_LAST 5
+#define CFDI_GATE_JUMPS 6
+#define CFDI_GATE_STATE 7
+#define CFDI_GATE_SAFE ((int64_t)1 << 61)
+int cfdi_gate_block(int64_t *state, int64_t bound, int64_t confirm, const int64_t *t,
+                    size_t n_t, const int64_t *rows, size_t n_rows, int64_t *out,
+                    int64_t *dropped, size_t *n_dropped, int64_t *steps, size_t *n_steps,
+                    size_t *done);
 
 #endif

@@ -24,6 +24,8 @@ frames around a jump one by one.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -64,10 +66,17 @@ class TimeGate:
         self.confirm = int(confirm)
         self.offset = 0  # subtracted from every raw time since the last step
         self.ref: int | None = None  # the drive's time: the latest accepted frame's, corrected
-        self._chain: list[int] = []  # raw times of the latest frames beyond the bound, in a row
+        # The latest frames beyond the bound, in a row: how many, the first's and the last's
+        # raw times.
+        self.chain = (0, 0, 0)
         self.jumps = 0
         # (raw time of the first frame after the step, the step's size), ns
         self.steps: list[tuple[int, int]] = []
+        # The block form `apply` runs: this reference, unless canfdi.core.kernel installed
+        # another that gives the same (its C core's).
+        self.block: Callable[[TimeGate, NDArray[np.int64], NDArray[np.intp]],
+                             tuple[NDArray[np.int64], NDArray[np.intp]]] = \
+            TimeGate.apply_reference
 
     def step(self, t: int) -> int | None:
         """One valid frame's raw time: its corrected time, or None (a time jump: drop it)."""
@@ -77,28 +86,33 @@ class TimeGate:
             self.ref = c
             return c
         if abs(c - self.ref) <= self.bound:
-            self._chain.clear()
+            self.chain = (0, 0, 0)
             self.ref = max(self.ref, c)
             return c
-        if self._chain and abs(t - self._chain[-1]) <= self.bound:
-            self._chain.append(t)
-        else:
-            self._chain = [t]
-        if len(self._chain) < self.confirm:
+        count, first, last = self.chain
+        self.chain = (count + 1, first, t) if count and abs(t - last) <= self.bound else (1, t, t)
+        if self.chain[0] < self.confirm:
             self.jumps += 1
             return None
         # Confirmed: the clock stepped (by as much as the chain's first frame jumped). Land
         # this frame a bound after the drive's time.
+        first = self.chain[1]
         landed = self.ref + self.bound
-        self.steps.append((self._chain[0], self._chain[0] - self.offset - self.ref))
+        self.steps.append((first, first - self.offset - self.ref))
         self.offset += c - landed
-        self._chain.clear()
+        self.chain = (0, 0, 0)
         self.ref = landed
         return landed
 
     def apply(self, t: NDArray[np.int64], rows: NDArray[np.intp]
               ) -> tuple[NDArray[np.int64], NDArray[np.intp]]:
-        """`step` over the frames ``rows`` of a block, in order.
+        """`step` over the frames ``rows`` of a block, in order (on the kernel installed:
+        `apply_reference`'s answers)."""
+        return self.block(self, t, rows)
+
+    def apply_reference(self, t: NDArray[np.int64], rows: NDArray[np.intp]
+                        ) -> tuple[NDArray[np.int64], NDArray[np.intp]]:
+        """`step` over the frames ``rows`` of a block, in order, in numpy (the reference).
 
         Parameters
         ----------
@@ -122,7 +136,7 @@ class TimeGate:
             part = tv[pos: pos + chunk]
             # Near a jump (or at times near the int64 limits, where differences could wrap):
             # one frame at a time, exactly as `step`.
-            one = (self.ref is None or bool(self._chain)
+            one = (self.ref is None or self.chain[0] > 0
                    or max(abs(int(part.min())), abs(int(part.max())), abs(self.offset),
                           abs(self.ref)) >= _SAFE)
             if not one:

@@ -1,12 +1,14 @@
 """The kernels the monitor's hot path runs on, chosen by name here and nowhere else.
 
 - ``python``: the numpy reference (canfdi.core.residuals.fir_rows,
-  canfdi.core.detect.change_point_block, canfdi.bus.dbc.BusMap.decode_frames_reference).
+  canfdi.core.detect.change_point_block, canfdi.bus.dbc.BusMap.decode_frames_reference,
+  canfdi.bus.timegate.TimeGate.apply_reference).
 - ``c``: the C core (canfdi/_c, built as canfdi._ckernel by the package's own build where a
   compiler exists): the same functions over the same arrays. The detector's statistics are
   numpy's bit for bit (the same closed form, op for op); the residuals agree to rounding
   (numpy's BLAS may order or fuse a row's sum otherwise); the frame decode's statuses,
-  slots, counters and values are numpy's to the bit.
+  slots, counters and values and the time gate's times, drops and steps are numpy's to the
+  bit.
 
 A diagnoser that has block forms to speed up takes a kernel by its ``use_kernel`` method
 (`Kernel.use_on` calls it where there is one), which installs the kernel's functions on its
@@ -63,17 +65,21 @@ class Kernel:
     fir_rows: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
     change_point_block: Callable[..., ChangePointBlock]
     decode_frames: Callable[[Any, Any], tuple]
+    gate_apply: Callable[[Any, np.ndarray, np.ndarray], tuple]
 
     def install(self, *, bank: Any = None, detectors: tuple[Any, ...] = (),
-                bus_map: Any = None) -> None:
-        """Make ``bank`` (a ResidualBank), ``detectors`` (ChangePointDetector) and ``bus_map``
-        (canfdi.bus.dbc.BusMap: its frame decode) run on this kernel."""
+                bus_map: Any = None, gate: Any = None) -> None:
+        """Make ``bank`` (a ResidualBank), ``detectors`` (ChangePointDetector), ``bus_map``
+        (canfdi.bus.dbc.BusMap: its frame decode) and ``gate`` (canfdi.bus.timegate.TimeGate)
+        run on this kernel."""
         if bank is not None:
             bank.fir_rows = self.fir_rows
         for det in detectors:
             det.block = self.change_point_block
         if bus_map is not None:
             bus_map.decoder = self.decode_frames
+        if gate is not None:
+            gate.block = self.gate_apply
 
     def use_on(self, diagnoser: Any) -> Any:
         """``diagnoser`` (a method's) with its block forms on this kernel, where it has any
@@ -155,10 +161,52 @@ def _c_decode_frames(bus_map: Any, block: Any) -> tuple:
     return status, slot, values, counters
 
 
+def _py_gate_apply(gate: Any, t: np.ndarray, rows: np.ndarray) -> tuple:
+    """A TimeGate's block form in numpy (TimeGate.apply_reference)."""
+    return gate.apply_reference(t, rows)
+
+
+_INT64 = (-(1 << 63), (1 << 63) - 1)
+
+
+def _c_gate_apply(gate: Any, t: np.ndarray, rows: np.ndarray) -> tuple:
+    """A TimeGate's block form in C (cfdi_gate_block), from the gate's state and back into
+    it. The C stops where a time, offset or reference nears int64's ends; the reference takes
+    the rest of the block from there, with Python's integers (as it takes a gate whose state
+    no longer fits int64 at all)."""
+    count, first, last = gate.chain
+    state = [gate.ref is not None, gate.ref or 0, gate.offset, count, first, last, gate.jumps]
+    n = len(rows)
+    if not n or not all(_INT64[0] <= int(v) <= _INT64[1] for v in state) \
+            or not 0 < gate.bound < 1 << 61:
+        return gate.apply_reference(t, rows)
+    st = np.array(state, dtype=np.int64)
+    times = np.ascontiguousarray(t, dtype=np.int64)
+    out = times.copy()
+    at = np.ascontiguousarray(rows, dtype=np.int64)
+    dropped = np.empty(n, dtype=np.int64)
+    steps = np.empty((n, 2), dtype=np.int64)
+    n_dropped, n_steps, done = _ckernel.gate_block(st, gate.bound, gate.confirm, times,
+                                                   len(times), at, n, out, dropped, steps)
+    gate.ref = int(st[1]) if st[0] else None
+    gate.offset = int(st[2])
+    gate.chain = (int(st[3]), int(st[4]), int(st[5]))
+    gate.jumps = int(st[6])
+    gate.steps.extend((int(a), int(b)) for a, b in steps[:n_steps].tolist())
+    drops = dropped[:n_dropped].astype(np.intp)
+    if done < n:
+        rest = rows[done:]
+        later, rest_dropped = gate.apply_reference(times, rest)
+        out[rest] = later[rest]
+        drops = np.concatenate([drops, rest_dropped + done])
+    return out, drops
+
+
 _KERNELS: dict[str, Kernel | None] = {
     "c": None if _ckernel is None else Kernel("c", _c_fir_rows, _c_change_point_block,
-                                              _c_decode_frames),
-    "python": Kernel("python", fir_rows, change_point_block, _py_decode_frames),
+                                              _c_decode_frames, _c_gate_apply),
+    "python": Kernel("python", fir_rows, change_point_block, _py_decode_frames,
+                     _py_gate_apply),
 }
 
 
