@@ -161,7 +161,7 @@ class Monitor:
         for index, drive in enumerate(config.drive_list):
             bus_map = BusMap.from_dbc(database, config, drive, label, monitor)
             clock = make_clock(bus_map, self.dt, config.bus.clock)
-            self.kernel.install(bus_map=bus_map, gate=clock.gate)
+            self.kernel.install(bus_map=bus_map, gate=clock.gate, clock=clock)
             self.drives.append(Drive(drive.name, index, bus_map, clock,
                                      self._supervised(drive.name) if diagnose else None))
         # Which drives a frame goes to: (ID, extended) -> bit mask of drive indices. A message

@@ -281,18 +281,77 @@ static PyObject *gate_block(PyObject *self, PyObject *args)
     return Py_BuildValue("nnn", (Py_ssize_t)n_dropped, (Py_ssize_t)n_steps, (Py_ssize_t)done);
 }
 
+PyDoc_STRVAR(latest_block_doc,
+"latest_block(ok, n_ok, slot, n, values, vwidth, t, dest, n_slots, cols, instants, upto,\n"
+"             n_samples, max_age, value, time, width, out)\n\n"
+"The trigger and grid clocks' samples (cfdi_latest_block): ok (n_ok,) int64, slot (n,)\n"
+"int16, values (n, vwidth) float64, t (n,) int64, dest (n_slots, cols) int64, instants and\n"
+"upto (n_samples,) int64, value (width,) float64 and time (width,) int64 updated, out\n"
+"(n_samples, width) float64 written.");
+
+static PyObject *latest_block(PyObject *self, PyObject *args)
+{
+    PyObject *ook, *osl, *ova, *ot, *ode, *oin, *oup, *ovl, *otm, *oout;
+    Py_ssize_t n_ok, n, vwidth, n_slots, cols, n_samples, width;
+    double max_age;
+    held_buffer b[10];
+    int status;
+    (void)self;
+    memset(b, 0, sizeof b);
+
+    if (!PyArg_ParseTuple(args, "OnOnOnOOnnOOndOOnO", &ook, &n_ok, &osl, &n, &ova, &vwidth, &ot,
+                          &ode, &n_slots, &cols, &oin, &oup, &n_samples, &max_age, &ovl, &otm,
+                          &width, &oout)) {
+        return NULL;
+    }
+    if (!sizes_ok(n_ok, 8, 1) || !sizes_ok(n, vwidth + 2, 8) || !sizes_ok(n_slots, cols, 8)
+        || !sizes_ok(n_samples, width + 2, 8) || !sizes_ok(width, 16, 1)) {
+        PyErr_SetString(PyExc_ValueError, "latest_block: sizes do not fit");
+        return NULL;
+    }
+    if (take(ook, &b[0], 0, n_ok * 8, "ok") < 0 || take(osl, &b[1], 0, n * 2, "slot") < 0
+        || take(ova, &b[2], 0, n * vwidth * 8, "values") < 0
+        || take(ot, &b[3], 0, n * 8, "t") < 0
+        || take(ode, &b[4], 0, n_slots * cols * 8, "dest") < 0
+        || take(oin, &b[5], 0, n_samples * 8, "instants") < 0
+        || take(oup, &b[6], 0, n_samples * 8, "upto") < 0
+        || take(ovl, &b[7], 1, width * 8, "value") < 0
+        || take(otm, &b[8], 1, width * 8, "time") < 0
+        || take(oout, &b[9], 1, n_samples * width * 8, "out") < 0) {
+        release(b, 10);
+        return NULL;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    status = cfdi_latest_block((const int64_t *)b[0].view.buf, (size_t)n_ok,
+                               (const int16_t *)b[1].view.buf, (size_t)n,
+                               (const double *)b[2].view.buf, (size_t)vwidth,
+                               (const int64_t *)b[3].view.buf, (const int64_t *)b[4].view.buf,
+                               (size_t)n_slots, (size_t)cols, (const int64_t *)b[5].view.buf,
+                               (const int64_t *)b[6].view.buf, (size_t)n_samples, max_age,
+                               (double *)b[7].view.buf, (int64_t *)b[8].view.buf,
+                               (size_t)width, (double *)b[9].view.buf);
+    Py_END_ALLOW_THREADS
+    release(b, 10);
+    if (status != CFDI_OK) {
+        PyErr_Format(PyExc_ValueError, "latest_block: status %d", status);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"fir_block", fir_block, METH_VARARGS, fir_block_doc},
     {"ph_block", ph_block, METH_VARARGS, ph_block_doc},
     {"decode_block", decode_block, METH_VARARGS, decode_block_doc},
     {"gate_block", gate_block, METH_VARARGS, gate_block_doc},
+    {"latest_block", latest_block, METH_VARARGS, latest_block_doc},
     {NULL, NULL, 0, NULL}
 };
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_ckernel",
-    "canfdi's C core (canfdi/_c): frame decode with E2E, the time gate, the residual bank\n"
-    "and the Page-Hinkley detectors.",
+    "canfdi's C core (canfdi/_c): frame decode with E2E, the time gate, the latest-value\n"
+    "clocks' samples, the residual bank and the Page-Hinkley detectors.",
     -1, methods, NULL, NULL, NULL, NULL
 };
 

@@ -44,6 +44,25 @@ int cfdi_gate_block(int64_t *state, int64_t bound, int64_t confirm, const int64_
                     int64_t *dropped, size_t *n_dropped, int64_t *steps, size_t *n_steps,
                     size_t *done);
 
+/* The trigger and grid clocks' samples over a block
+ * (canfdi.bus.clock.latest_values: the newest value of each signal at each sample instant).
+ *
+ * ok      : (n_ok,) ascending rows of the block's valid drive frames; slot : (n,) each row's
+ *           slot; values : (n, vwidth) the decoded fields; t : (n,) the rows' times.
+ * dest    : (n_slots, cols) each slot's fields' positions in a sample row, -1 beyond.
+ * instants, upto : (n_samples,) the samples' instants and their last rows (non-decreasing,
+ *           -1: none of the block's).
+ * max_age : the oldest a value may be at an instant (ns, as a double: numpy's comparison).
+ * value, time : (width,) each position's newest value and time, updated to the block's.
+ * out     : (n_samples, width) written: the newest values, NaN where older than max_age.
+ * Returns CFDI_OK, or a negative status (rows out of order or out of range, an upto that
+ * decreases, a position outside width). */
+int cfdi_latest_block(const int64_t *ok, size_t n_ok, const int16_t *slot, size_t n,
+                      const double *values, size_t vwidth, const int64_t *t,
+                      const int64_t *dest, size_t n_slots, size_t cols,
+                      const int64_t *instants, const int64_t *upto, size_t n_samples,
+                      double max_age, double *value, int64_t *time, size_t width, double *out);
+
 #endif
 
 /* Statuses: 0 is success; a negative value names what the caller got wrong. */
@@ -115,5 +134,24 @@ int cfdi_gate_block(int64_t *state, int64_t bound, int64_t confirm, const int64_
                     size_t n_t, const int64_t *rows, size_t n_rows, int64_t *out,
                     int64_t *dropped, size_t *n_dropped, int64_t *steps, size_t *n_steps,
                     size_t *done);
+
+/* The trigger and grid clocks' samples over a block
+ * (canfdi.bus.clock.latest_values: the newest value of each signal at each sample instant).
+ *
+ * ok      : (n_ok,) ascending rows of the block's valid drive frames; slot : (n,) each row's
+ *           slot; values : (n, vwidth) the decoded fields; t : (n,) the rows' times.
+ * dest    : (n_slots, cols) each slot's fields' positions in a sample row, -1 beyond.
+ * instants, upto : (n_samples,) the samples' instants and their last rows (non-decreasing,
+ *           -1: none of the block's).
+ * max_age : the oldest a value may be at an instant (ns, as a double: numpy's comparison).
+ * value, time : (width,) each position's newest value and time, updated to the block's.
+ * out     : (n_samples, width) written: the newest values, NaN where older than max_age.
+ * Returns CFDI_OK, or a negative status (rows out of order or out of range, an upto that
+ * decreases, a position outside width). */
+int cfdi_latest_block(const int64_t *ok, size_t n_ok, const int16_t *slot, size_t n,
+                      const double *values, size_t vwidth, const int64_t *t,
+                      const int64_t *dest, size_t n_slots, size_t cols,
+                      const int64_t *instants, const int64_t *upto, size_t n_samples,
+                      double max_age, double *value, int64_t *time, size_t width, double *out);
 
 #endif

@@ -51,7 +51,7 @@ from canfdi.bus.timegate import MIN_BOUND_PERIODS, TimeGate
 from canfdi.core.records import Sample
 from canfdi.core.settings import ClockConfig, ConfigError, brief
 
-__all__ = ["CLOCKS", "LatestValueClock", "make_clock"]
+__all__ = ["CLOCKS", "LatestValueClock", "dest_table", "latest_values", "make_clock"]
 
 CLOCKS = ("counter", "trigger", "grid")
 """The sample clocks a config can name (``bus.clock.kind``)."""
@@ -121,6 +121,10 @@ class LatestValueClock:
         self._counts = [0] * len(STATUS_NAMES)
         self._complete = self._broken = self._missing = 0
         self.gate = TimeGate(round(MIN_BOUND_PERIODS * max(self._dt_ns, self._period_ns)))
+        self._dest = dest_table(bus_map._dests)
+        # The block form of the samples' values: `latest_values`, unless canfdi.core.kernel
+        # installed its C core's (the same numbers).
+        self.latest_values = self.latest_values_reference = latest_values
 
     @property
     def stats(self) -> dict:
@@ -288,21 +292,60 @@ class LatestValueClock:
                    values: NDArray[np.float64], t: NDArray[np.int64],
                    instants: NDArray[np.int64], upto: NDArray[np.intp]) -> NDArray[np.float64]:
         """(S, p + q): per sample the newest value of each signal received by row ``upto``,
-        NaN when older than max_age at the instant; the state keeps the newest of the block."""
-        width = len(self._value)
-        out = np.full((len(instants), width), np.nan)
-        for s, dests in enumerate(self.bus_map._dests):
-            rows = ok[slot[ok] == s]
-            for col, dest in enumerate(dests):
-                # Updates of this signal: the kept one (before the block) and the block's.
-                times = np.concatenate([[self._time[dest]], t[rows]])
-                vals = np.concatenate([[self._value[dest]], values[rows, col]])
-                if len(instants):
-                    newest = np.searchsorted(rows, upto, side="right")  # 0: the kept one
-                    fresh = instants - times[newest] <= self._max_age_ns
-                    out[:, dest] = np.where(fresh, vals[newest], np.nan)
-                self._time[dest], self._value[dest] = times[-1], vals[-1]
-        return out
+        NaN when older than max_age at the instant; the state keeps the newest of the block
+        (`latest_values`, on the kernel installed)."""
+        return self.latest_values(ok, slot, values, t, instants, upto, self._dest,
+                                  self._max_age_ns, self._value, self._time)
+
+
+def dest_table(dests: tuple[tuple[int, ...], ...]) -> NDArray[np.int64]:
+    """(slots, most fields) int64: each slot's fields' positions in a sample row, -1 beyond."""
+    cols = max((len(d) for d in dests), default=0)
+    table = np.full((len(dests), cols), -1, dtype=np.int64)
+    for s, row in enumerate(dests):
+        table[s, :len(row)] = row
+    return table
+
+
+def latest_values(ok: NDArray[np.intp], slot: NDArray[np.int16], values: NDArray[np.float64],
+                  t: NDArray[np.int64], instants: NDArray[np.int64], upto: NDArray[np.intp],
+                  dest: NDArray[np.int64], max_age_ns: float, value: NDArray[np.float64],
+                  time: NDArray[np.int64]) -> NDArray[np.float64]:
+    """The latest-value clocks' samples, in numpy (the reference of the kernels' form).
+
+    Parameters
+    ----------
+    ok : (V,) ascending rows of the block's valid drive frames; slot, t : (N,) every row's
+        slot and (gate-checked) time; values : (N, >= cols) the decoded fields.
+    instants : (S,) the samples' instants; upto : (S,) non-decreasing, each sample's last row
+        counted (-1: none of the block's).
+    dest : (slots, cols) each slot's fields' positions in a row (`dest_table`), -1 beyond.
+    max_age_ns : the oldest a value may be at an instant.
+    value, time : (W,) each position's newest value and its time before the block; updated to
+        the newest of the block.
+
+    Returns
+    -------
+    (S, W) per sample the newest value of each position received by its last row, NaN when
+    older than max_age (or never received).
+    """
+    width = len(value)
+    out = np.full((len(instants), width), np.nan)
+    for s in range(dest.shape[0]):
+        rows = ok[slot[ok] == s]
+        for col in range(dest.shape[1]):
+            to = int(dest[s, col])
+            if to < 0:
+                continue
+            # Updates of this signal: the kept one (before the block) and the block's.
+            times = np.concatenate([[time[to]], t[rows]])
+            vals = np.concatenate([[value[to]], values[rows, col]])
+            if len(instants):
+                newest = np.searchsorted(rows, upto, side="right")  # 0: the kept one
+                fresh = instants - times[newest] <= max_age_ns
+                out[:, to] = np.where(fresh, vals[newest], np.nan)
+            time[to], value[to] = times[-1], vals[-1]
+    return out
 
 
 def make_clock(bus_map: BusMap, dt: float, clock: ClockConfig

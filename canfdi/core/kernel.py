@@ -66,12 +66,13 @@ class Kernel:
     change_point_block: Callable[..., ChangePointBlock]
     decode_frames: Callable[[Any, Any], tuple]
     gate_apply: Callable[[Any, np.ndarray, np.ndarray], tuple]
+    latest_values: Callable[..., np.ndarray] | None
 
     def install(self, *, bank: Any = None, detectors: tuple[Any, ...] = (),
-                bus_map: Any = None, gate: Any = None) -> None:
+                bus_map: Any = None, gate: Any = None, clock: Any = None) -> None:
         """Make ``bank`` (a ResidualBank), ``detectors`` (ChangePointDetector), ``bus_map``
-        (canfdi.bus.dbc.BusMap: its frame decode) and ``gate`` (canfdi.bus.timegate.TimeGate)
-        run on this kernel."""
+        (canfdi.bus.dbc.BusMap: its frame decode), ``gate`` (canfdi.bus.timegate.TimeGate)
+        and ``clock`` (a sample clock: a latest-value clock's samples) run on this kernel."""
         if bank is not None:
             bank.fir_rows = self.fir_rows
         for det in detectors:
@@ -80,6 +81,8 @@ class Kernel:
             bus_map.decoder = self.decode_frames
         if gate is not None:
             gate.block = self.gate_apply
+        if clock is not None and hasattr(clock, "latest_values"):
+            clock.latest_values = self.latest_values or clock.latest_values_reference
 
     def use_on(self, diagnoser: Any) -> Any:
         """``diagnoser`` (a method's) with its block forms on this kernel, where it has any
@@ -202,11 +205,31 @@ def _c_gate_apply(gate: Any, t: np.ndarray, rows: np.ndarray) -> tuple:
     return out, drops
 
 
+def _c_latest_values(ok: np.ndarray, slot: np.ndarray, values: np.ndarray, t: np.ndarray,
+                     instants: np.ndarray, upto: np.ndarray, dest: np.ndarray,
+                     max_age_ns: float, value: np.ndarray, time: np.ndarray) -> np.ndarray:
+    """canfdi.bus.clock.latest_values in C (cfdi_latest_block); ``value`` and ``time`` are
+    the clock's own arrays, updated in place."""
+    values = np.ascontiguousarray(values, dtype=np.float64)
+    n_samples, width = len(instants), len(value)
+    out = np.empty((n_samples, width))
+    dest = np.ascontiguousarray(dest, dtype=np.int64)
+    _ckernel.latest_block(np.ascontiguousarray(ok, dtype=np.int64), len(ok),
+                          np.ascontiguousarray(slot, dtype=np.int16), len(slot), values,
+                          values.shape[1] if values.ndim == 2 else 0,
+                          np.ascontiguousarray(t, dtype=np.int64), dest, dest.shape[0],
+                          dest.shape[1], np.ascontiguousarray(instants, dtype=np.int64),
+                          np.ascontiguousarray(upto, dtype=np.int64), n_samples,
+                          float(max_age_ns), value, time, width, out)
+    return out
+
+
 _KERNELS: dict[str, Kernel | None] = {
     "c": None if _ckernel is None else Kernel("c", _c_fir_rows, _c_change_point_block,
-                                              _c_decode_frames, _c_gate_apply),
+                                              _c_decode_frames, _c_gate_apply,
+                                              _c_latest_values),
     "python": Kernel("python", fir_rows, change_point_block, _py_decode_frames,
-                     _py_gate_apply),
+                     _py_gate_apply, None),
 }
 
 
