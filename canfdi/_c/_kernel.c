@@ -339,19 +339,93 @@ static PyObject *latest_block(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(counter_run_doc,
+"counter_run(state, buffer, width, rows, slots, counters, times, n_frames, values, n_values,\n"
+"            vwidth, dest, n_slots, cols, mod, dt_ns, slack, fast_max, takeover, status,\n"
+"            n_status, ks, done, gaps, samples) -> (n_out, used, handover)\n\n"
+"The counter clock's state machine over a run of frames (cfdi_counter_run): state (12,)\n"
+"int64 and buffer (width,) float64 updated; rows, slots, counters, times (n_frames,) int64;\n"
+"values (n_values, vwidth) float64; dest (n_slots, cols) int64; takeover (n_frames,) uint8;\n"
+"status (n_status,) int8 updated; ks, done, gaps (2 n_frames,) int64 and samples\n"
+"(2 n_frames, width) float64 written.");
+
+static PyObject *counter_run(PyObject *self, PyObject *args)
+{
+    PyObject *ost, *obuf, *orows, *oslots, *octr, *otimes, *oval, *odest, *otake, *ostatus;
+    PyObject *oks, *odone, *ogaps, *osamples;
+    Py_ssize_t width, n_frames, n_values, vwidth, n_slots, cols, n_status;
+    long long mod, fast_max;
+    double dt_ns, slack;
+    held_buffer b[14];
+    size_t n_out = 0, used = 0;
+    int status, handover = 0;
+    (void)self;
+    memset(b, 0, sizeof b);
+
+    if (!PyArg_ParseTuple(args, "OOnOOOOnOnnOnnLddLOOnOOOO", &ost, &obuf, &width, &orows,
+                          &oslots, &octr, &otimes, &n_frames, &oval, &n_values, &vwidth, &odest,
+                          &n_slots, &cols, &mod, &dt_ns, &slack, &fast_max, &otake, &ostatus,
+                          &n_status, &oks, &odone, &ogaps, &osamples)) {
+        return NULL;
+    }
+    if (!sizes_ok(width, 16, 1) || !sizes_ok(n_frames, 2 * width + 8, 8)
+        || !sizes_ok(n_values, vwidth + 1, 8) || !sizes_ok(n_slots, cols, 8)
+        || !sizes_ok(n_status, 1, 1)) {
+        PyErr_SetString(PyExc_ValueError, "counter_run: sizes do not fit");
+        return NULL;
+    }
+    if (take(ost, &b[0], 1, CFDI_CTR_STATE * 8, "state") < 0
+        || take(obuf, &b[1], 1, width * 8, "buffer") < 0
+        || take(orows, &b[2], 0, n_frames * 8, "rows") < 0
+        || take(oslots, &b[3], 0, n_frames * 8, "slots") < 0
+        || take(octr, &b[4], 0, n_frames * 8, "counters") < 0
+        || take(otimes, &b[5], 0, n_frames * 8, "times") < 0
+        || take(oval, &b[6], 0, n_values * vwidth * 8, "values") < 0
+        || take(odest, &b[7], 0, n_slots * cols * 8, "dest") < 0
+        || take(otake, &b[8], 0, n_frames, "takeover") < 0
+        || take(ostatus, &b[9], 1, n_status, "status") < 0
+        || take(oks, &b[10], 1, 2 * n_frames * 8, "ks") < 0
+        || take(odone, &b[11], 1, 2 * n_frames * 8, "done") < 0
+        || take(ogaps, &b[12], 1, 2 * n_frames * 8, "gaps") < 0
+        || take(osamples, &b[13], 1, 2 * n_frames * width * 8, "samples") < 0) {
+        release(b, 14);
+        return NULL;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    status = cfdi_counter_run((int64_t *)b[0].view.buf, (double *)b[1].view.buf, (size_t)width,
+                              (const int64_t *)b[2].view.buf, (const int64_t *)b[3].view.buf,
+                              (const int64_t *)b[4].view.buf, (const int64_t *)b[5].view.buf,
+                              (size_t)n_frames, (const double *)b[6].view.buf,
+                              (size_t)n_values, (size_t)vwidth, (const int64_t *)b[7].view.buf,
+                              (size_t)n_slots, (size_t)cols, (int64_t)mod, dt_ns, slack,
+                              (int64_t)fast_max, (const uint8_t *)b[8].view.buf,
+                              (int8_t *)b[9].view.buf, (size_t)n_status,
+                              (int64_t *)b[10].view.buf, (int64_t *)b[11].view.buf,
+                              (int64_t *)b[12].view.buf, (double *)b[13].view.buf, &n_out,
+                              &used, &handover);
+    Py_END_ALLOW_THREADS
+    release(b, 14);
+    if (status != CFDI_OK) {
+        PyErr_Format(PyExc_ValueError, "counter_run: status %d", status);
+        return NULL;
+    }
+    return Py_BuildValue("nni", (Py_ssize_t)n_out, (Py_ssize_t)used, handover);
+}
+
 static PyMethodDef methods[] = {
     {"fir_block", fir_block, METH_VARARGS, fir_block_doc},
     {"ph_block", ph_block, METH_VARARGS, ph_block_doc},
     {"decode_block", decode_block, METH_VARARGS, decode_block_doc},
     {"gate_block", gate_block, METH_VARARGS, gate_block_doc},
     {"latest_block", latest_block, METH_VARARGS, latest_block_doc},
+    {"counter_run", counter_run, METH_VARARGS, counter_run_doc},
     {NULL, NULL, 0, NULL}
 };
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_ckernel",
-    "canfdi's C core (canfdi/_c): frame decode with E2E, the time gate, the latest-value\n"
-    "clocks' samples, the residual bank and the Page-Hinkley detectors.",
+    "canfdi's C core (canfdi/_c): frame decode with E2E, the time gate, the sample clocks'\n"
+    "state machine and samples, the residual bank and the Page-Hinkley detectors.",
     -1, methods, NULL, NULL, NULL, NULL
 };
 

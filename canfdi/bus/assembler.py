@@ -53,6 +53,7 @@ The first three are valid; every other status is counted by reason and never ent
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -86,6 +87,9 @@ _FAST_MIN_PERIODS = 4
 # Periods a counter may run ahead of the clock (jitter, a burst after the drive's transmit queue
 # was held up) before a forward step needs a second frame to confirm it.
 _JUMP_SLACK = 3
+# The compiled machine keeps the slots seen as bits of an int64.
+_MACHINE_SLOTS = 62
+_I64 = (-(1 << 63), (1 << 63) - 1)
 
 # Samples assembled by push_batch, a run at a time: k, timestamp_ns, gap (B,) int64 and the
 # flat [u, z] rows (B, p + q) float64.
@@ -223,6 +227,11 @@ class SampleAssembler:
         self._missing = 0
         # Within a counter's modulus the counter says how many periods passed.
         self.gate = TimeGate(round(max(self._mod, MIN_BOUND_PERIODS) * self._dt_ns))
+        self._dest = dest_table(self._dests)
+        # The state machine's run over a stretch of frames in compiled code, when
+        # canfdi.core.kernel installed its C core's (the same verdicts and samples); None:
+        # this module's Python, frame by frame.
+        self.machine: Callable[..., tuple] | None = None
 
     @property
     def stats(self) -> dict:
@@ -559,6 +568,69 @@ class SampleAssembler:
         block : (k, timestamp_ns, gap, [u, z] rows) of the samples completed, or None.
         used : how many of the frames were taken (R, or the position where it stopped).
         """
+        if self.machine is not None and len(self._dests) <= _MACHINE_SLOTS:
+            return self._machine_run(rows, slots, counters, times, values, status, takeover)
+        return self._python_run(rows, slots, counters, times, values, status, takeover)
+
+    _STATE = ("_k", "_t_ref", "_seen", "_open", "_last_complete", "_last_delivered",
+              "_last_gap", "_jump", "_complete", "_broken", "_missing")
+
+    def _machine_run(
+        self,
+        rows: NDArray[np.intp],
+        slots: NDArray[np.int16],
+        counters: NDArray[np.int16],
+        times: NDArray[np.integer],
+        values: NDArray[np.float64],
+        status: NDArray[np.int8],
+        takeover: set[int],
+    ) -> tuple[_Block | None, int]:
+        """`_python_run` on the installed compiled machine: the state in, the frames through,
+        the state out; where it stops short of a handover (times or indices beyond what it
+        takes), the rest goes through `_python_run`."""
+        k, t_ref, seen, is_open, last_c, last_d, gap, jump, comp, broken, missing = (
+            getattr(self, name) for name in self._STATE)
+        state = [k, t_ref, seen, int(is_open), last_c, last_d, gap, int(jump is not None),
+                 jump or 0, comp, broken, missing]
+        if not all(_I64[0] <= int(v) <= _I64[1] for v in state):
+            return self._python_run(rows, slots, counters, times, values, status, takeover)
+        n = len(rows)
+        st = np.array(state, dtype=np.int64)
+        buffer = np.array(self._buffer, dtype=np.float64)
+        marks = np.zeros(n, dtype=np.uint8)
+        marks[[p for p in takeover if 0 <= p < n]] = 1
+        got = self.machine(st, buffer, rows, slots, counters, times, values, status, marks,
+                           self._dest, self._mod, self._dt_ns, float(_JUMP_SLACK),
+                           self._fast_max)
+        (ks, done, gaps, samples), used, handover = got
+        (self._k, self._t_ref, self._seen, is_open, self._last_complete, self._last_delivered,
+         self._last_gap, jump_set, jump, self._complete, self._broken,
+         self._missing) = st.tolist()
+        self._open = bool(is_open)
+        self._jump = jump if jump_set else None
+        self._buffer[:] = buffer.tolist()
+        block = (ks, done, gaps, samples) if len(ks) else None
+        if handover or used == n:
+            return block, used
+        later, more = self._python_run(rows[used:], slots[used:], counters[used:],
+                                       times[used:], values, status,
+                                       {p - used for p in takeover if p >= used})
+        if block is None or later is None:
+            return block if later is None else later, used + more
+        return tuple(np.concatenate([a, b]) for a, b in zip(block, later, strict=True)), \
+            used + more
+
+    def _python_run(
+        self,
+        rows: NDArray[np.intp],
+        slots: NDArray[np.int16],
+        counters: NDArray[np.int16],
+        times: NDArray[np.integer],
+        values: NDArray[np.float64],
+        status: NDArray[np.int8],
+        takeover: set[int],
+    ) -> tuple[_Block | None, int]:
+        """`_slow_run` in Python, frame by frame (the reference)."""
         ks: list[int] = []
         done: list[int] = []
         gaps: list[int] = []
@@ -654,6 +726,15 @@ class SampleAssembler:
         self._last_complete = self._last_delivered = self._k
         self._complete += 1
         return True
+
+
+def dest_table(dests: tuple[tuple[int, ...], ...]) -> NDArray[np.int64]:
+    """(slots, most fields) int64: each slot's fields' positions in a sample row, -1 beyond."""
+    cols = max((len(d) for d in dests), default=0)
+    table = np.full((len(dests), cols), -1, dtype=np.int64)
+    for s, row in enumerate(dests):
+        table[s, :len(row)] = row
+    return table
 
 
 def assemble_batch(bus_map: BusMap, dt: float, block: FrameBlock) -> AssembledLog:

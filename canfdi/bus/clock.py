@@ -35,7 +35,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from canfdi.bus.assembler import AssembledLog, SampleAssembler
+from canfdi.bus.assembler import AssembledLog, SampleAssembler, dest_table
 from canfdi.bus.dbc import BusMap
 from canfdi.bus.frames import (
     FLAG_ERROR,
@@ -51,7 +51,7 @@ from canfdi.bus.timegate import MIN_BOUND_PERIODS, TimeGate
 from canfdi.core.records import Sample
 from canfdi.core.settings import ClockConfig, ConfigError, brief
 
-__all__ = ["CLOCKS", "LatestValueClock", "dest_table", "latest_values", "make_clock"]
+__all__ = ["CLOCKS", "LatestValueClock", "latest_values", "make_clock"]
 
 CLOCKS = ("counter", "trigger", "grid")
 """The sample clocks a config can name (``bus.clock.kind``)."""
@@ -296,15 +296,6 @@ class LatestValueClock:
         (`latest_values`, on the kernel installed)."""
         return self.latest_values(ok, slot, values, t, instants, upto, self._dest,
                                   self._max_age_ns, self._value, self._time)
-
-
-def dest_table(dests: tuple[tuple[int, ...], ...]) -> NDArray[np.int64]:
-    """(slots, most fields) int64: each slot's fields' positions in a sample row, -1 beyond."""
-    cols = max((len(d) for d in dests), default=0)
-    table = np.full((len(dests), cols), -1, dtype=np.int64)
-    for s, row in enumerate(dests):
-        table[s, :len(row)] = row
-    return table
 
 
 def latest_values(ok: NDArray[np.intp], slot: NDArray[np.int16], values: NDArray[np.float64],

@@ -67,12 +67,14 @@ class Kernel:
     decode_frames: Callable[[Any, Any], tuple]
     gate_apply: Callable[[Any, np.ndarray, np.ndarray], tuple]
     latest_values: Callable[..., np.ndarray] | None
+    counter_machine: Callable[..., tuple] | None
 
     def install(self, *, bank: Any = None, detectors: tuple[Any, ...] = (),
                 bus_map: Any = None, gate: Any = None, clock: Any = None) -> None:
         """Make ``bank`` (a ResidualBank), ``detectors`` (ChangePointDetector), ``bus_map``
         (canfdi.bus.dbc.BusMap: its frame decode), ``gate`` (canfdi.bus.timegate.TimeGate)
-        and ``clock`` (a sample clock: a latest-value clock's samples) run on this kernel."""
+        and ``clock`` (a sample clock: a latest-value clock's samples, the counter clock's
+        state machine) run on this kernel."""
         if bank is not None:
             bank.fir_rows = self.fir_rows
         for det in detectors:
@@ -83,6 +85,8 @@ class Kernel:
             gate.block = self.gate_apply
         if clock is not None and hasattr(clock, "latest_values"):
             clock.latest_values = self.latest_values or clock.latest_values_reference
+        if clock is not None and hasattr(clock, "machine"):
+            clock.machine = self.counter_machine
 
     def use_on(self, diagnoser: Any) -> Any:
         """``diagnoser`` (a method's) with its block forms on this kernel, where it has any
@@ -224,12 +228,37 @@ def _c_latest_values(ok: np.ndarray, slot: np.ndarray, values: np.ndarray, t: np
     return out
 
 
+def _c_counter_machine(state: np.ndarray, buffer: np.ndarray, rows: np.ndarray,
+                       slots: np.ndarray, counters: np.ndarray, times: np.ndarray,
+                       values: np.ndarray, status: np.ndarray, takeover: np.ndarray,
+                       dest: np.ndarray, mod: int, dt_ns: float, slack: float,
+                       fast_max: int) -> tuple:
+    """The counter clock's state machine over a run of frames in C (cfdi_counter_run):
+    ``state`` and ``buffer`` (the assembler's, as arrays) and ``status`` updated; returns
+    ((ks, done, gaps, samples) of the samples delivered, frames used, handed over)."""
+    n = len(rows)
+    width = len(buffer)
+    values = np.ascontiguousarray(values, dtype=np.float64)
+    ks, done, gaps = (np.empty(2 * n, dtype=np.int64) for _ in range(3))
+    samples = np.empty((2 * n, width))
+    dest = np.ascontiguousarray(dest, dtype=np.int64)
+    n_out, used, handover = _ckernel.counter_run(
+        state, buffer, width, np.ascontiguousarray(rows, dtype=np.int64),
+        np.ascontiguousarray(slots, dtype=np.int64),
+        np.ascontiguousarray(counters, dtype=np.int64),
+        np.ascontiguousarray(times, dtype=np.int64), n, values, values.shape[0],
+        values.shape[1], dest, dest.shape[0], dest.shape[1], int(mod), float(dt_ns),
+        float(slack), int(fast_max), np.ascontiguousarray(takeover, dtype=np.uint8), status,
+        len(status), ks, done, gaps, samples)
+    return (ks[:n_out], done[:n_out], gaps[:n_out], samples[:n_out]), used, bool(handover)
+
+
 _KERNELS: dict[str, Kernel | None] = {
     "c": None if _ckernel is None else Kernel("c", _c_fir_rows, _c_change_point_block,
                                               _c_decode_frames, _c_gate_apply,
-                                              _c_latest_values),
+                                              _c_latest_values, _c_counter_machine),
     "python": Kernel("python", fir_rows, change_point_block, _py_decode_frames,
-                     _py_gate_apply, None),
+                     _py_gate_apply, None, None),
 }
 
 

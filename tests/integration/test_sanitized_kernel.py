@@ -45,8 +45,8 @@ def test_the_hostile_suites_pass_through_the_sanitized_c_kernel(tmp_path):
          "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-std=c99", "-Wall",
          "-Wextra", "-Werror", "-ffp-contract=off", "-fno-strict-aliasing",
          "-DPy_LIMITED_API=0x030B0000", f"-I{sysconfig.get_paths()['include']}", f"-I{CORE}",
-         *(str(CORE / f) for f in ("_kernel.c", "bank.c", "decode.c", "detect.c", "e2e.c",
-                                    "gate.c", "latest.c")),
+         *(str(CORE / f) for f in ("_kernel.c", "bank.c", "counter.c", "decode.c",
+                                    "detect.c", "e2e.c", "gate.c", "latest.c")),
          "-lm", "-o", str(kernel)], capture_output=True, text=True, timeout=300)
     assert build.returncode == 0, build.stderr
     # libstdc++ preloaded too: matplotlib's C++ throws, and the sanitizer must find the real

@@ -1,7 +1,7 @@
-"""The C core's latest-value clock samples (canfdi/_c/latest.c) against the numpy reference
-(canfdi.bus.clock.latest_values): the trigger and grid clocks of the shipped buses give the
-same samples, statuses and counters on either kernel, clean and hostile, cut anywhere; and
-the function alone on random blocks."""
+"""The C core's sample clocks (canfdi/_c/latest.c: the trigger and grid clocks' samples;
+canfdi/_c/counter.c: the counter clock's state machine) against the numpy reference: every
+shipped bus's clock gives the same samples, statuses and counters on either kernel, clean and
+hostile, cut anywhere; and the latest-value function alone on random blocks."""
 
 from __future__ import annotations
 
@@ -30,9 +30,10 @@ def _cut(block: FrameBlock, lo: int, hi: int) -> FrameBlock:
 
 
 @pytest.mark.parametrize("name", ["dc_motor_cia402", "dc_motor_float",
-                                  "dc_motor_two_drives_cia402"])
+                                  "dc_motor_two_drives_cia402", "dc_motor", "vtol",
+                                  "winding_machine"])
 @pytest.mark.parametrize("hostile", [False, True])
-def test_latest_value_clocks_sample_alike_on_either_kernel(name, hostile):
+def test_every_clock_samples_alike_on_either_kernel(name, hostile):
     from canfdi.tools.bench import bench_scenarios, make_traffic
 
     config = load_config(CONFIG_DIR / f"{name}.yaml")
@@ -57,6 +58,29 @@ def test_latest_value_clocks_sample_alike_on_either_kernel(name, hostile):
             assert got.stats == want.stats
             samples += len(want.k)
     assert samples > 1000
+
+
+def test_the_counter_machine_hands_times_near_int64s_ends_to_python():
+    """Times that cross 2^62 ns (year 2116) in a stretch of damaged traffic: the compiled
+    machine stops there and the Python machine takes the rest from its state, with the same
+    answers."""
+    from canfdi.tools.bench import make_traffic
+
+    config = load_config(CONFIG_DIR / "dc_motor.yaml")
+    traffic = make_traffic(3000, "dc_motor_nominal")
+    rng = np.random.default_rng(9)
+    ref = Monitor(config, diagnose=False, kernel=kernel.get("python"))
+    c = Monitor(config, diagnose=False, kernel=kernel.get("c"))
+    block = _hostile(traffic, rng, [0x104, 0x105, 0x106])
+    t = block.t_ns - int(block.t_ns[1500]) + (1 << 62)  # 2^62 ns at the 1500th frame
+    block = FrameBlock(t, block.id, block.dlc, block.flags, block.data, long=block.long)
+    for lo, hi in ((0, 1400), (1400, 3000)):
+        want = ref.drives[0].clock.push_batch(_cut(block, lo, hi))
+        got = c.drives[0].clock.push_batch(_cut(block, lo, hi))
+        for field in ("k", "timestamp_ns", "gap", "statuses"):
+            np.testing.assert_array_equal(getattr(got, field), getattr(want, field))
+        _same_values(got.z, want.z)
+        assert got.stats == want.stats
 
 
 def test_the_function_alone_on_random_blocks():
