@@ -42,6 +42,10 @@ Measure, on this machine and in one run, side by side:
                    (the design computed) and at a restart (remembered); its RSS while
                    monitoring and recording; its CPU share on a bus of 90% foreign frames
                    with its receive filters and with --no-filters
+  kernels          every kernel built (--version names them) on the same frames, best of three
+                   interleaved: monitoring and diagnosing from memory, and decode with the
+                   sample clock alone on the traffic and on a copy with a fifth of its frames
+                   damaged (the clock's frame-by-frame path)
   identify         canfdi identify's whole path (read a candump, assemble, fit with the unknown
                    input, validate, learn the noise, design) on 10 minutes of the servo axis's
                    commissioning run at 100 Hz (2 with --quick), confined to one core
@@ -189,7 +193,9 @@ def run(args: argparse.Namespace) -> int:
     rows += [(f"kernel {name}" + (" (measured)" if name == r["kernel"] else ""),
               f"{k['monitor_fps']:,.0f} frames/s monitoring "
               f"({k['monitor_cpu_s_per_1e6_frames']:.2f} CPU s per 10^6), "
-              f"{k['faulty_fps']:,.0f} frames/s diagnosing ({k['faults']:.0f} faults)")
+              f"{k['faulty_fps']:,.0f} frames/s diagnosing ({k['faults']:.0f} faults); "
+              f"decode and sample clock {k['assemble_fps']:,.0f} frames/s, "
+              f"{k['assemble_damaged_fps']:,.0f} with a fifth of the frames damaged")
              for name, k in r["kernels"].items()]
     rows += _daemon_rows(r)
     for name, value in rows:

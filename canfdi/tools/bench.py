@@ -352,21 +352,49 @@ def _replay_rates(config, path: Path, key: str, kernel: Kernel | None, runs: int
     return out
 
 
+def damaged_copy(traffic: FrameBlock, seed: int = 1, share: float = 0.2) -> FrameBlock:
+    """The frames with ``share`` of them damaged as a bad bus or log damages them, in equal
+    parts: a bit flipped, a wrong length, another message's ID, a remote or error flag, a
+    payload of garbage (deterministic for ``seed``): what the sample clocks' slow path (their
+    state machine, frame by frame) meets."""
+    rng = np.random.default_rng(seed)
+    n = traffic.size
+    data, ids = traffic.data.copy(), traffic.id.copy()
+    dlc, flags = traffic.dlc.copy(), traffic.flags.copy()
+    kind = np.where(rng.random(n) < share, rng.integers(0, 5, n), -1)
+    rows = np.flatnonzero(kind == 0)
+    data[rows, rng.integers(0, 8, rows.size)] ^= (1 << rng.integers(0, 8, rows.size)).astype(
+        np.uint8)
+    rows = np.flatnonzero(kind == 1)
+    dlc[rows] = rng.integers(0, 9, rows.size)
+    rows = np.flatnonzero(kind == 2)
+    ids[rows] = rng.choice(np.unique(traffic.id), rows.size)
+    rows = np.flatnonzero(kind == 3)
+    flags[rows] |= rng.choice([FLAG_REMOTE, 4], rows.size).astype(np.uint8)
+    rows = np.flatnonzero(kind == 4)
+    data[rows] = rng.integers(0, 256, (rows.size, 8), dtype=np.uint8)
+    return FrameBlock(traffic.t_ns, ids, dlc, flags, data, long=dict(traffic.long))
+
+
 def kernel_comparison(config, nominal: FrameBlock, faulty: FrameBlock, repeats: int = 3
                       ) -> dict[str, dict[str, float]]:
     """Every kernel built, timed side by side on the same frames (best of ``repeats``,
     interleaved, as one shared machine's load swings one timing): decode, assemble and
     diagnose from memory, no recording, on ``nominal`` (monitoring) and ``faulty`` (with
-    diagnoses). {kernel: {"monitor_fps", "monitor_cpu_s_per_1e6_frames", "faulty_fps",
-    "faults"}}."""
+    diagnoses); and decode and assemble alone (the sample clock's samples, no diagnosis) on
+    ``nominal`` and on a fifth of it damaged (`damaged_copy`). {kernel: {"monitor_fps",
+    "monitor_cpu_s_per_1e6_frames", "faulty_fps", "faults", "assemble_fps",
+    "assemble_damaged_fps"}}."""
     from canfdi.core import kernel as kernels
     from canfdi.monitor import Monitor
 
+    damaged = damaged_copy(nominal)
     best: dict[str, dict[str, float]] = {}
     for _ in range(repeats):
         for name in kernels.available():
             row = best.setdefault(name, {"monitor_fps": 0.0, "faulty_fps": 0.0,
-                                         "monitor_cpu_s_per_1e6_frames": math.inf})
+                                         "monitor_cpu_s_per_1e6_frames": math.inf,
+                                         "assemble_fps": 0.0, "assemble_damaged_fps": 0.0})
             for key, traffic in (("monitor", nominal), ("faulty", faulty)):
                 monitor = Monitor(config, record_residuals=False, kernel=kernels.get(name))
                 wall, cpu = _timed(lambda m=monitor, t=traffic: (_feed(m, t), m.finish()))
@@ -376,6 +404,11 @@ def kernel_comparison(config, nominal: FrameBlock, faulty: FrameBlock, repeats: 
                         row["monitor_cpu_s_per_1e6_frames"], cpu / traffic.size * 1e6)
                 else:
                     row["faults"] = float(sum(e.kind == "accepted" for e in monitor.events))
+            for key, traffic in (("assemble", nominal), ("assemble_damaged", damaged)):
+                clocks = [d.clock for d in Monitor(config, diagnose=False,
+                                                   kernel=kernels.get(name)).drives]
+                wall, _ = _timed(lambda c=clocks, t=traffic: [clock.push_batch(t) for clock in c])
+                row[f"{key}_fps"] = max(row[f"{key}_fps"], traffic.size / wall)
     return best
 
 

@@ -30,6 +30,12 @@ def test_bench_quick_json_is_complete():
     assert out["throughput_false_alarms"] == 0  # fault-free traffic
     assert out["latency_faults_diagnosed"] >= 1
     assert "canfdi bench [" in res.stderr  # progress reported
+    from canfdi.core.kernel import available
+
+    assert set(out["kernels"]) == set(available())  # every kernel built, side by side
+    for row in out["kernels"].values():
+        for key in ("monitor_fps", "faulty_fps", "assemble_fps", "assemble_damaged_fps"):
+            assert math.isfinite(row[key]) and row[key] > 0, key
     # `canfdi run` as its own process, on udp_multicast: unless this host has no multicast
     # (said), the receive filters pass the drive's tenth of the frames and nothing else.
     if "daemon_error" not in out:
