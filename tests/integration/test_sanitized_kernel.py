@@ -36,7 +36,7 @@ def _runtime(name: str) -> str | None:
 
 
 def test_the_hostile_suites_pass_through_the_sanitized_c_kernel(tmp_path):
-    asan, stdcxx = _runtime("libasan.so"), _runtime("libstdc++.so")
+    asan, stdcxx = _runtime("libasan.so"), _runtime("libstdc++.so.6")
     if asan is None or stdcxx is None:
         pytest.skip("gcc has no AddressSanitizer runtime (libasan) here")
     kernel = tmp_path / "_ckernel.abi3.so"
