@@ -347,7 +347,8 @@ class SampleAssembler:
         is complete, and at least 4 periods long. Their samples are assembled with numpy,
         several million frames a second; any other order, a defect, a pause or a counter jump
         sends the frames up to the next such run through the state machine (about 2 us a
-        frame).
+        frame). With the C kernel installed (``machine``) every frame goes through the compiled
+        machine instead, some 10 M frames a second clean or damaged.
         """
         status, slot, values, counters = self.bus_map.decode_frames(block)
         drive = np.flatnonzero(status == _OK)
@@ -408,6 +409,12 @@ class SampleAssembler:
         n = drive.size
         if n == 0:
             return blocks
+        if self.machine is not None and len(self._dests) <= _MACHINE_SLOTS:
+            # The compiled machine takes every frame at its own speed: regular runs need no
+            # numpy pass of their own (the same decisions: a run is what the machine decides).
+            block, _ = self._machine_run(drive, slots, counters, timestamps_ns[drive], values,
+                                         status, set())
+            return [] if block is None else [block]
         times = timestamps_ns[drive]
         starts, groups = self._regular_runs(slots, counters, times)
         m = len(self._dests)
