@@ -49,13 +49,15 @@ def _install(wheel: Path, tmp: Path, env: dict[str, str]) -> tuple[Path, Path, d
     through a .pth): (its bin directory, a working directory outside the tree, ``env`` with
     that bin directory first on PATH)."""
     venv = tmp / "venv"
-    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, env=env)
     bin_dir = venv / "bin"
+    # In ``env`` too: a PYTHONPATH to a tree holding canfdi.egg-info (a test run from a
+    # checkout) would have pip take canfdi for installed and skip the wheel.
     subprocess.run([bin_dir / "python", "-m", "pip", "install", "-q", "--no-deps", "--no-index",
-                    str(wheel)], check=True, capture_output=True)
+                    str(wheel)], check=True, capture_output=True, env=env)
     site = subprocess.run([bin_dir / "python", "-c", "import sysconfig; "
                            "print(sysconfig.get_paths()['purelib'])"], check=True,
-                          capture_output=True, text=True).stdout.strip()
+                          capture_output=True, text=True, env=env).stdout.strip()
     (Path(site) / "test-dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
     work = tmp / "work"
     work.mkdir()
