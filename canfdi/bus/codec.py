@@ -389,6 +389,15 @@ class FieldPlan(NamedTuple):
     parent : the plan's row of the multiplexer that selects it, -1 none. ids : the multiplexer
     values that select it, as its multiplexer's number kind ("int", "uint" or "real") holds
     them. never : nothing ever selects it.
+
+    Examples
+    --------
+    >>> m = SignalLayout("Mux", 0, 8, False, False, 1.0, 0.0, None, None, is_multiplexer=True)
+    >>> v = SignalLayout("V", 8, 16, True, False, 0.5, 0.0, None, None,
+    ...                  multiplexer_signal="Mux", multiplexer_ids=(2,))
+    >>> mux, volts = MessageLayout("M", 0x10, 8, (m, v), ()).plan()
+    >>> mux.conv, mux.number, volts.conv, volts.parent, volts.ids
+    ('identity', 'int', 'linear', 0, (2,))
     """
 
     signal: SignalLayout

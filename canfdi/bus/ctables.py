@@ -77,6 +77,23 @@ class BusTables:
     e2e_bytes (P, CFDI_E2E_BYTES) uint8; sig_int (S, CFDI_SIG_INTS) int64, sig_real
     (S, CFDI_SIG_REALS) float64; ids_int (I,) int64, ids_real (I,) float64; width: the values'
     columns.
+
+    Examples
+    --------
+    The dc_motor drive's DRIVE_SPEED (slot 2): one signal, omega_r, 16 bits at bit 16, scale
+    0.01, its value in column 0:
+
+    >>> from canfdi.bus.dbc import BusMap
+    >>> from canfdi.config import load_config
+    >>> from canfdi.configs import CONFIG_DIR
+    >>> t = BusMap.from_config(load_config(CONFIG_DIR / "dc_motor.yaml")).c_tables()
+    >>> at = int(t.entry[2, DECODE_H["CFDI_ENTRY_SIG_AT"]])
+    >>> sig = t.sig_int[at]
+    >>> (int(sig[DECODE_H["CFDI_SIG_START"]]), int(sig[DECODE_H["CFDI_SIG_LENGTH"]]),
+    ...  float(t.sig_real[at, DECODE_H["CFDI_SIG_SCALE"]]), int(sig[DECODE_H["CFDI_SIG_COLUMN"]]))
+    (16, 16, 0.01, 0)
+    >>> t.fits
+    True
     """
 
     std_entry: np.ndarray
@@ -119,7 +136,7 @@ def build_tables(entries: Sequence[EntrySpec], slots: Sequence[SlotSpec],
     >>> from canfdi.configs import CONFIG_DIR
     >>> tables = BusMap.from_config(load_config(CONFIG_DIR / "dc_motor.yaml")).c_tables()
     >>> int(tables.std_entry[0x105]), tables.n_slots, tables.width, tables.sig_int.shape
-    (1, 3, 2, (5, 11))
+    (1, 3, 3, (5, 11))
     """
     std = np.full(MAX_STANDARD_ID + 1, -1, dtype=np.int32)
     ext = sorted((fid, e) for (fid, extended), e in entry_of.items() if extended)
