@@ -193,3 +193,15 @@ def test_malformed_decode_tables_are_a_status_under_the_sanitizers(driver):
         arrays[table] = a
         got = _decode(driver, type(tables)(**arrays), block)
         assert len(got) == 1 and got[0] < 0, (table, row, col)
+
+
+def test_the_core_compiles_as_float32_for_the_mcu():
+    """Every file of the core (not the CPython face) compiles with -DCFDI_FLOAT32, the real
+    type the Cortex-M4F's FPU takes, under the same warnings as errors."""
+    for source in sorted(CORE.glob("*.c")):
+        if source.name == "_kernel.c":
+            continue
+        res = subprocess.run([CC, "-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror",
+                              "-DCFDI_FLOAT32", "-fsyntax-only", f"-I{CORE}", str(source)],
+                             capture_output=True, text=True, timeout=120)
+        assert res.returncode == 0, f"{source.name}: {res.stderr}"
