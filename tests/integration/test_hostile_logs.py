@@ -3,13 +3,24 @@ did not write (issue 27)."""
 
 from __future__ import annotations
 
+import pytest
+
 from canfdi.config import load_config
+from canfdi.core.kernel import ENV, available
 from canfdi.io.writer import McapRecorder
 from canfdi.monitor import Monitor
 from tests.cli import canfdi_main as main
 from tests.conftest import REPO
 
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
+
+
+@pytest.fixture(autouse=True, params=available())
+def kernel(request, monkeypatch):
+    """Every test on every kernel built (the verbs and the Monitor resolve it from the
+    environment): the C kernel meets the same hostile logs as numpy."""
+    monkeypatch.setenv(ENV, request.param)
+    return request.param
 
 
 def test_demo_never_deletes_a_segment_it_did_not_write(tmp_path, capsys, monkeypatch):
