@@ -575,8 +575,7 @@ class SampleAssembler:
         block : (k, timestamp_ns, gap, [u, z] rows) of the samples completed, or None.
         used : how many of the frames were taken (R, or the position where it stopped).
         """
-        if self.machine is not None and len(self._dests) <= _MACHINE_SLOTS:
-            return self._machine_run(rows, slots, counters, times, values, status, takeover)
+        # Only without a compiled machine: `_assemble` hands every frame to one when installed.
         return self._python_run(rows, slots, counters, times, values, status, takeover)
 
     _STATE = ("_k", "_t_ref", "_seen", "_open", "_last_complete", "_last_delivered",
