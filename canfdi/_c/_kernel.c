@@ -341,31 +341,31 @@ static PyObject *latest_block(PyObject *self, PyObject *args)
 
 PyDoc_STRVAR(counter_run_doc,
 "counter_run(state, buffer, width, rows, slots, counters, times, n_frames, values, n_values,\n"
-"            vwidth, dest, n_slots, cols, mod, dt_ns, slack, fast_max, takeover, status,\n"
-"            n_status, ks, done, gaps, samples) -> (n_out, used, handover)\n\n"
+"            vwidth, dest, n_slots, cols, mod, dt_ns, slack, status, n_status, ks, done,\n"
+"            gaps, samples) -> (n_out, used)\n\n"
 "The counter clock's state machine over a run of frames (cfdi_counter_run): state (12,)\n"
 "int64 and buffer (width,) float64 updated; rows, slots, counters, times (n_frames,) int64;\n"
-"values (n_values, vwidth) float64; dest (n_slots, cols) int64; takeover (n_frames,) uint8;\n"
-"status (n_status,) int8 updated; ks, done, gaps (2 n_frames,) int64 and samples\n"
-"(2 n_frames, width) float64 written.");
+"values (n_values, vwidth) float64; dest (n_slots, cols) int64; status (n_status,) int8\n"
+"updated; ks, done, gaps (2 n_frames,) int64 and samples (2 n_frames, width) float64\n"
+"written.");
 
 static PyObject *counter_run(PyObject *self, PyObject *args)
 {
-    PyObject *ost, *obuf, *orows, *oslots, *octr, *otimes, *oval, *odest, *otake, *ostatus;
+    PyObject *ost, *obuf, *orows, *oslots, *octr, *otimes, *oval, *odest, *ostatus;
     PyObject *oks, *odone, *ogaps, *osamples;
     Py_ssize_t width, n_frames, n_values, vwidth, n_slots, cols, n_status;
-    long long mod, fast_max;
+    long long mod;
     double dt_ns, slack;
-    held_buffer b[14];
+    held_buffer b[13];
     size_t n_out = 0, used = 0;
-    int status, handover = 0;
+    int status;
     (void)self;
     memset(b, 0, sizeof b);
 
-    if (!PyArg_ParseTuple(args, "OOnOOOOnOnnOnnLddLOOnOOOO", &ost, &obuf, &width, &orows,
+    if (!PyArg_ParseTuple(args, "OOnOOOOnOnnOnnLddOnOOOO", &ost, &obuf, &width, &orows,
                           &oslots, &octr, &otimes, &n_frames, &oval, &n_values, &vwidth, &odest,
-                          &n_slots, &cols, &mod, &dt_ns, &slack, &fast_max, &otake, &ostatus,
-                          &n_status, &oks, &odone, &ogaps, &osamples)) {
+                          &n_slots, &cols, &mod, &dt_ns, &slack, &ostatus, &n_status, &oks,
+                          &odone, &ogaps, &osamples)) {
         return NULL;
     }
     if (!sizes_ok(width, 16, 1) || !sizes_ok(n_frames, 2 * width + 8, 8)
@@ -382,13 +382,12 @@ static PyObject *counter_run(PyObject *self, PyObject *args)
         || take(otimes, &b[5], 0, n_frames * 8, "times") < 0
         || take(oval, &b[6], 0, n_values * vwidth * 8, "values") < 0
         || take(odest, &b[7], 0, n_slots * cols * 8, "dest") < 0
-        || take(otake, &b[8], 0, n_frames, "takeover") < 0
-        || take(ostatus, &b[9], 1, n_status, "status") < 0
-        || take(oks, &b[10], 1, 2 * n_frames * 8, "ks") < 0
-        || take(odone, &b[11], 1, 2 * n_frames * 8, "done") < 0
-        || take(ogaps, &b[12], 1, 2 * n_frames * 8, "gaps") < 0
-        || take(osamples, &b[13], 1, 2 * n_frames * width * 8, "samples") < 0) {
-        release(b, 14);
+        || take(ostatus, &b[8], 1, n_status, "status") < 0
+        || take(oks, &b[9], 1, 2 * n_frames * 8, "ks") < 0
+        || take(odone, &b[10], 1, 2 * n_frames * 8, "done") < 0
+        || take(ogaps, &b[11], 1, 2 * n_frames * 8, "gaps") < 0
+        || take(osamples, &b[12], 1, 2 * n_frames * width * 8, "samples") < 0) {
+        release(b, 13);
         return NULL;
     }
     Py_BEGIN_ALLOW_THREADS
@@ -398,18 +397,17 @@ static PyObject *counter_run(PyObject *self, PyObject *args)
                               (size_t)n_frames, (const double *)b[6].view.buf,
                               (size_t)n_values, (size_t)vwidth, (const int64_t *)b[7].view.buf,
                               (size_t)n_slots, (size_t)cols, (int64_t)mod, dt_ns, slack,
-                              (int64_t)fast_max, (const uint8_t *)b[8].view.buf,
-                              (int8_t *)b[9].view.buf, (size_t)n_status,
-                              (int64_t *)b[10].view.buf, (int64_t *)b[11].view.buf,
-                              (int64_t *)b[12].view.buf, (double *)b[13].view.buf, &n_out,
-                              &used, &handover);
+                              (int8_t *)b[8].view.buf, (size_t)n_status,
+                              (int64_t *)b[9].view.buf, (int64_t *)b[10].view.buf,
+                              (int64_t *)b[11].view.buf, (double *)b[12].view.buf, &n_out,
+                              &used);
     Py_END_ALLOW_THREADS
-    release(b, 14);
+    release(b, 13);
     if (status != CFDI_OK) {
         PyErr_Format(PyExc_ValueError, "counter_run: status %d", status);
         return NULL;
     }
-    return Py_BuildValue("nni", (Py_ssize_t)n_out, (Py_ssize_t)used, handover);
+    return Py_BuildValue("nn", (Py_ssize_t)n_out, (Py_ssize_t)used);
 }
 
 static PyMethodDef methods[] = {

@@ -116,16 +116,12 @@ int cfdi_latest_block(const int64_t *ok, size_t n_ok, const int16_t *slot, size_
  *          counters and gate-checked times.
  * values : (n_values, vwidth) the block's decoded fields; dest : (n_slots, cols) each slot's
  *          fields' positions in a sample row, -1 beyond.
- * mod, dt_ns, slack, fast_max : the counter's modulus, the period (ns), the jump slack and the
- *          longest gap (periods) of a regular run.
- * takeover : (n_frames,) 1 where a regular run starts: the machine stops before it when the
- *          frame just before completed a sample and left the state a run continues.
+ * mod, dt_ns, slack : the counter's modulus, the period (ns) and the jump slack.
  * status : (n_status,) the block's statuses: duplicate, stale and jump verdicts written.
  * ks, done, gaps, samples : (2 n_frames,) and (2 n_frames, width) the samples delivered,
  *          *n_out of them (a broken one a frame closed, then the one it completed).
- * used   : the frames taken (n_frames, a takeover, or fewer where a time or index reaches
- *          2^62 in magnitude: the caller goes on from the state left); handover : 1 when it
- *          stopped at a takeover.
+ * used   : the frames taken (n_frames, or fewer where a time or index reaches 2^62 in
+ *          magnitude: the caller goes on from the state left).
  * Returns CFDI_OK, or a negative status for bad sizes or indices. */
 #define CFDI_CTR_K 0
 #define CFDI_CTR_T_REF 1
@@ -144,9 +140,8 @@ int cfdi_counter_run(int64_t *state, double *buffer, size_t width, const int64_t
                      const int64_t *slots, const int64_t *counters, const int64_t *times,
                      size_t n_frames, const double *values, size_t n_values, size_t vwidth,
                      const int64_t *dest, size_t n_slots, size_t cols, int64_t mod,
-                     double dt_ns, double slack, int64_t fast_max, const uint8_t *takeover,
-                     int8_t *status, size_t n_status, int64_t *ks, int64_t *done,
-                     int64_t *gaps, double *samples, size_t *n_out, size_t *used,
-                     int *handover);
+                     double dt_ns, double slack, int8_t *status, size_t n_status,
+                     int64_t *ks, int64_t *done, int64_t *gaps, double *samples,
+                     size_t *n_out, size_t *used);
 
 #endif

@@ -105,17 +105,16 @@ int cfdi_counter_run(int64_t *state, double *buffer, size_t width, const int64_t
                      const int64_t *slots, const int64_t *counters, const int64_t *times,
                      size_t n_frames, const double *values, size_t n_values, size_t vwidth,
                      const int64_t *dest, size_t n_slots, size_t cols, int64_t mod,
-                     double dt_ns, double slack, int64_t fast_max, const uint8_t *takeover,
-                     int8_t *status, size_t n_status, int64_t *ks, int64_t *done,
-                     int64_t *gaps, double *samples, size_t *n_out, size_t *used,
-                     int *handover)
+                     double dt_ns, double slack, int8_t *status, size_t n_status,
+                     int64_t *ks, int64_t *done, int64_t *gaps, double *samples,
+                     size_t *n_out, size_t *used)
 {
     size_t r, c;
     int64_t full;
-    if (state == NULL || buffer == NULL || n_out == NULL || used == NULL || handover == NULL
+    if (state == NULL || buffer == NULL || n_out == NULL || used == NULL
         || (n_frames && (rows == NULL || slots == NULL || counters == NULL || times == NULL
-                         || values == NULL || takeover == NULL || status == NULL || ks == NULL
-                         || done == NULL || gaps == NULL || samples == NULL))
+                         || values == NULL || status == NULL || ks == NULL || done == NULL
+                         || gaps == NULL || samples == NULL))
         || (n_slots && cols && dest == NULL)) {
         return CFDI_EBADARG;
     }
@@ -131,7 +130,6 @@ int cfdi_counter_run(int64_t *state, double *buffer, size_t width, const int64_t
     full = ((int64_t)1 << n_slots) - 1;
     *n_out = 0;
     *used = 0;
-    *handover = 0;
     for (r = 0; r < n_frames; r++) {
         int64_t i = rows[r], s = slots[r], t = times[r];
         int8_t code;
@@ -168,15 +166,6 @@ int cfdi_counter_run(int64_t *state, double *buffer, size_t width, const int64_t
             gaps[at] = ST(LAST_GAP);
             memcpy(samples + at * width, buffer, width * sizeof *samples);
             *n_out = at + 1;
-            /* Only a completion settles the state: the one moment to hand over to a regular
-             * run (SampleAssembler._is_settled). */
-            if (r + 1 < n_frames && takeover[r + 1] && ST(K) >= 0
-                && ST(LAST_COMPLETE) == ST(K) && counters[r + 1] == (ST(K) + 1) % mod
-                && fits(times[r + 1])
-                && (double)(times[r + 1] - ST(T_REF)) < (double)fast_max * dt_ns) {
-                *handover = 1;
-                return CFDI_OK;
-            }
         }
     }
     return CFDI_OK;

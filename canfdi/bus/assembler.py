@@ -413,7 +413,7 @@ class SampleAssembler:
             # The compiled machine takes every frame at its own speed: regular runs need no
             # numpy pass of their own (the same decisions: a run is what the machine decides).
             block, _ = self._machine_run(drive, slots, counters, timestamps_ns[drive], values,
-                                         status, set())
+                                         status)
             return [] if block is None else [block]
         times = timestamps_ns[drive]
         starts, groups = self._regular_runs(slots, counters, times)
@@ -589,26 +589,22 @@ class SampleAssembler:
         times: NDArray[np.integer],
         values: NDArray[np.float64],
         status: NDArray[np.int8],
-        takeover: set[int],
     ) -> tuple[_Block | None, int]:
-        """`_python_run` on the installed compiled machine: the state in, the frames through,
-        the state out; where it stops short of a handover (times or indices beyond what it
+        """`_python_run` over every frame on the installed compiled machine: the state in, the
+        frames through, the state out; where it stops short (times or indices beyond what it
         takes), the rest goes through `_python_run`."""
         k, t_ref, seen, is_open, last_c, last_d, gap, jump, comp, broken, missing = (
             getattr(self, name) for name in self._STATE)
         state = [k, t_ref, seen, int(is_open), last_c, last_d, gap, int(jump is not None),
                  jump or 0, comp, broken, missing]
         if not all(_I64[0] <= int(v) <= _I64[1] for v in state):
-            return self._python_run(rows, slots, counters, times, values, status, takeover)
+            return self._python_run(rows, slots, counters, times, values, status, set())
         n = len(rows)
         st = np.array(state, dtype=np.int64)
         buffer = np.array(self._buffer, dtype=np.float64)
-        marks = np.zeros(n, dtype=np.uint8)
-        marks[[p for p in takeover if 0 <= p < n]] = 1
-        got = self.machine(st, buffer, rows, slots, counters, times, values, status, marks,
-                           self._dest, self._mod, self._dt_ns, float(_JUMP_SLACK),
-                           self._fast_max)
-        (ks, done, gaps, samples), used, handover = got
+        got = self.machine(st, buffer, rows, slots, counters, times, values, status,
+                           self._dest, self._mod, self._dt_ns, float(_JUMP_SLACK))
+        (ks, done, gaps, samples), used = got
         (self._k, self._t_ref, self._seen, is_open, self._last_complete, self._last_delivered,
          self._last_gap, jump_set, jump, self._complete, self._broken,
          self._missing) = st.tolist()
@@ -616,11 +612,10 @@ class SampleAssembler:
         self._jump = jump if jump_set else None
         self._buffer[:] = buffer.tolist()
         block = (ks, done, gaps, samples) if len(ks) else None
-        if handover or used == n:
+        if used == n:
             return block, used
         later, more = self._python_run(rows[used:], slots[used:], counters[used:],
-                                       times[used:], values, status,
-                                       {p - used for p in takeover if p >= used})
+                                       times[used:], values, status, set())
         if block is None or later is None:
             return block if later is None else later, used + more
         return tuple(np.concatenate([a, b]) for a, b in zip(block, later, strict=True)), \

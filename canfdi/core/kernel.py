@@ -230,27 +230,25 @@ def _c_latest_values(ok: np.ndarray, slot: np.ndarray, values: np.ndarray, t: np
 
 def _c_counter_machine(state: np.ndarray, buffer: np.ndarray, rows: np.ndarray,
                        slots: np.ndarray, counters: np.ndarray, times: np.ndarray,
-                       values: np.ndarray, status: np.ndarray, takeover: np.ndarray,
-                       dest: np.ndarray, mod: int, dt_ns: float, slack: float,
-                       fast_max: int) -> tuple:
+                       values: np.ndarray, status: np.ndarray, dest: np.ndarray, mod: int,
+                       dt_ns: float, slack: float) -> tuple:
     """The counter clock's state machine over a run of frames in C (cfdi_counter_run):
     ``state`` and ``buffer`` (the assembler's, as arrays) and ``status`` updated; returns
-    ((ks, done, gaps, samples) of the samples delivered, frames used, handed over)."""
+    ((ks, done, gaps, samples) of the samples delivered, frames used)."""
     n = len(rows)
     width = len(buffer)
     values = np.ascontiguousarray(values, dtype=np.float64)
     ks, done, gaps = (np.empty(2 * n, dtype=np.int64) for _ in range(3))
     samples = np.empty((2 * n, width))
     dest = np.ascontiguousarray(dest, dtype=np.int64)
-    n_out, used, handover = _ckernel.counter_run(
+    n_out, used = _ckernel.counter_run(
         state, buffer, width, np.ascontiguousarray(rows, dtype=np.int64),
         np.ascontiguousarray(slots, dtype=np.int64),
         np.ascontiguousarray(counters, dtype=np.int64),
         np.ascontiguousarray(times, dtype=np.int64), n, values, values.shape[0],
         values.shape[1], dest, dest.shape[0], dest.shape[1], int(mod), float(dt_ns),
-        float(slack), int(fast_max), np.ascontiguousarray(takeover, dtype=np.uint8), status,
-        len(status), ks, done, gaps, samples)
-    return (ks[:n_out], done[:n_out], gaps[:n_out], samples[:n_out]), used, bool(handover)
+        float(slack), status, len(status), ks, done, gaps, samples)
+    return (ks[:n_out], done[:n_out], gaps[:n_out], samples[:n_out]), used
 
 
 _KERNELS: dict[str, Kernel | None] = {
