@@ -56,6 +56,8 @@ Layout::
       rotate_minutes: 60
       keep_days: 30                # optional: logs older than this are removed by `canfdi run`
       keep_mib: 10240              # optional: and the oldest while they weigh more than this
+      row_encoding: cdr            # optional: samples and residual rows as ROS 2 CDR (default)
+                                   # or json (the JSON rows of older logs)
     watchdog:                      # optional; the noise watchdog (canfdi.core.watchdog)
       enabled: true
       factor: 1.5                  # noise std over its calibrated value that is a mismatch
@@ -102,6 +104,7 @@ from canfdi.core.settings import (
     section,
     unknown_name,
 )
+from canfdi.io.rowencodings import ROW_ENCODINGS
 
 __all__ = [
     "BusConfig",
@@ -140,7 +143,8 @@ _WATCHDOG = {"enabled": Option(bool), "factor": Option(float, 1.01, 100.0),
              "block": Option(int, 10, 10**6), "blocks": Option(int, 1, 1000)}
 _RECORDING = {"directory": Option(str), "rotate_mib": Option(float, 0.01, 1e7),
               "rotate_minutes": Option(float, 0.01, 1e7), "keep_days": Option(float, 0.001, 1e5),
-              "keep_mib": Option(float, 1.0, 1e9)}
+              "keep_mib": Option(float, 1.0, 1e9),
+              "row_encoding": Option(str, choices=tuple(sorted(ROW_ENCODINGS)))}
 MAX_IDENTIFIED_ORDER = 20
 _IDENTIFY = {"unknown_inputs": Option(int, 0, MAX_IDENTIFIED_ORDER - 1),
              "order": Option(int, 1, MAX_IDENTIFIED_ORDER), "delay": Option(int, 1, 10)}

@@ -2,7 +2,7 @@
 
 `FoxgloveServer` is a recorder tap (canfdi.io.writer.Tap): every message the recorder writes
 (samples, residuals, events, estimates, the log lines, frame blocks) is published on a channel
-of the same topic, schema and JSON encoding, at the same (drive) time, so that Foxglove shows
+of the same topic, schema and encoding, at the same (drive) time, so that Foxglove shows
 live exactly what it shows from the MCAP log afterwards (the same layout, docs/foxglove-
 layout.json). It serves with the ``foxglove-sdk`` package, an optional extra
 (``pip install 'canfdi[foxglove]'``).
@@ -28,6 +28,7 @@ from typing import Any
 
 from canfdi.io.blocks import split_frame_block
 from canfdi.io.schemas import TOPIC_FRAMES
+from canfdi.io.segmented import Schema
 
 __all__ = ["BACKLOG_BYTES", "BACKLOG_MESSAGES", "LIVE_MESSAGE_BYTES", "STOP_WAIT_S",
            "FoxgloveServer", "FoxgloveUnavailable", "parse_address"]
@@ -149,7 +150,7 @@ class FoxgloveServer:
         """The port it listens on."""
         return self._server.port
 
-    def __call__(self, topic: str, schema: tuple[str, bytes], log_time_ns: int,
+    def __call__(self, topic: str, schema: Schema, log_time_ns: int,
                  data: bytes) -> None:
         """Publish one message (the recorder's tap): a frame block larger than
         `LIVE_MESSAGE_BYTES` as several, another message that large not at all (counted in
@@ -166,16 +167,17 @@ class FoxgloveServer:
             return
         self._log(topic, schema, log_time_ns, data)
 
-    def _log(self, topic: str, schema: tuple[str, bytes], log_time_ns: int,
+    def _log(self, topic: str, schema: Schema, log_time_ns: int,
              data: bytes) -> None:
         entry = self._channels.get(topic)
         if entry is None or entry[0] is not schema:
-            if entry is not None:  # a row topic's schema widened: advertise it anew
+            if entry is not None:  # a row topic's schema changed: advertise it anew
                 entry[1].close()
             fg = self._foxglove
-            channel = fg.Channel(topic, schema=fg.Schema(name=schema[0], encoding="jsonschema",
-                                                         data=schema[1]),
-                                 message_encoding="json", context=self._context)
+            full = Schema(*schema)
+            channel = fg.Channel(topic, schema=fg.Schema(name=full.name, encoding=full.encoding,
+                                                         data=full.data),
+                                 message_encoding=full.message_encoding, context=self._context)
             entry = self._channels[topic] = (schema, channel)
         entry[1].log(data, log_time=log_time_ns)
 

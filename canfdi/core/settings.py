@@ -474,6 +474,7 @@ class RecordingConfig:
     rotate_minutes: float = 60.0
     keep_days: float | None = None
     keep_mib: float | None = None
+    row_encoding: str | None = None  # canfdi.io.rowencodings' name; None: the recorder's default
 
 
 @dataclass(frozen=True)

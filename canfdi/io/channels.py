@@ -16,8 +16,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from canfdi.io.blocks import RowEncoder, Rows, encode_frame_block, unique_names
+from canfdi.io.blocks import Rows, encode_frame_block, unique_names
 from canfdi.io.framebuffer import FrameRecords
+from canfdi.io.mcapwrite import Messages
+from canfdi.io.rowencodings import DEFAULT_ROW_ENCODING, row_format
 from canfdi.io.rowtopics import RowLayout
 from canfdi.io.schemas import GENERIC_SCHEMA, SCHEMAS, TOPIC_FRAMES
 from canfdi.io.segmented import Schema
@@ -37,10 +39,10 @@ __all__ = [
 
 # Serialised once: every segment registers the same bytes.
 SCHEMA_BYTES: dict[str, Schema] = {
-    topic: (name, json.dumps(schema).encode()) for topic, (name, schema) in SCHEMAS.items()
+    topic: Schema(name, json.dumps(schema).encode()) for topic, (name, schema) in SCHEMAS.items()
 }
 """Every fixed-schema topic's schema as registered: (name, JSON bytes)."""
-GENERIC_SCHEMA_BYTES: Schema = (GENERIC_SCHEMA[0], json.dumps(GENERIC_SCHEMA[1]).encode())
+GENERIC_SCHEMA_BYTES = Schema(GENERIC_SCHEMA[0], json.dumps(GENERIC_SCHEMA[1]).encode())
 """The schema of a topic canfdi does not describe, as registered."""
 
 
@@ -56,9 +58,9 @@ class Sink(Protocol):
                 now: float) -> None:
         """One message holding ``rows`` rows."""
 
-    def row_messages(self, topic: str, schema: Schema, t_ns: np.ndarray, data: list[bytes],
+    def row_messages(self, topic: str, schema: Schema, t_ns: np.ndarray, data: Messages,
                      now: float) -> None:
-        """One message per row, at the rows' times."""
+        """One message per row, at the rows' times (a list, or an (N, size) uint8 array)."""
 
 
 class Channel:
@@ -166,39 +168,43 @@ class FrameBlockEncoder:
 
 class RowTopicEncoder:
     """Rows of a row topic (`RowLayout`) as one message each, named by the current name lists
-    and drive; its schema names every name the topic has held so far (a monitor of several
-    drives gives the union).
+    and drive, in a row encoding of canfdi.io.rowencodings (``"cdr"`` by default).
 
     Parameters
     ----------
     layout : RowLayout
         The topic's fields.
+    encoding : str
+        A name of `ROW_ENCODINGS`.
 
     Examples
     --------
     >>> from canfdi.io.rowtopics import ROW_LAYOUTS
-    >>> encoder = RowTopicEncoder(ROW_LAYOUTS["/canfdi/residuals"])
+    >>> encoder = RowTopicEncoder(ROW_LAYOUTS["/canfdi/residuals"], "json")
     >>> encoder.rename(encoder.check_names((["r0"],)))
     >>> columns = (np.array([5]), np.array([3]), np.array([[0.5]]), np.array([[1.0]]),
     ...            np.array([[2.0]]))
     >>> schema, times, data, rows = encoder.encode(columns)
-    >>> schema[0]
+    >>> schema.name
     'canfdi.Residuals'
     >>> print(data[0].decode())
     {"timestamp":{"sec":0,"nsec":5},"k":3,"r":{"r0":0.5},...,"statistic":{"r0":2.0}}
+    >>> encoder = RowTopicEncoder(ROW_LAYOUTS["/canfdi/residuals"])
+    >>> encoder.rename(encoder.check_names((["r0"],)))
+    >>> schema, times, data, rows = encoder.encode(columns)
+    >>> schema.name, schema.message_encoding, data.shape
+    ('canfdi/msg/Residuals', 'cdr', (1, 44))
     """
 
-    __slots__ = ("_encoder", "_known", "drive", "given", "layout", "names", "schema")
+    __slots__ = ("_format", "drive", "given", "layout", "names")
 
-    def __init__(self, layout: RowLayout) -> None:
+    def __init__(self, layout: RowLayout, encoding: str = DEFAULT_ROW_ENCODING) -> None:
         self.layout = layout
+        self._format = row_format(layout, encoding)
         self.names: tuple[list[str], ...] = tuple([] for _ in layout.names)
         # The caller's name lists as last given, for a cheap identity check.
         self.given: tuple[Any, ...] = (None,) * len(layout.names)
         self.drive: str | None = None
-        self._encoder: RowEncoder | None = None
-        self._known: tuple[list[str], ...] = tuple([] for _ in layout.names)
-        self.schema: Schema | None = None
 
     def check_names(self, names: Sequence[Sequence[str]]) -> tuple[list[str], ...]:
         """The name lists as lists of str; ValueError if one repeats a name."""
@@ -211,43 +217,24 @@ class RowTopicEncoder:
     def rename(self, names: tuple[list[str], ...]) -> None:
         """Name the rows from now on (the buffered ones must be written first)."""
         self.names = names
-        self._encoder = None
+        self._format.reset()
 
     def set_drive(self, drive: str | None) -> None:
         """The drive of the rows from now on (the buffered ones must be written first)."""
         self.drive = drive
-        self._encoder = None
+        self._format.reset()
 
-    def encode(self, taken: tuple[np.ndarray, ...]
-               ) -> tuple[Schema, np.ndarray, list[bytes], int]:
-        encoder = self._encoder
-        if encoder is None:
-            extra = {} if self.drive is None else {"drive": self.drive}
-            encoder = self._encoder = RowEncoder(
-                self.layout.ints,
-                [(key, self.names[which]) for key, which in self.layout.groups], extra)
-            self._widen()
+    def encode(self, taken: tuple[np.ndarray, ...]) -> tuple[Schema, np.ndarray, Messages, int]:
         t_ns = taken[0]
         n, i = len(t_ns), 1 + len(self.layout.ints)
         ints = np.column_stack(taken[1:i])
         floats = np.hstack([column.reshape(n, width) for column, width in
                             zip(taken[i:], self.layout.widths(self.names), strict=True)])
-        assert self.schema is not None
-        return self.schema, t_ns, encoder.encode(t_ns, ints, floats), 1
-
-    def _widen(self) -> None:
-        """Add the current names to the schema's."""
-        known = self._known
-        if self.schema is not None and all(
-                name in have for names, have in zip(self.names, known, strict=True)
-                for name in names):
-            return
-        for names, have in zip(self.names, known, strict=True):
-            have.extend(name for name in names if name not in have)
-        schema = self.layout.schema(*known)
-        self.schema = (schema["title"], json.dumps(schema).encode())
+        schema, data = self._format.encode(self.names, self.drive, t_ns, ints, floats)
+        return schema, t_ns, data, 1
 
 
-def row_channel(layout: RowLayout, limit: int) -> Channel:
-    """The channel of a row topic."""
-    return Channel(layout.topic, Rows(layout.kinds), RowTopicEncoder(layout), limit, per_row=True)
+def row_channel(layout: RowLayout, limit: int, encoding: str = DEFAULT_ROW_ENCODING) -> Channel:
+    """The channel of a row topic, its rows in the row encoding named."""
+    return Channel(layout.topic, Rows(layout.kinds), RowTopicEncoder(layout, encoding), limit,
+                   per_row=True)

@@ -160,6 +160,8 @@ def _row_values(layout: RowLayout, msg: Mapping[str, Any], log_time: int,
     stamp = msg.get("timestamp")
     if isinstance(stamp, Mapping):
         log_time = int(stamp["sec"]) * NS_PER_S + int(stamp["nsec"])
+    elif "t_ns" in msg:  # a ROS 2 row (canfdi.io.cdr)
+        log_time = int(msg["t_ns"])
     return (log_time, *ints, *groups)
 
 

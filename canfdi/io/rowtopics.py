@@ -1,11 +1,13 @@
 """The row topics of a log, one registry: each topic's fields, JSON schema and older layout.
 
-A row topic holds one JSON message per row (Foxglove plots every one):
-``{"timestamp", <int fields>, <group>: {name: number, ...}, ..., "drive"}``, the groups' names
-known only at run time (a model's inputs, a design's residuals). canfdi.io.writer's
-`McapRecorder` gives every registered topic a buffered channel (`McapRecorder.write_rows`)
-and canfdi.io.reader's `read_rows` reads any of them back, so that adding a topic is its JSON
-schema (canfdi.io.schemas) and one `register_row_topic` line.
+A row topic holds one message per row (Foxglove plots every one): the row's time, its integer
+fields, its groups of named numbers (``<group>: {name: number, ...}``) and its drive, the
+groups' names known only at run time (a model's inputs, a design's residuals), in a row
+encoding of canfdi.io.rowencodings (ROS 2 CDR, or JSON). canfdi.io.writer's `McapRecorder`
+gives every registered topic a buffered channel (`McapRecorder.write_rows`) and
+canfdi.io.reader's `read_rows` reads any of them back, so that adding a topic is its JSON
+schema (canfdi.io.schemas, whose title also names its ROS 2 type) and one `register_row_topic`
+line.
 """
 
 from __future__ import annotations

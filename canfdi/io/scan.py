@@ -40,6 +40,7 @@ so that a lost first chunk does not lose every topic.
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import mmap
 import os
@@ -53,8 +54,10 @@ from typing import Any
 import numpy as np
 import orjson
 
+from canfdi.io.cdr import MESSAGE_ENCODING_CDR, SCHEMA_ENCODING_ROS2, CdrDecoder
 from canfdi.io.chunkorder import ChunkKey, ChunkOrder, ChunkSeen, HeldChunks, order_chunks
 from canfdi.io.damage import Damage, FileDamage, LostRegion
+from canfdi.io.schemas import MESSAGE_ENCODING
 
 try:  # the same CRC-32, ten times faster (python-isal: installed with canfdi[mf4]'s asammdf)
     from isal.isal_zlib import crc32 as _crc32
@@ -138,6 +141,44 @@ def decode_json(data: bytes) -> Any:
         return orjson.loads(data)
     except orjson.JSONDecodeError:
         return json.loads(data)
+
+
+def _undecodable(encoding: str) -> Callable[[bytes], Any]:
+    def refuse(data: bytes) -> Any:
+        raise ValueError(f"messages encoded as {encoding!r} are not read")
+    return refuse
+
+
+@functools.lru_cache(maxsize=64)
+def _cdr_decoder(schema_name: str, schema_encoding: str, data: bytes) -> Callable[[bytes], Any]:
+    if schema_encoding != SCHEMA_ENCODING_ROS2:
+        return _undecodable(f"cdr with a {schema_encoding!r} schema")
+    try:
+        return CdrDecoder(data.decode())
+    except (ValueError, UnicodeDecodeError) as error:
+        reason = str(error)
+
+        def refuse(_: bytes) -> Any:
+            raise ValueError(f"the ROS 2 schema {schema_name} cannot be read: {reason}")
+        return refuse
+
+
+MESSAGE_DECODERS: dict[str, Callable[[str, str, bytes], Callable[[bytes], Any]]] = {
+    MESSAGE_ENCODING: lambda name, encoding, data: decode_json,
+    MESSAGE_ENCODING_CDR: _cdr_decoder,
+}
+"""How a channel's messages decode, by its message encoding, made of its schema (name,
+encoding, data): a message that does not decode raises ValueError (counted as bad)."""
+
+
+def message_decoder(message_encoding: str, schema: tuple[str, str, bytes] | None
+                    ) -> Callable[[bytes], Any]:
+    """The decoder of a channel's messages (`MESSAGE_DECODERS`); one that refuses every
+    message for an encoding canfdi does not read."""
+    make = MESSAGE_DECODERS.get(message_encoding)
+    if make is None:
+        return _undecodable(message_encoding)
+    return make(*(schema if schema is not None else ("", "", b"")))
 
 
 def _parse(buf: Any, start: int, stop: int, spec: tuple[str, ...]) -> list | None:
@@ -262,6 +303,8 @@ class McapFile:
         self.size = size
         self.damage: FileDamage = (damage if damage is not None else Damage()).file(path, size)
         self.channels: dict[int, str] = {}
+        self.decoders: dict[int, Callable[[bytes], Any]] = {}  # by channel id
+        self._schemas: dict[int, tuple[str, str, bytes]] = {}  # (name, encoding, data) by id
         self._summary_channels = False  # every channel known from an intact summary
         self._index_of: dict[int, _IndexedChunk] | None = None  # its ChunkIndex by offset
         self.complete = False
@@ -356,7 +399,8 @@ class McapFile:
             return False
         if crc and crc != _crc32(buf[footer : footer + 25], _crc32(buf[summary_start:footer])):
             return False
-        channels: dict[int, str] = {}
+        channels: list[list] = []
+        schemas: dict[int, tuple[str, str, bytes]] = {}
         indexed: list[_IndexedChunk] = []
         listed: list[tuple[int, ChunkKey]] = []
         stats = None
@@ -369,7 +413,9 @@ class McapFile:
             fields = _parse(buf, start, stop, _SPECS[op])
             assert fields is not None
             if op == OP_CHANNEL:
-                channels[fields[0]] = fields[2]
+                channels.append(fields)
+            elif op == OP_SCHEMA:
+                schemas[fields[0]] = (fields[1], fields[2], bytes(buf[slice(*fields[3])]))
             elif op == OP_CHUNK_INDEX:
                 t0, t1, offset, length, (a, b) = fields[:5]
                 if not moved and not self._first <= offset < offset + length <= summary_start:
@@ -381,7 +427,9 @@ class McapFile:
             elif op == OP_STATISTICS:
                 stats = (fields[6], fields[7])
             pos = stop
-        self.channels.update(channels)
+        self._schemas.update(schemas)
+        for fields in channels:
+            self._learn_channel(fields)
         self._summary_channels = True
         self._indexed = sorted(indexed, key=lambda c: c.offset)
         self._listed_chunks = listed
@@ -839,6 +887,28 @@ class McapFile:
                 counted = [self._count_index(region, at) for at in offsets]
                 region.indexed = bool(offsets) and all(counted) and region.chunks == 1
 
+    def _learn(self, op: int, inner: bytes, start: int, stop: int, wanted: dict[int, str],
+               topics: frozenset[str] | None) -> bool:
+        """Take a Channel or Schema record of a chunk (a channel on ``topics`` is wanted);
+        False when it does not parse."""
+        fields = _parse(inner, start, stop, _SPECS[op])
+        if fields is None:
+            return False
+        if op == OP_SCHEMA:
+            self._schemas[fields[0]] = (fields[1], fields[2], bytes(inner[slice(*fields[3])]))
+            return True
+        self._learn_channel(fields)
+        if topics is None or fields[2] in topics:
+            wanted[fields[0]] = fields[2]
+        return True
+
+    def _learn_channel(self, fields: list) -> None:
+        """A Channel record's fields: its topic, and the decoder of its messages (by its
+        message encoding and schema)."""
+        cid, schema_id, topic, encoding = fields[:4]
+        self.channels[cid] = topic
+        self.decoders[cid] = message_decoder(encoding, self._schemas.get(schema_id))
+
     def messages(self, topics: Iterable[str] | None = None
                  ) -> Iterator[tuple[str, int, Any]]:
         """(topic, log_time ns, decoded JSON message) of the messages on ``topics`` (all when
@@ -858,7 +928,7 @@ class McapFile:
                 else:
                     yield from self._chunk_messages(start - 9, stop, inner, wanted,
                                                     wanted_topics)
-            elif op == OP_MESSAGE or op == OP_CHANNEL:
+            elif op == OP_MESSAGE or op == OP_CHANNEL or op == OP_SCHEMA:
                 record = bytes(self._buf[start - 9 : stop])
                 yield from self._chunk_messages(start - 9, stop, record, wanted,
                                                 wanted_topics)
@@ -926,15 +996,16 @@ class McapFile:
                      ) -> Iterator[tuple[str, int, Any]]:
         """The messages at offsets ``at`` (checked by `_indexed_at`) of the records
         ``inner`` of the chunk at byte ``where``, as `_chunk_messages` gives them."""
-        loads = decode_json
+        decoders = self.decoders
         for p in at:
             _, length, channel = _MESSAGE_START.unpack_from(inner, p)
             start = p + 9
             topic = wanted[channel]
             (log_time,) = _U64.unpack_from(inner, start + 6)
             try:
-                message = loads(inner[start + _MESSAGE_HEAD : start + length])
-            except ValueError:  # JSONDecodeError, UnicodeDecodeError
+                message = decoders.get(channel, decode_json)(
+                    inner[start + _MESSAGE_HEAD : start + length])
+            except ValueError:  # JSONDecodeError, UnicodeDecodeError, CDR
                 self.damage.bad_messages[(where, p)] = topic
             else:
                 yield topic, log_time, message
@@ -943,8 +1014,8 @@ class McapFile:
                         topics: frozenset[str] | None) -> Iterator[tuple[str, int, Any]]:
         """The wanted messages of the records ``inner`` of the chunk (or record) at bytes
         ``where``..``stop_at`` of the file."""
-        head, message_head, loads = _HEAD.unpack_from, _MESSAGE_START.unpack_from, decode_json
-        channels = self.channels
+        head, message_head = _HEAD.unpack_from, _MESSAGE_START.unpack_from
+        channels, decoders = self.channels, self.decoders
         unknown: dict[int, int] = {}
         n = len(inner)
         p = 0
@@ -962,20 +1033,17 @@ class McapFile:
                 if topic is not None:
                     (log_time,) = _U64.unpack_from(inner, start + 6)
                     try:
-                        message = loads(inner[start + _MESSAGE_HEAD : stop])
-                    except ValueError:  # JSONDecodeError, UnicodeDecodeError
+                        message = decoders.get(cid, decode_json)(
+                            inner[start + _MESSAGE_HEAD : stop])
+                    except ValueError:  # JSONDecodeError, UnicodeDecodeError, CDR
                         self.damage.bad_messages[(where, p)] = topic
                     else:
                         yield topic, log_time, message
                 elif cid not in channels:
                     unknown[cid] = unknown.get(cid, 0) + 1
-            elif op == OP_CHANNEL:
-                fields = _parse(inner, start, stop, _SPECS[OP_CHANNEL])
-                if fields is None:
-                    break
-                channels[fields[0]] = fields[2]
-                if topics is None or fields[2] in topics:
-                    wanted[fields[0]] = fields[2]
+            elif (op == OP_CHANNEL or op == OP_SCHEMA) and not self._learn(
+                    op, inner, start, stop, wanted, topics):
+                break
             p = stop
         if p != n:  # only a chunk without a CRC gets here: its records do not frame
             self.damage.lost(where, stop_at, f"a chunk whose records do not frame (the rest "

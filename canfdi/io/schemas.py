@@ -2,11 +2,13 @@
 
 Every log is one MCAP file per run (or a family of rotated segments, canfdi.io.segments),
 zstd-compressed chunks, JSON-encoded messages described by JSON schemas (schema encoding
-``"jsonschema"``, message encoding ``"json"``), so that Foxglove can open the log directly.
-Every message carries a ``"timestamp": {"sec": int, "nsec": int}`` field (Foxglove's time
-type); the MCAP log_time and publish_time of the message are the same instant in integer
-nanoseconds since the epoch: the drive's time (the time the frames carry: the bus's receive
-time live, the emulated time in a demo), so that a 40 s drive spans 40 s of log time.
+``"jsonschema"``, message encoding ``"json"``), but for the row topics' rows, ROS 2 messages by
+default (canfdi.io.rowencodings, canfdi.io.cdr), so that Foxglove can open the log directly.
+Every JSON message carries a ``"timestamp": {"sec": int, "nsec": int}`` field (Foxglove's time
+type), every ROS 2 row a ``t_ns``; the MCAP log_time and publish_time of the message are the
+same instant in integer nanoseconds since the epoch: the drive's time (the time the frames
+carry: the bus's receive time live, the emulated time in a demo), so that a 40 s drive spans
+40 s of log time.
 canfdi.io.writer writes this contract, canfdi.io.reader and canfdi.io.scan read it,
 canfdi.io.blocks packs and unpacks the messages.
 
@@ -35,15 +37,16 @@ per row, so that Foxglove plots every one. Read them back with canfdi.io.reader'
     ``STATUS_NAMES``), or ``"sent"`` (``SENT``) for frames the monitor itself sent; other
     strings are recorded as given.
 ``/canfdi/samples`` (`TOPIC_SAMPLES`)
-    One message per decoded sample, at the sample's time: ``{"timestamp", "k", "gap",
-    "u": {input: number}, "z": {output: number}, "drive"}`` (``"drive"`` on a bus of several
-    drives), the maps in the model's input and output order, null for a value that is not
-    finite. Foxglove plots every sample by message path (``/canfdi/samples.z.speed``); its
-    schema (`sample_schema`) names every input and output, so each path is offered.
+    One message per decoded sample, at the sample's time: ``t_ns, k, gap, u: {input: number},
+    z: {output: number}, drive`` (``drive`` on a bus of several drives), the maps in the
+    model's input and output order. Foxglove plots every sample by message path
+    (``/canfdi/samples.z.speed``); its schema (a ROS 2 definition, canfdi.io.cdr; or, for
+    JSON rows, `sample_schema`: ``"timestamp"`` for ``t_ns``, null for a value that is not
+    finite) names every input and output, so each path is offered.
 ``/canfdi/residuals`` (`TOPIC_RESIDUALS`)
-    One message per diagnosed sample: ``{"timestamp", "k", "r": {residual: number},
-    "normalized": {..}, "statistic": {..}, "drive"}``: raw and normalized residuals and the
-    detection statistic (Page-Hinkley's max(g+, g-)), schema `residual_schema`.
+    One message per diagnosed sample: ``t_ns, k, r: {residual: number}, normalized: {..},
+    statistic: {..}, drive``: raw and normalized residuals and the detection statistic
+    (Page-Hinkley's max(g+, g-)); JSON rows' schema `residual_schema`.
 
     Older logs hold blocks of rows on these two topics
     instead (``"encoding": "canfdi.samples.v1"`` / ``"canfdi.residuals.v1"``, columns as JSON
@@ -67,7 +70,7 @@ in a log when it first writes a row. Estimates, events, status and log lines are
 each (they are rare). Other topics
 may be written with canfdi.io.writer's `McapRecorder.write`; they get a permissive object
 schema (`GENERIC_SCHEMA`). Non-finite floats (NaN, inf),
-which JSON cannot express, are written as ``null`` (read back as NaN).
+which JSON cannot express, are written as ``null`` in JSON messages (read back as NaN).
 
 Every schema is one that JSON-schema readers of Foxglove's lineage accept (Lichtblick's
 ``parseJsonSchema``, tested under node): an object's fields each have one ``"type"`` (no

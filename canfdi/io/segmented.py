@@ -48,14 +48,14 @@ import logging
 import math
 from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
-from typing import IO
+from typing import IO, NamedTuple
 
 import numpy as np
 from mcap._chunk_builder import ChunkBuilder
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType, Writer
 
 from canfdi import __version__
-from canfdi.io.mcapwrite import add_messages
+from canfdi.io.mcapwrite import Messages, add_messages
 from canfdi.io.schemas import MESSAGE_ENCODING, METADATA_NAME, SCHEMA_ENCODING
 from canfdi.io.segments import numbered_segments, segment_path
 
@@ -76,8 +76,14 @@ _TRANSIENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EIO})
 # type even when it is empty, which MCAP checkers (pymcap-cli doctor) report as an error.
 _INDEX_TYPES = IndexType.CHUNK | IndexType.MESSAGE | IndexType.METADATA
 
-Schema = tuple[str, bytes]
-"""A channel's schema as registered: (schema name, JSON schema bytes)."""
+class Schema(NamedTuple):
+    """A channel's schema as registered, and the encoding of its messages: a JSON schema and
+    JSON messages unless it says otherwise (a plain ``(name, data)`` pair is taken as that)."""
+
+    name: str
+    data: bytes
+    encoding: str = SCHEMA_ENCODING
+    message_encoding: str = MESSAGE_ENCODING
 
 
 def open_file(path: Path) -> IO[bytes]:
@@ -115,16 +121,19 @@ class _CountingFile:
 class _Segment:
     """One open MCAP file: its writer and the channel of every topic registered in it."""
 
-    __slots__ = ("channels", "chunks", "file", "metadata", "other_chunk", "path", "schema_ids",
+    __slots__ = ("channel_ids", "channels", "chunks", "file", "metadata", "other_chunk", "path",
+                 "schema_ids",
                  "separate_open", "writer")
 
     def __init__(self, path: Path, file: _CountingFile, writer: Writer) -> None:
         self.path = path
         self.file = file
         self.writer = writer
-        # Each topic's channel id and the schema it was registered with (a row topic's may
-        # widen: a new schema, a new channel).
+        # Each topic's current channel id and its schema (a row topic's may change: a new
+        # schema, a new channel), and every channel registered, by topic and schema (the rows
+        # of two drives may alternate between two).
         self.channels: dict[str, tuple[int, Schema]] = {}
+        self.channel_ids: dict[tuple[str, Schema], int] = {}
         self.schema_ids: dict[Schema, int] = {}
         self.metadata = False
         self.chunks = False
@@ -156,11 +165,15 @@ class _Segment:
         known = self.channels.get(topic)
         if known is not None and known[1] is schema:
             return known[0]
-        schema_id = self.schema_ids.get(schema)
-        if schema_id is None:
-            schema_id = self.writer.register_schema(schema[0], SCHEMA_ENCODING, schema[1])
-            self.schema_ids[schema] = schema_id
-        channel_id = self.writer.register_channel(topic, MESSAGE_ENCODING, schema_id)
+        channel_id = self.channel_ids.get((topic, schema))
+        if channel_id is None:
+            full = Schema(*schema)
+            schema_id = self.schema_ids.get(schema)
+            if schema_id is None:
+                schema_id = self.writer.register_schema(full.name, full.encoding, full.data)
+                self.schema_ids[schema] = schema_id
+            channel_id = self.writer.register_channel(topic, full.message_encoding, schema_id)
+            self.channel_ids[(topic, schema)] = channel_id
         self.channels[topic] = (channel_id, schema)
         return channel_id
 
@@ -413,9 +426,10 @@ class SegmentedFile:
             return
         self._added(seg, rows)
 
-    def add_row_messages(self, topic: str, schema: Schema, t_ns: np.ndarray, data: list[bytes],
+    def add_row_messages(self, topic: str, schema: Schema, t_ns: np.ndarray, data: Messages,
                          now: float) -> None:
-        """Add one message per row, at the rows' times (or count them dropped)."""
+        """Add one message per row, at the rows' times (or count them dropped): a list of
+        messages, or an (N, size) uint8 array of N messages of one size."""
         n = len(data)
         first = self._sequence.get(topic, 0)
         self._sequence[topic] = first + n

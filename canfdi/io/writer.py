@@ -49,6 +49,8 @@ from canfdi.io.channels import (
 )
 from canfdi.io.framebuffer import FrameBuffer
 from canfdi.io.loghandler import McapLogHandler
+from canfdi.io.mcapwrite import Messages
+from canfdi.io.rowencodings import DEFAULT_ROW_ENCODING
 from canfdi.io.rowtopics import ROW_LAYOUTS
 from canfdi.io.schemas import TOPIC_FRAMES, TOPIC_RESIDUALS, TOPIC_SAMPLES
 from canfdi.io.segmented import (
@@ -66,8 +68,8 @@ DEFAULT_BLOCK_ROWS = 1024
 """Rows of a row topic buffered before they are written (``block_samples``,
 ``block_residuals``, and every other row topic's)."""
 
-Tap = Callable[[str, tuple[str, bytes], int, bytes], None]
-"""Sees every message the recorder writes: ``(topic, (schema name, JSON schema bytes),
+Tap = Callable[[str, Schema, int, bytes], None]
+"""Sees every message the recorder writes: ``(topic, schema (its name, data and encodings),
 log_time_ns, message bytes)`` (a live Foxglove server, say)."""
 
 
@@ -99,7 +101,7 @@ class _TappedFile:
             self.tap(topic, schema, timestamp_ns, data)
         self.file.add_message(topic, schema, timestamp_ns, data, rows, now)
 
-    def row_messages(self, topic: str, schema: Schema, t_ns: np.ndarray, data: list[bytes],
+    def row_messages(self, topic: str, schema: Schema, t_ns: np.ndarray, data: Messages,
                      now: float) -> None:
         if len(t_ns):
             floor = self._last.get(topic, int(t_ns[0]))
@@ -109,7 +111,7 @@ class _TappedFile:
         if self.tap is not None:
             tap = self.tap
             for t, d in zip(t_ns.tolist(), data, strict=True):
-                tap(topic, schema, t, d)
+                tap(topic, schema, t, d if isinstance(d, bytes) else d.tobytes())
         self.file.add_row_messages(topic, schema, t_ns, data, now)
 
 
@@ -145,6 +147,9 @@ class McapRecorder(TopicWrites):
         buffer lets them be formatted together).
     tap : callable, optional
         Called with every message written (`Tap`), whether or not a file takes it.
+    row_encoding : str
+        How the row topics' rows become messages: a name of canfdi.io.rowencodings'
+        `ROW_ENCODINGS` (``"cdr"``, ROS 2 messages; ``"json"``, JSON ones).
 
     Raises
     ------
@@ -181,6 +186,7 @@ class McapRecorder(TopicWrites):
         block_samples: int = DEFAULT_BLOCK_ROWS,
         block_residuals: int = DEFAULT_BLOCK_ROWS,
         tap: Tap | None = None,
+        row_encoding: str = DEFAULT_ROW_ENCODING,
     ) -> None:
         if flush_interval <= 0:
             raise ValueError(f"flush_interval must be > 0, got {flush_interval}")
@@ -216,7 +222,8 @@ class McapRecorder(TopicWrites):
         self._frames = Channel(TOPIC_FRAMES, self._frame_buffer, FrameBlockEncoder(),
                                block_frames)
         limits = {TOPIC_SAMPLES: block_samples, TOPIC_RESIDUALS: block_residuals}
-        self._rows = {topic: row_channel(layout, limits.get(topic, DEFAULT_BLOCK_ROWS))
+        self._rows = {topic: row_channel(layout, limits.get(topic, DEFAULT_BLOCK_ROWS),
+                                         row_encoding)
                       for topic, layout in ROW_LAYOUTS.items()}
         # Buffered channels, in the order they are written out.
         self._buffered = [self._frames, *self._rows.values()]

@@ -196,7 +196,8 @@ def replay_diagnosis(monitor: Monitor, log: Path, output: Path | None = None,
     if output is not None:
         try:
             recorder = open_recorder(output, monitor.metadata(truth_of(log)),
-                                     drive_clock=lambda: monitor.last_timestamp_ns or 0)
+                                     drive_clock=lambda: monitor.last_timestamp_ns or 0,
+                                     recording=monitor.config.recording)
         except (OSError, ValueError) as exc:
             raise CannotWriteDiagnosis(exc) from exc
         monitor.sink = recorder

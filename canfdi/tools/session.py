@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from canfdi.config import MonitorConfig
     from canfdi.core.kernel import Kernel
+    from canfdi.core.settings import RecordingConfig
     from canfdi.monitor import Monitor
     from canfdi.service import MonitorService, ServiceStats
 
@@ -262,14 +263,18 @@ class StopEvent(asyncio.Event):
 # -- recording ---------------------------------------------------------------------------------
 
 def open_recorder(path: Path | None, metadata: dict[str, str] | None = None, *,
-                  drive_clock: Callable[[], int] | None = None, **kwargs):
+                  drive_clock: Callable[[], int] | None = None,
+                  recording: RecordingConfig | None = None, **kwargs):
     """An MCAP recorder for ``path`` (parent directories created; None: no file, for a live
-    view's ``tap`` alone). With ``drive_clock`` (the drive's time now, ns), the canfdi loggers'
-    warnings are recorded on its ``/canfdi/log`` too, until `close_recorder`."""
+    view's ``tap`` alone), its rows in the config's ``recording.row_encoding`` when it names
+    one. With ``drive_clock`` (the drive's time now, ns), the canfdi loggers' warnings are
+    recorded on its ``/canfdi/log`` too, until `close_recorder`."""
     from canfdi.io.writer import McapLogHandler, McapRecorder
 
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
+    if recording is not None and recording.row_encoding is not None:
+        kwargs["row_encoding"] = recording.row_encoding
     recorder = McapRecorder(path, metadata=metadata, **kwargs)
     if drive_clock is not None:
         logging.getLogger("canfdi").addHandler(McapLogHandler(recorder, drive_clock))
@@ -626,7 +631,8 @@ def open_session(config: MonitorConfig, verb: str, *, diagnose: bool = True,
             session.recorder = open_recorder(
                 recording.path, monitor.metadata(truth),
                 drive_clock=session.drive_time if recording.log_lines else None, tap=server,
-                rotate_bytes=recording.rotate_bytes, rotate_seconds=recording.rotate_seconds)
+                rotate_bytes=recording.rotate_bytes, rotate_seconds=recording.rotate_seconds,
+                recording=config.recording)
         except OSError as exc:
             session.close()
             raise CannotRecord(recording.path, exc) from None

@@ -221,6 +221,10 @@ CASES.update(
             _sub("  rotate_minutes: 60", "  rotate_minutes: 60\n  keep_mib: lots"),
             "recording.keep_mib",
         ),
+        "row encoding unknown": (
+            _sub("  rotate_minutes: 60", "  rotate_minutes: 60\n  row_encoding: xml"),
+            "recording.row_encoding",
+        ),
         "recording unknown key": (
             _sub("  rotate_minutes: 60", "  rotate_minutes: 60\n  rotate_hours: 1"),
             "recording.rotate_hours",

@@ -1,5 +1,6 @@
-"""docs/foxglove-layout.json: every message path of its panels names a field of the demo log's
-channels (by their JSON schemas), in the message path syntax of Foxglove's lineage (a topic,
+"""docs/foxglove-layout.json: every message path of its panels names a number field of the demo
+log's channels (by their JSON schemas, and the row topics' ROS 2 definitions as Foxglove's
+mcap-ros2-support parses them), in the message path syntax of Foxglove's lineage (a topic,
 then ``.name`` or ``."quoted name"`` parts)."""
 
 from __future__ import annotations
@@ -7,8 +8,10 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
+from typing import Any
 
 from mcap.reader import make_reader
+from mcap.records import Schema
 
 from tests.cli import canfdi_main as main
 
@@ -30,27 +33,52 @@ def split_path(path: str) -> tuple[str, list[str]]:
     return topic, fields
 
 
+def field_tree(schema: Schema) -> dict[str, Any]:
+    """{field: its subtree, or "number" or another type} of a channel's schema."""
+    if schema.encoding == "jsonschema":
+        def walk(node: dict[str, Any]) -> Any:
+            if "properties" in node:
+                return {key: walk(value) for key, value in node["properties"].items()}
+            return node.get("type")
+        return walk(json.loads(schema.data))
+    assert schema.encoding == "ros2msg", schema.encoding
+    from mcap_ros2._dynamic import _for_each_msgdef
+
+    types: dict[str, dict[str, str]] = {}
+    _for_each_msgdef(schema.name, schema.data.decode(), lambda name, short, spec: types.update(
+        {short: {f.name: f"{f.type.pkg_name}/{f.type.type}" if f.type.pkg_name
+                 else f.type.type for f in spec.fields}}))
+
+    def expand(name: str) -> Any:
+        return {key: expand(kind) if kind in types else
+                ("number" if kind in ("float64", "float32") else kind)
+                for key, kind in types[name].items()}
+    return expand(schema.name.replace("/msg/", "/"))
+
+
 def test_every_panel_path_is_a_field_of_the_demo_log(tmp_path: Path) -> None:
     log = tmp_path / "demo.mcap"
     assert main(["demo", "--no-live", "--json", "-o", str(log)]) == 0
     with open(log, "rb") as f:
         summary = make_reader(f).get_summary()
-    schemas = {c.topic: json.loads(summary.schemas[c.schema_id].data)
-               for c in summary.channels.values()}
+    schemas = {c.topic: summary.schemas[c.schema_id] for c in summary.channels.values()}
+    assert {schemas[t].encoding for t in ("/canfdi/samples", "/canfdi/residuals")} == {
+        "ros2msg"}
+    trees = {topic: field_tree(schema) for topic, schema in schemas.items()}
     layout = json.loads(LAYOUT.read_text())
     panels = layout["configById"]
     paths = [p["value"] for config in panels.values() for p in config.get("paths", [])]
     assert len(paths) >= 10
     for path in paths:
         topic, fields = split_path(path)
-        node = schemas[topic]
+        node = trees[topic]
         for field in fields:
-            assert field in node["properties"], f"{path}: no {field!r}"
-            node = node["properties"][field]
-        assert node["type"] == "number", path
+            assert field in node, f"{path}: no {field!r}"
+            node = node[field]
+        assert node == "number", path
     topics = {c.get("topicPath") or c.get("topicToRender") for c in panels.values()} - {None}
     assert topics == {"/canfdi/events", "/canfdi/log"} and topics <= set(schemas)
-    assert schemas["/canfdi/log"]["title"] == "foxglove.Log"
+    assert schemas["/canfdi/log"].name == "foxglove.Log"
 
     def leaves(node):
         return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(
@@ -74,7 +102,9 @@ def test_demo_log_time_is_the_drive_time(tmp_path: Path) -> None:
     times: dict[str, list[int]] = {}
     for topic, t, message in read_log(log):
         times.setdefault(topic, []).append(t)
-        assert message["timestamp"]["sec"] * 10**9 + message["timestamp"]["nsec"] == t
+        stamp = message.get("timestamp")  # the row topics' ROS 2 rows carry t_ns
+        own = message["t_ns"] if stamp is None else stamp["sec"] * 10**9 + stamp["nsec"]
+        assert own == t
     for topic, ts in times.items():
         assert start <= min(ts) and max(ts) <= end, topic
     samples = times["/canfdi/samples"]

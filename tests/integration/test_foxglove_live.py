@@ -16,6 +16,7 @@ import pytest
 pytest.importorskip("foxglove", reason="the foxglove extra is not installed")
 websockets = pytest.importorskip("websockets", reason="websockets is not installed")
 
+from canfdi.io.cdr import CdrDecoder  # noqa: E402
 from canfdi.liveserver import parse_address  # noqa: E402
 from tests.cli import canfdi_main as main  # noqa: E402
 
@@ -62,8 +63,7 @@ async def watch(port: int, done: threading.Event) -> dict:
                 else:
                     assert frame[0] == 0x01  # message data
                     sub, log_time = struct.unpack_from("<IQ", frame, 1)
-                    got.setdefault(topics_of[sub], []).append((log_time,
-                                                              json.loads(frame[13:])))
+                    got.setdefault(topics_of[sub], []).append((log_time, frame[13:]))
             if done.is_set() and not got:
                 break
     return {"channels": channels, "got": got}
@@ -88,19 +88,24 @@ def test_demo_serves_residuals_events_and_log_lines_live(capsys) -> None:
     channels = {c["topic"]: c for c in seen["channels"].values()}
     assert {"/canfdi/residuals", "/canfdi/samples", "/canfdi/events", "/canfdi/log"} <= set(
         channels)
-    for channel in channels.values():
-        assert channel["encoding"] == "json" and channel["schemaEncoding"] == "jsonschema"
-    schema = json.loads(channels["/canfdi/residuals"]["schema"])
-    assert "s:i_a" in schema["properties"]["statistic"]["properties"]
+    rows_topics = {"/canfdi/residuals", "/canfdi/samples"}
+    for topic, channel in channels.items():  # the row topics' ROS 2 rows, JSON elsewhere
+        assert (channel["encoding"], channel["schemaEncoding"]) == (
+            ("cdr", "ros2msg") if topic in rows_topics else ("json", "jsonschema")), topic
+    schema = channels["/canfdi/residuals"]["schema"]
+    assert 'float64 s_i_a  # canfdi: "s:i_a"' in schema
     assert channels["/canfdi/log"]["schemaName"] == "foxglove.Log"
-    got = seen["got"]
+    got = {topic: [(t, CdrDecoder(channels[topic]["schema"])(data) if topic in rows_topics
+                    else json.loads(data)) for t, data in messages]
+           for topic, messages in seen["got"].items()}
     rows = got["/canfdi/residuals"]
     assert len(rows) > 100
     # live messages carry the drive's time: 10 ms apart, as its samples
     times = [t for t, _ in rows]
     steps = np.diff(times).tolist()
     assert all(abs(step - 10_000_000) < 10_000 for step in steps), (min(steps), max(steps))
-    assert all(m["timestamp"]["sec"] * 10**9 + m["timestamp"]["nsec"] == t for t, m in rows)
+    assert all(m["t_ns"] == t for t, m in rows)
+    assert all(set(m["statistic"]) >= {"s:i_a"} for _, m in rows)
     kinds = [m["kind"] for _, m in got["/canfdi/events"]]
     assert "accepted" in kinds
     assert any("FAULT" in m["message"] for _, m in got["/canfdi/log"])

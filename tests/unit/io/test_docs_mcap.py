@@ -1,5 +1,7 @@
 """docs/mcap.md names every topic, schema and field the recorder writes (docs match code)."""
 
+import numpy as np
+
 from canfdi.io.schemas import (
     SCHEMAS,
     TOPIC_RESIDUALS,
@@ -8,6 +10,23 @@ from canfdi.io.schemas import (
     sample_schema,
 )
 from tests.conftest import REPO
+
+
+def test_every_row_topic_ros2_type_and_field_is_documented():
+    """The row topics' default encoding: each ROS 2 type and every field of its definition."""
+    from canfdi.io.cdr import CdrDecoder
+    from canfdi.io.rowencodings import CdrRows
+    from canfdi.io.rowtopics import ROW_LAYOUTS
+
+    text = (REPO / "docs" / "mcap.md").read_text()
+    for topic in (TOPIC_SAMPLES, TOPIC_RESIDUALS):
+        rows = CdrRows(ROW_LAYOUTS[topic])
+        schema, data = rows.encode(tuple([f"n{i}"] for i in range(len(rows.layout.names))),
+                                   "left", np.array([1]), np.zeros((1, len(rows.layout.ints))),
+                                   np.zeros((1, len(rows.layout.groups))))
+        assert f"`{schema.name}`" in text, topic
+        for field in CdrDecoder(schema.data.decode())(data[0].tobytes()):
+            assert f"`{field}`" in text, (topic, field)
 
 
 def test_every_topic_schema_and_field_is_documented():

@@ -58,8 +58,9 @@ def test_a_registered_topic_is_recorded_and_read_back(tmp_path: Path, vibration)
     tapped: list[tuple[str, str, int]] = []
     acc = np.array([[0.5, -1.0], [2.0, np.nan], [3.0, 4.0], [5.0, 6.0]])
     rms = np.array([[1.0, 1.5], [2.5, 3.5], [np.inf, 0.0], [7.0, 8.0]])
-    with McapRecorder(path, block_samples=2, tap=lambda topic, schema, t, data: tapped.append(
-            (topic, schema[0], t))) as rec:
+    with McapRecorder(path, block_samples=2, row_encoding="json",
+                      tap=lambda topic, schema, t, data: tapped.append((topic, schema[0], t))
+                      ) as rec:
         rec.write_row(TOPIC, T0, (0, 3), (acc[0], rms[0]), (axes,))
         rec.write_sample(Sample(k=0, timestamp_ns=T0, u=np.array([1.0]), z=np.array([2.0]),
                                 gap=0), ["v"], ["w"])
@@ -99,8 +100,9 @@ def test_a_registered_topic_is_recorded_and_read_back(tmp_path: Path, vibration)
 
 
 def test_a_drive_and_a_wider_name_list_reach_the_schema(tmp_path: Path, vibration) -> None:
+    """JSON rows: one schema naming every name (CDR's exact schemas: test_cdr_rows.py)."""
     path = tmp_path / "run.mcap"
-    with McapRecorder(path) as rec:
+    with McapRecorder(path, row_encoding="json") as rec:
         rec.write_row(TOPIC, T0, (0, 0), ([1.0], [2.0]), (["x"],), drive="left")
         rec.write_row(TOPIC, T0 + 1, (1, 0), ([3.0, 4.0], [5.0, 6.0]), (["x", "z"],),
                       drive="right")

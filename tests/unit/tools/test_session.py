@@ -10,6 +10,7 @@ import signal
 from pathlib import Path
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from canfdi.config import load_config
@@ -115,3 +116,23 @@ def test_a_discarded_recording_leaves_no_file(tmp_path):
         path.write_bytes(b"")
     Session(_Monitor(), recorder=recorder).discard_recording()
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("encoding", ["json", "cdr", None])
+def test_the_recorder_writes_rows_in_the_configs_row_encoding(tmp_path: Path, encoding) -> None:
+    """recording.row_encoding picks the rows' encoding (None: the recorder's default, CDR)."""
+    from mcap.reader import make_reader
+
+    from canfdi.core.records import Sample
+    from canfdi.tools.session import close_recorder, open_recorder
+
+    path = tmp_path / "run.mcap"
+    recorder = open_recorder(path, recording=RecordingConfig(row_encoding=encoding))
+    recorder.write_sample(Sample(k=0, timestamp_ns=5, u=np.array([1.0]), z=np.array([2.0]),
+                                 gap=0), ["v"], ["w"])
+    close_recorder(recorder)
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    (channel,) = summary.channels.values()
+    assert channel.message_encoding == ("json" if encoding == "json" else "cdr")
