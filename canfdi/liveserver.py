@@ -27,6 +27,7 @@ import threading
 from typing import Any
 
 from canfdi.io.blocks import split_frame_block
+from canfdi.io.channels import SCHEMA_BYTES
 from canfdi.io.schemas import TOPIC_FRAMES
 from canfdi.io.segmented import Schema
 
@@ -136,9 +137,14 @@ class FoxgloveServer:
             lossy.removeHandler(self._lagging)
             raise OSError(f"cannot serve Foxglove on {host}:{port}: {exc}") from None
         self.host = host
-        self._channels: dict[str, tuple[tuple[str, bytes], Any]] = {}
+        self._channels: dict[str, tuple[Schema, Any]] = {}
         self.oversize = 0
         """Messages not published live for their size (`LIVE_MESSAGE_BYTES`)."""
+        # Every topic of a fixed schema advertised now, not with its first message: a client
+        # that connects at the start subscribes before the first event, which would otherwise
+        # go out on a channel nobody has subscribed to yet (a fast run's events all do).
+        for topic, schema in SCHEMA_BYTES.items():
+            self._advertise(topic, schema)
 
     @property
     def lagging(self) -> int:
@@ -171,15 +177,22 @@ class FoxgloveServer:
              data: bytes) -> None:
         entry = self._channels.get(topic)
         if entry is None or entry[0] is not schema:
-            if entry is not None:  # a row topic's schema changed: advertise it anew
-                entry[1].close()
-            fg = self._foxglove
-            full = Schema(*schema)
-            channel = fg.Channel(topic, schema=fg.Schema(name=full.name, encoding=full.encoding,
-                                                         data=full.data),
-                                 message_encoding=full.message_encoding, context=self._context)
-            entry = self._channels[topic] = (schema, channel)
+            entry = self._advertise(topic, schema)
         entry[1].log(data, log_time=log_time_ns)
+
+    def _advertise(self, topic: str, schema: Schema) -> tuple[Schema, Any]:
+        """The topic's channel with this schema (the one before, a row topic's whose schema
+        changed, closed)."""
+        entry = self._channels.get(topic)
+        if entry is not None:
+            entry[1].close()
+        fg = self._foxglove
+        full = Schema(*schema)
+        channel = fg.Channel(topic, schema=fg.Schema(name=full.name, encoding=full.encoding,
+                                                     data=full.data),
+                             message_encoding=full.message_encoding, context=self._context)
+        entry = self._channels[topic] = (schema, channel)
+        return entry
 
     def close(self) -> None:
         """Stop serving, waiting `STOP_WAIT_S` at most (the SDK's stop goes on in the

@@ -43,6 +43,7 @@ async def watch(port: int, done: threading.Event) -> dict:
     channels: dict[int, dict] = {}
     topics_of: dict[int, str] = {}
     got: dict[str, list] = {}
+    first: list[str] = []  # the topics of the first advertisement
     async with ws:
         info = json.loads(await ws.recv())
         assert info["op"] == "serverInfo"
@@ -53,6 +54,7 @@ async def watch(port: int, done: threading.Event) -> dict:
                 if isinstance(frame, str):
                     op = json.loads(frame)
                     if op["op"] == "advertise":
+                        first.extend([] if first else [c["topic"] for c in op["channels"]])
                         subs = []
                         for channel in op["channels"]:
                             channels[channel["id"]] = channel
@@ -66,7 +68,7 @@ async def watch(port: int, done: threading.Event) -> dict:
                     got.setdefault(topics_of[sub], []).append((log_time, frame[13:]))
             if done.is_set() and not got:
                 break
-    return {"channels": channels, "got": got}
+    return {"channels": channels, "got": got, "first": first}
 
 
 def test_demo_serves_residuals_events_and_log_lines_live(capsys) -> None:
@@ -88,6 +90,10 @@ def test_demo_serves_residuals_events_and_log_lines_live(capsys) -> None:
     channels = {c["topic"]: c for c in seen["channels"].values()}
     assert {"/canfdi/residuals", "/canfdi/samples", "/canfdi/events", "/canfdi/log"} <= set(
         channels)
+    # The fixed-schema topics are advertised at once, before the run says anything: a client
+    # that connects at the start misses no event.
+    assert {"/canfdi/events", "/canfdi/log", "/canfdi/estimates", "/can/frames"} <= set(
+        seen["first"])
     rows_topics = {"/canfdi/residuals", "/canfdi/samples"}
     for topic, channel in channels.items():  # the row topics' ROS 2 rows, JSON elsewhere
         assert (channel["encoding"], channel["schemaEncoding"]) == (
