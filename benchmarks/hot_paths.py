@@ -9,6 +9,9 @@ data are the DC motor on canfdi's own bus, the shipped config, as `canfdi bench`
 
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
+
 import numpy as np
 from canfdi.configs import CONFIG_DIR
 
@@ -16,6 +19,8 @@ from canfdi.config import load_config
 from canfdi.core import kernel as kernels
 from canfdi.core.detect import ChangePointDetector
 from canfdi.core.residuals import ResidualBank
+from canfdi.io.rowencodings import ROW_ENCODINGS
+from canfdi.io.writer import McapRecorder
 from canfdi.methods import build_diagnoser
 from canfdi.monitor import Monitor
 from canfdi.tools.bench import make_traffic
@@ -102,3 +107,37 @@ class Monitoring:
         for i in range(0, self.traffic.size, 4096):
             monitor.on_frames(self.traffic.slice(i, i + 4096))
         monitor.finish()
+
+
+class Recording:
+    """The MCAP recorder alone: SAMPLES sample rows (1 input, 4 outputs) and residual rows (5
+    residuals), as the monitor hands them over a block at a time, with a frame block of FRAMES
+    frames, into a file, in each row encoding (canfdi.io.rowencodings)."""
+
+    params = tuple(sorted(ROW_ENCODINGS))
+    param_names = ("row_encoding",)
+    timeout = 120
+
+    def setup(self, row_encoding: str) -> None:
+        rng = np.random.default_rng(0)
+        self.k = np.arange(SAMPLES)
+        self.t_ns = 1_700_000_000_000_000_000 + self.k * 1_000_000
+        self.U, self.Z = rng.standard_normal((SAMPLES, 1)), rng.standard_normal((SAMPLES, 4))
+        self.R = rng.standard_normal((3, SAMPLES, 5))
+        self.frames = _traffic(FRAMES, "dc_motor_nominal")
+        self.dir = tempfile.TemporaryDirectory()
+
+    def teardown(self, row_encoding: str) -> None:
+        self.dir.cleanup()
+
+    def time_record(self, row_encoding: str) -> None:
+        path = Path(self.dir.name) / "rows.mcap"
+        with McapRecorder(path, row_encoding=row_encoding) as recorder:
+            recorder.write_frames(self.frames, "ok")
+            for lo in range(0, SAMPLES, 1024):
+                hi = lo + 1024
+                k, t = self.k[lo:hi], self.t_ns[lo:hi]
+                recorder.write_samples(k, t, self.U[lo:hi], self.Z[lo:hi], np.zeros_like(k),
+                                       ["V"], ["i_f", "i_a", "i_sum", "omega"])
+                recorder.write_residual_rows(k, t, ["a:V", "s:i_f", "s:i_a", "s:i_sum",
+                                                    "s:omega"], *(r[lo:hi] for r in self.R))

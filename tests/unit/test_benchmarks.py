@@ -33,3 +33,5 @@ def test_each_benchmark_runs(cls, args, monkeypatch):
     assert timed
     for method in timed:
         method(*args)
+    if hasattr(bench, "teardown"):
+        bench.teardown(*args)
