@@ -48,8 +48,8 @@ pytestmark = pytest.mark.slow
 
 KERNELS = available_kernels()
 CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
-# The sanitized kernel's run of this suite (test_sanitized_kernel.py) takes 90 (each verb meets
-# every damage twice): the sanitizers' allocator slows Python's own allocations fifteenfold.
+# The sanitized kernel's run of this suite (test_sanitized_kernel.py) takes 45 (each verb meets
+# every damage once): the sanitizers' allocator slows Python's own allocations fifteenfold.
 FILES = int(os.environ.get("CANFDI_DAMAGED_LOGS", "300"))
 VERBS = ("replay", "export", "report", "identify", "calibrate")
 KINDS = ("random bytes", "truncation", "zeroed span", "wrong magic", "garbage in a chunk",

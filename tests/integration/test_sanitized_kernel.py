@@ -54,7 +54,7 @@ def test_the_hostile_suites_pass_through_the_sanitized_c_kernel(tmp_path):
     env = {**os.environ, "LD_PRELOAD": f"{asan} {stdcxx}", "CANFDI_KERNEL": "c",
            "ASAN_OPTIONS": "detect_leaks=0:abort_on_error=0",
            "UBSAN_OPTIONS": "halt_on_error=1:print_stacktrace=1",
-           "CANFDI_DAMAGED_LOGS": "90", "OPENBLAS_NUM_THREADS": "1"}
+           "CANFDI_DAMAGED_LOGS": "45", "OPENBLAS_NUM_THREADS": "1"}
     run = subprocess.run(
         [sys.executable, str(Path(__file__).with_name("sanitized_kernel_runner.py")),
          str(kernel), "-q", "-p", "no:cacheprovider", "-p", "no:randomly",
