@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 import yaml
 
+from canfdi.bus.timegate import CONFIRM_FRAMES
 from canfdi.io.reader import read_frames, read_log
 from tests.conftest import REPO
 from tests.vcan.drain import drain
@@ -297,15 +298,22 @@ def slowed(config: Path, tmp_path: Path, factor: int) -> Path:
     return out
 
 
-def missed_triggers(log: Path, config: Path) -> dict[str, int]:
-    """Per drive, the control periods the trigger clock counted as lost in a recorded run
-    (`canfdi replay --json` of the monitor's own log, which gives the live result)."""
+def replayed_counters(log: Path, config: Path) -> dict[str, dict[str, int]]:
+    """Per drive, the frame and sample counters of a recorded run (`canfdi replay --json` of
+    the monitor's own log, which gives the live result): ``samples_missing`` (the control
+    periods the trigger clock counted as lost), ``clock_steps``, ``time_jump``..."""
     res = subprocess.run([*CANFDI, "replay", str(log), "--config", str(config), "--json"],
                          capture_output=True, text=True, timeout=600, cwd=REPO)
     assert res.returncode == 0, res.stderr
     out = json.loads(res.stdout)
     drives = out.get("drives") or {"": {"frames": out["frames"]}}
-    return {name: d["frames"]["samples_missing"] for name, d in drives.items()}
+    return {name: d["frames"] for name, d in drives.items()}
+
+
+def missed_triggers(log: Path, config: Path) -> dict[str, int]:
+    """Per drive, the control periods the trigger clock counted as lost in a recorded run."""
+    return {name: counters["samples_missing"]
+            for name, counters in replayed_counters(log, config).items()}
 
 
 def assert_onsets(faults: list[dict], expected: list[tuple], missed: int) -> None:
@@ -331,7 +339,8 @@ def test_listen_only_on_a_cia402_bus_diagnoses_and_sends_nothing(tmp_path):
     monitor, res, dump, _ = run_with_candump(tmp_path, config, "dc_motor_consecutive_cia402",
                                              heartbeats=1)
     sent, heard = json.loads(res.stdout), candump_frames(dump)
-    missed = missed_triggers(monitor.log, config)[""]
+    counters = replayed_counters(monitor.log, config)[""]
+    missed = counters["samples_missing"]
     assert_onsets(accepted(monitor.events()), [
         ("dc_motor_cia402", "actuator", 0, 1000), ("dc_motor_cia402", "sensor", 0, 2000),
         ("dc_motor_cia402", "sensor", 1, 3000)], missed)
@@ -344,8 +353,16 @@ def test_listen_only_on_a_cia402_bus_diagnoses_and_sends_nothing(tmp_path):
     assert (frames.status == "sent").sum() == 0
     # The kernel's receive filters pass the IDs the bus map reads: not the heartbeat (0x701).
     assert set(frames.id.tolist()) == {0x080, 0x181, 0x201, 0x281}
+    # A harness held up for longer than the time gate's bound (64 periods: 640 ms here; one
+    # loaded run saw five such stalls) makes the drive's time step: the gate drops the frames
+    # before it confirms the step as time_jump (CONFIRM_FRAMES - 1 a step) and says the step,
+    # as it is made to. Every other frame the kernel passed is taken.
+    jumped = int((frames.status == "time_jump").sum())
+    assert set(frames.status.tolist()) <= {"ok", "time_jump"}
+    assert jumped <= counters["clock_steps"] * (CONFIRM_FRAMES - 1), (jumped, counters)
     if lost == 0:  # (with a hole in the witness, only the count above can be checked)
-        assert (frames.status == "ok").sum() == len([f for f in heard if f[0] != 0x701])
+        assert (frames.status == "ok").sum() + jumped == len(
+            [f for f in heard if f[0] != 0x701])
 
 
 def test_two_cia402_drives_on_vcan_are_diagnosed_apart(tmp_path):
