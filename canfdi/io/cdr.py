@@ -259,24 +259,25 @@ class CdrDecoder:
         if type_name in seen:
             raise ValueError(f"the ROS 2 type {type_name} contains itself")
         inner = (*seen, type_name)
-        steps: list[Any] = []  # a _Read per variable field, a _FixedRun per run of fixed ones
+        # Each step puts its fields into the message and returns where the next one starts.
+        steps: list[Callable[[memoryview, int, dict[str, Any]], int]] = []
+        run: _FixedRun | None = None
         for kind, name, key in self._types[type_name]:
             key = name if key is None else key
             flat = self._flat(kind, inner)
             if flat is None:
-                steps.append((key, self._field(kind, inner)))
-            elif steps and isinstance(steps[-1], _FixedRun):
-                steps[-1].add(key, *flat)
+                steps.append(_one(key, self._field(kind, inner)))
+                run = None
+            elif run is not None:
+                run.add(key, *flat)
             else:
-                steps.append(_FixedRun(key, *flat))
+                run = _FixedRun(key, *flat)
+                steps.append(run.read)
 
         def read(buf: memoryview, p: int) -> tuple[Any, int]:
             out: dict[str, Any] = {}
             for step in steps:
-                if isinstance(step, _FixedRun):
-                    p = step.read(buf, p, out)
-                else:
-                    out[step[0]], p = step[1](buf, p)
+                p = step(buf, p, out)
             return out, p
         return read
 
@@ -296,10 +297,9 @@ class CdrDecoder:
         code = _PRIMITIVES.get(kind)
         if code is not None:
             return code, next
-        if kind in ("string", "wstring") or kind.startswith(("string<=", "wstring<=")):
+        if kind.split("<=", 1)[0] in ("string", "wstring"):
             return None
-        type_name = self._find(kind if kind not in ("time", "duration") else
-                               f"builtin_interfaces/{kind.capitalize()}")
+        type_name = self._type_of(kind)
         if type_name in seen:
             raise ValueError(f"the ROS 2 type {type_name} contains itself")
         parts = [(name if key is None else key, self._flat(k, (*seen, type_name)))
@@ -339,9 +339,14 @@ class CdrDecoder:
             return primitive
         if base == "wstring":
             raise ValueError("wide strings (wstring) are not read")
-        if base in ("time", "duration"):
-            base = "builtin_interfaces/Time" if base == "time" else "builtin_interfaces/Duration"
-        return self._struct(self._find(base), seen)
+        return self._struct(self._type_of(base), seen)
+
+    def _type_of(self, kind: str) -> str:
+        """The type a field of this kind holds (ROS 1's time and duration are ROS 2's
+        builtin_interfaces types)."""
+        if kind in ("time", "duration"):
+            kind = f"builtin_interfaces/{kind.capitalize()}"
+        return self._find(kind)
 
 
 class _FixedRun:
@@ -376,6 +381,14 @@ class _FixedRun:
         for key, build in self.builds:
             out[key] = build(values)
         return p + one.size
+
+
+def _one(key: str, field: _Read) -> Callable[[memoryview, int, dict[str, Any]], int]:
+    """A variable-size field as a step of its type's reader."""
+    def put(buf: memoryview, p: int, out: dict[str, Any]) -> int:
+        out[key], p = field(buf, p)
+        return p
+    return put
 
 
 def _items(item: _Read, buf: memoryview, p: int, n: int) -> tuple[list[Any], int]:

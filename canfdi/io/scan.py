@@ -143,24 +143,22 @@ def decode_json(data: bytes) -> Any:
         return json.loads(data)
 
 
-def _undecodable(encoding: str) -> Callable[[bytes], Any]:
+def _refusing(reason: str) -> Callable[[bytes], Any]:
+    """A decoder that refuses every message, saying why (each counted as bad)."""
     def refuse(data: bytes) -> Any:
-        raise ValueError(f"messages encoded as {encoding!r} are not read")
+        raise ValueError(reason)
     return refuse
 
 
 @functools.lru_cache(maxsize=64)
 def _cdr_decoder(schema_name: str, schema_encoding: str, data: bytes) -> Callable[[bytes], Any]:
     if schema_encoding != SCHEMA_ENCODING_ROS2:
-        return _undecodable(f"cdr with a {schema_encoding!r} schema")
+        return _refusing(f"messages encoded as 'cdr' with a {schema_encoding!r} schema are "
+                         "not read")
     try:
         return CdrDecoder(data.decode())
     except (ValueError, UnicodeDecodeError) as error:
-        reason = str(error)
-
-        def refuse(_: bytes) -> Any:
-            raise ValueError(f"the ROS 2 schema {schema_name} cannot be read: {reason}")
-        return refuse
+        return _refusing(f"the ROS 2 schema {schema_name} cannot be read: {error}")
 
 
 MESSAGE_DECODERS: dict[str, Callable[[str, str, bytes], Callable[[bytes], Any]]] = {
@@ -177,7 +175,7 @@ def message_decoder(message_encoding: str, schema: tuple[str, str, bytes] | None
     message for an encoding canfdi does not read."""
     make = MESSAGE_DECODERS.get(message_encoding)
     if make is None:
-        return _undecodable(message_encoding)
+        return _refusing(f"messages encoded as {message_encoding!r} are not read")
     return make(*(schema if schema is not None else ("", "", b"")))
 
 
