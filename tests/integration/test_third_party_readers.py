@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from canfdi.configs import CONFIG_DIR
 from mcap.reader import make_reader
 
-import canfdi.io.writer
 from canfdi.bus.frames import FrameBlock
 from canfdi.io.cdr import field_names
 from canfdi.io.reader import read_log, read_residuals, read_samples
@@ -43,13 +43,6 @@ from tests.cli import canfdi_main as main
 NODE_DIR = Path(__file__).resolve().parents[1] / "node"
 T0 = 1_800_000_000_000_000_000
 ROW_TOPICS = ("/canfdi/samples", "/canfdi/residuals")
-
-
-class _JsonRowRecorder(McapRecorder):
-    """canfdi's recorder with the row topics in JSON, the layout of logs before CDR rows."""
-
-    def __init__(self, path, **kwargs) -> None:
-        super().__init__(path, **{"row_encoding": "json", **kwargs})
 
 
 def _encodings(path: Path) -> dict[str, tuple[str, str]]:
@@ -72,9 +65,15 @@ def logs(tmp_path_factory) -> dict[str, Path]:
     assert main(["demo", "--no-live", "--json", "--scenario", "dc_motor_two_drives_cia402",
                  "-o", str(out["two_drives"])]) == 0
     out["demo_json"] = d / "demo_json.mcap"
-    with pytest.MonkeyPatch.context() as patch:  # the demo's recorder, rows in JSON
-        patch.setattr(canfdi.io.writer, "McapRecorder", _JsonRowRecorder)
-        assert main(["demo", "--no-live", "--json", "-o", str(out["demo_json"])]) == 0
+    # The demo with its rows in JSON (the layout of logs before CDR rows), as a user asks
+    # for it: the config's recording.row_encoding.
+    shipped = (CONFIG_DIR / "dc_motor.yaml").read_text()
+    assert "\n  rotate_minutes: 60\n" in shipped
+    json_rows = d / "dc_motor_json_rows.yaml"
+    json_rows.write_text(shipped.replace("\n  rotate_minutes: 60\n",
+                                         "\n  rotate_minutes: 60\n  row_encoding: json\n"))
+    assert main(["demo", "--no-live", "--json", "--config", str(json_rows),
+                 "-o", str(out["demo_json"])]) == 0
     for kind, rows in (("demo", ("ros2msg", "cdr")), ("two_drives", ("ros2msg", "cdr")),
                        ("demo_json", ("jsonschema", "json"))):
         encodings = _encodings(out[kind])
