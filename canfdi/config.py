@@ -82,8 +82,9 @@ from canfdi.bus.clock import CLOCKS
 from canfdi.bus.e2e import PROFILES as E2E_PROFILES
 from canfdi.bus.nodeid import MAX_EXTENDED_ID, check_template
 from canfdi.core.design import DesignOptions
-from canfdi.core.model import ModelError, StateSpace
+from canfdi.core.model import MAX_DIMENSION, MAX_ENTRY, ModelError, StateSpace
 from canfdi.core.settings import (
+    NUMBER_TEXT,
     BusConfig,
     ClockConfig,
     ConfigError,
@@ -100,6 +101,7 @@ from canfdi.core.settings import (
     TemplateSpec,
     WatchdogConfig,
     brief,
+    options_schema,
     parse_options,
     section,
     unknown_name,
@@ -115,6 +117,7 @@ __all__ = [
     "NotIdentified",
     "RecordingConfig",
     "WatchdogConfig",
+    "config_schema",
     "load_config",
     "parse_config",
     "read_yaml",
@@ -567,3 +570,167 @@ def load_config(path: str | Path, *, allow_unidentified: bool = False) -> Monito
     path = Path(path)
     return parse_config(read_yaml(path, ConfigError, "config"), path,
                         allow_unidentified=allow_unidentified)
+
+
+# The JSON Schema of a config (`canfdi schema`): the option tables above, and beside them what
+# the parsers of the structured keys accept. What a schema cannot say (sizes that must match
+# the model, names that must be in the DBC, a node-id template's arithmetic) stays the
+# parser's alone; tests/unit/test_config_schema.py holds the two to agreement.
+SCHEMA_ID = "https://canfdi.dev/schema/config.json"
+_TEXT = {"type": "string", "minLength": 1}
+_NUMERIC = {"anyOf": [{"type": "number"}, {"type": "string", "pattern": NUMBER_TEXT}]}
+_ENTRY = {"anyOf": [{"type": "number", "minimum": -MAX_ENTRY, "maximum": MAX_ENTRY},
+                    {"type": "string", "pattern": NUMBER_TEXT}]}
+_MATRIX = {"type": "array", "maxItems": MAX_DIMENSION,
+           "items": {"anyOf": [_ENTRY, {"type": "array", "maxItems": MAX_DIMENSION,
+                                        "items": _ENTRY}]},
+           "description": "a list of rows of numbers (a flat list is one row)"}
+_NAMES = {"type": ["array", "null"], "items": _TEXT, "uniqueItems": True,
+          "description": "unique names, as many as the model has"}
+_STDS = {"anyOf": [{"type": "null"},
+                   {"type": "number", "minimum": 0},
+                   {"type": "string", "pattern": NUMBER_TEXT},
+                   {"type": "array", "items": {"anyOf": [{"type": "number", "minimum": 0},
+                                                         {"type": "string",
+                                                          "pattern": NUMBER_TEXT}]}}],
+         "description": "standard deviations: one number for all, or one per signal"}
+_WINDOW_SCHEMA = {"anyOf": [{"enum": ["auto", None]},
+                            {"type": "integer", "minimum": 0, "maximum": MAX_WINDOW}],
+                  "default": "auto"}
+_MESSAGE_REF = {"anyOf": [_TEXT, {"type": "integer", "minimum": 0,
+                                  "maximum": MAX_EXTENDED_ID}],
+                "description": "a DBC message by name or ID"}
+_SIGNAL_REF = {"anyOf": [
+    {"type": "string", "pattern": r"^.+\.[^.]+$", "description": "MESSAGE.SIGNAL"},
+    {"type": "object", "required": ["message", "signal"], "additionalProperties": False,
+     "properties": {"message": _MESSAGE_REF, "signal": _TEXT,
+                    "range": {"anyOf": [{"type": "null"},
+                                        {"type": "array", "items": {"type": "number"},
+                                         "minItems": 2, "maxItems": 2}]}}}]}
+
+
+def _e2e_schema() -> dict[str, Any]:
+    names = sorted(E2E_PROFILES)
+    return {"anyOf": [{"enum": names},
+                      {"type": "object", "required": ["profile"],
+                       "properties": {"profile": {"enum": names}}}],
+            "description": "an E2E profile by name, or {profile, ...its options}"}
+
+
+def _template_schema() -> dict[str, Any]:
+    positive = Option(float, 0.0, None, open_lo=True).json_schema()
+    parameter = {"anyOf": [positive, options_schema(
+        {"value": Option(float, 0.0, None, open_lo=True), "fixed": Option(bool)},
+        nullable=False)]}
+    return {"anyOf": [{"type": "null"}, _TEXT, {
+        "type": "object", "required": ["name"],
+        "properties": {"name": Option(str).json_schema(),
+                       "roles": {"type": ["object", "null"],
+                                 "additionalProperties": Option(str).json_schema()},
+                       "parameters": {"type": ["object", "null"],
+                                      "additionalProperties": parameter}}}],
+        "description": "a grey-box template's name, or {name, roles, parameters, ...}"}
+
+
+def _model_schema() -> dict[str, Any]:
+    identify = options_schema(_IDENTIFY, defaults=IdentifySpec,
+                              extra={"template": _template_schema()})
+    identify["type"] = ["object", "null"]
+    matrices = {key: ({"anyOf": [{"type": "null"}, _MATRIX]} if key in "DFG"
+                      else {**_MATRIX, "minItems": 1} if key in "AC" else _MATRIX)
+                for key in _MATRICES}
+    return {"type": "object", "additionalProperties": False,
+            "properties": {**matrices, "time": {"enum": ["discrete", "continuous"],
+                                                "default": "discrete"},
+                           "dt": {"type": ["number", "null"], "exclusiveMinimum": 0},
+                           "identify": identify},
+            "anyOf": [{"required": ["A", "B", "C"]},
+                      {"required": ["identify"], "properties": {"identify": {"type": "object"}},
+                       "not": {"anyOf": [{"required": [key]} for key in _MATRICES]}}]}
+
+
+def _bus_schema() -> dict[str, Any]:
+    clock = options_schema(_CLOCK, defaults=ClockConfig, extra={"message": _MESSAGE_REF})
+    clock["allOf"] = [
+        {"if": {"properties": {"kind": {"const": "trigger"}}, "required": ["kind"]},
+         "then": {"required": ["message"]}},
+        {"if": {"required": ["message"]},
+         "then": {"required": ["kind"], "properties": {"kind": {"const": "trigger"}}}}]
+    monitor = options_schema(_MONITOR, defaults=MonitorFramesConfig, extra={
+        "ids": {"type": ["object", "null"], "additionalProperties": {
+            "type": "integer", "minimum": 0, "maximum": MAX_EXTENDED_ID}},
+        "e2e": _e2e_schema()})
+    monitor["not"] = {"required": ["base", "ids"],
+                      "properties": {"base": {"type": "integer"},
+                                     "ids": {"type": "object", "minProperties": 1}}}
+    sections = {
+        "map": {"type": ["object", "null"], "additionalProperties": _SIGNAL_REF,
+                "description": "model signal -> the DBC signal that carries it"},
+        "e2e": {"type": ["object", "null"], "additionalProperties": False,
+                "properties": {"default": _e2e_schema(),
+                               "messages": {"type": ["object", "null"],
+                                            "additionalProperties": _e2e_schema()}}},
+        "clock": clock,
+        "node": {"type": ["object", "null"], "additionalProperties": False,
+                 "properties": {"id": Option(str).json_schema(),
+                                "shared": {"type": "array", "items": _MESSAGE_REF}}},
+        "monitor": monitor}
+    return options_schema(_BUS, defaults=BusConfig, extra=sections)
+
+
+def _drives_schema() -> dict[str, Any]:
+    drive = options_schema({"name": Option(str), "node": Option(int, 0, 2**29)},
+                           nullable=False)
+    drive["required"] = ["name"]
+    drive["properties"]["name"] = dict(_TEXT)
+    return {"type": ["array", "null"], "minItems": 1, "maxItems": MAX_DRIVES, "items": drive,
+            "if": {"type": "array", "minItems": 2},
+            "then": {"items": {"required": ["name", "node"],
+                               "properties": {"node": {"type": "integer"}}}}}
+
+
+def config_schema() -> dict[str, Any]:
+    """The JSON Schema (draft 2020-12) of a monitor config, made from the tables and parsers
+    that `parse_config` checks with, and each registered method's own section.
+
+    >>> schema = config_schema()
+    >>> schema["required"], schema["properties"]["detection"]["properties"]["drift"]["default"]
+    (['model', 'signals'], 0.5)
+    """
+    registered = [methods.get(name) for name in methods.names()]
+    own = {m.section: (dict(m.schema) if m.schema is not None else {"type": ["object", "null"]})
+           for m in registered if m.section and m.section not in _COMMON_KEYS}
+    signals = {"type": "object", "additionalProperties": False,
+               "properties": {key: _NAMES for key in
+                              ("inputs", "outputs", "unknown_inputs", "unknown_outputs")}}
+    properties: dict[str, Any] = {
+        "name": {**_TEXT, "description": "the config's name (default: the file's stem)"},
+        "description": {"type": "string"},
+        "method": {"enum": sorted(m.name for m in registered), "default": methods.DEFAULT},
+        "model": _model_schema(),
+        "signals": signals,
+        "noise": {"type": ["object", "null"], "additionalProperties": False,
+                  "properties": {"measurement": _STDS, "process": _STDS}},
+        "design": options_schema({"max_window": Option(int, 0, MAX_WINDOW)},
+                                 defaults=DesignOptions,
+                                 extra={"actuator_window": _WINDOW_SCHEMA,
+                                        "sensor_window": _WINDOW_SCHEMA}),
+        "bus": _bus_schema(),
+        "detection": options_schema(_DETECTION, defaults=DetectionConfig),
+        "identification": options_schema(_IDENTIFICATION, defaults=IdentificationConfig),
+        "recording": options_schema(_RECORDING, defaults=RecordingConfig),
+        "watchdog": options_schema(_WATCHDOG, defaults=WatchdogConfig),
+        "drives": _drives_schema(),
+        **own,
+    }
+    several_need_a_template = {
+        "if": {"required": ["drives"], "properties": {"drives": {"type": "array",
+                                                                 "minItems": 2}}},
+        "then": {"required": ["bus"], "properties": {"bus": {
+            "type": "object", "required": ["node"], "properties": {"node": {
+                "type": "object", "required": ["id"],
+                "properties": {"id": {"type": "string"}}}}}}}}
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema", "$id": SCHEMA_ID,
+            "title": "canfdi monitor config", "type": "object", "required": ["model", "signals"],
+            "properties": properties, "additionalProperties": False,
+            **several_need_a_template}

@@ -11,7 +11,20 @@ import sys
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from canfdi import __version__
-from canfdi.cli import bench, capture, dbc, demo, design, export, replay, report, run, sim, soak
+from canfdi.cli import (
+    bench,
+    capture,
+    dbc,
+    demo,
+    design,
+    export,
+    replay,
+    report,
+    run,
+    schema,
+    sim,
+    soak,
+)
 from canfdi.core.kernelchoice import version_line
 
 # isort: split
@@ -35,6 +48,7 @@ VERBS = {
     "evaluate": evaluate,
     "calibrate": calibrate,
     "fleet": fleet,
+    "schema": schema,
 }
 
 

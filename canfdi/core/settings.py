@@ -21,7 +21,7 @@ import difflib
 import math
 import reprlib
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +44,7 @@ __all__ = [
     "SignalRef",
     "TemplateSpec",
     "nearest",
+    "options_schema",
     "parse_options",
     "section",
     "unknown_name",
@@ -69,6 +70,12 @@ def brief(value: object) -> str:
     '[[1, 2, 3, 4, ...], [1, 2, 3, 4, ...], [1, 2, 3, 4, ...], [1, 2, 3, 4, ...], ...]'
     """
     return _BRIEF.repr(value)
+
+
+NUMBER_TEXT = r"^[-+]?([0-9]+[.]?[0-9]*|[.][0-9]+)([eE][-+]?[0-9]+)?$"
+"""A number written as text, which a float option takes too: PyYAML, a YAML 1.1 reader, reads
+1e7 and 1.0e7 (no exponent sign) as strings. The JSON Schema checks such text for its form
+only, not for the option's bounds."""
 
 
 class ConfigError(ValueError):
@@ -145,6 +152,31 @@ class Option:
         if self.hi is not None:
             return f"{noun} {'<' if self.open_hi else '<='} {self.hi}"
         return noun
+
+    def json_schema(self) -> dict[str, Any]:
+        """The JSON Schema of what `check` accepts (null too: an empty key means the default).
+
+        >>> Option(float, 0.0, 1.0, open_hi=True).json_schema()["anyOf"][0]
+        {'type': ['number', 'null'], 'minimum': 0.0, 'exclusiveMaximum': 1.0}
+        >>> Option(str, choices=("a", "b")).json_schema()["enum"]
+        ['a', 'b', None]
+        """
+        if self.kind is bool:
+            return {"type": ["boolean", "null"]}
+        if self.kind is str:
+            out: dict[str, Any] = {"type": ["string", "null"], "minLength": 1}
+            if self.choices:
+                out["enum"] = [*self.choices, None]
+            return out
+        bounds: dict[str, Any] = {}
+        if self.lo is not None:
+            bounds["exclusiveMinimum" if self.open_lo else "minimum"] = self.lo
+        if self.hi is not None:
+            bounds["exclusiveMaximum" if self.open_hi else "maximum"] = self.hi
+        if self.kind is int:
+            return {"type": ["integer", "null"], **bounds}
+        return {"anyOf": [{"type": ["number", "null"], **bounds},
+                          {"type": "string", "pattern": NUMBER_TEXT}]}
 
     def check(self, value: Any, field: str) -> Any:
         """The value as ``kind``, or a ConfigError naming ``field``."""
@@ -227,6 +259,32 @@ def parse_options(data: Any, spec: Mapping[str, Option], where: str, *,
         if key in spec and value is not None:
             out[key] = spec[key].check(value, field_name)
     return out
+
+
+def options_schema(spec: Mapping[str, Option], *, defaults: Any = None,
+                   extra: Mapping[str, Mapping[str, Any]] | None = None,
+                   nullable: bool = True) -> dict[str, Any]:
+    """The JSON Schema of a section that `parse_options` checks against ``spec``.
+
+    defaults : the dataclass (or instance) whose field defaults are the options' defaults.
+    extra : the schemas of the keys the caller validates itself (``parse_options``' extra).
+    nullable : an empty section (null) means all defaults, as `section` reads it.
+
+    >>> schema = options_schema({"drift": Option(float, 0.0, 100.0)},
+    ...                         defaults=DetectionConfig)
+    >>> schema["properties"]["drift"]["default"], schema["additionalProperties"]
+    (0.5, False)
+    """
+    known = {f.name: f.default for f in fields(defaults)} if defaults is not None else {}
+    properties: dict[str, Any] = {}
+    for key, option in spec.items():
+        properties[key] = option.json_schema()
+        default = known.get(key, MISSING)
+        if default is not MISSING and default is not None:
+            properties[key]["default"] = default
+    properties.update({key: dict(value) for key, value in (extra or {}).items()})
+    return {"type": ["object", "null"] if nullable else "object",
+            "properties": properties, "additionalProperties": False}
 
 
 @dataclass(frozen=True)

@@ -95,6 +95,8 @@ class Method:
         and ``samples``), for a method whose models are its own rather than the config's
         state space (output_error's OE models): `canfdi identify` fits them and writes the
         section. None: identify learns the state-space model.
+    schema : the JSON Schema of its own section (`canfdi schema`), made from the tables its
+        parse_options checks with. None: any mapping (or its section is a shared one).
     estimate_history : (config, log contents, accepted event) -> EstimateHistory or None:
         the estimate's trajectory for `canfdi report`, recomputed from the log (its
         ``residuals``, ``samples``, ``accepted`` events; what it cannot do goes to its
@@ -128,6 +130,7 @@ class Method:
     with_noise: Callable[[Mapping[str, Any], Any], dict] | None = None
     fit_models: Callable[[np.ndarray, np.ndarray, np.ndarray, MonitorConfig, Any,
                           Callable[[str], None]], tuple[dict, dict]] | None = None
+    schema: Mapping[str, Any] | None = None
 
     def __post_init__(self) -> None:
         unknown = set(self.fault_kinds) - set(FAULT_KINDS)

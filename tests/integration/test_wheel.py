@@ -103,6 +103,8 @@ def test_the_wheel_holds_the_package_data_and_no_generic_top_level_name(tmp_path
     configs = sorted(p.name for p in (REPO / "deploy" / "config").glob("*.yaml"))
     assert sorted(n.split("/")[-1] for n in names if n.startswith("canfdi/configs/")
                   and n.endswith(".yaml")) == configs
+    # their first line points editors at the schema beside them
+    assert "canfdi/configs/canfdi-config.schema.json" in names
 
 
 def test_the_installed_verbs_run_outside_the_tree_on_what_ships(installed):

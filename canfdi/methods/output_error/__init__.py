@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from canfdi.methods import Method
 from canfdi.methods.output_error.config import (
+    SCHEMA,
     SECTION,
     OeOptions,
     build,
@@ -31,4 +32,5 @@ METHOD = Method(
     fault_kinds=("actuator_bias", "sensor_bias"),
     with_noise=with_noise,
     fit_models=fit_section,
+    schema=SCHEMA,
 )

@@ -47,13 +47,14 @@ from canfdi.core.settings import (
     MonitorConfig,
     Option,
     brief,
+    options_schema,
     parse_options,
     unknown_name,
 )
 from canfdi.methods.output_error.diagnoser import OeSettings, OutputErrorDiagnoser, oe_thresholds
 from canfdi.methods.output_error.model import OeModel, OePair
 
-__all__ = ["OeOptions", "build", "output_error_section", "parse_output_error"]
+__all__ = ["SCHEMA", "OeOptions", "build", "output_error_section", "parse_output_error"]
 
 SECTION = "output_error"
 _SETTINGS = {
@@ -67,6 +68,21 @@ _SETTINGS = {
 # Validated here rather than by the option spec: lists and mappings.
 _STRUCTURED = ("models", "operating_point", "residual_std", "long_run_variance", "fit")
 _NUMBER = Option(float)
+_NUMBERS = {"type": "array", "items": {"anyOf": [{"type": "number"},
+                                                 *_NUMBER.json_schema()["anyOf"][1:]]}}
+_PAIR = options_schema({"path": Option(bool), "delay": Option(int, 0, 1000),
+                        "gain_std": Option(float, lo=0.0)}, nullable=False,
+                       extra={"output": {"type": "string"}, "input": {"type": "string"},
+                              "b": _NUMBERS, "f": _NUMBERS})
+_PAIR["required"] = ["output", "input"]
+SCHEMA = options_schema(_SETTINGS, defaults=OeSettings, nullable=False, extra={
+    "models": {"type": "array", "minItems": 1, "items": _PAIR},
+    "operating_point": {"type": ["object", "null"], "additionalProperties": False,
+                        "properties": {"u": _NUMBERS, "y": _NUMBERS}},
+    "residual_std": _NUMBERS, "long_run_variance": _NUMBERS,
+    "fit": {"description": "free-form notes of `canfdi identify` (not read)"}})
+SCHEMA["required"] = ["models"]
+"""The ``output_error:`` section's JSON Schema (the method's ``schema``)."""
 
 
 @dataclass(frozen=True)
@@ -151,8 +167,9 @@ def parse_output_error(section: Mapping[str, Any] | None, config: MonitorConfig)
     if not pairs:
         raise ConfigError(f"{SECTION}.models", "no pair has a path")
     op = sec.get("operating_point") or {}
-    if not isinstance(op, dict) or set(op) - {"u", "y"}:
+    if not isinstance(op, dict):
         raise ConfigError(f"{SECTION}.operating_point", "expected a mapping {u: [...], y: [...]}")
+    parse_options(op, {}, f"{SECTION}.operating_point", extra=("u", "y"))
     u0 = _numbers(op.get("u", [0.0] * len(inputs)), f"{SECTION}.operating_point.u", len(inputs))
     y0 = _numbers(op.get("y", [0.0] * len(outputs)), f"{SECTION}.operating_point.y",
                   len(outputs))

@@ -10,7 +10,7 @@ and sensor biases. Detection is a threshold on the weighted residuals, not Page-
 from __future__ import annotations
 
 from canfdi.methods import Method
-from canfdi.methods.uio.config import build, parse_uio_options
+from canfdi.methods.uio.config import SCHEMA, build, parse_uio_options
 from canfdi.methods.uio.diagnoser import UioDiagnoser, UioSettings
 
 __all__ = ["METHOD", "UioDiagnoser", "UioSettings"]
@@ -23,4 +23,5 @@ METHOD = Method(
     build=build,
     fault_kinds=("actuator_bias", "sensor_bias"),
     statistic=("|r|/σ", "threshold-test statistic |r|/σ"),
+    schema=SCHEMA,
 )

@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from canfdi.core.settings import ConfigError, MonitorConfig, Option, parse_options
+from canfdi.core.settings import ConfigError, MonitorConfig, Option, options_schema, parse_options
 from canfdi.methods.uio.design import design_uio
 from canfdi.methods.uio.diagnoser import UioDiagnoser, UioSettings, uio_thresholds
 
-__all__ = ["build", "parse_uio_options"]
+__all__ = ["SCHEMA", "build", "parse_uio_options"]
 
 _SPEC = {
     "actuator_pole": Option(float, -1e6, 0.0, open_lo=True, open_hi=True),
@@ -39,6 +39,8 @@ _SPEC = {
     "settle_rel_std": Option(float, 0.0, 1.0, open_lo=True, open_hi=True),
     "onset_lookback": Option(int, 1, 10**5),
 }
+SCHEMA = options_schema(_SPEC, defaults=UioSettings)
+"""The ``uio:`` section's JSON Schema (the method's ``schema``)."""
 
 
 def parse_uio_options(options: Mapping[str, Any] | None, config: MonitorConfig | None = None
