@@ -970,7 +970,7 @@ def bench_fleet(config: Path, logs: int, directory: Path, *, jobs: Sequence[int]
         t0 = time.perf_counter()
         with dask_client(n) as client:
             started = time.perf_counter()
-            client.run(warm_up, sorted({t.config for t in tasks}))
+            client.run(warm_up, sorted({(t.config, t.kernel) for t in tasks}, key=str))
             cpu0, here0 = client.run(time.process_time), time.process_time()
             warm = time.perf_counter()
             results = run_fleet(tasks, client)
