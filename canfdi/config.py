@@ -584,8 +584,8 @@ _ENTRY = {"anyOf": [{"type": "number", "minimum": -MAX_ENTRY, "maximum": MAX_ENT
 _MATRIX = {"type": "array", "maxItems": MAX_DIMENSION,
            "items": {"anyOf": [_ENTRY, {"type": "array", "maxItems": MAX_DIMENSION,
                                         "items": _ENTRY}]},
-           "description": "a list of rows of numbers (a flat list is one row)"}
-_NAMES = {"type": ["array", "null"], "items": _TEXT, "uniqueItems": True,
+           "title": "matrix", "description": "a list of rows of numbers (a flat list is one row)"}
+_NAMES = {"type": ["array", "null"], "items": _TEXT, "uniqueItems": True, "title": "names",
           "description": "unique names, as many as the model has"}
 _STDS = {"anyOf": [{"type": "null"},
                    {"type": "number", "minimum": 0},
@@ -593,20 +593,23 @@ _STDS = {"anyOf": [{"type": "null"},
                    {"type": "array", "items": {"anyOf": [{"type": "number", "minimum": 0},
                                                          {"type": "string",
                                                           "pattern": NUMBER_TEXT}]}}],
-         "description": "standard deviations: one number for all, or one per signal"}
+         "title": "standard deviations",
+         "description": "one number for all, or one per signal"}
 _WINDOW_SCHEMA = {"anyOf": [{"enum": ["auto", None]},
                             {"type": "integer", "minimum": 0, "maximum": MAX_WINDOW}],
-                  "default": "auto"}
+                  "title": f"auto or 0 to {MAX_WINDOW}", "default": "auto",
+                  "description": "the parity window's order (auto: the smallest admissible)"}
 _MESSAGE_REF = {"anyOf": [_TEXT, {"type": "integer", "minimum": 0,
                                   "maximum": MAX_EXTENDED_ID}],
-                "description": "a DBC message by name or ID"}
+                "title": "message", "description": "a DBC message by name or ID"}
 _SIGNAL_REF = {"anyOf": [
     {"type": "string", "pattern": r"^.+\.[^.]+$", "description": "MESSAGE.SIGNAL"},
     {"type": "object", "required": ["message", "signal"], "additionalProperties": False,
      "properties": {"message": _MESSAGE_REF, "signal": _TEXT,
                     "range": {"anyOf": [{"type": "null"},
                                         {"type": "array", "items": {"type": "number"},
-                                         "minItems": 2, "maxItems": 2}]}}}]}
+                                         "minItems": 2, "maxItems": 2}]}}}],
+               "title": "signal", "description": "MESSAGE.SIGNAL or {message, signal, range}"}
 
 
 def _e2e_schema() -> dict[str, Any]:
@@ -614,6 +617,7 @@ def _e2e_schema() -> dict[str, Any]:
     return {"anyOf": [{"enum": names},
                       {"type": "object", "required": ["profile"],
                        "properties": {"profile": {"enum": names}}}],
+            "title": "E2E profile",
             "description": "an E2E profile by name, or {profile, ...its options}"}
 
 
@@ -629,6 +633,7 @@ def _template_schema() -> dict[str, Any]:
                                  "additionalProperties": Option(str).json_schema()},
                        "parameters": {"type": ["object", "null"],
                                       "additionalProperties": parameter}}}],
+        "title": "template",
         "description": "a grey-box template's name, or {name, roles, parameters, ...}"}
 
 

@@ -67,11 +67,13 @@ class DesignOptions:
 class ResidualDesign:
     """One residual of the bank, with its noise figures.
 
+    Attributes
+    ----------
     min_window : smallest admissible s for this fault alone, or None when none up to max_window.
     noise_std : sqrt(v^T Sigma v), the residual's noise standard deviation (nan without vector).
     bias_gain : response to a unit constant fault on its own actuator (actuator residuals), or
         the norm of its sensor gains (sensor residuals).
-    fault_to_noise : |bias_gain| / noise_std.
+    fault_to_noise : abs(bias_gain) / noise_std.
 
     Examples
     --------

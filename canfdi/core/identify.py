@@ -191,7 +191,7 @@ def rls_init(d: int, prior_precision: float = DEFAULT_PRIOR_PRECISION,
     ----------
     d : number of parameters, >= 1.
     prior_precision : ``1 / P_0``, > 0 (small: know nothing).
-    theta0 : (d,) or (*shape, d) prior estimate; zeros by default.
+    theta0 : ``(d,)`` or ``(*shape, d)`` prior estimate; zeros by default.
     shape : leading batch shape (one estimator per index).
     """
     if isinstance(d, bool) or not isinstance(d, int | np.integer) or d < 1:

@@ -539,6 +539,8 @@ class RecordingConfig:
 class MonitorConfig:
     """A parsed monitor configuration (canfdi.config.load_config builds it).
 
+    Attributes
+    ----------
     method : the diagnosis method's registered name (canfdi.methods).
     method_options : that method's options, as its registry entry parsed them from its own
         config section (None for a method with no section of its own).

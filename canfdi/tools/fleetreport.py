@@ -597,7 +597,9 @@ def _figure_html(uri: str, caption: str) -> str:
 
 
 def _page(title: str, body: list[str]) -> str:
+    # The empty icon: a page that stands alone asks its server for no /favicon.ico.
     return "\n".join(["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+                      '<link rel="icon" href="data:,">',
                       f"<title>{_e(title)}</title>", f"<style>{CSS}</style></head><body>",
                       *body, "</body></html>"]) + "\n"
 

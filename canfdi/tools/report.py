@@ -808,6 +808,7 @@ def write_html(contents: LogContents, rows: list[dict], figures: list[tuple[str,
     e = html.escape
     meta = contents.metadata
     out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+           '<link rel="icon" href="data:,">',  # a page that stands alone asks for no favicon
            f"<title>canfdi report: {e(contents.path.name)}</title>",
            f"<style>{_CSS}</style></head><body>",
            f"<h1>canfdi report: <code>{e(contents.path.name)}</code></h1>",
