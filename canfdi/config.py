@@ -8,7 +8,8 @@ Layout::
 
     name: dc_motor                 # free text
     description: ...               # optional
-    method: parity                 # parity (seed 001) | output_error (seed 003) | uio (seed 004)
+    method: parity                 # parity (Chan et al. 2006) | output_error (the
+                                   # output-error paper) | uio (Hwang, Chang and Hsu)
     model: {time, dt, A, B, C, D, F, G}          # see canfdi.core.model.StateSpace.from_dict
       identify:                    # optional: how `canfdi identify` learns A, B, C, F from a
         unknown_inputs: 1          #   healthy log (the matrices may then be left out)

@@ -1,4 +1,4 @@
-"""The seed 001 DC motor model used by several test layers (b2 = 0.0823, see the errata)."""
+"""The Chan et al. 2006 DC motor model used by several test layers (b2 = 0.0823, see the errata)."""
 
 import numpy as np
 

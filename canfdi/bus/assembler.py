@@ -113,9 +113,10 @@ class AssembledLog(NamedTuple):
 
     >>> from canfdi.bus.dbc import BusMap
     >>> from canfdi.bus.e2e import protect
-    >>> from canfdi.config import load_config
-    >>> from canfdi.configs import CONFIG_DIR
-    >>> bus_map = BusMap.from_config(load_config(CONFIG_DIR / "dc_motor.yaml"))
+    >>> from canfdi.core.settings import BusConfig, MonitorConfig
+    >>> config = MonitorConfig.of_bus("dc_motor", ["V"], ["i_f", "i_a", "i_f_plus_i_a", "omega_r"],
+    ...                               BusConfig(dbc="motor_drive"))
+    >>> bus_map = BusMap.from_config(config)
     >>> cmd = protect(0x104, bytes(2) + (1200).to_bytes(2, "little") + bytes(4), 0)
     >>> currents = protect(0x105, bytes(2) + bytes.fromhex("f401b80bac0d"), 0)
     >>> speed = protect(0x106, bytes(2) + (10000).to_bytes(2, "little"), 0)
@@ -171,9 +172,10 @@ class SampleAssembler:
 
     >>> from canfdi.bus.dbc import BusMap
     >>> from canfdi.bus.e2e import protect
-    >>> from canfdi.config import load_config
-    >>> from canfdi.configs import CONFIG_DIR
-    >>> bus_map = BusMap.from_config(load_config(CONFIG_DIR / "dc_motor.yaml"))
+    >>> from canfdi.core.settings import BusConfig, MonitorConfig
+    >>> config = MonitorConfig.of_bus("dc_motor", ["V"], ["i_f", "i_a", "i_f_plus_i_a", "omega_r"],
+    ...                               BusConfig(dbc="motor_drive"))
+    >>> bus_map = BusMap.from_config(config)
     >>> cmd = protect(0x104, bytes(2) + (1200).to_bytes(2, "little") + bytes(4), 0)
     >>> currents = protect(0x105, bytes(2) + bytes.fromhex("f401b80bac0d"), 0)
     >>> speed = protect(0x106, bytes(2) + (10000).to_bytes(2, "little"), 0)

@@ -84,9 +84,10 @@ class BusTables:
     0.01, its value in column 0:
 
     >>> from canfdi.bus.dbc import BusMap
-    >>> from canfdi.config import load_config
-    >>> from canfdi.configs import CONFIG_DIR
-    >>> t = BusMap.from_config(load_config(CONFIG_DIR / "dc_motor.yaml")).c_tables()
+    >>> from canfdi.core.settings import BusConfig, MonitorConfig
+    >>> config = MonitorConfig.of_bus("dc_motor", ["V"], ["i_f", "i_a", "i_f_plus_i_a", "omega_r"],
+    ...                               BusConfig(dbc="motor_drive"))
+    >>> t = BusMap.from_config(config).c_tables()
     >>> at = int(t.entry[2, DECODE_H["CFDI_ENTRY_SIG_AT"]])
     >>> sig = t.sig_int[at]
     >>> (int(sig[DECODE_H["CFDI_SIG_START"]]), int(sig[DECODE_H["CFDI_SIG_LENGTH"]]),
@@ -132,9 +133,10 @@ def build_tables(entries: Sequence[EntrySpec], slots: Sequence[SlotSpec],
     Examples
     --------
     >>> from canfdi.bus.dbc import BusMap
-    >>> from canfdi.config import load_config
-    >>> from canfdi.configs import CONFIG_DIR
-    >>> tables = BusMap.from_config(load_config(CONFIG_DIR / "dc_motor.yaml")).c_tables()
+    >>> from canfdi.core.settings import BusConfig, MonitorConfig
+    >>> config = MonitorConfig.of_bus("dc_motor", ["V"], ["i_f", "i_a", "i_f_plus_i_a", "omega_r"],
+    ...                               BusConfig(dbc="motor_drive"))
+    >>> tables = BusMap.from_config(config).c_tables()
     >>> int(tables.std_entry[0x105]), tables.n_slots, tables.width, tables.sig_int.shape
     (1, 3, 3, (5, 11))
     """

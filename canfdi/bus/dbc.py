@@ -363,9 +363,10 @@ class BusMap:
     The shipped dc_motor config's drive; a frame decodes to (status, slot, values, counter):
 
     >>> from canfdi.bus.e2e import protect
-    >>> from canfdi.config import load_config
-    >>> from canfdi.configs import CONFIG_DIR
-    >>> bus_map = BusMap.from_config(load_config(CONFIG_DIR / "dc_motor.yaml"))
+    >>> from canfdi.core.settings import BusConfig, MonitorConfig
+    >>> config = MonitorConfig.of_bus("dc_motor", ["V"], ["i_f", "i_a", "i_f_plus_i_a", "omega_r"],
+    ...                               BusConfig(dbc="motor_drive"))
+    >>> bus_map = BusMap.from_config(config)
     >>> bus_map
     BusMap(dc_motor: motor_drive: DRIVE_CMD=0x104, DRIVE_CURRENTS=0x105, DRIVE_SPEED=0x106; \
 p=1, q=4)

@@ -57,9 +57,9 @@ class MonitorFrames:
 
     >>> from canfdi.bus.dbc import BusMap
     >>> from canfdi.bus.e2e import check
-    >>> from canfdi.config import load_config
-    >>> from canfdi.configs import CONFIG_DIR
-    >>> config = load_config(CONFIG_DIR / "dc_motor.yaml")
+    >>> from canfdi.core.settings import BusConfig, MonitorConfig
+    >>> config = MonitorConfig.of_bus("dc_motor", ["V"], ["i_f", "i_a", "i_f_plus_i_a", "omega_r"],
+    ...                               BusConfig(dbc="motor_drive"))
     >>> frames = MonitorFrames.from_config(config, BusMap.from_config(config).keys)
     >>> frames.keys["FDI_STATUS"]
     (130, False)

@@ -1,4 +1,4 @@
-"""Fault detectability as a system property (seed 002, the ULPE scheme).
+"""Fault detectability as a system property (Nyberg and Nielsen, the ULPE scheme).
 
 For one fault entering as ``sigma x = A x + B u + E v + K f`` and ``y = C x + D u + J v + L f``
 (sigma = d/dt or the shift q), with the disturbances v decoupled:
@@ -95,7 +95,7 @@ def fault_detectability(
     A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, E: np.ndarray, J: np.ndarray,
     K: np.ndarray, L: np.ndarray, continuous: bool, rho: int | None = None,
 ) -> Detectability:
-    """Theorems 2 and 3 of seed 002 for one fault.
+    """Theorems 2 and 3 of Nyberg and Nielsen for one fault.
 
     Parameters
     ----------

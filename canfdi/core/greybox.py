@@ -28,7 +28,7 @@ Three things make the estimate honest where a plain least squares would not be:
   x(k-2), which carries none of the noise in e(k) (white measurement noise). These equations
   are solved by scipy.optimize.least_squares too.
 * Correlated errors. e(k) holds n(k+1) and n(k), a differenced row three samples of noise,
-  so the errors are not white and s^2 (J^T J)^-1 misstates the covariance (on seed 001's
+  so the errors are not white and s^2 (J^T J)^-1 misstates the covariance (on Chan et al. 2006's
   motor it overstates some standard deviations 4 to 7 times). The covariance is the
   instrumental-variable sandwich (Z^T J)^-1 (Z^T S Z) (J^T Z)^-1 with Z^T S Z from sums over
   blocks of consecutive samples (batch means), right for any short-range correlation and any
@@ -46,7 +46,7 @@ variation of the command) of its standard deviations. On the servo test (a PI ve
 on a velocity measured to 0.01 turns/s) that is -1.7 standard deviations of J at 100 s
 without excitation, -0.8 with a +/-0.1 N m dither on the torque command; a commissioning log
 with such a dither keeps it small. (Instruments from data before k only avoid it but lose the
-dither's information: seed 001's L_f is then not determined.)
+dither's information: Chan et al. 2006's L_f is then not determined.)
 
 Parameters are optimised in log space (positive bounds; a relative step means the same for
 Ohms and kg m^2), weighted per row by the row's error standard deviation (given as sensor
@@ -54,7 +54,7 @@ noise, or estimated robustly from the residuals, re-estimated until it settles).
 
 `TEMPLATES` is the registry and the only place that branches on a template's name:
 
-* ``dc_motor``, seed 001's shunt-field motor (eq. 42), x = [i_f, i_a, omega], u = [V]:
+* ``dc_motor``, Chan et al. 2006's shunt-field motor (eq. 42), x = [i_f, i_a, omega], u = [V]:
   di_f/dt = (V - R_f i_f)/L_f, di_a/dt = (V - R_a i_a - M i_f omega)/L_a,
   domega/dt = (M i_f i_a - D omega - T_L)/J, T_L unknown. For the monitor the bilinear terms
   and the load are the unknown inputs, as in the paper: A = diag(-R_f/L_f, -R_a/L_a, -D/J),
@@ -509,8 +509,8 @@ def _servo_scale(settings: Mapping[str, str]) -> np.ndarray:
 TEMPLATES: dict[str, Template] = {
     "dc_motor": Template(
         name="dc_motor",
-        description="Shunt-field DC motor (seed 001, eq. 42): x = [i_f, i_a, omega], u = V; "
-                    "the bilinear terms and the load torque are the unknown inputs",
+        description="Shunt-field DC motor (Chan et al. 2006, eq. 42): x = [i_f, i_a, omega], "
+                    "u = V; the bilinear terms and the load torque are the unknown inputs",
         inputs=("voltage",),
         outputs=("field_current", "armature_current", "speed"),
         optional=frozenset(),
@@ -524,7 +524,7 @@ TEMPLATES: dict[str, Template] = {
             Parameter("D", "N m s", 0.026068, 1e-5, 100.0, "viscous damping"),
         ),
         # phi1 = -(M/L_a) i_f omega (A/s, into i_a), phi2 = (M i_f i_a - T_L)/J (rad/s^2,
-        # into omega): seed 001's w, with the load torque in phi2.
+        # into omega): Chan et al. 2006's w, with the load torque in phi2.
         unknown_inputs=("phi1", "phi2"),
         ode=_dc_ode,
         disturbed_rows=(2,),

@@ -4,7 +4,8 @@
 Once a fault is detected, its size is estimated by fitting a model linear in the fault's
 parameters to the residuals: ``r(k) = phi(k) theta + n(k)`` with ``m`` residual rows and ``d``
 parameters per sample (an actuator's ``theta = [eta - 1, lambda]``, eq. 29; a sensor bias
-vector, eq. 41; an output-error path's step amplitude, seed 003). Every fit a method does goes
+vector, eq. 41; an output-error path's step amplitude, the output-error paper). Every fit a method
+does goes
 through this module.
 
 The recursion of eqs. 30-32 with ``P`` reset to ``P0 = I / prior_precision`` at the alarm is the

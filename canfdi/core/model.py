@@ -1,12 +1,13 @@
 """State-space models with known linear part and structured unknown inputs.
 
-The model is seed 001, eq. (1)::
+The model is Chan et al. 2006, eq. (1)::
 
     x(k+1) = A x(k) + B u(k) + F w(k)          (or dx/dt = ... in continuous time)
     y(k)   = C x(k) + D u(k) + G psi(k)
 
 with x of size n, u of size p, y of size q, w of size r (state unknown input, entering through F)
-and psi of size r1 (output unknown input, entering through G). D is optional (zero in seed 001).
+and psi of size r1 (output unknown input, entering through G). D is optional (zero in Chan et al.
+2006).
 
 A continuous model carries a sample period ``dt`` and is discretised with a zero-order hold
 (`zoh`, the matrix exponential, as scipy.signal.cont2discrete does it); the unknown input w

@@ -1,6 +1,6 @@
 """The measurement noise of a drive, estimated from healthy data through its parity space.
 
-Over a window of s+1 samples, Y(k) = H0 x(k-s) + Hc U(k) + Hw W(k) + Xi(k) (seed 001 eq. 3),
+Over a window of s+1 samples, Y(k) = H0 x(k-s) + Hc U(k) + Hw W(k) + Xi(k) (Chan et al. 2006 eq. 3),
 Xi the stacked sensor noise. Every row v of a basis V of the left null space of [H0, Hw]
 gives a residual r = v^T (Y - Hc U) = v^T Xi that neither the state nor the unknown inputs
 reach: whatever the drive does, r is the sensor noise seen through v. With white noise of

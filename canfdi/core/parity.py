@@ -1,4 +1,4 @@
-"""Windowed parity matrices and fully decoupled parity vectors (seed 001, Sections II-III).
+"""Windowed parity matrices and fully decoupled parity vectors (Chan et al. 2006, Sections II-III).
 
 Over a window of s+1 samples the outputs obey eq. (2)::
 
@@ -16,7 +16,8 @@ Among all admissible vectors we keep the unit vector that maximises the fault's 
 with M = Hc's columns of actuator i, or I* for sensors): the top left singular vector of N^T M for
 an orthonormal basis N of the admissible space.
 
-Hpsi: seed 001 prints Hpsi = [G; G; ...; G], which decouples psi only if it is constant over the
+Hpsi: Chan et al. 2006 prints Hpsi = [G; G; ...; G], which decouples psi only if it is constant
+over the
 window. We use the block diagonal I_(s+1) (x) G, which decouples an arbitrary psi(k); it is the
 stricter condition and equals the paper's when G = 0 (the DC motor).
 """
@@ -93,7 +94,7 @@ class ParityMatrices:
     ----------
     s : window order (the window holds s+1 samples).
     H0 : ((s+1) q, n) = [C; CA; ...; CA^s].
-    Hc : ((s+1) q, (s+1) p) input Toeplitz, D on the diagonal (zero in seed 001).
+    Hc : ((s+1) q, (s+1) p) input Toeplitz, D on the diagonal (zero in Chan et al. 2006).
     Hw : ((s+1) q, (s+1) r) state unknown input Toeplitz, zero diagonal.
     Hpsi : ((s+1) q, (s+1) r1) block diagonal of G.
 

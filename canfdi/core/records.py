@@ -139,7 +139,8 @@ class BlockResult:
 
 @dataclass(frozen=True)
 class Compensation:
-    """An accepted fault folded into the data from its onset on (seed 003 Section 3.3).
+    """An accepted fault folded into the data from its onset on (the output-error paper's Section
+    3.3).
 
     target : "actuator" (the command becomes ``eta u_c + lam``) or "sensor" (the measurement
         becomes ``z - bias``).
@@ -346,7 +347,8 @@ def fold(entries: list[Compensation], new: Compensation) -> tuple[str, dict[str,
     - a diagnosis on a channel compensated already (``new.correction`` False): a fault of
       its own when its parameters differ from none significantly (`_own_fault`), then
       ("accepted", its own size, its variances plus the earlier estimate's: it is measured
-      against that estimate); otherwise what the channel's latest estimate left (seed 003
+      against that estimate); otherwise what the channel's latest estimate left (the output-error
+      paper
       Section 3.3: a later residual of the same fault refines it), ("refined", that fault's
       updated size: `latest_fault`, the variances of the correction);
     - a correction (``new.correction`` True, a tracker's): ("refined", as above).

@@ -581,6 +581,20 @@ class MonitorConfig:
     identify: IdentifySpec | None = None
     dt: float | None = None
 
+    @classmethod
+    def of_bus(cls, name: str, inputs: list[str], outputs: list[str], bus: BusConfig,
+               drives: tuple[DriveConfig, ...] = ()) -> MonitorConfig:
+        """A config of a bus alone, without a model: what the bus layer reads of one (its
+        examples, and a bus compiled before any model is known).
+
+        >>> config = MonitorConfig.of_bus("drive", ["u"], ["y"], BusConfig(dbc="motor_drive"))
+        >>> config.model is None, config.bus.dbc, config.drive_list[0].name
+        (True, 'motor_drive', 'drive')
+        """
+        return cls(name=name, description="", model=None, inputs=list(inputs),
+                   outputs=list(outputs), unknown_inputs=[], unknown_outputs=[],
+                   design=DesignOptions(), method="parity", bus=bus, drives=drives)
+
     @property
     def drive_list(self) -> tuple[DriveConfig, ...]:
         """The drives on the bus: ``drives``, or one drive named after the config."""

@@ -2,7 +2,7 @@
 
 The monitor needs (A, B, C, F): the parity residuals are decoupled from the state and from the
 unmeasured inputs w that enter through F (a load torque, friction, the nonlinear terms of
-seed 001's motor). Only the part of the model that F does not reach matters to them: with
+Chan et al. 2006's motor). Only the part of the model that F does not reach matters to them: with
 x(k+1) = A x + B u + F w, any A + F L, B + F M describe the same data (w absorbs L x + M u),
 so the residuals, which see N^T x(k+1) - N^T A x(k) - N^T B u(k) for N^T F = 0, depend on
 F's span and on the rows N^T [A B] alone. This module learns exactly those from data.
@@ -36,7 +36,7 @@ offsets): the residuals are decoupled from any initial state, so from the operat
 
 References: the bias-compensated least squares of errors-in-variables regression (Söderström,
 "Errors-in-variables methods in system identification", Automatica 43, 2007); the parity
-relations' invariance under w (Chow and Willsky, IEEE TAC 29, 1984; seed 001).
+relations' invariance under w (Chow and Willsky, IEEE TAC 29, 1984; Chan et al. 2006).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Actuator and sensor faults (seed 001 eqs. 23-24 and 34) injected on a schedule.
+"""Actuator and sensor faults (Chan et al. 2006 eqs. 23-24 and 34) injected on a schedule.
 
 Actuator i (eq. 24):   u_i = eta u_ci + lambda          kind "scale_bias" (scale, bias or both)
                        u_i = value                      kind "stuck" (value held at onset if absent)

@@ -6,7 +6,8 @@ diagnoser (canfdi.core.protocol.Diagnoser) from a config, and what the tools nee
 `canfdi report`). The config's ``method:`` key picks one by name; config validation, the
 monitor, evaluate and report ask this registry, never the name.
 
-Built in: ``parity`` (seed 001), ``output_error`` (seed 003), ``uio`` (seed 004). Another
+Built in: ``parity`` (Chan et al. 2006), ``output_error`` (the output-error paper), ``uio`` (Hwang,
+Chang and Hsu). Another
 package adds one the way python-can finds interfaces, with an entry point::
 
     [project.entry-points."canfdi.methods"]

@@ -7,7 +7,7 @@ around its damage), puts each on its sample grid and keeps the last ``holdout`` 
 the ``validate`` logs) out of the fit. Then, by the config:
 
 * a method with models of its own (its registry entry's ``fit_models``: output_error's OE
-  models of seed 003, canfdi.methods.output_error.fit), fitted on the fit part;
+  models of the output-error paper, canfdi.methods.output_error.fit), fitted on the fit part;
 * otherwise a state-space model: a grey-box template (canfdi.core.greybox) when
   ``model.identify.template`` names one, else black-box (canfdi.core.sysid: the measured state
   with its unknown inputs, or a PBSID subspace fit).
@@ -263,7 +263,8 @@ def _state_space(records: Sequence[Record], config: MonitorConfig, dt: float,
 def _structured_or(subspace: IdentifiedModel, records: Sequence[Record], config: MonitorConfig,
                    dt: float, delay: int, progress) -> IdentifiedModel:
     """Where the data hold more states than the outputs show and no unknown input: each
-    output's transfer functions from the inputs it depends on (seed 003's fit: a path the
+    output's transfer functions from the inputs it depends on (the output-error paper's fit: a path
+    the
     data cannot tell from none is none), realised block by block, keep the zeros a subspace
     fit's dense basis loses (the decoupled residuals need them: the winding machine's T1 does
     not depend on u3). Taken when minimal and its simulation fits on the held-out part are
@@ -271,7 +272,7 @@ def _structured_or(subspace: IdentifiedModel, records: Sequence[Record], config:
     from canfdi.core.sysid import parity_noise, realise_paths
     from canfdi.methods.output_error.fit import FitOptions, fit_output_error
 
-    progress("fitting each output's transfer functions (output error, seed 003)")
+    progress("fitting each output's transfer functions (output error, the output-error paper)")
     fit, val = _split(records, HOLDOUT)
     k, U, Z = _stacked(fit)
     try:

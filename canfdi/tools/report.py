@@ -1,4 +1,4 @@
-"""Figures and an HTML page from a canfdi MCAP log (`canfdi report`): seed 001 Figs. 1-6.
+"""Figures and an HTML page from a canfdi MCAP log (`canfdi report`): Chan et al. 2006 Figs. 1-6.
 
 `make_report(log, out_dir)` reads a log written by ``canfdi run`` / ``demo`` (its samples,
 residuals, events and metadata: config, residual names and thresholds, the injected faults of a
@@ -9,11 +9,12 @@ demo) and writes into ``out_dir``:
     (symlog scale) and every Page-Hinkley statistic divided by its threshold (alarm at 1), with
     the injected onsets, detections, acceptances and unexplained changes marked.
 ``residuals.png``
-    Seed 001 Figs. 1-2: per residual, r/sigma with the +/-3 sigma noise band, and the
+    Chan et al. 2006 Figs. 1-2: per residual, r/sigma with the +/-3 sigma noise band, and the
     Page-Hinkley statistic against its threshold h (the thresholds apply to the statistic, not
     to r/sigma), detections marked.
 ``fault_<n>_<target>_<name>.png``
-    Seed 001 Figs. 4-6, one per accepted fault: the residuals and statistics zoomed around it,
+    Chan et al. 2006 Figs. 4-6, one per accepted fault: the residuals and statistics zoomed around
+    it,
     and each estimated parameter's trajectory from the onset to the acceptance with a +/-2
     sigma band, the accepted value, and the truth as a horizontal line when the log holds it.
 ``index.html``
@@ -611,7 +612,7 @@ def _statistic_name(contents: LogContents) -> tuple[str, str]:
 
 
 def plot_residuals(contents: LogContents, path: Path) -> Path:
-    """Seed 001 Figs. 1-2: per residual r/sigma (+/-3 sigma band) and its Page-Hinkley
+    """Chan et al. 2006 Figs. 1-2: per residual r/sigma (+/-3 sigma band) and its Page-Hinkley
     statistic against the threshold, over the whole run."""
     res = contents.residuals
     m = len(res.names)
@@ -679,7 +680,8 @@ def _truth_for(row: dict | None, param: str) -> float | None:
 
 def plot_fault(contents: LogContents, number: int, event: FaultEvent, row: dict | None,
                traj: Trajectory | None, path: Path) -> Path:
-    """Seed 001 Figs. 4-6 for one accepted fault: residuals and statistics around it, and each
+    """Chan et al. 2006 Figs. 4-6 for one accepted fault: residuals and statistics around it, and
+    each
     estimated parameter converging (truth as a horizontal line)."""
     res = contents.residuals
     k_f = event.onset_sample if event.onset_sample is not None else event.sample

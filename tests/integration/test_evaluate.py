@@ -76,7 +76,8 @@ def test_bad_arguments_exit_2(capsys, args, words):
 
 
 def test_a_method_is_evaluated_on_its_own_fault_model(capsys):
-    """uio (seed 004) and output_error (seed 003) model additive faults: no scale faults are
+    """uio (Hwang, Chang and Hsu) and output_error (the output-error paper) model additive faults:
+    no scale faults are
     drawn for them unless asked; parity draws all three kinds."""
     rc = main(["evaluate", "--plant", "vtol", "--method", "uio", "--runs", "2", "--json",
                "--no-progress"])

@@ -31,7 +31,8 @@ from tests.methods import tiny_method
 CONFIG_DIR = REPO / "deploy" / "config"
 # Configs of methods that ship none (the test-only one): a shipped config with another method.
 EXTRA_EXAMPLES = {"tiny": ("dc_motor.yaml", {"tiny": {"threshold": 8.0, "samples": 30}})}
-# The papers' actuator faults: seed 001's lambda 10 V, seed 003's 0.002, seed 004's 1.0.
+# The papers' actuator faults: Chan et al. 2006's lambda 10 V, the output-error paper's 0.002,
+# Hwang, Chang and Hsu's 1.0.
 ACTUATOR_BIAS = {"dc_motor": 10.0, "winding_machine": 0.002, "vtol": 1.0}
 
 methods.register(tiny_method.METHOD)

@@ -1,4 +1,5 @@
-"""The output_error method (seed 003): OE fit, streaming = block, decision tests, config."""
+"""The output_error method (the output-error paper): OE fit, streaming = block, decision tests,
+config."""
 
 from __future__ import annotations
 
@@ -62,7 +63,8 @@ def test_oe_fit_skips_lost_measurements():
 
 def test_step_fit_tells_a_filtered_step_from_a_step():
     """The residual of an actuator fault (a step through G) has F^Du = F^; that of a sensor
-    fault (a step) fitted with the same structure has F^Du far from F^ (seed 003 3.2)."""
+    fault (a step) fitted with the same structure has F^Du far from F^ (the output-error paper's
+    3.2)."""
     rng = np.random.default_rng(0)
     n, onset = 80, 20
     step = (np.arange(n) >= onset).astype(float)

@@ -1,4 +1,5 @@
-"""Issue 8: the parity method on the winding machine (seed 003) and the VTOL (seed 004), through
+"""Issue 8: the parity method on the winding machine (the output-error paper) and the VTOL (Hwang,
+Chang and Hsu), through
 the monitor, where the design says the faults are detectable: the papers' scenarios are
 diagnosed (the README's method comparison quotes these runs)."""
 

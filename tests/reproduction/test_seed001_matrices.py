@@ -1,4 +1,5 @@
-"""Seed 001 Section V: the printed H_c (s = 1) and H_C1..H_C4 (s = 4), to the printed digits.
+"""Chan et al. 2006 Section V: the printed H_c (s = 1) and H_C1..H_C4 (s = 4), to the printed
+digits.
 
 The paper prints each matrix transposed, one row per input sample of the window; we parse the
 rows as printed and compare every entry to half a unit of its last printed digit.

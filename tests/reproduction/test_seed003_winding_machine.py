@@ -1,4 +1,5 @@
-"""Seed 003 (output-error residual, Page-Hinkley, step-model isolation, reset) on the emulated
+"""The output-error paper (output-error residual, Page-Hinkley, step-model isolation, reset) on the
+emulated
 winding machine, through the monitor: frames -> assembler -> OutputErrorDiagnoser.
 
 The paper's figures (Section 4) are for its machine; the emulator (canfdi/firmware_sim/plants/

@@ -1,4 +1,4 @@
-"""Seed 004 (Hwang, Chang, Hsu) through the monitor: the uio method on the VTOL aircraft with
+"""Hwang, Chang and Hsu's paper through the monitor: the uio method on the VTOL aircraft with
 the airspeed variation dA present (frames from canfdi.firmware_sim's frame_log, as a bus would carry
 them, into canfdi.monitor.Monitor)."""
 
@@ -26,7 +26,7 @@ def _diagnose(scenario, config=CONFIG) -> Monitor:
 
 
 def sensor_scenario(index: int):
-    """Seed 004 Figs. 3-6: a 1.0 bias on sensor ``index`` at 2 s."""
+    """Hwang, Chang and Hsu Figs. 3-6: a 1.0 bias on sensor ``index`` at 2 s."""
     return parse_scenario({"name": f"vtol_sensor_{index}", "plant": "vtol", "duration": 10.0,
                            "seed": 23 + index, "faults": [{"target": "sensor", "index": index,
                                                            "onset": 2.0, "bias": 1.0}]})

@@ -2,6 +2,7 @@
 monitor -> config -> methods/io -> bus -> core), verbs independent of each other, the core and
 the methods pure, the monitor free of the emulator."""
 
+import re
 import shutil
 import subprocess
 import sys
@@ -32,3 +33,41 @@ def test_import_contracts_hold():
     for name in CONTRACTS:
         assert name in flat, f"contract {name!r} is not checked"
     assert f"Contracts: {len(CONTRACTS)} kept, 0 broken" in flat
+
+
+def _layers() -> list[set[str]]:
+    """The layers contract of pyproject.toml, top first: each a set of module names."""
+    import tomllib
+
+    contracts = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["importlinter"][
+        "contracts"]
+    layers = next(c for c in contracts if c["type"] == "layers")["layers"]
+    return [{m.strip() for m in re.split(r"[:|]", layer)} for layer in layers]
+
+
+def _layer_of(module: str, layers: list[set[str]]) -> int | None:
+    for depth, layer in enumerate(layers):
+        if any(module == m or module.startswith(m + ".") for m in layer):
+            return depth
+    return None
+
+
+def test_the_examples_in_docstrings_keep_the_layers_too():
+    """import-linter reads import statements, not the doctests' ``>>> from canfdi...``: a
+    layer's examples import nothing from a layer above it either (issue 44 found the bus's
+    examples loading configs through canfdi.config)."""
+    layers = _layers()
+    wrong = []
+    for path in sorted((REPO / "canfdi").rglob("*.py")):
+        module = ".".join(path.relative_to(REPO).with_suffix("").parts).removesuffix(
+            ".__init__")
+        own = _layer_of(module, layers)
+        if own is None:
+            continue
+        for line in path.read_text().splitlines():
+            found = re.match(r"\s*(?:>>>|\.\.\.)\s+(?:from|import)\s+(canfdi[\w.]*)", line)
+            if found:
+                theirs = _layer_of(found[1], layers)
+                if theirs is not None and theirs < own:
+                    wrong.append(f"{module}: {line.strip()}")
+    assert wrong == []

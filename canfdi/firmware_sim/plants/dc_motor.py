@@ -1,4 +1,4 @@
-"""The shunt-field DC motor of seed 001 (eq. 42), nonlinear, with a PI speed loop.
+"""The shunt-field DC motor of Chan et al. 2006 (eq. 42), nonlinear, with a PI speed loop.
 
     di_f/dt = -(R_f/L_f) i_f + V/L_f
     di_a/dt = -(R_a/L_a) i_a - (M/L_a) i_f omega_r + V/L_a
@@ -116,7 +116,7 @@ class PiSpeedController(Controller):
 
 
 class DcMotor(Plant):
-    """Seed 001's shunt-field DC motor, integrated with RK4 over substeps of each period."""
+    """Chan et al. 2006's shunt-field DC motor, integrated with RK4 over substeps of each period."""
 
     name = "dc_motor"
     dt = DT

@@ -94,8 +94,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from canfdi.core.model import zoh
 from canfdi.firmware_sim.plants.base import Controller, NoiseDefaults, Plant, PlantOptionError
-from canfdi.firmware_sim.plants.vtol import zoh
 
 __all__ = ["OPTIONS", "REFERENCES", "ServoAxis", "ServoAxisParameters",
            "ServoVelocityController"]
@@ -426,7 +426,7 @@ class ServoAxis(Plant):
         load torque T_L (Nm), y = the state (C = I). The echo row is Iq_sp(k+1) = u(k) / Kt;
         the other rows are the zero-order-hold discretisation of `ServoAxisParameters.continuous`
         over dt, read off scipy.linalg.expm of the augmented matrix [[A_c, B_c], [0, 0]] dt
-        (plants.vtol.zoh); F is the hold of a constant T_L over the period, which
+        (canfdi.core.model.zoh); F is the hold of a constant T_L over the period, which
         reaches only the speed and position rows.
 
         Returns

@@ -1,4 +1,4 @@
-"""The VTOL aircraft of seed 004 (Hwang, Chang, Hsu), linearised in the vertical plane.
+"""The VTOL aircraft of Hwang, Chang and Hsu (Hwang, Chang, Hsu), linearised in the vertical plane.
 
 x = [horizontal velocity (kt), vertical velocity (kt), pitch rate (deg/s), pitch angle (deg)],
 u = [collective pitch, longitudinal cyclic pitch]. The open-loop model is the Narendra and
@@ -59,8 +59,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.linalg import expm
 
+from canfdi.core.model import zoh
 from canfdi.firmware_sim.plants.base import Controller, NoiseDefaults, Plant
 
 __all__ = [
@@ -75,7 +75,6 @@ __all__ = [
     "Vtol",
     "VtolProfile",
     "feedback_gain",
-    "zoh",
 ]
 
 DT = 0.01
@@ -122,25 +121,6 @@ def feedback_gain(A: np.ndarray = A_OPEN, B: np.ndarray = B, A_c: np.ndarray = A
     """
     K, *_ = np.linalg.lstsq(B, A_c - A, rcond=None)
     return K
-
-
-def zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact discretisation of dx/dt = A x + B u with u held over [0, dt).
-
-    Parameters
-    ----------
-    A : (n, n); B : (n, p); dt : seconds.
-
-    Returns
-    -------
-    Phi : (n, n) = expm(A dt); Gamma : (n, p) = int_0^dt expm(A s) ds B, both read off the
-    exponential of the augmented matrix [[A, B], [0, 0]] dt.
-    """
-    n, p = B.shape
-    M = np.zeros((n + p, n + p))
-    M[:n, :n], M[:n, n:] = A, B
-    Md = expm(M * dt)
-    return Md[:n, :n], Md[:n, n:]
 
 
 class VtolProfile(Controller):
@@ -198,7 +178,8 @@ class VtolProfile(Controller):
 
 
 class Vtol(Plant):
-    """Seed 004's stabilised VTOL aircraft with the airspeed variation dA switched by s_dA.
+    """Hwang, Chang and Hsu's stabilised VTOL aircraft with the airspeed variation dA switched by
+    s_dA.
 
     Parameters
     ----------

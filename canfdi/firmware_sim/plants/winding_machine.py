@@ -1,6 +1,8 @@
-"""The three-motor winding machine of seed 003 (Fig. 4), as linear output-error models.
+"""The three-motor winding machine of the output-error paper (Fig. 4), as linear output-error
+models.
 
-Seed 003 identifies three MISO output-error models (its eqs. 20-22), each with a unit delay,
+The output-error paper identifies three MISO output-error models (its eqs. 20-22), each with a unit
+delay,
 
     T1(k)     = G_T1u1(q) q^-1 u1(k) + G_T1u2(q) q^-1 u2(k)
     Omega2(k) = G_W2u2(q) q^-1 u2(k)
@@ -30,7 +32,8 @@ scale the paper's results imply (an actuator fault reaches the detector within a
 k_d = 605 for k_f = 600, and the identified residual response settles within about 50 samples,
 the residual being back near zero at k = 650-655).
 
-Magnitudes follow the paper's fault sizes. Seed 003 says the u1 fault of 0.002 is 20 % of
+Magnitudes follow the paper's fault sizes. The output-error paper says the u1 fault of 0.002 is 20
+% of
 u1(400), so the commands sit near 0.01 (normalised units): the operating point is
 u_op = (0.01, 0.01, 0.01), giving T1 = 0.05, Omega2 = 0.10 and T3 = 0.025. The T1 sensor fault
 of 0.0095 is then 19 % of T1, and the u1 fault moves T1 by 0.006 in steady state (0.0009 one
@@ -43,7 +46,7 @@ slow dynamics of the other channels): `canfdi design` reports, for the paper's f
 order 6, about 1.7 sigma per sample for u1 and 2.7 sigma for the T1 bias, which a Page-Hinkley
 test accumulates within a few samples; at the smallest admissible windows (3 and 2) it would be
 ten times less, hence the windows fixed in the monitor config. There is no process noise
-(seed 003's e(k) is measurement noise only).
+(the output-error paper's e(k) is measurement noise only).
 
 Input profile: around u_op, each command carries a square wave of +/-0.001 (periods 8, 10 and
 12 s, so the three inputs are not collinear) and a +/-0.0005 maximum-length PRBS held for 3
@@ -198,7 +201,8 @@ class WindingProfile(Controller):
 
 
 class WindingMachine(Plant):
-    """Seed 003's winding machine: the linear block-diagonal realisation of `CHANNELS`.
+    """The output-error paper's winding machine: the linear block-diagonal realisation of
+    `CHANNELS`.
 
     x(k+1) = A x(k) + B u(k),  y(k) = C x(k), exactly the model of
     deploy/config/winding_machine.yaml.

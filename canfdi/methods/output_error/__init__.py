@@ -1,4 +1,5 @@
-"""The output_error method (seed 003): output-error residuals of identified input-output models,
+"""The output_error method (the output-error paper): output-error residuals of identified
+input-output models,
 Page-Hinkley detection, isolation by identifying the residual's step response (the gamma and
 kappa tests), and the reset of Section 3.3.
 
@@ -25,7 +26,8 @@ __all__ = ["METHOD", "OeOptions", "OeSettings", "OutputErrorDiagnoser", "output_
 
 METHOD = Method(
     name="output_error",
-    summary="output-error residuals of identified OE models, step-response isolation (seed 003)",
+    summary="output-error residuals of identified OE models, step-response isolation "
+            "(the output-error paper)",
     section=SECTION,
     parse_options=parse_output_error,
     build=build,

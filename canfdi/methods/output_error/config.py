@@ -1,4 +1,4 @@
-"""The output_error method's config section (seed 003) and its diagnoser builder.
+"""The output_error method's config section (the output-error paper) and its diagnoser builder.
 
 Layout (``canfdi identify`` writes it from a fault-free log)::
 
@@ -199,7 +199,7 @@ def parse_output_error(section: Mapping[str, Any] | None, config: MonitorConfig)
 
 
 def build(config: MonitorConfig) -> OutputErrorDiagnoser:
-    """The seed 003 diagnoser the config's output_error section describes."""
+    """The the output-error paper diagnoser the config's output_error section describes."""
     opts: OeOptions = config.method_options
     settings = opts.settings
     thresholds = oe_thresholds(settings.drift, settings.false_alarm_interval, opts.long_run)

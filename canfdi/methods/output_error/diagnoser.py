@@ -1,8 +1,10 @@
-"""The output-error method of seed 003: OE residual, Page-Hinkley detection, isolation by
+"""The output-error method of the output-error paper: OE residual, Page-Hinkley detection,
+isolation by
 identifying the residual's response to a step, decision tests, and the reset of Section 3.3.
 
 RESIDUAL. The parallel OE models (canfdi.methods.output_error.model) are simulated from the
-commands u_c alone; r_j(k) = z_j(k) - y_hat_j(k) for every output j (seed 003 eq. 9),
+commands u_c alone; r_j(k) = z_j(k) - y_hat_j(k) for every output j (the output-error paper's eq.
+9),
 normalised by its fault-free standard deviation sigma_j. Under a single additive fault (eqs. 10-11)
 
     actuator i:  r_j(k) = G_ji(q) lambda U(k - k_f) + e_j(k)   for every output j it reaches,
@@ -27,7 +29,8 @@ k_d). ``min_samples`` after the alarm (the paper's L - l0; the window also holds
   fit is the same quantity estimated with more free parameters. (b) the free fit (the paper's
   G^Du): for each output j the path reaches, an OE model of the structure (nb, nf, d) of G_ji
   fitted to r_j with a unit step at k_f (canfdi.methods.output_error.model.fit_step), giving
-  F^Du and the variances of its coefficients. Decision tests, as we read seed 003's eqs. 16-17 (the
+  F^Du and the variances of its coefficients. Decision tests, as we read the output-error paper's
+  eqs. 16-17 (the
   extraction lost them; gamma = 0.2 and kappa = 0.1 are its values):
 
     gamma (parameter variance bound, eq. 16): every coefficient of F^Du has
@@ -395,7 +398,8 @@ class OutputErrorDiagnoser(DetectorBacked):
     # -- the residual ----------------------------------------------------------------------
     def _model_input(self, k: np.ndarray, U_held: np.ndarray) -> np.ndarray:
         """(N, p) the models' input deviation at samples k: the held commands with the
-        accepted actuator faults added (seed 003 Section 3.3), less the operating point."""
+        accepted actuator faults added (the output-error paper's Section 3.3), less the operating
+        point."""
         _, U = compensate(self.compensation, k, None, U_held)
         return U - self.model.u0
 

@@ -1,4 +1,5 @@
-"""The output_error method's models (seed 003) fitted from fault-free samples: what `canfdi
+"""The output_error method's models (the output-error paper) fitted from fault-free samples: what
+`canfdi
 identify` learns for a config with ``method: output_error`` (the registry entry's
 ``fit_models``), and the black-box path's output-error fit of each output's paths.
 
@@ -58,7 +59,8 @@ def fit_section(k: np.ndarray, U: np.ndarray, Z: np.ndarray, config: MonitorConf
     section = output_error_section(result["model"], result["sigma"], result["long_run"],
                                    config.inputs, config.outputs,
                                    fit={"samples": result["samples"]}, **settings)
-    report = {"path": "output error (seed 003)", "samples": {"fit": int(result["samples"])},
+    report = {"path": "output error (the output-error paper)",
+              "samples": {"fit": int(result["samples"])},
               "outputs": result["fits"]}
     return section, report
 

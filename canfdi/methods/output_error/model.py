@@ -1,7 +1,8 @@
-"""Output-error (OE) models of seed 003: parallel transfer functions B(q)/F(q) q^-d per
+"""Output-error (OE) models of the output-error paper: parallel transfer functions B(q)/F(q) q^-d
+per
 input-output pair, their simulation, and their identification from fault-free data.
 
-Seed 003 (Section 2) models each output as a sum of parallel models, one per input,
+The output-error paper's (Section 2) models each output as a sum of parallel models, one per input,
 
     y_j(k) = sum_i w_ji(k) + e_j(k),   w_ji(k) = B_ji(q) / F_ji(q) q^-d_ji u_i(k),
 
@@ -26,7 +27,8 @@ Why not Steiglitz-McBride alone: with several inputs of different denominators i
 reach the joint optimum; why not ARX: its estimates are biased by output noise (the equation
 error is coloured by F).
 
-The same machinery fits the *residual's* response to a step (seed 003 Section 3.2): `fit_step`.
+The same machinery fits the *residual's* response to a step (the output-error paper's Section 3.2):
+`fit_step`.
 
 Arrays: U (N, p) inputs, y (N,) one output; NaN is not allowed here (the diagnoser holds a
 lost command, and masks lost measurements with ``valid``).
@@ -475,7 +477,8 @@ class StepFit:
 
 def fit_step(r: np.ndarray, onset: int, nb: int, nf: int, delay: int,
              valid: np.ndarray | None = None, f_starts: tuple[np.ndarray, ...] = ()) -> StepFit:
-    """Fit r(k) = B(q)/F(q) q^-delay U(k - onset) (seed 003 eq. 12, the amplitude in B).
+    """Fit r(k) = B(q)/F(q) q^-delay U(k - onset) (the output-error paper's eq. 12, the amplitude
+    in B).
 
     Parameters
     ----------

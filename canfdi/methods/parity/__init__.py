@@ -1,4 +1,4 @@
-"""The parity method (seed 001): fully decoupled parity residuals, Page-Hinkley detection,
+"""The parity method (Chan et al. 2006): fully decoupled parity residuals, Page-Hinkley detection,
 identification of every fault hypothesis by recursive least squares, compensation and reset.
 
 Its options are the config's shared ``detection:`` and ``identification:`` sections and the
@@ -84,7 +84,7 @@ def history(config: MonitorConfig, contents: Any, event: FaultEvent) -> Estimate
 
 METHOD = Method(
     name="parity",
-    summary="fully decoupled parity equations, Page-Hinkley, RLS identification (seed 001)",
+    summary="fully decoupled parity equations, Page-Hinkley, RLS identification (Chan et al. 2006)",
     section="identification",
     parse_options=parse_options,
     build=build,

@@ -13,7 +13,8 @@ DIAGNOSE. Every fault hypothesis (each actuator: u = eta u_c + lambda, eq. 24; e
 z = y + b, eq. 34) predicts the residuals linearly in its parameters from the fault onset k_f on
 (canfdi.core.residuals' signatures), so each hypothesis is identified by recursive least squares
 in information form (P reset at the alarm, forgetting factor 1: the abrupt-fault setting of
-DESIGN.md), over all residuals at once. As seed 003 shifts its step to find k_f, each hypothesis
+DESIGN.md), over all residuals at once. As the output-error paper shifts its step to find k_f, each
+hypothesis
 is fitted for several onsets around the Page-Hinkley change point. From ``min_samples`` after the
 alarm the fits are compared by their least-squares cost J: the best hypothesis is accepted when
 every hypothesis outside its ambiguity group costs at least ``isolation_margin`` more (a
@@ -30,7 +31,8 @@ with those others named as its candidates, each with its estimate; one that does
 
 ACCEPT. The estimate is folded into a compensation applied from k_f on (z_j - b, or
 u_j = eta u_cj + lambda), the residual window is rebuilt from compensated samples and the
-detector restarts (seed 003 Section 3.3), so a later fault on any channel is diagnosed on top of
+detector restarts (the output-error paper's Section 3.3), so a later fault on any channel is
+diagnosed on top of
 the ones already found, repaired or not. A later diagnosis on a channel already compensated
 is a fault of its own when its size differs from none beyond what the earlier estimate's
 uncertainty explains ("accepted", its own size, whatever was accepted before on the channel or
@@ -843,7 +845,7 @@ class ParityDiagnoser(DetectorBacked):
             correction=correction, fixed=fixed))
 
     def _reload_window(self) -> None:
-        """Seed 003 Section 3.3: rebuild the window from compensated samples."""
+        """The output-error paper's Section 3.3: rebuild the window from compensated samples."""
         tail = []
         for kk, z, u in self._history:
             if tail and kk != tail[-1][0] + 1:

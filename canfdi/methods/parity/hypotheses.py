@@ -1,4 +1,4 @@
-"""The parity method's fault hypotheses and their regressors (seed 001 eqs. 24-29, 34-41).
+"""The parity method's fault hypotheses and their regressors (Chan et al. 2006 eqs. 24-29, 34-41).
 
 Every hypothesis predicts the residuals linearly in its parameters from the fault onset k_f on,
 through the bank's signatures (canfdi.core.residuals): a sensor bias through ``Gz[j]``, an
@@ -25,7 +25,7 @@ class Hypothesis:
 
     target : "actuator" (u = eta u_c + lambda, eq. 24), "actuator_bias" (the same with eta = 1:
         a bias alone, one parameter), "sensor", or "sensors" (biases on several sensors at
-        once: seed 001 eq. 41, over a largest set of sensors whose signatures are linearly
+        once: Chan et al. 2006 eq. 41, over a largest set of sensors whose signatures are linearly
         independent).
     index, name : the channel (for "sensors": the first member).
     members : the sensor indices of a "sensors" hypothesis.

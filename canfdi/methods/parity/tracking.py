@@ -2,7 +2,8 @@
 
 A fault is accepted as soon as its estimate has settled (within ``settle_rel_std`` of its size),
 not when it is exact: what the estimate misses stays in the compensated residuals as a small
-steady shift. Seed 001's recursive least squares would go on converging on it; re-detecting it
+steady shift. Chan et al. 2006's recursive least squares would go on converging on it; re-detecting
+it
 instead (a Page-Hinkley alarm long after the acceptance, then a diagnosis that must isolate a
 change far below the one it explained) is slow, and where the shift is below what the isolation
 margin can tell apart it ends "unexplained": a false alarm after every large fault (seen on an

@@ -1,4 +1,5 @@
-"""The uio method (seed 004): unknown-input decoupling through (CE)^+, the diagonal actuator
+"""The uio method (Hwang, Chang and Hsu): unknown-input decoupling through (CE)^+, the diagonal
+actuator
 fault identification filter and the generalized residual generator scheme (GRGS), with
 isolation by fault angles.
 
@@ -17,7 +18,7 @@ __all__ = ["METHOD", "UioDiagnoser", "UioSettings"]
 
 METHOD = Method(
     name="uio",
-    summary="unknown-input decoupling, FIDF and GRGS with fault angles (seed 004)",
+    summary="unknown-input decoupling, FIDF and GRGS with fault angles (Hwang, Chang and Hsu)",
     section="uio",
     parse_options=parse_uio_options,
     build=build,

@@ -1,4 +1,4 @@
-"""The uio method (seed 004): build the UioDiagnoser a monitor config describes.
+"""The uio method (Hwang, Chang and Hsu): build the UioDiagnoser a monitor config describes.
 
 The config's ``uio:`` section (all optional)::
 
@@ -54,7 +54,7 @@ def parse_uio_options(options: Mapping[str, Any] | None, config: MonitorConfig |
 
 
 def build(config: MonitorConfig) -> UioDiagnoser:
-    """Design, calibrate and build the seed 004 diagnoser of a config (method: uio)."""
+    """Design, calibrate and build the Hwang, Chang and Hsu diagnoser of a config (method: uio)."""
     opts = config.method_options or {}
     model = config.model.discretize()
     if model.r == 0:

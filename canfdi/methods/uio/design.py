@@ -1,4 +1,4 @@
-"""Unknown-input decoupled residuals of seed 004 (Hwang, Chang, Hsu), in discrete time.
+"""Unknown-input decoupled residuals of Hwang, Chang and Hsu (Hwang, Chang, Hsu), in discrete time.
 
 Design (all on the zero-order-hold model x(k+1) = A x + B u + E d + K f, y = C x + G f; E is the
 model's F, discretised with the inputs as ``StateSpace.discretize`` does):

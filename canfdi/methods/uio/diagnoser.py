@@ -1,4 +1,4 @@
-"""The seed 004 diagnoser: FIDF + GRGS residuals -> threshold -> fault angles -> accept.
+"""The Hwang, Chang and Hsu diagnoser: FIDF + GRGS residuals -> threshold -> fault angles -> accept.
 
 MONITOR. Each sample goes through the deadbeat front end of canfdi.methods.uio.design (FIR over S+1
 samples: the FIDF's fhat(k-1) and the GRGS scalars), then the first-order weights (the
@@ -19,7 +19,7 @@ i of Hf(0). None by ``max_samples``: "unexplained".
 
 ACCEPT. The bias is folded into a compensation from its onset (u_j + lambda, or z_i - b), the
 front end and the weights are re-run from the onset on compensated samples and the detector
-restarts, so the next fault is diagnosed on top (seed 003 Section 3.3).
+restarts, so the next fault is diagnosed on top (the output-error paper's Section 3.3).
 
 Missing data: a NaN value makes missing the front-end outputs whose window reads it; a missing
 weighted residual holds its filter state and its statistic. A gap of at most S
@@ -156,7 +156,8 @@ def uio_thresholds(count: int, interval: float) -> np.ndarray:
 
 
 class UioDiagnoser:
-    """Streaming seed 004 diagnoser: ``update(sample) -> events`` (canfdi.monitor.DiagnoserLike).
+    """Streaming Hwang, Chang and Hsu diagnoser: ``update(sample) -> events``
+    (canfdi.monitor.DiagnoserLike).
 
     Parameters
     ----------
@@ -531,7 +532,8 @@ class UioDiagnoser:
             # Gaps inside the history cannot happen: a gap clears it.
             o, _ = self._push(self._compensate(kk, z, u))
             self._recent.append((kk, o))
-        # The weights restart at rest (seed 003's reset of the detector): an onset off by a
+        # The weights restart at rest (the output-error paper's reset of the detector): an onset
+        # off by a
         # sample leaves a short transient in the front end that they would remember for
         # 1 / (1 - a) samples, far above the GRGS noise. The front end itself is exact again
         # S samples after the onset.

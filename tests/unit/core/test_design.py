@@ -86,7 +86,7 @@ def test_window_comparison_shows_larger_windows_gain_sensitivity():
 
 
 def test_sensors_of_very_different_noise_get_vectors_per_unit_of_noise():
-    """A servo axis whose echo is exact to 1e-7 beside a 0.05 A current: seed 001's raw-gain
+    """A servo axis whose echo is exact to 1e-7 beside a 0.05 A current: Chan et al. 2006's raw-gain
     vectors all take the echo relation and the velocity sensor's bias goes unseen; chosen per
     unit of noise, the velocity is seen and the measured current told apart from it. Sensors
     of alike noise keep the paper's vectors exactly."""

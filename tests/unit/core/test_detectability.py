@@ -1,4 +1,4 @@
-"""Seed 002: Theorems 2 and 3 on the paper's examples and on the DC motor."""
+"""Nyberg and Nielsen: Theorems 2 and 3 on the paper's examples and on the DC motor."""
 
 import numpy as np
 

@@ -2,7 +2,8 @@
 parameters within its confidence, and gives the monitor's linear model with its unknown-input
 directions.
 
-The DC motor's log comes from the emulator (seed 001's motor, no load torque; the template does
+The DC motor's log comes from the emulator (Chan et al. 2006's motor, no load torque; the template
+does
 not know that). The servo axis's log comes from a small simulation written here (the physics of
 the template plus Coulomb friction and a stepping, drifting load torque, the velocity loop
 closed by a master on the noisy measured velocity), so that the test does not depend on an

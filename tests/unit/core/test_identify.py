@@ -1,4 +1,5 @@
-"""canfdi.core.identify: the one least squares (information-form RLS, seed 001 eqs. 30-32)."""
+"""canfdi.core.identify: the one least squares (information-form RLS, Chan et al. 2006 eqs.
+30-32)."""
 
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ def _eqs_30_32(theta: np.ndarray, P: np.ndarray, Phi: np.ndarray, R: np.ndarray)
 
 
 def _actuator_data(rng, N: int, eta: float, lam: float, s: int = 2):
-    """Seed 001 eqs. 26-29: an actuator residual r = (eta - 1) g.Uc + lambda sum(g), and its
+    """Chan et al. 2006 eqs. 26-29: an actuator residual r = (eta - 1) g.Uc + lambda sum(g), and its
     regressor phi = [g.Uc, sum(g)] (N, 1, 2)."""
     g = rng.normal(size=s + 1)
     Uc = sliding_window_view(rng.normal(size=N + s), s + 1)
@@ -58,7 +59,7 @@ def test_actuator_fault_identified_exactly() -> None:
 
 
 def test_sensor_biases_identified_by_step_and_batch() -> None:
-    """Seed 001 eq. 41: r = V I* f, constant in time."""
+    """Chan et al. 2006 eq. 41: r = V I* f, constant in time."""
     rng = np.random.default_rng(3)
     q, s, m, N = 4, 2, 4, 500
     V = rng.normal(size=(m, (s + 1) * q))

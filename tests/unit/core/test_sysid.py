@@ -199,7 +199,8 @@ def test_without_the_unknown_input_the_load_stays_in_the_residuals():
 
 
 def test_twin_sensors_and_an_unseen_one_keep_their_structure():
-    """The DC motor of seed 001 (nonlinear, closed loop): learned with two unknown inputs, its
+    """The DC motor of Chan et al. 2006 (nonlinear, closed loop): learned with two unknown inputs,
+    its
     design is the true one: i_a and i_f + i_a have the same signature and omega_r is not
     detectable, because coefficients the data cannot tell from zero are zero."""
     from canfdi.firmware_sim.scenario import load_scenario
@@ -273,7 +274,8 @@ def test_persistence_stability_and_minimality_checks():
 
 
 def test_output_error_paths_realised_keep_their_zeros():
-    """The winding machine's five paths (seed 003), realised block by block: its Markov
+    """The winding machine's five paths (the output-error paper), realised block by block: its
+    Markov
     parameters exactly, and a zero wherever a path is absent (T1 does not see u3)."""
     from canfdi.core.sysid import realise_paths
     from canfdi.firmware_sim.plants.winding_machine import CHANNELS, WindingMachine

@@ -1,4 +1,5 @@
-"""The winding machine (seed 003) and VTOL (seed 004) plants against their monitor configs."""
+"""The winding machine (the output-error paper) and VTOL (Hwang, Chang and Hsu) plants against
+their monitor configs."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from scipy.signal import cont2discrete, lfilter
 
 from canfdi.config import load_config
 from canfdi.core.design import Design, design_bank
+from canfdi.core.model import zoh
 from canfdi.firmware_sim.plants import vtol as vtol_module
 from canfdi.firmware_sim.plants.vtol import (
     A_C,
@@ -19,7 +21,6 @@ from canfdi.firmware_sim.plants.vtol import (
     Vtol,
     VtolProfile,
     feedback_gain,
-    zoh,
 )
 from canfdi.firmware_sim.plants.winding_machine import (
     CHANNELS,
@@ -142,7 +143,7 @@ def test_winding_operating_point():
     x0 = plant.initial_state()
     np.testing.assert_allclose(plant.step(x0, np.array(U_OP)), x0, atol=1e-15)
     np.testing.assert_allclose(plant.output(x0), [0.05, 0.10, 0.025], atol=1e-15)
-    # Seed 003: the u1 fault of 0.002 is 20 % of u1 near k = 400.
+    # The output-error paper: the u1 fault of 0.002 is 20 % of u1 near k = 400.
     assert 0.002 / U_OP[0] == pytest.approx(0.2)
 
 
@@ -172,7 +173,8 @@ def test_winding_design_report(winding_design):
     responds = d.responds
     names = d.fault_names
     # u1 reaches T1 only, so an actuator-1 fault and a T1 bias meet the same relations: the
-    # parity residuals cannot tell them apart (seed 003 does it from the residual's dynamics).
+    # parity residuals cannot tell them apart (the output-error paper does it from the residual's
+    # dynamics).
     np.testing.assert_array_equal(responds[:, names.index("u1")],
                                   responds[:, names.index("T1")])
     # Fault-to-noise of the paper's fault sizes, as the config's comment states.
