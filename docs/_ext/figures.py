@@ -6,7 +6,7 @@ drive, the monitor diagnoses it, and the verbs draw what they draw for a user.
 runs, each as its own `canfdi` process, as a user would:
 
 - `canfdi demo -o` and `canfdi report`: a diagnosed run (residuals against their thresholds,
-  the diagnoses marked) and an accepted fault's estimates converging;
+  the diagnoses marked), an accepted fault's estimates converging, and a run of each method;
 - `canfdi design --json`: the design's isolability, drawn with the look `canfdi report` uses
   (canfdi.tools.figures);
 - `canfdi evaluate`: the detection delay against the fault-to-noise ratio;
@@ -53,6 +53,28 @@ def diagnosed_run(out: Path, figures: Path) -> list[Path]:
     written = []
     for source, name in (("residuals.png", "diagnosed-run.png"),
                          ("fault_1_actuator_V.png", "estimates-converging.png")):
+        path = next(Path(out, p) for p in report["figures"] if p.endswith(source))
+        written.append(Path(shutil.copyfile(path, figures / name)))
+    return written
+
+
+METHOD_RUNS = (
+    # (figure, scenario, config, report figure): the output_error and uio methods' pages
+    # (the parity method's shows the demo's estimates-converging.png)
+    ("method-output-error.png", "winding_machine_consecutive", "winding_machine_oe.yaml",
+     "overview.png"),
+    ("method-uio.png", "vtol_actuators", "vtol_uio.yaml", "residuals.png"),
+)
+
+
+def method_runs(out: Path, figures: Path) -> list[Path]:
+    written = []
+    for name, scenario, config, source in METHOD_RUNS:
+        log = f"{Path(name).stem}.mcap"
+        canfdi("demo", "--scenario", scenario, "--config", str(REPO / "deploy/config" / config),
+               "-o", log, "--no-live", "--json", cwd=out)
+        report = json.loads(canfdi("report", log, "-o", Path(name).stem, "--json",
+                                   "--no-progress", cwd=out))
         path = next(Path(out, p) for p in report["figures"] if p.endswith(source))
         written.append(Path(shutil.copyfile(path, figures / name)))
     return written
@@ -137,6 +159,7 @@ def make(out: Path) -> list[Path]:
         shutil.rmtree(directory, ignore_errors=True)
         directory.mkdir(parents=True)
     written = diagnosed_run(runs, figures)
+    written += method_runs(runs, figures)
     written.append(isolability(runs, figures))
     written.append(evaluation(runs, figures))
     written += fleet(runs, out, figures)
