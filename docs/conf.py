@@ -47,5 +47,7 @@ html_title = "canfdi"
 html_static_path = ["_static"]
 # without one a browser asks for /favicon.ico, which is no page of the site: a console error
 html_favicon = "_static/favicon.svg"
-# The fleet's HTML report of the fleet tutorial, as `canfdi fleet` wrote it during the build.
+# The fleet's HTML report of the fleet tutorial, as `canfdi fleet` wrote it during the build
+# (into a directory that must exist when this file is read, before the build fills it).
+(HERE / "_generated" / "site-extra").mkdir(parents=True, exist_ok=True)
 html_extra_path = ["_generated/site-extra"]
