@@ -167,14 +167,27 @@ def test_interface_down_up_and_delete_readd_mid_run(tmp_path):
         "  - {target: sensor, index: 0, onset: 18.0, bias: 0.5}\n"
         "  - {target: sensor, index: 1, onset: 30.0, bias: 1.0}\n")
     monitor = Monitor(tmp_path / "outage.mcap")
+    emulator = None
 
     def wait_for(text: str, timeout: float = 120.0) -> None:
+        # The emulator starts as slowly as the monitor on a software CPU (its imports): a
+        # loaded qemu harness once saw no frame of it in the whole 120 s.
+        timeout *= slowness()
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if any(text in line for line in monitor.stdout):
                 return
+            if emulator is not None and emulator.poll() not in (None, 0):
+                # a monitor behind a finished emulator may yet print; a failed one, never
+                _, err = emulator.communicate()
+                pytest.fail(f"the emulator failed ({emulator.returncode}) before the monitor "
+                            f"printed {text!r}:\n{err}\nthe monitor:\n" + "".join(monitor.stdout))
             time.sleep(0.1)
-        pytest.fail(f"the monitor never printed {text!r}:\n" + "".join(monitor.stdout))
+        running = emulator is not None and emulator.poll() is None
+        said = "" if running or emulator is None else emulator.communicate()[1]
+        pytest.fail(f"the monitor never printed {text!r} in {timeout:g} s (the emulator "
+                    f"{'still runs' if running else 'ended: ' + said}):\n"
+                    + "".join(monitor.stdout))
 
     try:
         emulator = subprocess.Popen(
@@ -197,6 +210,9 @@ def test_interface_down_up_and_delete_readd_mid_run(tmp_path):
     finally:
         if monitor.proc.poll() is None:
             monitor.proc.kill()
+        if emulator is not None and emulator.poll() is None:
+            emulator.kill()
+            emulator.communicate()
     log_text = "".join(monitor.stderr)
     assert log_text.count("bus error") >= 2, log_text
     assert log_text.count("bus open") >= 3, log_text

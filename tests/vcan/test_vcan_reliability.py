@@ -298,9 +298,11 @@ def test_sigkill_loses_at_most_the_last_flush_interval_and_replays(tmp_path, ver
     assert (first["kind"], first["index"], first["name"]) == ("actuator", 0, "V")
     assert first["estimate"]["eta"] == pytest.approx(2.0, rel=0.03)
     assert first["estimate"]["lambda"] == pytest.approx(10.0, rel=0.03)
-    # The next fault is at 20 s: it is in the log only when the kill came after it.
+    # The next faults are at 20 and 30 s: each is in the log only when the kill came after it
+    # (`run` is killed once its diagnosis announced the first fault: on a loaded harness,
+    # seconds behind the bus, it was killed 37 s in, and the log held all three).
     kinds = [(f["kind"], f["index"]) for f in result["faults"]]
-    assert kinds == [("actuator", 0), ("sensor", 0)][: len(kinds)]
+    assert kinds == [("actuator", 0), ("sensor", 0), ("sensor", 1)][: len(kinds)]
 
 
 @pytest.fixture
