@@ -98,6 +98,19 @@ def fail(verb: str, message: str, status: int = 2) -> int:
     return status
 
 
+def write_text(verb: str, text: str, output: Path | None, status: int = 1) -> int | None:
+    """``text`` to stdout, or to the file ``output``: None once written, else ``status`` after
+    one line saying why it could not be."""
+    if output is None:
+        sys.stdout.write(text)
+        return None
+    try:
+        output.write_text(text)
+    except OSError as exc:
+        return fail(verb, f"cannot write {output}: {exc.strerror or exc}", status)
+    return None
+
+
 def add_kernel_option(p: argparse.ArgumentParser) -> None:
     """--kernel: what the hot path (residuals and detectors) runs on."""
     p.add_argument("--kernel", choices=KERNEL_NAMES,

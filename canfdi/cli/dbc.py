@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from canfdi.cli.common import write_text
+
 HELP = """\
 Write the DBC of the monitor's own frames (FDI_FAULT, FDI_ESTIMATE, FDI_STATUS, FDI_RESIDUAL)
 as this config sends them: the layout of its monitor DBC (bus.monitor.dbc, default the shipped
@@ -39,15 +41,10 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"canfdi dbc: config error: {exc}", file=sys.stderr)
         return 2
-    text = database.as_dbc_string()
-    if args.output is None:
-        sys.stdout.write(text)
-        return 0
-    try:
-        args.output.write_text(text)
-    except OSError as exc:
-        print(f"canfdi dbc: cannot write {args.output}: {exc.strerror or exc}", file=sys.stderr)
-        return 2
-    print(f"canfdi dbc: {len(database.messages)} messages written to {args.output}",
-          file=sys.stderr)
+    failed = write_text("dbc", database.as_dbc_string(), args.output, status=2)
+    if failed is not None:
+        return failed
+    if args.output is not None:
+        print(f"canfdi dbc: {len(database.messages)} messages written to {args.output}",
+              file=sys.stderr)
     return 0

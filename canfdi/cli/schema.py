@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from canfdi.cli.common import write_text
 from canfdi.config import config_schema
 
 HELP = """\
@@ -39,14 +40,9 @@ def text() -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = text()
-    if args.output is None:
-        sys.stdout.write(out)
-        return 0
-    try:
-        args.output.write_text(out)
-    except OSError as exc:
-        print(f"canfdi schema: cannot write {args.output}: {exc.strerror or exc}", file=sys.stderr)
-        return 1
-    print(f"wrote {args.output}", file=sys.stderr)
+    failed = write_text("schema", text(), args.output)
+    if failed is not None:
+        return failed
+    if args.output is not None:
+        print(f"wrote {args.output}", file=sys.stderr)
     return 0
