@@ -85,7 +85,7 @@ from canfdi.bus.nodeid import MAX_EXTENDED_ID, check_template
 from canfdi.core.design import DesignOptions
 from canfdi.core.model import MAX_DIMENSION, MAX_ENTRY, ModelError, StateSpace
 from canfdi.core.settings import (
-    NUMBER_TEXT,
+    NUMBER_AS_TEXT,
     BusConfig,
     ClockConfig,
     ConfigError,
@@ -576,24 +576,19 @@ def load_config(path: str | Path, *, allow_unidentified: bool = False) -> Monito
 # The JSON Schema of a config (`canfdi schema`): the option tables above, and beside them what
 # the parsers of the structured keys accept. What a schema cannot say (sizes that must match
 # the model, names that must be in the DBC, a node-id template's arithmetic) stays the
-# parser's alone; tests/unit/test_config_schema.py holds the two to agreement.
+# parser's alone; tests/integration/test_config_schema.py holds the two to agreement.
 SCHEMA_ID = "https://canfdi.dev/schema/config.json"
 _TEXT = {"type": "string", "minLength": 1}
-_NUMERIC = {"anyOf": [{"type": "number"}, {"type": "string", "pattern": NUMBER_TEXT}]}
 _ENTRY = {"anyOf": [{"type": "number", "minimum": -MAX_ENTRY, "maximum": MAX_ENTRY},
-                    {"type": "string", "pattern": NUMBER_TEXT}]}
+                    NUMBER_AS_TEXT]}
 _MATRIX = {"type": "array", "maxItems": MAX_DIMENSION,
            "items": {"anyOf": [_ENTRY, {"type": "array", "maxItems": MAX_DIMENSION,
                                         "items": _ENTRY}]},
            "title": "matrix", "description": "a list of rows of numbers (a flat list is one row)"}
 _NAMES = {"type": ["array", "null"], "items": _TEXT, "uniqueItems": True, "title": "names",
           "description": "unique names, as many as the model has"}
-_STDS = {"anyOf": [{"type": "null"},
-                   {"type": "number", "minimum": 0},
-                   {"type": "string", "pattern": NUMBER_TEXT},
-                   {"type": "array", "items": {"anyOf": [{"type": "number", "minimum": 0},
-                                                         {"type": "string",
-                                                          "pattern": NUMBER_TEXT}]}}],
+_STD = {"anyOf": [{"type": "number", "minimum": 0}, NUMBER_AS_TEXT]}
+_STDS = {"anyOf": [{"type": "null"}, *_STD["anyOf"], {"type": "array", "items": _STD}],
          "title": "standard deviations",
          "description": "one number for all, or one per signal"}
 _WINDOW_SCHEMA = {"anyOf": [{"enum": ["auto", None]},
@@ -656,6 +651,7 @@ def _model_schema() -> dict[str, Any]:
 
 
 def _bus_schema() -> dict[str, Any]:
+    e2e = _e2e_schema()
     clock = options_schema(_CLOCK, defaults=ClockConfig, extra={"message": _MESSAGE_REF})
     clock["allOf"] = [
         {"if": {"properties": {"kind": {"const": "trigger"}}, "required": ["kind"]},
@@ -665,7 +661,7 @@ def _bus_schema() -> dict[str, Any]:
     monitor = options_schema(_MONITOR, defaults=MonitorFramesConfig, extra={
         "ids": {"type": ["object", "null"], "additionalProperties": {
             "type": "integer", "minimum": 0, "maximum": MAX_EXTENDED_ID}},
-        "e2e": _e2e_schema()})
+        "e2e": e2e})
     monitor["not"] = {"required": ["base", "ids"],
                       "properties": {"base": {"type": "integer"},
                                      "ids": {"type": "object", "minProperties": 1}}}
@@ -673,9 +669,9 @@ def _bus_schema() -> dict[str, Any]:
         "map": {"type": ["object", "null"], "additionalProperties": _SIGNAL_REF,
                 "description": "model signal -> the DBC signal that carries it"},
         "e2e": {"type": ["object", "null"], "additionalProperties": False,
-                "properties": {"default": _e2e_schema(),
+                "properties": {"default": e2e,
                                "messages": {"type": ["object", "null"],
-                                            "additionalProperties": _e2e_schema()}}},
+                                            "additionalProperties": e2e}}},
         "clock": clock,
         "node": {"type": ["object", "null"], "additionalProperties": False,
                  "properties": {"id": Option(str).json_schema(),

@@ -72,10 +72,11 @@ def brief(value: object) -> str:
     return _BRIEF.repr(value)
 
 
-NUMBER_TEXT = r"^[-+]?([0-9]+[.]?[0-9]*|[.][0-9]+)([eE][-+]?[0-9]+)?$"
-"""A number written as text, which a float option takes too: PyYAML, a YAML 1.1 reader, reads
-1e7 and 1.0e7 (no exponent sign) as strings. The JSON Schema checks such text for its form
-only, not for the option's bounds."""
+NUMBER_AS_TEXT = {"type": "string",
+                  "pattern": r"^[-+]?([0-9]+[.]?[0-9]*|[.][0-9]+)([eE][-+]?[0-9]+)?$"}
+"""The JSON Schema of a number written as text, which a float option takes too: PyYAML, a
+YAML 1.1 reader, reads 1e7 and 1.0e7 (no exponent sign) as strings. It checks such text for
+its form only, not for the option's bounds."""
 
 
 class ConfigError(ValueError):
@@ -176,7 +177,7 @@ class Option:
         if self.kind is int:
             return {"type": ["integer", "null"], **bounds}
         return {"anyOf": [{"type": ["number", "null"], **bounds},
-                          {"type": "string", "pattern": NUMBER_TEXT}]}
+                          NUMBER_AS_TEXT]}
 
     def check(self, value: Any, field: str) -> Any:
         """The value as ``kind``, or a ConfigError naming ``field``."""

@@ -43,6 +43,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from canfdi.core.settings import (
+    NUMBER_AS_TEXT,
     ConfigError,
     MonitorConfig,
     Option,
@@ -68,8 +69,7 @@ _SETTINGS = {
 # Validated here rather than by the option spec: lists and mappings.
 _STRUCTURED = ("models", "operating_point", "residual_std", "long_run_variance", "fit")
 _NUMBER = Option(float)
-_NUMBERS = {"type": "array", "items": {"anyOf": [{"type": "number"},
-                                                 *_NUMBER.json_schema()["anyOf"][1:]]}}
+_NUMBERS = {"type": "array", "items": {"anyOf": [{"type": "number"}, NUMBER_AS_TEXT]}}
 _PAIR = options_schema({"path": Option(bool), "delay": Option(int, 0, 1000),
                         "gain_std": Option(float, lo=0.0)}, nullable=False,
                        extra={"output": {"type": "string"}, "input": {"type": "string"},
