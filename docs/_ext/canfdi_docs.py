@@ -15,6 +15,7 @@ The pages of docs/reference/ include these files.
 from __future__ import annotations
 
 import copy
+import functools
 import json
 from pathlib import Path
 from typing import Any
@@ -64,6 +65,12 @@ def _bounds(schema: dict[str, Any]) -> str:
     return ", ".join(parts)
 
 
+@functools.cache
+def _shipped(name: str) -> dict[str, Any]:
+    """A shipped config as loaded (read once per build; callers change a copy)."""
+    return yaml.safe_load((REPO / "deploy" / "config" / f"{name}.yaml").read_text())
+
+
 def _error(path: tuple[str, ...], schema: dict[str, Any]) -> str:
     """What the validator says of a value of the wrong type at ``path`` (it is asked)."""
     from canfdi.config import ConfigError, parse_config
@@ -75,7 +82,7 @@ def _error(path: tuple[str, ...], schema: dict[str, Any]) -> str:
     elif "string" in str(kind):
         wrong = 7
     for name in ("dc_motor", "vtol_uio", "winding_machine_oe"):
-        document = yaml.safe_load((REPO / "deploy" / "config" / f"{name}.yaml").read_text())
+        document = copy.deepcopy(_shipped(name))
         if path[0] in ("uio", "output_error") and document.get("method") != path[0]:
             continue
         node = document

@@ -46,37 +46,32 @@ def canfdi(*args: str, cwd: Path) -> str:
     return done.stdout
 
 
-def diagnosed_run(out: Path, figures: Path) -> list[Path]:
-    canfdi("demo", "-o", "demo.mcap", "--no-live", "--json", cwd=out)
-    report = json.loads(canfdi("report", "demo.mcap", "-o", "report", "--json",
-                               "--no-progress", cwd=out))
-    written = []
-    for source, name in (("residuals.png", "diagnosed-run.png"),
-                         ("fault_1_actuator_V.png", "estimates-converging.png")):
-        path = next(Path(out, p) for p in report["figures"] if p.endswith(source))
-        written.append(Path(shutil.copyfile(path, figures / name)))
-    return written
-
-
-METHOD_RUNS = (
-    # (figure, scenario, config, report figure): the output_error and uio methods' pages
-    # (the parity method's shows the demo's estimates-converging.png)
-    ("method-output-error.png", "winding_machine_consecutive", "winding_machine_oe.yaml",
-     "overview.png"),
-    ("method-uio.png", "vtol_actuators", "vtol_uio.yaml", "residuals.png"),
+DEMO_RUNS = (
+    # (log stem, the demo's options, (report figure, site figure)...): the demo's run (its
+    # log is the one the reference's topics page reads), then the output_error and uio
+    # methods' pages (the parity method's shows the demo's estimates-converging.png)
+    ("demo", (), (("residuals.png", "diagnosed-run.png"),
+                  ("fault_1_actuator_V.png", "estimates-converging.png"))),
+    ("method-output-error", ("--scenario", "winding_machine_consecutive", "--config",
+                             str(REPO / "deploy/config/winding_machine_oe.yaml")),
+     (("overview.png", "method-output-error.png"),)),
+    ("method-uio", ("--scenario", "vtol_actuators", "--config",
+                    str(REPO / "deploy/config/vtol_uio.yaml")),
+     (("residuals.png", "method-uio.png"),)),
 )
 
 
-def method_runs(out: Path, figures: Path) -> list[Path]:
+def demo_runs(out: Path, figures: Path) -> list[Path]:
+    """Each run of DEMO_RUNS: `canfdi demo ... -o STEM.mcap`, `canfdi report STEM.mcap`, and
+    the report's figures copied under their site names."""
     written = []
-    for name, scenario, config, source in METHOD_RUNS:
-        log = f"{Path(name).stem}.mcap"
-        canfdi("demo", "--scenario", scenario, "--config", str(REPO / "deploy/config" / config),
-               "-o", log, "--no-live", "--json", cwd=out)
-        report = json.loads(canfdi("report", log, "-o", Path(name).stem, "--json",
+    for stem, options, picks in DEMO_RUNS:
+        canfdi("demo", *options, "-o", f"{stem}.mcap", "--no-live", "--json", cwd=out)
+        report = json.loads(canfdi("report", f"{stem}.mcap", "-o", stem, "--json",
                                    "--no-progress", cwd=out))
-        path = next(Path(out, p) for p in report["figures"] if p.endswith(source))
-        written.append(Path(shutil.copyfile(path, figures / name)))
+        for source, name in picks:
+            path = next(Path(out, p) for p in report["figures"] if p.endswith(source))
+            written.append(Path(shutil.copyfile(path, figures / name)))
     return written
 
 
@@ -158,8 +153,7 @@ def make(out: Path) -> list[Path]:
     for directory in (runs, figures):
         shutil.rmtree(directory, ignore_errors=True)
         directory.mkdir(parents=True)
-    written = diagnosed_run(runs, figures)
-    written += method_runs(runs, figures)
+    written = demo_runs(runs, figures)
     written.append(isolability(runs, figures))
     written.append(evaluation(runs, figures))
     written += fleet(runs, out, figures)
