@@ -2,6 +2,7 @@
 
 import copy
 import dataclasses
+import pickle
 
 import numpy as np
 import pytest
@@ -298,3 +299,41 @@ def test_a_twin_group_is_named_by_its_first_channel_whatever_the_rounding(channe
     sign = 1.0 if channel == 1 else -1.0
     assert accepted[0].estimates["bias"] == pytest.approx(sign * 0.5, rel=0.05)
     assert names["i_f_plus_i_a"] == pytest.approx(-sign * 0.5, rel=0.05)
+
+
+def test_a_copy_runs_apart_from_its_original():
+    """The noise watchdog's undo is a deepcopy that shares the diagnoser's constant parts
+    (hypotheses, bank matrices, the history's rows): a copy taken mid-diagnosis and fed other
+    data diagnoses what a diagnoser fed the same data from the start does, and leaves its
+    original to diagnose its own run as if no copy had been made."""
+    faults = [{"target": "sensor", "index": 1, "onset": 5.0, "bias": 0.08},
+              {"target": "actuator", "index": 0, "onset": 12.0, "eta": 1.2, "lambda": 0.5}]
+    run = simulate(_scenario(faults))
+    other = simulate(_scenario([], seed=4))
+
+    def feed(diagnoser, runs, lo, hi):
+        out = []
+        for i in range(lo, hi):
+            r = runs[0] if i < runs[1] else runs[2]
+            out += diagnoser.update(Sample(k=int(r.k[i]), timestamp_ns=int(r.t[i] * 1e9),
+                                           u=r.u_c[i], z=r.z[i]))
+        return out
+
+    n = len(run.k)
+    reference = feed(build_diagnoser(CONFIG), (run, n, run), 0, n)
+    first = next(e.sample for e in reference if e.kind == "detected")
+    cut = int(np.searchsorted(run.k, first)) + 3  # inside the first diagnosis
+    spliced = feed(build_diagnoser(CONFIG), (run, cut, other), 0, n)
+    assert [e.kind for e in reference].count("accepted") >= 2
+    assert "V" in {e.name for e in reference} - {e.name for e in spliced}  # the runs differ
+
+    diagnoser = build_diagnoser(CONFIG)
+    events = feed(diagnoser, (run, n, run), 0, cut)
+    assert diagnoser.mode == DIAGNOSE
+    before = pickle.dumps(diagnoser)
+    twin = copy.deepcopy(diagnoser)
+    twin_events = events + feed(twin, (run, cut, other), cut, n)
+    assert pickle.dumps(diagnoser) == before  # nothing the copy changed is the original's
+    events += feed(diagnoser, (run, n, run), cut, n)
+    assert events == reference
+    assert twin_events == spliced

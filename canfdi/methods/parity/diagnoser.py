@@ -46,6 +46,7 @@ detection.
 
 from __future__ import annotations
 
+import copy
 from collections import deque
 from dataclasses import dataclass, replace
 
@@ -289,8 +290,19 @@ class ParityDiagnoser(DetectorBacked):
 
     # -- state ---------------------------------------------------------------------------
     def __deepcopy__(self, memo: dict) -> ParityDiagnoser:
-        """A copy that runs apart from this one; the design, which update never changes, shared."""
-        return deepcopy_sharing(self, memo, self.design)
+        """A copy that runs apart from this one, sharing what update never changes: the
+        design, the hypotheses and their twins, the bank's and tracker's matrices, and the
+        rows of the history and of the absorbed samples (each made once, never written to: the
+        containers are copied, their rows shared). The noise watchdog's undo copies the
+        diagnoser on every block it runs at once (canfdi.core.watched)."""
+        bank = self.bank
+        memo[id(self._history)] = copy.copy(self._history)
+        memo[id(self._absorbed)] = list(self._absorbed)
+        return deepcopy_sharing(
+            self, memo, self.design, self.settings, self.hypotheses, self._twins,
+            self._column_residuals, self._sigma0, self._lagged, self._projection,
+            bank.M, bank.blocks, bank.uses, bank._uses, bank.Gz, bank.Gu, bank.names,
+            bank.kinds, bank.indices, self.tracker.gamma)
 
     def reset(self) -> None:
         """Back to the state after construction: monitoring, no compensation, no events, empty
