@@ -144,4 +144,12 @@ int cfdi_counter_run(int64_t *state, double *buffer, size_t width, const int64_t
                      int64_t *ks, int64_t *done, int64_t *gaps, double *samples,
                      size_t *n_out, size_t *used);
 
+
+/* End of stream for the counter clock (SampleAssembler.flush): a pending incomplete sample is
+ * closed as broken (NaN for the slots not seen) and written to ks, done, gaps, samples ((1,),
+ * (1, width)); *n_out is 1 then, else 0. */
+int cfdi_counter_close(int64_t *state, const double *buffer, size_t width, const int64_t *dest,
+                       size_t n_slots, size_t cols, int64_t *ks, int64_t *done, int64_t *gaps,
+                       double *samples, size_t *n_out);
+
 #endif

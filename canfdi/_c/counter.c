@@ -170,3 +170,17 @@ int cfdi_counter_run(int64_t *state, double *buffer, size_t width, const int64_t
     }
     return CFDI_OK;
 }
+
+int cfdi_counter_close(int64_t *state, const double *buffer, size_t width, const int64_t *dest,
+                       size_t n_slots, size_t cols, int64_t *ks, int64_t *done, int64_t *gaps,
+                       double *samples, size_t *n_out)
+{
+    if (!state || !buffer || !dest || !ks || !done || !gaps || !samples || !n_out || !width) {
+        return CFDI_EBADARG;
+    }
+    *n_out = 0;
+    if (ST(OPEN)) {
+        close_broken(state, buffer, width, dest, n_slots, cols, ks, done, gaps, samples, n_out);
+    }
+    return CFDI_OK;
+}

@@ -235,6 +235,15 @@ class SampleAssembler:
         # this module's Python, frame by frame.
         self.machine: Callable[..., tuple] | None = None
 
+    def c_params(self) -> dict:
+        """What the C core's counter clock and time gate take besides the frames (the fields
+        of canfdi/_c/drive.h's cfdi_drive_tables, for `canfdi codegen`): the counter's modulus,
+        the period (ns), the jump slack, the (slots, fields) destination table, and the gate's
+        bound (ns) and confirming frames."""
+        return {"mod": self._mod, "dt_ns": self._dt_ns, "slack": float(_JUMP_SLACK),
+                "dest": self._dest, "gate_bound": self.gate.bound,
+                "gate_confirm": self.gate.confirm}
+
     @property
     def stats(self) -> dict:
         """Counters since construction.

@@ -39,6 +39,9 @@ from canfdi.cli import calibrate  # issue 16: the drive's noise from healthy log
 # isort: split
 from canfdi.cli import fleet  # issue 18: many logs on Dask into Parquet
 
+# isort: split
+from canfdi.cli import codegen  # issue 43: the drive's monitor as a C project for its MCU
+
 VERBS = {
     "run": run, "demo": demo, "design": design, "sim": sim, "capture": capture, "replay": replay,
     "bench": bench, "soak": soak, "export": export,
@@ -49,6 +52,7 @@ VERBS = {
     "calibrate": calibrate,
     "fleet": fleet,
     "schema": schema,
+    "codegen": codegen,
 }
 
 

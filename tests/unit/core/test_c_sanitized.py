@@ -199,7 +199,9 @@ def test_the_core_compiles_as_float32_for_the_mcu():
     """Every file of the core (not the CPython face) compiles with -DCFDI_FLOAT32, the real
     type the Cortex-M4F's FPU takes, under the same warnings as errors."""
     for source in sorted(CORE.glob("*.c")):
-        if source.name == "_kernel.c":
+        # (cfdi_run.c, the generated project's runner, needs the project's tables: the
+        # float32 build of tests/integration/test_codegen.py compiles it.)
+        if source.name in ("_kernel.c", "cfdi_run.c"):
             continue
         res = subprocess.run([CC, "-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror",
                               "-DCFDI_FLOAT32", "-fsyntax-only", f"-I{CORE}", str(source)],

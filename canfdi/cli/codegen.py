@@ -1,0 +1,63 @@
+"""`canfdi codegen CONFIG -o DIR [--float32]`: the drive's monitor as a C project for its MCU."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from canfdi.cli.common import config_error, load_config_or_exit
+
+HELP = """\
+Write a self-contained C99 project that runs the drive's monitor on its own MCU: the C core
+(the same files canfdi's extension compiles: decode and E2E, the time gate, the counter clock,
+the residual bank, the Page-Hinkley detectors, the drive loop) and the drive's tables as const
+data generated from the config (its signal table and E2E profiles, the clock and gate, the
+bank's FIR blocks, noise and thresholds), with a Makefile:
+
+  make host                 a native build (float64; float32 with --float32)
+  make run-host LOG=FILE    run it over a candump -L log: JSON with the detections, samples
+                            and frame counters, as `canfdi replay --json` gives them
+
+So far the C loop detects (the first alarm, dated by its change point) and counts; the
+diagnosis after an alarm (hypotheses, least squares, acceptance, compensation, the monitor's
+frames) runs on the gateway. A config the C loop cannot run is refused with one line naming
+the field: another method than parity, several drives, a trigger or grid clock, signature
+CUSUMs, the noise watchdog asked for (it stays on the gateway: leave its section out or set
+watchdog.enabled: false), teach-in.
+
+Exit status: 0 written, 2 a bad or refused config (the field named), 1 the project could not
+be written."""
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("codegen", help="the drive's monitor as a C project for its MCU",
+                       description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("config", type=Path, help="monitor config (YAML), e.g. "
+                                             "deploy/config/dc_motor.yaml")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR",
+                   help="the project's folder (created; files of the same names replaced)")
+    p.add_argument("--float32", action="store_true",
+                   help="the host build in float32, as the MCU's FPU computes")
+
+
+def run(args: argparse.Namespace) -> int:
+    from canfdi.config import ConfigError, read_yaml
+    from canfdi.tools.codegen import write_project
+
+    config = load_config_or_exit(args.config, "codegen")
+    if isinstance(config, int):
+        return config
+    try:
+        doc = read_yaml(Path(args.config), ConfigError, "config")
+        written = write_project(config, doc if isinstance(doc, dict) else {}, args.output,
+                                Path(args.config).name, float32=args.float32)
+    except ConfigError as exc:
+        return config_error(exc, "codegen")
+    except OSError as exc:
+        print(f"canfdi codegen: {args.output}: cannot write ({exc.strerror or exc})",
+              file=sys.stderr)
+        return 1
+    print(f"canfdi codegen: wrote {len(written)} files to {args.output} "
+          f"(make -C {args.output} host)", file=sys.stderr)
+    return 0

@@ -1,0 +1,274 @@
+"""`canfdi codegen`: a drive's monitor as a self-contained C project for its MCU.
+
+The project is the C core's own files (canfdi/_c, the ones the daemon's extension compiles)
+and the drive's tables as const data generated from its config: the signal table and E2E
+profiles (canfdi.bus.ctables), the counter clock's and time gate's parameters, the residual
+bank's FIR blocks, noise and Page-Hinkley thresholds (canfdi.methods.parity). Tables, never
+logic: every number comes from the objects the Python monitor runs with, so the two compute
+the same thing.
+
+The drive loop in C (canfdi/_c/drive.c) goes as far as the first alarm: detection. The
+diagnosis that follows (hypotheses, least squares, acceptance, compensation, the monitor's
+frames) is issue 43's next step; until then a project detects and counts, and the gateway
+diagnoses.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from collections.abc import Iterable
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from canfdi.bus.frames import STATUS_NAMES, VALID_STATUSES
+from canfdi.core.settings import ConfigError, MonitorConfig
+
+__all__ = ["CORE_FILES", "CodegenRefused", "DriveTables", "drive_tables", "render",
+           "write_project"]
+
+CORE_FILES = ("cfdi.h", "decode.h", "e2e.h", "drive.h", "bank.c", "counter.c", "decode.c",
+              "detect.c", "e2e.c", "gate.c", "drive.c", "cfdi_run.c")
+"""The C core's files a project holds (canfdi/_c; not _kernel.c, the CPython face)."""
+
+
+class CodegenRefused(ConfigError):
+    """The config asks for something the C drive loop does not do (field, what instead)."""
+
+
+@dataclass(frozen=True)
+class DriveTables:
+    """Everything the generated tables hold, as arrays: the bus's (canfdi.bus.ctables), the
+    clock's and gate's (SampleAssembler.c_params), the bank's and detectors'."""
+
+    name: str
+    bus: object  # canfdi.bus.ctables.BusTables
+    clock: dict
+    p: int
+    q: int
+    coef: np.ndarray  # (S+1, q+p, m)
+    uses: np.ndarray  # (S+1, q+p, m) uint8
+    sigma: np.ndarray  # (m,)
+    delta: np.ndarray  # (m,)
+    h: np.ndarray  # (m,)
+    residual_names: tuple[str, ...]
+
+
+def _refuse_unsupported(config: MonitorConfig, doc: dict) -> None:
+    """One line naming the field for each thing the C loop does not do (the first found)."""
+    if config.method != "parity":
+        raise CodegenRefused("method", f"the C drive loop runs the parity method; this config "
+                                       f"asks for {config.method!r}")
+    if len(config.drive_list) != 1:
+        raise CodegenRefused("drives", "one drive per MCU: generate a project per drive "
+                                       f"(this config has {len(config.drive_list)})")
+    if config.bus.clock.kind != "counter":
+        raise CodegenRefused("bus.clock.kind", "the C drive loop has the counter clock; "
+                                               f"this config asks for {config.bus.clock.kind!r}")
+    if config.detection.signatures:
+        raise CodegenRefused("detection.signatures", "the signature CUSUMs stay on the "
+                                                     "gateway: set it false for the MCU")
+    watchdog = doc.get("watchdog") if isinstance(doc, dict) else None
+    if isinstance(watchdog, dict) and watchdog.get("enabled", True):
+        raise CodegenRefused("watchdog.enabled", "the noise watchdog stays on the gateway: "
+                                                 "set it false (or leave the section out)")
+    if isinstance(doc, dict) and doc.get("teach_in"):
+        raise CodegenRefused("teach_in", "teach-in stays on the gateway")
+
+
+def drive_tables(config: MonitorConfig, doc: dict | None = None) -> DriveTables:
+    """The tables of a config's drive, read off the objects the Python monitor runs with.
+
+    Raises
+    ------
+    CodegenRefused
+        The config asks for what the C loop does not do (naming the field).
+    """
+    from canfdi.bus.assembler import SampleAssembler
+    from canfdi.core import kernel
+    from canfdi.monitor import Monitor
+
+    _refuse_unsupported(config, doc or {})
+    monitor = Monitor(config, diagnose=False, kernel=kernel.get("python"))
+    drive = monitor.drives[0]
+    if not isinstance(drive.clock, SampleAssembler):  # pragma: no cover - refused above
+        raise CodegenRefused("bus.clock.kind", "the C drive loop has the counter clock")
+    tables = drive.bus_map.c_tables()
+    if not tables.fits:
+        raise CodegenRefused("bus.dbc", "a message has more signals than the C core takes")
+    diagnoser = monitor.method.build(config)
+    bank = diagnoser.bank
+    m = bank.m
+    return DriveTables(
+        name=drive.name, bus=tables, clock=drive.clock.c_params(), p=len(config.inputs),
+        q=len(config.outputs), coef=np.asarray(bank.blocks, dtype=float),
+        uses=np.asarray(bank.uses, dtype=np.uint8), sigma=np.asarray(bank.sigma, dtype=float),
+        delta=np.full(m, float(diagnoser.settings.drift)),
+        h=np.asarray(diagnoser.thresholds, dtype=float).reshape(m),
+        residual_names=tuple(diagnoser.residual_names))
+
+
+def _real(v: float) -> str:
+    if math.isnan(v):
+        return "NAN"
+    if math.isinf(v):
+        return "INFINITY" if v > 0 else "-INFINITY"
+    return repr(float(v))
+
+
+def _int64(v: int) -> str:
+    v = int(v)
+    if v == -(2 ** 63):
+        return "(-INT64_C(9223372036854775807) - 1)"
+    return f"INT64_C({v})"
+
+
+def _array(ctype: str, name: str, values: Iterable, fmt, per_line: int = 8) -> str:
+    items = [fmt(v) for v in np.asarray(list(values) if not isinstance(values, np.ndarray)
+                                        else values).ravel()]
+    if not items:  # C99 has no empty arrays: one unused element, the size says 0
+        items = [fmt(0)]
+    lines = [", ".join(items[i:i + per_line]) for i in range(0, len(items), per_line)]
+    body = ",\n    ".join(lines)
+    return f"static const {ctype} {name}[{len(items)}] = {{\n    {body}\n}};\n"
+
+
+def _string(s: str) -> str:
+    return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def render(t: DriveTables, config_name: str) -> dict[str, str]:
+    """{file name: text} of the generated tables: cfdi_tables.h (sizes, declarations) and
+    cfdi_tables.c (the const data)."""
+    b = t.bus
+    S1, _, m = t.coef.shape
+    header = f"""/* Generated by `canfdi codegen` from {config_name}: the tables of drive {t.name}.
+ * Data, not logic; do not edit (generate again). */
+#ifndef CFDI_TABLES_H
+#define CFDI_TABLES_H
+
+#include "drive.h"
+
+#define CFDI_GEN_WIDTH {t.p + t.q}   /* a sample: p inputs, q outputs */
+#define CFDI_GEN_VWIDTH {b.width}  /* the most fields a message gives */
+#define CFDI_GEN_S {S1 - 1}        /* the residual bank's window, samples before */
+#define CFDI_GEN_M {m}             /* residuals */
+
+extern const cfdi_drive_tables cfdi_drive_tables_gen;
+extern const char *const cfdi_drive_name;
+extern const char *const cfdi_status_names[CFDI_N_STATUS];
+extern const uint8_t cfdi_status_valid[CFDI_N_STATUS];
+extern const char *const cfdi_residual_names[CFDI_GEN_M];
+
+#endif
+"""
+    c = t.clock
+    dest = np.asarray(c["dest"], dtype=np.int64)
+    parts = [f"/* Generated by `canfdi codegen` from {config_name}: drive {t.name}. */\n"
+             "#include <math.h>\n#include <stdint.h>\n\n#include \"cfdi_tables.h\"\n\n"]
+    parts.append(_array("int32_t", "std_entry", b.std_entry, str, 16))
+    parts.append(_array("int64_t", "ext_id", b.ext_id, _int64))
+    parts.append(_array("int32_t", "ext_entry", b.ext_entry, str))
+    parts.append(_array("int64_t", "entry", b.entry, _int64))
+    parts.append(_array("int32_t", "e2e_spec", b.e2e_spec, str, 16))
+    parts.append(_array("uint8_t", "e2e_bytes", b.e2e_bytes, str, 16))
+    parts.append(_array("int64_t", "sig_int", b.sig_int, _int64))
+    parts.append(_array("double", "sig_real", b.sig_real, _real, 4))
+    parts.append(_array("int64_t", "ids_int", b.ids_int, _int64))
+    parts.append(_array("double", "ids_real", b.ids_real, _real, 4))
+    parts.append(_array("int64_t", "dest", dest, _int64))
+    parts.append(_array("cfdi_real", "coef", t.coef, _real, 4))
+    parts.append(_array("uint8_t", "uses", t.uses, str, 16))
+    parts.append(_array("cfdi_real", "sigma", t.sigma, _real, 4))
+    parts.append(_array("cfdi_real", "delta", t.delta, _real, 4))
+    parts.append(_array("cfdi_real", "h", t.h, _real, 4))
+    parts.append(f"""
+static const cfdi_bus bus = {{
+    std_entry, ext_id, ext_entry, {len(b.ext_id)},
+    entry, {len(b.entry)}, {b.n_slots},
+    e2e_spec, e2e_bytes, {len(b.e2e_spec)},
+    sig_int, sig_real, {len(b.sig_int)},
+    ids_int, ids_real, {len(b.ids_int)},
+    {b.width}
+}};
+
+const cfdi_drive_tables cfdi_drive_tables_gen = {{
+    &bus,
+    {_int64(c["gate_bound"])}, {_int64(c["gate_confirm"])},
+    dest, {dest.shape[0]}, {dest.shape[1]},
+    {_int64(c["mod"])}, {_real(c["dt_ns"])}, {_real(c["slack"])},
+    {t.p}, {t.q},
+    coef, uses, {S1 - 1}, {m},
+    sigma, delta, h
+}};
+
+const char *const cfdi_drive_name = {_string(t.name)};
+const char *const cfdi_status_names[CFDI_N_STATUS] = {{
+    {", ".join(_string(s) for s in STATUS_NAMES)}
+}};
+const uint8_t cfdi_status_valid[CFDI_N_STATUS] = {{
+    {", ".join("1" if s in VALID_STATUSES else "0" for s in STATUS_NAMES)}
+}};
+const char *const cfdi_residual_names[CFDI_GEN_M] = {{
+    {", ".join(_string(s) for s in t.residual_names)}
+}};
+""")
+    return {"cfdi_tables.h": header, "cfdi_tables.c": "".join(parts)}
+
+
+MAKEFILE = """\
+# Generated by `canfdi codegen`: the drive's monitor, built for this host or a Cortex-M4F.
+#   make host               native build ({real}), build/host/cfdi_run
+#   make run-host LOG=FILE  run it over a candump -L log, printing JSON
+CC ?= cc
+CFLAGS_CORE = -std=c99 -Wall -Wextra -Werror -pedantic -ffp-contract=off -O2 {define}
+SOURCES = bank.c counter.c decode.c detect.c e2e.c gate.c drive.c cfdi_tables.c
+HEADERS = cfdi.h decode.h e2e.h drive.h cfdi_tables.h
+
+.PHONY: host run-host clean
+host: build/host/cfdi_run
+
+build/host/cfdi_run: $(SOURCES) cfdi_run.c $(HEADERS)
+\tmkdir -p build/host
+\t$(CC) $(CFLAGS_CORE) $(CFLAGS) -o $@ $(SOURCES) cfdi_run.c -lm
+
+run-host: build/host/cfdi_run
+\t@test -n "$(LOG)" || (echo "make run-host LOG=FILE (a candump -L log)" >&2; exit 2)
+\t@build/host/cfdi_run "$(LOG)"
+
+clean:
+\trm -rf build
+"""
+
+
+def write_project(config: MonitorConfig, doc: dict, out: Path, config_name: str,
+                  float32: bool = False) -> list[Path]:
+    """Write the project into ``out`` (created): the core's files, the generated tables, the
+    Makefile. Returns the files written.
+
+    Raises
+    ------
+    CodegenRefused
+        The config asks for what the C loop does not do.
+    OSError
+        ``out`` cannot be written.
+    """
+    tables = drive_tables(config, doc)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    core = resources.files("canfdi._c")
+    for name in CORE_FILES:
+        with resources.as_file(core / name) as src:
+            shutil.copyfile(src, out / name)
+        written.append(out / name)
+    for name, text in render(tables, config_name).items():
+        (out / name).write_text(text)
+        written.append(out / name)
+    make = MAKEFILE.format(real="float32" if float32 else "float64",
+                           define="-DCFDI_FLOAT32" if float32 else "")
+    (out / "Makefile").write_text(make)
+    written.append(out / "Makefile")
+    return written

@@ -1,0 +1,187 @@
+"""`canfdi codegen`: the generated C project against canfdi's own monitor (the numpy path, the
+reference) on every shipped scenario that plays the config's bus, clean and damaged, native in
+float64 and float32 and under AddressSanitizer and UndefinedBehaviorSanitizer; and the configs
+the C loop cannot run, refused naming the field.
+
+So far the C loop detects (its first alarm) and counts (issue 43's first step): the frame
+counters, samples and the first detection (sample, change point, residuals) must be the
+monitor's."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from canfdi.cli import main
+from canfdi.config import load_config
+from canfdi.core import kernel
+from canfdi.firmware_sim.emitter import frame_log
+from canfdi.firmware_sim.scenario import SCENARIO_DIR, load_scenario
+from canfdi.io.logs import write_frames
+from canfdi.monitor import Monitor
+from canfdi.tools.pairing import config_bus, scenario_bus
+from canfdi.tools.replay import replay_log
+from tests.conftest import REPO
+
+CONFIG = REPO / "deploy" / "config" / "dc_motor.yaml"
+CC = shutil.which("cc") or shutil.which("gcc")
+needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler (deploy/install-compiler)")
+
+
+def _scenarios(config) -> list[str]:
+    """The shipped scenarios that play this config's bus (its plant's, one drive)."""
+    bus = config_bus(config)
+    names = []
+    for path in sorted(SCENARIO_DIR.glob("*.yaml")):
+        sc = load_scenario(path.stem)
+        if scenario_bus(sc) == bus and len(sc.drives) == 1:
+            names.append(path.stem)
+    return names
+
+
+def _damaged(frames):
+    """A fifth of the frames damaged as a bad bus damages them (a bit flipped, a wrong
+    length, another message's ID, a remote flag, garbage), deterministically."""
+    from canfdi.tools.bench import damaged_copy
+
+    return damaged_copy(frames, seed=7, share=0.2)
+
+
+@pytest.fixture(scope="module")
+def config():
+    return load_config(CONFIG)
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory, config):
+    out = tmp_path_factory.mktemp("codegen-logs")
+    made = {}
+    for name in _scenarios(config):
+        frames = frame_log(load_scenario(name)).frames
+        for tag, block in (("clean", frames), ("damaged", _damaged(frames))):
+            path = out / f"{name}-{tag}.log"
+            write_frames(path, [block])
+            made[path.stem] = path
+    return made
+
+
+def _build(tmp_path_factory, name: str, *extra: str, cflags: str = "") -> Path:
+    project = tmp_path_factory.mktemp(name)
+    assert main(["codegen", str(CONFIG), "-o", str(project), *extra]) == 0
+    subprocess.run(["make", "-s", "-C", str(project), "host", f"CFLAGS={cflags}"], check=True,
+                   capture_output=True, text=True)
+    return project
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory):
+    return _build(tmp_path_factory, "dc_motor-c")
+
+
+def _run(project: Path, log: Path, env: dict | None = None) -> dict:
+    done = subprocess.run([str(project / "build" / "host" / "cfdi_run"), str(log)],
+                          capture_output=True, text=True, check=True, env=env, timeout=300)
+    return json.loads(done.stdout)
+
+
+def _reference(config, log: Path) -> dict:
+    """What canfdi's monitor (numpy kernel, no noise watchdog: it stays on the gateway)
+    finds: its replay's frame counters and samples, and its first detection."""
+    quiet = dataclasses.replace(config, watchdog=dataclasses.replace(config.watchdog,
+                                                                     enabled=False))
+    monitor = Monitor(quiet, record_residuals=False, kernel=kernel.get("python"))
+    replay_log(monitor, log)
+    summary = monitor.summary()
+    first = next((e for e in monitor.events if e.kind == "detected"), None)
+    detections = [] if first is None else [{"sample": first.sample,
+                                            "onset_sample": first.onset_sample,
+                                            "residuals": list(first.residuals)}]
+    return {"detections": detections, "samples": summary["samples"],
+            "frames": summary["frames"]}
+
+
+def test_every_scenario_of_the_bus_is_covered(config, logs):
+    assert {"dc_motor_nominal", "dc_motor_consecutive", "dc_motor_actuator"} <= {
+        name.rsplit("-", 1)[0] for name in logs}
+
+
+@needs_cc
+def test_the_c_loop_counts_and_detects_as_the_monitor_does(config, logs, project):
+    for name, log in logs.items():
+        got, want = _run(project, log), _reference(config, log)
+        assert got["frames"] == want["frames"], name
+        assert got["samples"] == want["samples"], name
+        assert got["detections"] == want["detections"], name
+        if "nominal" not in name and "clean" in name:
+            assert got["detections"], name  # a fault scenario is detected
+        assert got["malformed_lines"] == 0
+
+
+@needs_cc
+def test_float32_detects_within_two_samples(config, logs, tmp_path_factory):
+    project = _build(tmp_path_factory, "dc_motor-c32", "--float32")
+    for name, log in logs.items():
+        got, want = _run(project, log), _reference(config, log)
+        assert got["frames"] == want["frames"] and got["samples"] == want["samples"], name
+        assert len(got["detections"]) == len(want["detections"]), name
+        for g, w in zip(got["detections"], want["detections"], strict=True):
+            assert abs(g["sample"] - w["sample"]) <= 2, name
+            assert abs(g["onset_sample"] - w["onset_sample"]) <= 2, name
+
+
+@needs_cc
+def test_hostile_lines_under_the_sanitizers(logs, tmp_path_factory, tmp_path):
+    """Every damaged log, and a file of lines no candump writes, through the loop built with
+    AddressSanitizer and UndefinedBehaviorSanitizer: no finding; bad lines counted."""
+    flags = ("-fsanitize=address,undefined,float-cast-overflow -fno-sanitize-recover=all "
+             "-g -O1")
+    project = _build(tmp_path_factory, "dc_motor-asan", cflags=flags)
+    env = {"ASAN_OPTIONS": "detect_leaks=0", "UBSAN_OPTIONS": "halt_on_error=1",
+           "PATH": "/usr/bin:/bin"}
+    for name, log in logs.items():
+        if "damaged" in name:
+            _run(project, log, env)
+    rng = np.random.default_rng(3)
+    hostile = tmp_path / "hostile.log"
+    lines = ["(0.000000) can0 104#", "(x) can0 104#00", "(1.0) can0 #00", "(1.0) can0 1Z4#00",
+             "(1.0) can0 104#0", "(1.0) can0 123456789#00", "(1.0) can0 104##F00",
+             "(1.0) can0 104#R", "(1.0) can0 104#R9", "(1e300) can0 104#00112233",
+             "(-1e300) can0 105#00", "(nan) can0 106#00", "(1.0) can0 104#" + "00" * 65,
+             "(1.0) can0 105##1" + "ab" * 64, "(2.0) can0 20000080#0000000000000000",
+             "(" + "9" * 400 + ") can0 104#00", "", "   ", "garbage " * 80]
+    for _ in range(200):
+        n = int(rng.integers(0, 70))
+        lines.append(f"({rng.uniform(-1e12, 1e12):.6f}) can0 {int(rng.integers(0, 0x800)):03X}#"
+                     + "".join(f"{b:02X}" for b in rng.integers(0, 256, n)))
+    hostile.write_text("\n".join(lines) + "\n")
+    got = _run(project, hostile, env)
+    assert got["malformed_lines"] >= 8
+    assert got["frames"]["received"] + got["malformed_lines"] <= got["lines"]
+
+
+@pytest.mark.parametrize(("config_name", "field"), [
+    ("vtol_uio.yaml", "method"),
+    ("dc_motor_two_drives_cia402.yaml", "drives"),
+    ("dc_motor_cia402.yaml", "bus.clock.kind"),
+])
+def test_what_the_c_loop_cannot_run_is_refused_naming_the_field(config_name, field, tmp_path,
+                                                                 capsys):
+    assert main(["codegen", str(REPO / "deploy" / "config" / config_name),
+                 "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"config error: {field}:" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_watchdog_asked_for_is_refused(tmp_path, capsys):
+    text = CONFIG.read_text() + "\nwatchdog:\n  enabled: true\n"
+    cfg = tmp_path / "dc_motor_watched.yaml"
+    cfg.write_text(text.replace("dbc: motor_drive", "dbc: motor_drive"))
+    assert main(["codegen", str(cfg), "-o", str(tmp_path / "out")]) == 2
+    assert "config error: watchdog.enabled:" in capsys.readouterr().err
