@@ -1,13 +1,15 @@
 /* The runner of a generated project (`canfdi codegen`): reads a candump -L log (can-utils'
  * format, as python-can reads it), feeds every frame to the drive's monitor (drive.h) and
  * prints what it found as JSON, in the form `canfdi replay --json` gives it (detections,
- * samples, frames). The same file runs on the host and, through semihosting, on the MCU.
+ * samples, frames). The same file runs on the host (cfdi_io_host.c) and on the MCU through
+ * semihosting (cfdi_io_semihost.c); it parses and formats numbers itself, so the MCU's image
+ * needs nothing of the C library's I/O and never allocates.
  *
- * Not the core: this is the harness around it, so it may use <stdio.h> and <stdlib.h>. */
-#include <stdio.h>
-#include <stdlib.h>
+ * A harness, not the core. */
+#include <stdint.h>
 #include <string.h>
 
+#include "cfdi_io.h"
 #include "cfdi_tables.h"
 #include "drive.h"
 
@@ -23,42 +25,79 @@ static int hex_digit(char c)
 
 /* One candump -L line: "(seconds) interface ID#DATA [R|T]", ID##F DATA for CAN FD, ID#R[n]
  * for a remote request. 1 parsed, 0 blank, -1 malformed. */
-static int parse_line(char *line, uint32_t *id, uint8_t *len, uint8_t *flags, uint8_t *data,
-                      int64_t *t_ns)
+/* A time "(seconds)" as python-can reads it, float(text), times 1e9 truncated to int64 as
+ * canfdi converts it (numpy's astype). Digits only, a point and at most 22 decimals, below
+ * 2^53 units of the last decimal (a microsecond candump reaches that in 285 years): then the
+ * decimal's double is the quotient of two exact doubles, correctly rounded as float() is.
+ * 1 read (*end after it), 0 not such a time. */
+static int parse_time(const char *p, const char **end, int64_t *t_ns)
 {
-    char *p = line, *end, *frame, *hash;
+    static const double tens[23] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10,
+                                    1e11, 1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19,
+                                    1e20, 1e21, 1e22};
+    uint64_t n = 0;
+    int decimals = -1, digits = 0, negative = 0;
     double seconds;
-    unsigned long long raw;
-    size_t digits, n = 0;
+    if (*p == '-' || *p == '+') negative = *p++ == '-';
+    for (;; p++) {
+        if (*p == '.' && decimals < 0) {
+            decimals = 0;
+            continue;
+        }
+        if (*p < '0' || *p > '9') break;
+        n = n * 10 + (uint64_t)(*p - '0');
+        digits++;
+        if (decimals >= 0) decimals++;
+        if (n >= ((uint64_t)1 << 53) || decimals > 22) return 0;
+    }
+    if (digits == 0) return 0;
+    seconds = (double)n / tens[decimals < 0 ? 0 : decimals] * 1e9;
+    seconds = negative ? -seconds : seconds;
+    *t_ns = (int64_t)seconds; /* |seconds| < 2^53 * 1e9 < 2^63 */
+    *end = p;
+    return 1;
+}
+
+/* A hexadecimal number of 1..8 digits ending at `stop`: 1 read, 0 not. */
+static int parse_hex(const char *p, const char *stop, uint32_t *value)
+{
+    uint32_t v = 0;
+    if (p == stop || stop - p > 8) return 0;
+    for (; p < stop; p++) {
+        int d = hex_digit(*p);
+        if (d < 0) return 0;
+        v = v * 16 + (uint32_t)d;
+    }
+    *value = v;
+    return 1;
+}
+
+/* One candump -L line: "(seconds) interface ID#DATA [R|T]", ID##F DATA for CAN FD, ID#R[n]
+ * for a remote request. 1 parsed, 0 blank, -1 malformed. */
+static int parse_line(const char *line, uint32_t *id, uint8_t *len, uint8_t *flags,
+                      uint8_t *data, int64_t *t_ns)
+{
+    const char *p = line, *end, *frame, *hash;
+    uint32_t raw;
+    size_t n = 0;
     while (*p == ' ' || *p == '\t') p++;
     if (*p == '\0' || *p == '\n' || *p == '\r') return 0;
-    if (*p != '(') return -1;
-    seconds = strtod(p + 1, &end);
-    if (end == p + 1 || *end != ')') return -1;
-    /* python-can: float seconds; canfdi: (seconds * 1e9) truncated to int64, and what int64
-     * cannot hold (or NaN) is INT64_MIN, as numpy's conversion gives it on x86 */
-    seconds *= 1e9;
-    *t_ns = (seconds >= -9.223372036854775808e18 && seconds < 9.223372036854775808e18)
-            ? (int64_t)seconds : INT64_MIN;
+    if (*p != '(' || !parse_time(p + 1, &end, t_ns) || *end != ')') return -1;
     p = end + 1;
     while (*p == ' ') p++;
     while (*p && *p != ' ') p++; /* the interface */
     while (*p == ' ') p++;
     frame = p;
     hash = strchr(frame, '#');
-    if (!hash) return -1;
-    digits = (size_t)(hash - frame);
-    if (digits == 0 || digits > 8) return -1;
-    raw = strtoull(frame, &end, 16);
-    if (end != hash) return -1;
-    *flags = digits > 3 ? CFDI_FLAG_EXTENDED : 0;
-    if ((raw & 0x20000000ULL) && (raw & 0x80ULL)) { /* CAN_ERR_FLAG and CAN_ERR_BUSERROR */
+    if (!hash || !parse_hex(frame, hash, &raw)) return -1;
+    *flags = hash - frame > 3 ? CFDI_FLAG_EXTENDED : 0;
+    if ((raw & 0x20000000UL) && (raw & 0x80UL)) { /* CAN_ERR_FLAG and CAN_ERR_BUSERROR */
         *id = 0;
         *flags = CFDI_FLAG_ERROR;
         *len = 0;
         return 1;
     }
-    *id = (uint32_t)(raw & 0x1FFFFFFFULL);
+    *id = raw & 0x1FFFFFFFUL;
     p = hash + 1;
     if (*p == '#') {
         *flags |= CFDI_FLAG_FD;
@@ -67,7 +106,11 @@ static int parse_line(char *line, uint32_t *id, uint8_t *len, uint8_t *flags, ui
     }
     if (*p == 'R' || *p == 'r') {
         *flags |= CFDI_FLAG_REMOTE;
-        *len = (uint8_t)(p[1] >= '0' && p[1] <= '9' ? atoi(p + 1) : 0);
+        *len = 0;
+        for (p++; *p >= '0' && *p <= '9'; p++) {
+            if (*len > 6) return -1;
+            *len = (uint8_t)(*len * 10 + (*p - '0'));
+        }
         return 1;
     }
     while (hex_digit(p[0]) >= 0 && hex_digit(p[1]) >= 0) {
@@ -80,15 +123,78 @@ static int parse_line(char *line, uint32_t *id, uint8_t *len, uint8_t *flags, ui
     return 1;
 }
 
-static void print_names(const char *const *names, size_t n)
+/* Text out: strings and integers, all the JSON here needs. */
+static void out_u64(uint64_t v)
 {
-    size_t i;
-    for (i = 0; i < n; i++) {
-        printf("%s\"%s\"", i ? ", " : "", names[i]);
+    char buf[24], *p = buf + sizeof buf - 1;
+    *p = '\0';
+    do {
+        *--p = (char)('0' + v % 10);
+        v /= 10;
+    } while (v);
+    cfdi_io_out(p);
+}
+
+static void out_i64(int64_t v)
+{
+    if (v < 0) {
+        cfdi_io_out("-");
+        out_u64((uint64_t)(-(v + 1)) + 1);
+    } else {
+        out_u64((uint64_t)v);
     }
 }
 
-int main(int argc, char **argv)
+static void out_name(const char *name)
+{
+    cfdi_io_out("\"");
+    cfdi_io_out(name);
+    cfdi_io_out("\"");
+}
+
+/* The log's lines one by one, from chunks: a line longer than the buffer is skipped whole
+ * (returned as "" with *overlong set). 1 a line, 0 the end, -1 a read error. */
+typedef struct {
+    long handle;
+    char chunk[1024];
+    size_t at, have;
+    int eof;
+} lines_t;
+
+static int next_line(lines_t *in, char *line, size_t size, int *overlong)
+{
+    size_t n = 0;
+    *overlong = 0;
+    for (;;) {
+        char c;
+        if (in->at == in->have) {
+            long got;
+            if (in->eof) break;
+            got = cfdi_io_read(in->handle, in->chunk, sizeof in->chunk);
+            if (got < 0) return -1;
+            if (got == 0) {
+                in->eof = 1;
+                break;
+            }
+            in->at = 0;
+            in->have = (size_t)got;
+        }
+        c = in->chunk[in->at++];
+        if (c == '\n') {
+            line[*overlong ? 0 : n] = '\0';
+            return 1;
+        }
+        if (n + 1 < size) {
+            line[n++] = c;
+        } else {
+            *overlong = 1;
+        }
+    }
+    line[*overlong ? 0 : n] = '\0';
+    return n > 0 || *overlong ? 1 : 0;
+}
+
+int cfdi_run_main(void)
 {
     static double values[CFDI_GEN_VWIDTH], buffer[CFDI_GEN_WIDTH], samples[2 * CFDI_GEN_WIDTH];
     static cfdi_real ring[(CFDI_GEN_S + 1) * CFDI_GEN_WIDTH], r[CFDI_GEN_M], ph[2 * CFDI_GEN_M];
@@ -96,40 +202,35 @@ int main(int argc, char **argv)
     static int64_t last_zero[2 * CFDI_GEN_M];
     static int8_t alarm[CFDI_GEN_M];
     static cfdi_drive drive;
+    static lines_t in;
+    static char line[512];
     const cfdi_drive_memory mem = {values, buffer, samples, ring, r, ph, last_zero, g_up,
                                    g_down, alarm};
-    char line[LINE];
     uint8_t data[CFDI_MAX_PAYLOAD];
     uint64_t lines = 0, malformed = 0, valid = 0, invalid = 0;
+    char *argv[4];
+    int argc = 0, rc, first, overlong, got;
     size_t i;
-    int rc, first;
-    FILE *log;
-    if (argc != 2) {
-        fprintf(stderr, "usage: %s LOG (a candump -L log)\n", argc ? argv[0] : "cfdi_run");
+    if (cfdi_io_args(&argc, argv, 4) != 0 || argc != 2) {
+        cfdi_io_err("usage: cfdi_run LOG (a candump -L log)\n");
         return 2;
     }
     rc = cfdi_drive_init(&drive, &cfdi_drive_tables_gen, &mem);
     if (rc != CFDI_OK) {
-        fprintf(stderr, "cfdi_run: the generated tables do not check (%d)\n", rc);
+        cfdi_io_err("cfdi_run: the generated tables do not check\n");
         return 1;
     }
-    log = fopen(argv[1], "r");
-    if (!log) {
-        fprintf(stderr, "cfdi_run: %s: cannot open\n", argv[1]);
+    in.handle = cfdi_io_open(argv[1]);
+    if (in.handle < 0) {
+        cfdi_io_err("cfdi_run: cannot open the log\n");
         return 1;
     }
-    while (fgets(line, sizeof line, log)) {
+    while ((got = next_line(&in, line, sizeof line, &overlong)) > 0) {
         uint32_t id = 0;
         uint8_t len = 0, flags = 0;
         int64_t t_ns = 0;
         lines++;
-        if (!strchr(line, '\n') && !feof(log)) { /* longer than any candump line: skip it */
-            int c;
-            while ((c = fgetc(log)) != EOF && c != '\n') {}
-            malformed++;
-            continue;
-        }
-        rc = parse_line(line, &id, &len, &flags, data, &t_ns);
+        rc = overlong ? -1 : parse_line(line, &id, &len, &flags, data, &t_ns);
         if (rc < 0) {
             malformed++;
             continue;
@@ -137,51 +238,74 @@ int main(int argc, char **argv)
         if (rc == 0) continue;
         rc = cfdi_drive_on_frame(&drive, id, len, flags, data, t_ns);
         if (rc < 0) {
-            fprintf(stderr, "cfdi_run: %s line %llu: the drive refused the frame (%d)\n",
-                    argv[1], (unsigned long long)lines, rc);
-            fclose(log);
+            cfdi_io_err("cfdi_run: the drive refused a frame\n");
+            cfdi_io_close(in.handle);
             return 1;
         }
     }
-    fclose(log);
-    rc = cfdi_drive_finish(&drive);
-    if (rc < 0) {
-        fprintf(stderr, "cfdi_run: finishing failed (%d)\n", rc);
+    cfdi_io_close(in.handle);
+    if (got < 0 || cfdi_drive_finish(&drive) < 0) {
+        cfdi_io_err(got < 0 ? "cfdi_run: reading the log failed\n"
+                            : "cfdi_run: finishing failed\n");
         return 1;
     }
     for (i = 0; i < CFDI_N_STATUS; i++) {
         if (cfdi_status_valid[i]) valid += drive.status_count[i];
         else invalid += drive.status_count[i];
     }
-    printf("{\"drive\": \"%s\", \"detections\": [", cfdi_drive_name);
+    cfdi_io_out("{\"drive\": ");
+    out_name(cfdi_drive_name);
+    cfdi_io_out(", \"detections\": [");
     if (drive.alarmed) {
-        printf("{\"sample\": %lld, \"onset_sample\": %lld, \"residuals\": [",
-               (long long)drive.alarm_k, (long long)drive.alarm_onset);
+        cfdi_io_out("{\"sample\": ");
+        out_i64(drive.alarm_k);
+        cfdi_io_out(", \"onset_sample\": ");
+        out_i64(drive.alarm_onset);
+        cfdi_io_out(", \"residuals\": [");
         for (i = 0, first = 1; i < CFDI_GEN_M; i++) {
             if (alarm[i] != 0) {
-                printf("%s\"%s\"", first ? "" : ", ", cfdi_residual_names[i]);
+                cfdi_io_out(first ? "" : ", ");
+                out_name(cfdi_residual_names[i]);
                 first = 0;
             }
         }
-        printf("]}");
+        cfdi_io_out("]}");
     }
-    printf("], \"samples\": %llu, \"frames\": {\"received\": %llu, \"valid\": %llu, "
-           "\"invalid\": %llu, \"invalid_by_reason\": {",
-           (unsigned long long)drive.samples, (unsigned long long)(valid + invalid),
-           (unsigned long long)valid, (unsigned long long)invalid);
+    cfdi_io_out("], \"samples\": ");
+    out_u64(drive.samples);
+    cfdi_io_out(", \"frames\": {\"received\": ");
+    out_u64(valid + invalid);
+    cfdi_io_out(", \"valid\": ");
+    out_u64(valid);
+    cfdi_io_out(", \"invalid\": ");
+    out_u64(invalid);
+    cfdi_io_out(", \"invalid_by_reason\": {");
     for (i = 0, first = 1; i < CFDI_N_STATUS; i++) {
         if (!cfdi_status_valid[i]) {
-            printf("%s\"%s\": %llu", first ? "" : ", ", cfdi_status_names[i],
-                   (unsigned long long)drive.status_count[i]);
+            cfdi_io_out(first ? "" : ", ");
+            out_name(cfdi_status_names[i]);
+            cfdi_io_out(": ");
+            out_u64(drive.status_count[i]);
             first = 0;
         }
     }
-    printf("}, \"samples_complete\": %lld, \"samples_broken\": %lld, \"samples_missing\": %lld, "
-           "\"clock_steps\": %lld}, \"residuals\": [",
-           (long long)drive.ctr[CFDI_CTR_COMPLETE], (long long)drive.ctr[CFDI_CTR_BROKEN],
-           (long long)drive.ctr[CFDI_CTR_MISSING], (long long)drive.clock_steps);
-    print_names(cfdi_residual_names, CFDI_GEN_M);
-    printf("], \"lines\": %llu, \"malformed_lines\": %llu}\n", (unsigned long long)lines,
-           (unsigned long long)malformed);
+    cfdi_io_out("}, \"samples_complete\": ");
+    out_i64(drive.ctr[CFDI_CTR_COMPLETE]);
+    cfdi_io_out(", \"samples_broken\": ");
+    out_i64(drive.ctr[CFDI_CTR_BROKEN]);
+    cfdi_io_out(", \"samples_missing\": ");
+    out_i64(drive.ctr[CFDI_CTR_MISSING]);
+    cfdi_io_out(", \"clock_steps\": ");
+    out_i64(drive.clock_steps);
+    cfdi_io_out("}, \"residuals\": [");
+    for (i = 0; i < CFDI_GEN_M; i++) {
+        cfdi_io_out(i ? ", " : "");
+        out_name(cfdi_residual_names[i]);
+    }
+    cfdi_io_out("], \"lines\": ");
+    out_u64(lines);
+    cfdi_io_out(", \"malformed_lines\": ");
+    out_u64(malformed);
+    cfdi_io_out("}\n");
     return 0;
 }

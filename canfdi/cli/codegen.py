@@ -18,6 +18,10 @@ bank's FIR blocks, noise and thresholds), with a Makefile:
   make host                 a native build (float64; float32 with --float32)
   make run-host LOG=FILE    run it over a candump -L log: JSON with the detections, samples
                             and frame counters, as `canfdi replay --json` gives them
+  make cortex-m4f           arm-none-eabi-gcc, float32, newlib-nano, no allocation
+  make qemu LOG=FILE        that image on qemu-system-arm -M mps2-an386, semihosting
+  make size                 the image's flash, static RAM and stack frames
+(deploy/install-mcu-toolchain installs the Cortex-M4F tool chain as root on Debian.)
 
 So far the C loop detects (the first alarm, dated by its change point) and counts; the
 diagnosis after an alarm (hypotheses, least squares, acceptance, compensation, the monitor's

@@ -5,7 +5,8 @@ the C loop cannot run, refused naming the field.
 
 So far the C loop detects (its first alarm) and counts (issue 43's first step): the frame
 counters, samples and the first detection (sample, change point, residuals) must be the
-monitor's."""
+monitor's. The Cortex-M4F image (arm-none-eabi-gcc, newlib-nano) runs on qemu's mps2-an386
+and must print what the host's float32 build prints, within the MCU's memory."""
 
 from __future__ import annotations
 
@@ -88,6 +89,16 @@ def _run(project: Path, log: Path, env: dict | None = None) -> dict:
     done = subprocess.run([str(project / "build" / "host" / "cfdi_run"), str(log)],
                           capture_output=True, text=True, check=True, env=env, timeout=300)
     return json.loads(done.stdout)
+
+
+@pytest.fixture(scope="module")
+def mcu_toolchain():
+    """arm-none-eabi-gcc, newlib-nano and qemu-system-arm: deploy/install-mcu-toolchain
+    installs them as root on Debian or Ubuntu; elsewhere these tests skip, saying why."""
+    done = subprocess.run([str(REPO / "deploy" / "install-mcu-toolchain")], capture_output=True,
+                          text=True, timeout=1200)
+    if done.returncode != 0:
+        pytest.skip(f"no Cortex-M4F tool chain here ({done.stderr.strip()})")
 
 
 def _reference(config, log: Path) -> dict:
@@ -185,3 +196,30 @@ def test_the_watchdog_asked_for_is_refused(tmp_path, capsys):
     cfg.write_text(text.replace("dbc: motor_drive", "dbc: motor_drive"))
     assert main(["codegen", str(cfg), "-o", str(tmp_path / "out")]) == 2
     assert "config error: watchdog.enabled:" in capsys.readouterr().err
+
+
+@needs_cc
+def test_the_cortex_m4f_image_on_qemu_prints_what_the_host_float32_build_does(
+        logs, tmp_path_factory, mcu_toolchain):
+    project = _build(tmp_path_factory, "dc_motor-m4f", "--float32")
+    subprocess.run(["make", "-s", "-C", str(project), "cortex-m4f"], check=True,
+                   capture_output=True, text=True, timeout=600)
+    for name, log in logs.items():
+        host = subprocess.run(["make", "-s", "-C", str(project), "run-host", f"LOG={log}"],
+                              capture_output=True, text=True, check=True, timeout=300)
+        mcu = subprocess.run(["make", "-s", "-C", str(project), "qemu", f"LOG={log}"],
+                             capture_output=True, text=True, check=True, timeout=600)
+        assert mcu.stdout == host.stdout, name
+        assert json.loads(mcu.stdout)["frames"]["received"] > 0
+    symbols = subprocess.run(["arm-none-eabi-nm", str(project / "build" / "cortex-m4f" /
+                                                     "cfdi_run.elf")],
+                             capture_output=True, text=True, check=True).stdout.split()
+    assert not {"malloc", "_malloc_r", "_sbrk", "free"} & set(symbols)  # no allocation
+    size = subprocess.run(["make", "-s", "-C", str(project), "size"], capture_output=True,
+                          text=True, check=True, timeout=120).stdout
+    figures = {line.rsplit(" ", 2)[0].split(" (")[0]: int(line.split()[-2])
+               for line in size.splitlines() if line.split()[-1] == "bytes"}
+    assert figures["flash"] <= 64 * 1024, size  # issue 43's goals for dc_motor
+    assert figures["static RAM"] <= 16 * 1024, size
+    frame = int(size.split("largest stack frame ")[1].split()[0])
+    assert frame <= 4 * 1024, size

@@ -95,8 +95,10 @@ def test_the_wheel_holds_the_package_data_and_no_generic_top_level_name(tmp_path
                     "canfdi/firmware_sim/profiles/dc_motor_cia402.eds", "canfdi/py.typed"):
         assert shipped in names, shipped
     # The C core's sources ship (codegen copies them); the extension where a compiler built it.
-    for shipped in ("canfdi/_c/cfdi.h", "canfdi/_c/bank.c", "canfdi/_c/detect.c",
-                    "canfdi/_c/_kernel.c", "canfdi/_c/README.md"):
+    from canfdi.tools.codegen import CORE_FILES
+
+    for shipped in ("canfdi/_c/_kernel.c", "canfdi/_c/README.md",
+                    *(f"canfdi/_c/{name}" for name in CORE_FILES)):
         assert shipped in names, shipped
     if "c" in available_kernels():  # this install could build it: so must the wheel's build
         assert any(n.startswith("canfdi/_ckernel") and n.endswith(".so") for n in names)
@@ -127,6 +129,13 @@ def test_the_installed_verbs_run_outside_the_tree_on_what_ships(installed):
     assert soak["samples"] == 20000
     bench = json.loads(_run([str(bin_dir / "canfdi"), "bench", "--quick", "--json"], work, env))
     assert bench
+    # codegen's project from the wheel's own files (the C core and the shipped config) builds
+    _run([str(bin_dir / "canfdi"), "codegen", str(Path(configs) / "dc_motor.yaml"), "-o",
+          "mcu"], work, env)
+    if shutil.which("make") and (shutil.which("cc") or shutil.which("gcc")):
+        subprocess.run(["make", "-s", "-C", str(work / "mcu"), "host"], check=True,
+                       capture_output=True, text=True, timeout=300)
+    shutil.rmtree(work / "mcu")
     assert sorted(p.name for p in work.iterdir()) == ["demo.mcap"]
 
 
