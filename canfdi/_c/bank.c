@@ -48,6 +48,26 @@ static void clean_tile(const cfdi_real *xt, size_t span, size_t width, const cfd
     }
 }
 
+/* One clean row (a drive loop's sample by sample: drive.c), the tiles' sums in their order. */
+static void clean_row(const cfdi_real *x, size_t width, const cfdi_real *coef, size_t S,
+                      size_t m, cfdi_real *out)
+{
+    size_t lag, col, j;
+    for (j = 0; j < m; j++) {
+        cfdi_real acc = 0;
+        for (lag = 0; lag <= S; lag++) {
+            const cfdi_real *c = coef + lag * width * m + j;
+            const cfdi_real *v = x + lag * width;
+            cfdi_real part = 0;
+            for (col = 0; col < width; col++, c += m) {
+                part += v[col] * *c;
+            }
+            acc = lag == 0 ? part : acc + part;
+        }
+        out[j] = acc;
+    }
+}
+
 /* Rows r .. r + count - 1 of the output (count <= CFDI_FIR_ROWS), residual j. */
 static void tile(const cfdi_real *x, size_t width, const cfdi_real *coef, const uint8_t *uses,
                  size_t S, size_t m, size_t r, size_t count, int clean, cfdi_real *out)
@@ -111,7 +131,9 @@ int cfdi_fir_block(const cfdi_real *x, size_t rows, size_t width, const cfdi_rea
         for (e = r * width; e < last && clean; e++) {
             clean = !isnan(x[e]);
         }
-        if (clean && staged && count == CFDI_FIR_ROWS) {
+        if (clean && n == 1) {
+            clean_row(x, width, coef, S, m, out);
+        } else if (clean && staged && count == CFDI_FIR_ROWS) {
             for (row = 0; row < span; row++) {
                 for (col = 0; col < width; col++) {
                     xt[col * span + row] = x[(r + row) * width + col];

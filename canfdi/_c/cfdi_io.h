@@ -6,6 +6,7 @@
 #define CFDI_IO_H
 
 #include <stddef.h>
+#include <stdint.h>
 
 /* The program's arguments: *argc of them into argv (at most max), 0 or a negative status. */
 int cfdi_io_args(int *argc, char **argv, int max);
@@ -17,5 +18,8 @@ void cfdi_io_close(long handle);
 /* Write text to the standard output (out) or error (err). */
 void cfdi_io_out(const char *text);
 void cfdi_io_err(const char *text);
+/* A free-running tick count, 24 bits (the MCU's SysTick at its CPU clock; 0 on a host): the
+ * runner's instruction count under qemu -icount (built with CFDI_TICK_INSNS). */
+uint32_t cfdi_io_ticks(void);
 
 #endif

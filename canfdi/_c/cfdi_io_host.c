@@ -56,6 +56,11 @@ void cfdi_io_err(const char *text)
     fputs(text, stderr);
 }
 
+uint32_t cfdi_io_ticks(void)
+{
+    return 0;
+}
+
 int cfdi_run_main(void);
 
 int main(int argc, char **argv)

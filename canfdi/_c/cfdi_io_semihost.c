@@ -8,6 +8,10 @@
 enum { SYS_OPEN = 0x01, SYS_CLOSE = 0x02, SYS_WRITE0 = 0x04, SYS_READ = 0x06,
        SYS_GET_CMDLINE = 0x15 };
 
+#define SYST_CSR (*(volatile uint32_t *)0xE000E010u)
+#define SYST_RVR (*(volatile uint32_t *)0xE000E014u)
+#define SYST_CVR (*(volatile uint32_t *)0xE000E018u)
+
 static long semihost(long op, void *arg)
 {
     register long r0 __asm__("r0") = op;
@@ -16,12 +20,20 @@ static long semihost(long op, void *arg)
     return r0;
 }
 
+uint32_t cfdi_io_ticks(void)
+{
+    return 0xFFFFFFu - (SYST_CVR & 0xFFFFFFu); /* SysTick counts down */
+}
+
 int cfdi_io_args(int *argc, char **argv, int max)
 {
     static char line[256];
     uintptr_t block[2];
     char *p = line;
     int n = 0;
+    SYST_RVR = 0xFFFFFFu; /* SysTick free-running on the CPU clock (cfdi_io_ticks) */
+    SYST_CVR = 0;
+    SYST_CSR = 5u;
     block[0] = (uintptr_t)line;
     block[1] = sizeof line - 1;
     if (semihost(SYS_GET_CMDLINE, block) != 0) {

@@ -208,6 +208,10 @@ int cfdi_run_main(void)
                                    g_down, alarm};
     uint8_t data[CFDI_MAX_PAYLOAD];
     uint64_t lines = 0, malformed = 0, valid = 0, invalid = 0;
+#ifdef CFDI_TICK_INSNS
+    uint32_t tick, worst = 0;
+    uint64_t ticks = 0;
+#endif
     char *argv[4];
     int argc = 0, rc, first, overlong, got;
     size_t i;
@@ -236,7 +240,15 @@ int cfdi_run_main(void)
             continue;
         }
         if (rc == 0) continue;
+#ifdef CFDI_TICK_INSNS
+        tick = cfdi_io_ticks();
         rc = cfdi_drive_on_frame(&drive, id, len, flags, data, t_ns);
+        tick = (cfdi_io_ticks() - tick) & 0xFFFFFFu;
+        ticks += tick;
+        worst = tick > worst ? tick : worst;
+#else
+        rc = cfdi_drive_on_frame(&drive, id, len, flags, data, t_ns);
+#endif
         if (rc < 0) {
             cfdi_io_err("cfdi_run: the drive refused a frame\n");
             cfdi_io_close(in.handle);
@@ -306,6 +318,17 @@ int cfdi_run_main(void)
     out_u64(lines);
     cfdi_io_out(", \"malformed_lines\": ");
     out_u64(malformed);
+#ifdef CFDI_TICK_INSNS
+    /* instructions in the drive loop (ticks of CFDI_TICK_INSNS instructions each: qemu's
+     * -icount), per sample on average and in the costliest frame */
+    cfdi_io_out(", \"instructions\": {\"per_sample\": ");
+    out_u64(drive.samples ? ticks * CFDI_TICK_INSNS / drive.samples : 0);
+    cfdi_io_out(", \"worst_frame\": ");
+    out_u64((uint64_t)worst * CFDI_TICK_INSNS);
+    cfdi_io_out(", \"resolution\": ");
+    out_u64(CFDI_TICK_INSNS);
+    cfdi_io_out("}");
+#endif
     cfdi_io_out("}\n");
     return 0;
 }

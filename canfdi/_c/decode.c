@@ -329,10 +329,22 @@ int cfdi_decode_block(const cfdi_bus *bus, size_t n, const uint32_t *id, const u
                       const uint8_t *longdata, size_t n_long, int8_t *status, int16_t *slot,
                       double *values, int64_t *counters)
 {
-    size_t i, c, width;
     int rc = cfdi_bus_check(bus);
     if (rc != CFDI_OK) {
         return rc;
+    }
+    return cfdi_decode_checked(bus, n, id, dlc, flags, data, long_row, longdata, n_long, status,
+                               slot, values, counters);
+}
+
+int cfdi_decode_checked(const cfdi_bus *bus, size_t n, const uint32_t *id, const uint8_t *dlc,
+                        const uint8_t *flags, const uint8_t *data, const int32_t *long_row,
+                        const uint8_t *longdata, size_t n_long, int8_t *status, int16_t *slot,
+                        double *values, int64_t *counters)
+{
+    size_t i, c, width;
+    if (bus == NULL) {
+        return CFDI_EBADARG;
     }
     if (n && (id == NULL || dlc == NULL || flags == NULL || data == NULL || status == NULL
               || slot == NULL || counters == NULL || (bus->width && values == NULL)

@@ -119,4 +119,12 @@ int cfdi_decode_block(const cfdi_bus *bus, size_t n, const uint32_t *id, const u
                       const uint8_t *longdata, size_t n_long, int8_t *status, int16_t *slot,
                       double *values, int64_t *counters);
 
+/* cfdi_decode_block for tables the caller has checked once with cfdi_bus_check (and never
+ * changes): a drive loop that decodes frame by frame checks its tables at init, not per frame
+ * (drive.c). The same answers. */
+int cfdi_decode_checked(const cfdi_bus *bus, size_t n, const uint32_t *id, const uint8_t *dlc,
+                        const uint8_t *flags, const uint8_t *data, const int32_t *long_row,
+                        const uint8_t *longdata, size_t n_long, int8_t *status, int16_t *slot,
+                        double *values, int64_t *counters);
+
 #endif

@@ -159,8 +159,8 @@ int cfdi_drive_on_frame(cfdi_drive *d, uint32_t id, uint8_t len, uint8_t flags,
         memcpy(whole, data, len);
     }
     memcpy(first, whole, 8);
-    rc = cfdi_decode_block(t->bus, 1, &id, &len, &flags, first, len > 8 ? &long_row : NULL,
-                           whole, len > 8 ? 1 : 0, &status, &slot, d->mem.values, &counter);
+    rc = cfdi_decode_checked(t->bus, 1, &id, &len, &flags, first, len > 8 ? &long_row : NULL,
+                             whole, len > 8 ? 1 : 0, &status, &slot, d->mem.values, &counter);
     if (rc != CFDI_OK) {
         return (int)rc;
     }

@@ -20,6 +20,7 @@ bank's FIR blocks, noise and thresholds), with a Makefile:
                             and frame counters, as `canfdi replay --json` gives them
   make cortex-m4f           arm-none-eabi-gcc, float32, newlib-nano, no allocation
   make qemu LOG=FILE        that image on qemu-system-arm -M mps2-an386, semihosting
+  make count LOG=FILE       the same under qemu -icount: the loop's instructions per sample
   make size                 the image's flash, static RAM and stack frames
 (deploy/install-mcu-toolchain installs the Cortex-M4F tool chain as root on Debian.)
 

@@ -229,6 +229,7 @@ MAKEFILE = """\
 #   make cortex-m4f         arm-none-eabi-gcc, float32, newlib-nano, no allocation:
 #                           build/cortex-m4f/cfdi_run.elf
 #   make qemu LOG=FILE      run that image on qemu-system-arm -M mps2-an386 (semihosting)
+#   make count LOG=FILE     the same under qemu -icount: the loop's instructions per sample
 #   make size               flash, static RAM and stack frames of the image
 CC ?= cc
 ARM_CC ?= arm-none-eabi-gcc
@@ -238,9 +239,10 @@ WARN = -std=c99 -Wall -Wextra -Werror -pedantic -ffp-contract=off
 CORE = bank.c counter.c decode.c detect.c e2e.c gate.c drive.c cfdi_tables.c cfdi_run.c
 HEADERS = cfdi.h decode.h e2e.h drive.h cfdi_io.h cfdi_tables.h
 M4F = -mcpu=cortex-m4 -mthumb -mfpu=fpv4-sp-d16 -mfloat-abi=hard
-ELF = build/cortex-m4f/cfdi_run.elf
+BUILD = build/cortex-m4f
+ELF = $(BUILD)/cfdi_run.elf
 
-.PHONY: host run-host cortex-m4f qemu size clean
+.PHONY: host run-host cortex-m4f qemu count size clean
 host: build/host/cfdi_run
 
 build/host/cfdi_run: $(CORE) cfdi_io_host.c $(HEADERS)
@@ -255,27 +257,35 @@ cortex-m4f: $(ELF)
 
 # (semihosting's bkpt needs GNU asm: the two I/O files are compiled as gnu99)
 $(ELF): $(CORE) cfdi_io_semihost.c m4f_startup.c m4f.ld $(HEADERS)
-\tmkdir -p build/cortex-m4f
-\tcd build/cortex-m4f && for f in $(CORE); do \\
-\t  $(ARM_CC) $(WARN) $(M4F) -O2 -DCFDI_FLOAT32 -ffunction-sections -fdata-sections \\
-\t    -fstack-usage -I../.. -c ../../$$f || exit 1; done
-\tcd build/cortex-m4f && for f in cfdi_io_semihost.c m4f_startup.c; do \\
+\tmkdir -p $(BUILD)
+\tcd $(BUILD) && for f in $(CORE); do \\
+\t  $(ARM_CC) $(WARN) $(M4F) -O2 -DCFDI_FLOAT32 $(EXTRA) -ffunction-sections \\
+\t    -fdata-sections -fstack-usage -I$(CURDIR) -c $(CURDIR)/$$f || exit 1; done
+\tcd $(BUILD) && for f in cfdi_io_semihost.c m4f_startup.c; do \\
 \t  $(ARM_CC) -std=gnu99 -Wall -Wextra -Werror $(M4F) -O2 -ffunction-sections \\
-\t    -fdata-sections -fstack-usage -I../.. -c ../../$$f || exit 1; done
+\t    -fdata-sections -fstack-usage -I$(CURDIR) -c $(CURDIR)/$$f || exit 1; done
 \t$(ARM_CC) $(M4F) -specs=nano.specs -nostartfiles -Wl,--gc-sections -T m4f.ld \\
-\t  -Wl,-Map=build/cortex-m4f/cfdi_run.map -o $@ build/cortex-m4f/*.o -lm
+\t  -Wl,-Map=$(BUILD)/cfdi_run.map -o $@ $(BUILD)/*.o -lm
 
+QEMU_RUN = $(QEMU) -M mps2-an386 -nographic -monitor none -serial none \\
+  -chardev stdio,id=semihost -semihosting-config enable=on,target=native,chardev=semihost
 qemu: $(ELF)
 \t@test -n "$(LOG)" || (echo "make qemu LOG=FILE (a candump -L log)" >&2; exit 2)
-\t@$(QEMU) -M mps2-an386 -nographic -monitor none -serial none -chardev stdio,id=semihost \\
-\t  -semihosting-config enable=on,target=native,chardev=semihost,arg=cfdi_run,arg="$(LOG)" \\
-\t  -kernel $(ELF)
+\t@$(QEMU_RUN),arg=cfdi_run,arg="$(LOG)" -kernel $(ELF)
+
+# The same image counting its instructions: qemu -icount shift=0 runs one instruction per
+# virtual nanosecond, and the board's SysTick ticks at 25 MHz: 40 instructions a tick.
+count:
+\t@test -n "$(LOG)" || (echo "make count LOG=FILE (a candump -L log)" >&2; exit 2)
+\t@$(MAKE) -s cortex-m4f BUILD=build/cortex-m4f-count EXTRA=-DCFDI_TICK_INSNS=40
+\t@$(QEMU_RUN),arg=cfdi_run,arg="$(LOG)" -icount shift=0 \\
+\t  -kernel build/cortex-m4f-count/cfdi_run.elf
 
 size: $(ELF)
 \t@$(ARM_SIZE) -A $(ELF) | awk '/^\\.(text|ARM.exidx)/ {{f += $$2}} \\
 \t  /^\\.data/ {{f += $$2; r += $$2}} /^\\.bss/ {{r += $$2}} \\
 \t  END {{printf "flash %d bytes\\nstatic RAM %d bytes\\n", f, r}}'
-\t@cat build/cortex-m4f/*.su | sort -t'\t' -k2 -n -r | awk -F'\t' \\
+\t@cat $(BUILD)/*.su | sort -t'\t' -k2 -n -r | awk -F'\t' \\
 \t  'NR == 1 {{printf "largest stack frame %d bytes (%s)\\n", $$2, $$1}} {{s += $$2}} \\
 \t   END {{printf "all stack frames together %d bytes (a bound on any call chain)\\n", s}}'
 

@@ -211,6 +211,14 @@ def test_the_cortex_m4f_image_on_qemu_prints_what_the_host_float32_build_does(
                              capture_output=True, text=True, check=True, timeout=600)
         assert mcu.stdout == host.stdout, name
         assert json.loads(mcu.stdout)["frames"]["received"] > 0
+    # Instructions under qemu -icount (deterministic): the goals for dc_motor.
+    log = logs["dc_motor_consecutive-clean"]
+    counted = json.loads(subprocess.run(["make", "-s", "-C", str(project), "count",
+                                         f"LOG={log}"], capture_output=True, text=True,
+                                        check=True, timeout=600).stdout)
+    insns = counted.pop("instructions")
+    assert counted["detections"] and counted["samples"] > 1000
+    assert insns["per_sample"] <= 20_000 and insns["worst_frame"] <= 200_000, insns
     symbols = subprocess.run(["arm-none-eabi-nm", str(project / "build" / "cortex-m4f" /
                                                      "cfdi_run.elf")],
                              capture_output=True, text=True, check=True).stdout.split()
