@@ -217,18 +217,30 @@ def _best_vector(N: np.ndarray, M: np.ndarray, weights: np.ndarray | None = None
         U, _, _ = np.linalg.svd(Li @ (N.T @ M), full_matrices=False)
         v = N @ (Li.T @ U[:, 0])
         v = v / np.linalg.norm(v)
-        gain = v @ M
-        if gain[np.argmax(np.abs(gain))] < 0:
-            v, gain = -v, -gain
+        v, gain = _sign_fixed(v, v @ M)
         return v, gain, float(np.linalg.norm(gain))
     S = N.T @ M
     U, sig, _ = np.linalg.svd(S, full_matrices=False)
     v = N @ U[:, 0]
-    gain = v @ M
-    # Fix the sign so the largest gain entry is positive: designs are then reproducible.
-    if gain[np.argmax(np.abs(gain))] < 0:
-        v, gain = -v, -gain
+    v, gain = _sign_fixed(v, v @ M)
     return v, gain, float(sig[0])
+
+
+def _sign_fixed(v: np.ndarray, gain: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(v, gain) or (-v, -gain): the sign that makes the largest gain entry positive, and of
+    entries equal to it up to rounding (a fault pair the residual sees alike, such as the DC
+    motor's i_a and i_f + i_a in the residual blind to i_f) the first in index order: the
+    same design on any BLAS, which an argmax over a tie is not.
+
+    >>> v, gain = _sign_fixed(np.array([1.0, 2.0]), np.array([0.0, -0.3, 0.3 + 1e-16]))
+    >>> v.tolist(), np.round(gain, 6).tolist()
+    ([-1.0, -2.0], [-0.0, 0.3, -0.3])
+    """
+    mag = np.abs(gain)
+    if mag.size == 0 or not mag.max() > 0.0:
+        return v, gain
+    first = int(np.flatnonzero(mag >= (1.0 - 1e-9) * mag.max())[0])
+    return (-v, -gain) if gain[first] < 0 else (v, gain)
 
 
 def _balanced(N: np.ndarray, M: np.ndarray, weights: np.ndarray) -> np.ndarray:

@@ -141,3 +141,28 @@ def test_a_fault_unseen_at_the_smallest_window_grows_the_window_until_seen():
     assert grown.responds[:, vel].any()
     ratio = np.abs(grown.gain[:, vel]) / [r.noise_std for r in grown.actuators + grown.sensors]
     assert ratio.max() > 20
+
+
+def test_a_vector_sign_is_fixed_by_a_rule_that_survives_ties():
+    """Every shipped config's residuals: the largest gain entry is positive, and of entries
+    equal to it up to rounding the first in index order (the DC motor's residual blind to i_f
+    sees i_a and i_f + i_a alike: an argmax between them is the BLAS's choice, and flipped the
+    residual's sign between two numpy releases)."""
+    from canfdi.config import load_config
+    from tests.conftest import REPO
+
+    seen_tie = False
+    for path in sorted((REPO / "deploy" / "config").glob("*.yaml")):
+        config = load_config(path, allow_unidentified=True)
+        if config.model is None or config.method != "parity":
+            continue
+        design = design_bank(config.model, config.inputs, config.outputs, config.design)
+        for residual in design.actuators + design.sensors:
+            gain = residual.vector.gain
+            if gain is None or not np.abs(gain).max() > 0:
+                continue
+            mag = np.abs(gain)
+            tied = np.flatnonzero(mag >= (1 - 1e-9) * mag.max())
+            seen_tie |= len(tied) > 1 and len(set(np.sign(gain[tied]))) > 1
+            assert gain[tied[0]] > 0, (path.name, residual.name)
+    assert seen_tie  # the case the rule is for is among them
