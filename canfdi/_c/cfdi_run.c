@@ -123,6 +123,99 @@ static int parse_line(const char *line, uint32_t *id, uint8_t *len, uint8_t *fla
     return 1;
 }
 
+/* An unsigned number of base 16 or 10 from p (digits only, below 2^32): 1 read (*end after
+ * it), 0 not. */
+static int parse_uint(const char *p, int base, const char **end, uint32_t *value)
+{
+    uint64_t v = 0;
+    const char *start = p;
+    for (;; p++) {
+        int d = hex_digit(*p);
+        if (d < 0 || d >= base) break;
+        v = v * (uint64_t)base + (uint64_t)d;
+        if (v > 0xFFFFFFFFULL) return 0;
+    }
+    if (p == start) return 0;
+    *end = p;
+    *value = (uint32_t)v;
+    return 1;
+}
+
+static const char *skip_blank(const char *p)
+{
+    while (*p == ' ' || *p == '\t') p++;
+    return p;
+}
+
+/* python-can's dlc2len: a CAN FD DLC's payload length */
+static uint8_t dlc_length(uint32_t dlc)
+{
+    static const uint8_t fd[7] = {12, 16, 20, 24, 32, 48, 64};
+    return dlc <= 8 ? (uint8_t)dlc : dlc <= 15 ? fd[dlc - 9] : 64;
+}
+
+/* One line of a Vector ASC log, as python-can's ASCReader takes it: "<seconds> <channel> <ID>[x]
+ * Rx|Tx d <DLC> <bytes>", "... r [DLC]" for a remote request, "<seconds> <channel>
+ * ErrorFrame"; the header's "base hex|dec" sets *base. Every other line (the header, comments,
+ * events, statistics) is no frame, as it is to python-can; a CAN FD line ("CANFD") is not read
+ * here (malformed). 1 parsed, 0 no frame, -1 malformed. */
+static int parse_asc_line(const char *line, int *base, uint32_t *id, uint8_t *len,
+                          uint8_t *flags, uint8_t *data, int64_t *t_ns)
+{
+    const char *p = skip_blank(line), *end;
+    uint32_t value, dlc;
+    size_t n = 0;
+    if (strncmp(p, "base ", 5) == 0) {
+        p = skip_blank(p + 5);
+        *base = strncmp(p, "dec", 3) == 0 ? 10 : 16;
+        return 0;
+    }
+    if (!parse_time(p, &end, t_ns) || (*end != ' ' && *end != '\t')) return 0;
+    p = skip_blank(end);
+    if (strncmp(p, "CANFD", 5) == 0) return -1;
+    if (*p < '0' || *p > '9') return 0; /* "Start of measurement", statistics, J1939 ... */
+    while (*p >= '0' && *p <= '9') p++; /* the channel */
+    p = skip_blank(p);
+    *flags = 0;
+    if (strncmp(p, "ErrorFrame", 10) == 0 || strncmp(p, "errorframe", 10) == 0) {
+        *id = 0;
+        *flags = CFDI_FLAG_ERROR;
+        *len = 0;
+        return 1;
+    }
+    if (!parse_uint(p, *base, &end, &value)) return -1;
+    if (*end == 'x' || *end == 'X') {
+        *flags |= CFDI_FLAG_EXTENDED;
+        end++;
+    }
+    *id = value;
+    p = skip_blank(end);
+    if (strncmp(p, "Rx", 2) != 0 && strncmp(p, "Tx", 2) != 0) return -1;
+    p = skip_blank(p + 2);
+    if (*p == 'r' || *p == 'R') {
+        *flags |= CFDI_FLAG_REMOTE;
+        *len = 0;
+        p = skip_blank(p + 1);
+        if (parse_uint(p, 10, &end, &dlc) && (*end == '\0' || *end == ' ')) {
+            if (!parse_uint(p, *base, &end, &dlc) || dlc > 64) return -1;
+            *len = (uint8_t)dlc;
+        }
+        return 1;
+    }
+    if (*p != 'd' && *p != 'D') return -1;
+    p = skip_blank(p + 1);
+    if (!parse_uint(p, *base, &end, &dlc)) return -1;
+    *len = dlc_length(dlc);
+    p = skip_blank(end);
+    while (n < (*len < 8 ? *len : 8) && parse_uint(p, *base, &end, &value)) {
+        if (value > 255) return -1;
+        data[n++] = (uint8_t)value;
+        p = skip_blank(end);
+    }
+    for (; n < CFDI_MAX_PAYLOAD; n++) data[n] = 0;
+    return 1;
+}
+
 /* Text out: strings and integers, all the JSON here needs. */
 static void out_u64(uint64_t v)
 {
@@ -213,10 +306,10 @@ int cfdi_run_main(void)
     uint64_t ticks = 0;
 #endif
     char *argv[4];
-    int argc = 0, rc, first, overlong, got;
+    int argc = 0, rc, first, overlong, got, asc, base = 16;
     size_t i;
     if (cfdi_io_args(&argc, argv, 4) != 0 || argc != 2) {
-        cfdi_io_err("usage: cfdi_run LOG (a candump -L log)\n");
+        cfdi_io_err("usage: cfdi_run LOG (a candump -L .log, or a Vector .asc)\n");
         return 2;
     }
     rc = cfdi_drive_init(&drive, &cfdi_drive_tables_gen, &mem);
@@ -224,6 +317,8 @@ int cfdi_run_main(void)
         cfdi_io_err("cfdi_run: the generated tables do not check\n");
         return 1;
     }
+    got = (int)strlen(argv[1]);
+    asc = got >= 4 && strcmp(argv[1] + got - 4, ".asc") == 0;
     in.handle = cfdi_io_open(argv[1]);
     if (in.handle < 0) {
         cfdi_io_err("cfdi_run: cannot open the log\n");
@@ -234,7 +329,9 @@ int cfdi_run_main(void)
         uint8_t len = 0, flags = 0;
         int64_t t_ns = 0;
         lines++;
-        rc = overlong ? -1 : parse_line(line, &id, &len, &flags, data, &t_ns);
+        rc = overlong ? -1
+             : asc ? parse_asc_line(line, &base, &id, &len, &flags, data, &t_ns)
+                   : parse_line(line, &id, &len, &flags, data, &t_ns);
         if (rc < 0) {
             malformed++;
             continue;

@@ -82,9 +82,10 @@ def logs(tmp_path_factory, config):
         frames = frame_log(load_scenario(name)).frames
         for tag, block in (("clean", frames), ("damaged", _damaged(frames)),
                            ("timejump", _time_jumps(frames))):
-            path = out / f"{name}-{tag}.log"
-            write_frames(path, [block])
-            made[path.stem] = path
+            for suffix in (".log", ".asc"):  # candump -L and Vector ASC, both as python-can
+                path = out / f"{name}-{tag}{suffix}"
+                write_frames(path, [block])
+                made[path.name] = path
     return made
 
 
@@ -136,6 +137,7 @@ def _reference(config, log: Path) -> dict:
 def test_every_scenario_of_the_bus_is_covered(config, logs):
     assert {"dc_motor_nominal", "dc_motor_consecutive", "dc_motor_actuator"} <= {
         name.rsplit("-", 1)[0] for name in logs}
+    assert {name.rsplit(".", 1)[1] for name in logs} == {"log", "asc"}
 
 
 @needs_cc
@@ -231,7 +233,7 @@ def test_the_cortex_m4f_image_on_qemu_prints_what_the_host_float32_build_does(
         assert mcu.stdout == host.stdout, name
         assert json.loads(mcu.stdout)["frames"]["received"] > 0
     # Instructions under qemu -icount (deterministic): the goals for dc_motor.
-    log = logs["dc_motor_consecutive-clean"]
+    log = logs["dc_motor_consecutive-clean.log"]
     counted = json.loads(subprocess.run(["make", "-s", "-C", str(project), "count",
                                          f"LOG={log}"], capture_output=True, text=True,
                                         check=True, timeout=600).stdout)
