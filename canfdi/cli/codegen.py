@@ -50,6 +50,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from canfdi.config import ConfigError, read_yaml
     from canfdi.tools.codegen import write_project
+    from canfdi.tools.session import remember_designs
+
+    remember_designs()  # the thresholds' calibration, kept as `canfdi run` keeps it
 
     config = load_config_or_exit(args.config, "codegen")
     if isinstance(config, int):
