@@ -23,7 +23,8 @@ bank's FIR blocks, noise and thresholds), with a Makefile:
   make qemu LOG=FILE        that image on qemu-system-arm -M mps2-an386, semihosting
   make count LOG=FILE       the same under qemu -icount: the loop's instructions per sample
   make size                 the image's flash, static RAM and stack frames
-(deploy/install-mcu-toolchain installs the Cortex-M4F tool chain as root on Debian.)
+The Cortex-M4F targets need Debian's gcc-arm-none-eabi, libnewlib-arm-none-eabi and
+qemu-system-arm (in a clone of canfdi, deploy/install-mcu-toolchain installs them as root).
 
 So far the C loop detects (the first alarm, dated by its change point) and counts; the
 diagnosis after an alarm (hypotheses, least squares, acceptance, compensation, the monitor's
