@@ -29,7 +29,8 @@ qemu-system-arm (in a clone of canfdi, deploy/install-mcu-toolchain installs the
 So far the C loop detects (the first alarm, dated by its change point) and counts; the
 diagnosis after an alarm (hypotheses, least squares, acceptance, compensation, the monitor's
 frames) runs on the gateway. A config the C loop cannot run is refused with one line naming
-the field: another method than parity, several drives, a trigger or grid clock, signature
+the field: a method with no C tables (of the built-ins only parity has them), several drives,
+a trigger or grid clock, signature
 CUSUMs, the noise watchdog asked for (it stays on the gateway: leave its section out or set
 watchdog.enabled: false), teach-in.
 

@@ -98,6 +98,10 @@ class Method:
         section. None: identify learns the state-space model.
     schema : the JSON Schema of its own section (`canfdi schema`), made from the tables its
         parse_options checks with. None: any mapping (or its section is a shared one).
+    c_tables : config -> the tables of its residual bank and detectors for the C drive loop
+        (`canfdi codegen`, canfdi/_c/drive.h): ``coef`` and ``uses`` (S+1, q+p, m), ``sigma``,
+        ``delta`` and ``h`` (m,), ``residual_names``; a ConfigError names what of the config
+        the C loop cannot run. None: the method does not run on the C loop.
     estimate_history : (config, log contents, accepted event) -> EstimateHistory or None:
         the estimate's trajectory for `canfdi report`, recomputed from the log (its
         ``residuals``, ``samples``, ``accepted`` events; what it cannot do goes to its
@@ -132,6 +136,7 @@ class Method:
     fit_models: Callable[[np.ndarray, np.ndarray, np.ndarray, MonitorConfig, Any,
                           Callable[[str], None]], tuple[dict, dict]] | None = None
     schema: Mapping[str, Any] | None = None
+    c_tables: Callable[[MonitorConfig], Mapping[str, Any]] | None = None
 
     def __post_init__(self) -> None:
         unknown = set(self.fault_kinds) - set(FAULT_KINDS)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 import shutil
-from collections.abc import Iterable
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -61,24 +60,24 @@ class DriveTables:
 
 
 def _refuse_unsupported(config: MonitorConfig, doc: dict) -> None:
-    """One line naming the field for each thing the C loop does not do (the first found)."""
-    if config.method != "parity":
-        raise CodegenRefused("method", f"the C drive loop runs the parity method; this config "
-                                       f"asks for {config.method!r}")
+    """One line naming the field for each thing the C loop does not do (the first found; the
+    method's own limits are its `c_tables`')."""
+    from canfdi import methods
+
+    if methods.get(config.method).c_tables is None:
+        raise CodegenRefused("method", f"the C drive loop has no tables for the method "
+                                       f"{config.method!r}")
     if len(config.drive_list) != 1:
         raise CodegenRefused("drives", "one drive per MCU: generate a project per drive "
                                        f"(this config has {len(config.drive_list)})")
     if config.bus.clock.kind != "counter":
         raise CodegenRefused("bus.clock.kind", "the C drive loop has the counter clock; "
                                                f"this config asks for {config.bus.clock.kind!r}")
-    if config.detection.signatures:
-        raise CodegenRefused("detection.signatures", "the signature CUSUMs stay on the "
-                                                     "gateway: set it false for the MCU")
-    watchdog = doc.get("watchdog") if isinstance(doc, dict) else None
+    watchdog = doc.get("watchdog")
     if isinstance(watchdog, dict) and watchdog.get("enabled", True):
         raise CodegenRefused("watchdog.enabled", "the noise watchdog stays on the gateway: "
                                                  "set it false (or leave the section out)")
-    if isinstance(doc, dict) and doc.get("teach_in"):
+    if doc.get("teach_in"):
         raise CodegenRefused("teach_in", "teach-in stays on the gateway")
 
 
@@ -87,7 +86,7 @@ def drive_tables(config: MonitorConfig, doc: dict | None = None) -> DriveTables:
 
     Raises
     ------
-    CodegenRefused
+    ConfigError
         The config asks for what the C loop does not do (naming the field).
     """
     from canfdi.bus.assembler import SampleAssembler
@@ -102,16 +101,9 @@ def drive_tables(config: MonitorConfig, doc: dict | None = None) -> DriveTables:
     tables = drive.bus_map.c_tables()
     if not tables.fits:
         raise CodegenRefused("bus.dbc", "a message has more signals than the C core takes")
-    diagnoser = monitor.method.build(config)
-    bank = diagnoser.bank
-    m = bank.m
-    return DriveTables(
-        name=drive.name, bus=tables, clock=drive.clock.c_params(), p=len(config.inputs),
-        q=len(config.outputs), coef=np.asarray(bank.blocks, dtype=float),
-        uses=np.asarray(bank.uses, dtype=np.uint8), sigma=np.asarray(bank.sigma, dtype=float),
-        delta=np.full(m, float(diagnoser.settings.drift)),
-        h=np.asarray(diagnoser.thresholds, dtype=float).reshape(m),
-        residual_names=tuple(diagnoser.residual_names))
+    detection = monitor.method.c_tables(config)
+    return DriveTables(name=drive.name, bus=tables, clock=drive.clock.c_params(),
+                       p=len(config.inputs), q=len(config.outputs), **detection)
 
 
 def _real(v: float) -> str:
@@ -129,9 +121,8 @@ def _int64(v: int) -> str:
     return f"INT64_C({v})"
 
 
-def _array(ctype: str, name: str, values: Iterable, fmt, per_line: int = 8) -> str:
-    items = [fmt(v) for v in np.asarray(list(values) if not isinstance(values, np.ndarray)
-                                        else values).ravel()]
+def _array(ctype: str, name: str, values: np.ndarray, fmt, per_line: int = 8) -> str:
+    items = [fmt(v) for v in np.asarray(values).ravel()]
     if not items:  # C99 has no empty arrays: one unused element, the size says 0
         items = [fmt(0)]
     lines = [", ".join(items[i:i + per_line]) for i in range(0, len(items), per_line)]

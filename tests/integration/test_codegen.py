@@ -211,12 +211,18 @@ def test_what_the_c_loop_cannot_run_is_refused_naming_the_field(config_name, fie
     assert not (tmp_path / "out").exists()
 
 
-def test_the_watchdog_asked_for_is_refused(tmp_path, capsys):
-    text = CONFIG.read_text() + "\nwatchdog:\n  enabled: true\n"
-    cfg = tmp_path / "dc_motor_watched.yaml"
-    cfg.write_text(text.replace("dbc: motor_drive", "dbc: motor_drive"))
+@pytest.mark.parametrize(("edit", "field"), [
+    (lambda text: text + "\nwatchdog:\n  enabled: true\n", "watchdog.enabled"),
+    (lambda text: text.replace("detection:\n", "detection:\n  signatures: true\n", 1),
+     "detection.signatures"),
+])
+def test_what_stays_on_the_gateway_is_refused(edit, field, tmp_path, capsys):
+    cfg = tmp_path / "dc_motor_edited.yaml"
+    cfg.write_text(edit(CONFIG.read_text()))
     assert main(["codegen", str(cfg), "-o", str(tmp_path / "out")]) == 2
-    assert "config error: watchdog.enabled:" in capsys.readouterr().err
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"config error: {field}:" in err
+    assert not (tmp_path / "out").exists()
 
 
 @needs_cc

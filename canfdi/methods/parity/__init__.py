@@ -17,7 +17,7 @@ import numpy as np
 from canfdi.core.design import design_bank, design_to_dict
 from canfdi.core.records import FaultEvent
 from canfdi.core.residuals import ResidualBank
-from canfdi.core.settings import MonitorConfig
+from canfdi.core.settings import ConfigError, MonitorConfig
 from canfdi.methods import EstimateHistory, Method
 from canfdi.methods.parity.diagnoser import ParityDiagnoser, ParitySettings
 from canfdi.methods.parity.history import estimate_history
@@ -66,6 +66,28 @@ def build(config: MonitorConfig) -> ParityDiagnoser:
                            signatures, lagged_covariance(bank, meas))
 
 
+def c_tables(config: MonitorConfig) -> dict:
+    """The residual bank's and detectors' tables for the C drive loop (canfdi codegen): the
+    numbers the diagnoser `build` makes runs with. Its signature CUSUMs are not in C.
+
+    Raises
+    ------
+    ConfigError
+        detection.signatures asked for.
+    """
+    if config.detection.signatures:
+        raise ConfigError("detection.signatures", "the signature CUSUMs stay on the gateway: "
+                                                  "set it false for the MCU")
+    diagnoser = build(config)
+    bank = diagnoser.bank
+    return {"coef": np.asarray(bank.blocks, dtype=float),
+            "uses": np.asarray(bank.uses, dtype=np.uint8),
+            "sigma": np.asarray(bank.sigma, dtype=float),
+            "delta": np.full(bank.m, float(diagnoser.settings.drift)),
+            "h": np.asarray(diagnoser.thresholds, dtype=float).reshape(bank.m),
+            "residual_names": tuple(diagnoser.residual_names)}
+
+
 def describe(config: MonitorConfig) -> dict:
     """The design (`canfdi design --json`'s object), for the log's metadata."""
     return design_to_dict(_design(config))
@@ -91,4 +113,5 @@ METHOD = Method(
     fault_kinds=("actuator_bias", "actuator_scale", "sensor_bias"),
     describe=describe,
     estimate_history=history,
+    c_tables=c_tables,
 )
