@@ -23,8 +23,6 @@ static int hex_digit(char c)
     return -1;
 }
 
-/* One candump -L line: "(seconds) interface ID#DATA [R|T]", ID##F DATA for CAN FD, ID#R[n]
- * for a remote request. 1 parsed, 0 blank, -1 malformed. */
 /* A time "(seconds)" as python-can reads it, float(text), times 1e9 truncated to int64 as
  * canfdi converts it (numpy's astype). Digits only, a point and at most 22 decimals, below
  * 2^53 units of the last decimal (a microsecond candump reaches that in 285 years): then the
@@ -58,18 +56,28 @@ static int parse_time(const char *p, const char **end, int64_t *t_ns)
     return 1;
 }
 
-/* A hexadecimal number of 1..8 digits ending at `stop`: 1 read, 0 not. */
-static int parse_hex(const char *p, const char *stop, uint32_t *value)
+/* An unsigned number of base 16 or 10 from p (digits only, below 2^32): 1 read (*end after
+ * it), 0 not. */
+static int parse_uint(const char *p, int base, const char **end, uint32_t *value)
 {
-    uint32_t v = 0;
-    if (p == stop || stop - p > 8) return 0;
-    for (; p < stop; p++) {
+    uint64_t v = 0;
+    const char *start = p;
+    for (;; p++) {
         int d = hex_digit(*p);
-        if (d < 0) return 0;
-        v = v * 16 + (uint32_t)d;
+        if (d < 0 || d >= base) break;
+        v = v * (uint64_t)base + (uint64_t)d;
+        if (v > 0xFFFFFFFFULL) return 0;
     }
-    *value = v;
+    if (p == start) return 0;
+    *end = p;
+    *value = (uint32_t)v;
     return 1;
+}
+
+static const char *skip_blank(const char *p)
+{
+    while (*p == ' ' || *p == '\t') p++;
+    return p;
 }
 
 /* One candump -L line: "(seconds) interface ID#DATA [R|T]", ID##F DATA for CAN FD, ID#R[n]
@@ -80,7 +88,7 @@ static int parse_line(const char *line, uint32_t *id, uint8_t *len, uint8_t *fla
     const char *p = line, *end, *frame, *hash;
     uint32_t raw;
     size_t n = 0;
-    while (*p == ' ' || *p == '\t') p++;
+    p = skip_blank(p);
     if (*p == '\0' || *p == '\n' || *p == '\r') return 0;
     if (*p != '(' || !parse_time(p + 1, &end, t_ns) || *end != ')') return -1;
     p = end + 1;
@@ -89,7 +97,7 @@ static int parse_line(const char *line, uint32_t *id, uint8_t *len, uint8_t *fla
     while (*p == ' ') p++;
     frame = p;
     hash = strchr(frame, '#');
-    if (!hash || !parse_hex(frame, hash, &raw)) return -1;
+    if (!hash || hash - frame > 8 || !parse_uint(frame, 16, &end, &raw) || end != hash) return -1;
     *flags = hash - frame > 3 ? CFDI_FLAG_EXTENDED : 0;
     if ((raw & 0x20000000UL) && (raw & 0x80UL)) { /* CAN_ERR_FLAG and CAN_ERR_BUSERROR */
         *id = 0;
@@ -121,30 +129,6 @@ static int parse_line(const char *line, uint32_t *id, uint8_t *len, uint8_t *fla
     if (*p != '\0' && *p != ' ' && *p != '\n' && *p != '\r') return -1;
     *len = (uint8_t)n;
     return 1;
-}
-
-/* An unsigned number of base 16 or 10 from p (digits only, below 2^32): 1 read (*end after
- * it), 0 not. */
-static int parse_uint(const char *p, int base, const char **end, uint32_t *value)
-{
-    uint64_t v = 0;
-    const char *start = p;
-    for (;; p++) {
-        int d = hex_digit(*p);
-        if (d < 0 || d >= base) break;
-        v = v * (uint64_t)base + (uint64_t)d;
-        if (v > 0xFFFFFFFFULL) return 0;
-    }
-    if (p == start) return 0;
-    *end = p;
-    *value = (uint32_t)v;
-    return 1;
-}
-
-static const char *skip_blank(const char *p)
-{
-    while (*p == ' ' || *p == '\t') p++;
-    return p;
 }
 
 /* python-can's dlc2len: a CAN FD DLC's payload length */
@@ -296,7 +280,7 @@ int cfdi_run_main(void)
     static int8_t alarm[CFDI_GEN_M];
     static cfdi_drive drive;
     static lines_t in;
-    static char line[512];
+    static char line[LINE];
     const cfdi_drive_memory mem = {values, buffer, samples, ring, r, ph, last_zero, g_up,
                                    g_down, alarm};
     uint8_t data[CFDI_MAX_PAYLOAD];
