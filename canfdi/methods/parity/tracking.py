@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from canfdi.core.identify import chi2_sigma
+from canfdi.core.protocol import deepcopy_sharing
 from canfdi.core.residuals import ResidualBank
 from canfdi.methods.parity.hypotheses import (
     Hypothesis,
@@ -52,6 +53,12 @@ __all__ = ["AcceptedFaultTracker", "Correction", "Tracked"]
 
 FIRST_CHECK = 64
 """Residual samples after an acceptance before the first check; each later one doubles it."""
+
+PENDING = 256
+"""Absorbed samples held before they are summed, all at once: the daemon's per-frame path
+absorbs one sample at a time, and one sample's regressors and sums cost about what 256 do
+together (numpy's fixed cost per call). Held samples are summed before a checkpoint reads the
+sums; a hold never grows past this, whatever the distance to the next checkpoint."""
 
 
 @dataclass(frozen=True)
@@ -142,6 +149,13 @@ class AcceptedFaultTracker:
         self._tracked: list[Tracked] = []
         self.clear()
 
+    def __deepcopy__(self, memo: dict) -> AcceptedFaultTracker:
+        """A copy that runs apart from this one, sharing the samples held (never written to)
+        and the long-run covariance: the noise watchdog's undo copies the diagnoser, and with
+        it this, on every block."""
+        memo[id(self._pending)] = list(self._pending)
+        return deepcopy_sharing(self, memo, self.gamma)
+
     @property
     def tracked(self) -> list[Tracked]:
         """The channels being fitted (a copy)."""
@@ -176,6 +190,10 @@ class AcceptedFaultTracker:
         self._absorbed = 0
         self._next_check = FIRST_CHECK
         self._u_abs, self._u_n = np.zeros(self.bank.p), 0
+        # (k, u_windows, rn, sigma) of samples absorbed but not yet summed (`_sum_pending`);
+        # each row made by its caller and never written to (a copy may share them).
+        self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._pending_n = 0
 
     def _new_segment(self) -> None:
         D = len(self._h)
@@ -193,25 +211,44 @@ class AcceptedFaultTracker:
 
     def absorb(self, k: np.ndarray, u_windows: np.ndarray, rn: np.ndarray) -> None:
         """Absorb N monitored samples: (N,) k, (N, S+1, p) their compensated command windows,
-        (N, m) normalised residuals (NaN: missing, no equation)."""
+        (N, m) normalised residuals (NaN: missing, no equation), each normalised by the
+        bank's noise now. They are summed once `PENDING` are held, or when a checkpoint reads
+        the sums (`correction`)."""
         if not self._tracked or len(k) == 0:
             return
+        self._pending.append((np.asarray(k, dtype=np.int64), np.asarray(u_windows, dtype=float),
+                              np.asarray(rn, dtype=float), self.bank.sigma))
+        self._pending_n += len(k)
+        self._absorbed += len(k)
+        if self._pending_n >= PENDING:
+            self._sum_pending()
+
+    def _sum_pending(self) -> None:
+        """Add the samples held into the segment's sums: one set of regressors and one
+        product for all of them."""
+        if not self._pending:
+            return
+        held, self._pending, self._pending_n = self._pending, [], 0
+        k = np.concatenate([h[0] for h in held])
+        u_windows = np.concatenate([h[1] for h in held])
+        rn = np.concatenate([h[2] for h in held])
+        sigma = np.concatenate([np.broadcast_to(h[3], (len(h[0]), self.bank.m)) for h in held])
         phi = row_regressors(self.bank, [t.hypothesis for t in self._tracked],
-                             [t.onset for t in self._tracked], k, u_windows)
+                             [t.onset for t in self._tracked], k, u_windows, sigma)
         valid = ~np.isnan(rn)
         phi = phi * valid[:, :, None]
         r = np.where(valid, rn, 0.0)
         self._seg_J += np.einsum("nmi,nmj->ij", phi, phi)
         self._seg_h += np.einsum("nmi,nm->i", phi, r)
         self._seg_M += np.einsum("nmi,mk,nkj->ij", phi, self.gamma, phi)
-        self._u_abs += np.abs(np.nan_to_num(np.asarray(u_windows, dtype=float)[:, -1, :])).sum(0)
+        self._u_abs += np.abs(np.nan_to_num(u_windows[:, -1, :])).sum(0)
         self._u_n += len(k)
-        self._absorbed += len(k)
 
     def correction(self) -> list[Correction]:
         """At a checkpoint: the channels whose correction is significant, now counted as
         folded in (none when the segment since the last checkpoint contradicts the fit so
         far: a new change, left to the detector); the next checkpoint is twice as far."""
+        self._sum_pending()
         self._next_check *= 2
         sJ, sh, sM = self._seg_J, self._seg_h, self._seg_M
         self._new_segment()
