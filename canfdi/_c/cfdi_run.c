@@ -138,11 +138,81 @@ static uint8_t dlc_length(uint32_t dlc)
     return dlc <= 8 ? (uint8_t)dlc : dlc <= 15 ? fd[dlc - 9] : 64;
 }
 
+/* The ASC token at p (up to a blank or the end) and where the next one starts. */
+static const char *asc_token(const char *p, const char **next)
+{
+    const char *end = p;
+    while (*end && *end != ' ' && *end != '\t' && *end != '\n' && *end != '\r') end++;
+    *next = skip_blank(end);
+    return end;
+}
+
+/* An ASC CAN FD line after "CANFD", as python-can's _process_fd_can_frame reads it: channel,
+ * direction, "ErrorFrame" or the ID (x: extended), a symbolic name unless the next token is a
+ * number, BRS, ESI, the DLC (in the log's base), the data length (decimal: 0 for a remote
+ * request, whose length is then its DLC; else the frame's length, whatever the DLC says) and
+ * that many bytes. 1 parsed, -1 malformed. */
+static int parse_asc_fd(const char *p, int base, uint32_t *id, uint8_t *len, uint8_t *flags,
+                        uint8_t *data)
+{
+    const char *end, *next, *brs;
+    uint32_t value, dlc, length;
+    size_t n = 0;
+    if (!parse_uint(p, 10, &end, &value) || (*end != ' ' && *end != '\t')) return -1;
+    p = skip_blank(end);
+    if (strncmp(p, "Rx", 2) != 0 && strncmp(p, "Tx", 2) != 0) return -1;
+    p = skip_blank(p + 2);
+    *flags = CFDI_FLAG_FD;
+    if (strncmp(p, "ErrorFrame", 10) == 0 || strncmp(p, "errorframe", 10) == 0) {
+        *id = 0;
+        *flags |= CFDI_FLAG_ERROR;
+        *len = 0;
+        return 1;
+    }
+    if (!parse_uint(p, base, &end, &value)) return -1;
+    if (*end == 'x' || *end == 'X') {
+        *flags |= CFDI_FLAG_EXTENDED;
+        end++;
+    }
+    if (*end != ' ' && *end != '\t') return -1;
+    *id = value;
+    p = skip_blank(end);
+    brs = p;
+    end = asc_token(p, &next);
+    while (brs < end && *brs >= '0' && *brs <= '9') brs++;
+    if (brs != end || end == p) p = next; /* a symbolic name, not the BRS bit */
+    end = asc_token(p, &p); /* BRS */
+    end = asc_token(p, &p); /* ESI */
+    if (!parse_uint(p, base, &end, &dlc) || (*end != ' ' && *end != '\t')) return -1;
+    p = skip_blank(end);
+    if (!parse_uint(p, 10, &end, &length) || (*end && *end != ' ' && *end != '\t'
+                                              && *end != '\n' && *end != '\r')) {
+        return -1;
+    }
+    p = skip_blank(end);
+    if (length == 0) {
+        if (dlc > CFDI_MAX_PAYLOAD) return -1;
+        *flags |= CFDI_FLAG_REMOTE;
+        *len = (uint8_t)dlc;
+        return 1;
+    }
+    if (length > CFDI_MAX_PAYLOAD) return -1;
+    *len = (uint8_t)length;
+    while (n < length && parse_uint(p, base, &end, &value)) {
+        if (value > 255) return -1;
+        data[n++] = (uint8_t)value;
+        p = skip_blank(end);
+    }
+    for (; n < CFDI_MAX_PAYLOAD; n++) data[n] = 0;
+    return 1;
+}
+
 /* One line of a Vector ASC log, as python-can's ASCReader takes it: "<seconds> <channel> <ID>[x]
  * Rx|Tx d <DLC> <bytes>", "... r [DLC]" for a remote request, "<seconds> <channel>
- * ErrorFrame"; the header's "base hex|dec" sets *base. Every other line (the header, comments,
- * events, statistics) is no frame, as it is to python-can; a CAN FD line ("CANFD") is not read
- * here (malformed). 1 parsed, 0 no frame, -1 malformed. */
+ * ErrorFrame"; a CAN FD frame "<seconds> CANFD <channel> Rx|Tx <ID>[x] [<name>] <BRS> <ESI>
+ * <DLC> <data length> <bytes>" (parse_asc_fd); the header's "base hex|dec" sets *base. Every
+ * other line (the header, comments, events, statistics) is no frame, as it is to python-can.
+ * 1 parsed, 0 no frame, -1 malformed. */
 static int parse_asc_line(const char *line, int *base, uint32_t *id, uint8_t *len,
                           uint8_t *flags, uint8_t *data, int64_t *t_ns)
 {
@@ -156,7 +226,9 @@ static int parse_asc_line(const char *line, int *base, uint32_t *id, uint8_t *le
     }
     if (!parse_time(p, &end, t_ns) || (*end != ' ' && *end != '\t')) return 0;
     p = skip_blank(end);
-    if (strncmp(p, "CANFD", 5) == 0) return -1;
+    if (strncmp(p, "CANFD", 5) == 0 && (p[5] == ' ' || p[5] == '\t')) {
+        return parse_asc_fd(skip_blank(p + 5), *base, id, len, flags, data);
+    }
     if (*p < '0' || *p > '9') return 0; /* "Start of measurement", statistics, J1939 ... */
     while (*p >= '0' && *p <= '9') p++; /* the channel */
     p = skip_blank(p);

@@ -16,7 +16,7 @@ data generated from the config (its signal table and E2E profiles, the clock and
 bank's FIR blocks, noise and thresholds), with a Makefile:
 
   make host                 a native build (float64; float32 with --float32)
-  make run-host LOG=FILE    run it over a candump -L .log or a Vector .asc (classic CAN):
+  make run-host LOG=FILE    run it over a candump -L .log or a Vector .asc (CAN and CAN FD):
                             JSON with the detections, samples and frame counters, as
                             `canfdi replay --json` gives them
   make cortex-m4f           arm-none-eabi-gcc, float32, newlib-nano, no allocation

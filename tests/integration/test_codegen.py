@@ -69,6 +69,32 @@ def _time_jumps(frames):
                       long=dict(frames.long))
 
 
+def _fd_frames(frames):
+    """The frames with CAN FD ones among them, as a bus where an FD node talks beside the
+    drive: a seventh of the drive's own frames flagged FD (their message is classic: invalid),
+    some with a 12-byte payload, FD remote requests and an FD error frame."""
+    from canfdi.bus.frames import FLAG_ERROR, FLAG_FD, FLAG_REMOTE, FrameBlock
+
+    flags, dlc, data = frames.flags.copy(), frames.dlc.copy(), frames.data.copy()
+    long = dict(frames.long)
+    rows = np.arange(3, frames.size, 7)
+    flags[rows] |= FLAG_FD
+    for r in rows[::3].tolist():
+        dlc[r] = 12
+        long[r] = np.arange(r, r + 12, dtype=np.uint64).astype(np.uint8)
+    remote = rows[1::5]
+    flags[remote] |= FLAG_REMOTE
+    dlc[remote] = 8
+    data[remote] = 0
+    for r in remote.tolist():
+        long.pop(r, None)
+    flags[rows[2]] = FLAG_FD | FLAG_ERROR
+    dlc[rows[2]] = 0
+    data[rows[2]] = 0
+    long.pop(int(rows[2]), None)
+    return FrameBlock(frames.t_ns, frames.id, dlc, flags, data, long=long)
+
+
 @pytest.fixture(scope="module")
 def config():
     return load_config(CONFIG)
@@ -81,7 +107,7 @@ def logs(tmp_path_factory, config):
     for name in _scenarios(config):
         frames = frame_log(load_scenario(name)).frames
         for tag, block in (("clean", frames), ("damaged", _damaged(frames)),
-                           ("timejump", _time_jumps(frames))):
+                           ("timejump", _time_jumps(frames)), ("fd", _fd_frames(frames))):
             for suffix in (".log", ".asc"):  # candump -L and Vector ASC, both as python-can
                 path = out / f"{name}-{tag}{suffix}"
                 write_frames(path, [block])
@@ -152,6 +178,8 @@ def test_the_c_loop_counts_and_detects_as_the_monitor_does(config, logs, project
         if "timejump" in name:
             assert got["frames"]["clock_steps"] >= 1, name
             assert got["frames"]["invalid_by_reason"]["time_jump"] >= 1, name
+        if "-fd" in name:  # CAN FD frames read, and counted as the monitor counts them
+            assert got["frames"]["invalid_by_reason"]["fd"] >= 100, name
         assert got["malformed_lines"] == 0
 
 
@@ -195,6 +223,26 @@ def test_hostile_lines_under_the_sanitizers(logs, tmp_path_factory, tmp_path):
     got = _run(project, hostile, env)
     assert got["malformed_lines"] >= 8
     assert got["frames"]["received"] + got["malformed_lines"] <= got["lines"]
+    # Vector ASC, classic and CAN FD lines no CANalyzer writes.
+    asc = tmp_path / "hostile.asc"
+    fd = "1.000000 CANFD 1 Rx 104"
+    lines = ["base hex  timestamps absolute", f"{fd} 0 0 f 64 " + "AB " * 64,
+             f"{fd} 0 0 f 65 " + "AB " * 70, f"{fd} 0 0 8 8 01 02", f"{fd} 0 0 8 8 1FF 00",
+             f"{fd} name 0 0 8 8 " + "00 " * 8, f"{fd} 0 0 99 0", f"{fd} 0 0 8", f"{fd}",
+             "1.000000 CANFD x Rx 104 0 0 8 8", "1.000000 CANFD 1 Qx 104 0 0 8 8",
+             "1.000000 CANFD 1 Rx ErrorFrame", "1.000000 CANFD", "1.000000 CANFD   ",
+             "1.000000 CANFD 1 Rx 1FFFFFFFFx 0 0 8 8", "1.000000 1 104 Rx d 8 " + "FF " * 80,
+             "1.000000 1 104 Rx d ZZ", "1.000000 1 104 Rx r 99", "base dec",
+             f"{fd} 0 0 15 64 " + "255 " * 64, f"{fd} 0 0 15 64 " + "256 " * 64]
+    for _ in range(200):
+        n = int(rng.integers(0, 70))
+        lines.append(f"{rng.uniform(0, 1e6):.6f} CANFD 1 Rx {int(rng.integers(0, 0x800))} "
+                     f"1 0 {int(rng.integers(0, 16))} {n} "
+                     + " ".join(str(b) for b in rng.integers(0, 256, n)))
+    asc.write_text("\n".join(lines) + "\n")
+    got = _run(project, asc, env)
+    assert got["malformed_lines"] >= 8
+    assert got["frames"]["received"] >= 150  # the lines of at most 64 bytes
 
 
 @pytest.mark.parametrize(("config_name", "field"), [
