@@ -410,6 +410,74 @@ static PyObject *counter_run(PyObject *self, PyObject *args)
     return Py_BuildValue("nn", (Py_ssize_t)n_out, (Py_ssize_t)used);
 }
 
+PyDoc_STRVAR(info_block_doc,
+"info_block(q, p, m, S, Gz, Gu, sigma, H, d, columns, K, onsets, n, k, U, rn, gamma, J, h,\n"
+"           meat, rr, n_eq, work)\n\n"
+"A diagnosis' information sums over n samples (cfdi_info_block): Gz (q, m, S+1), Gu (p, m,\n"
+"S+1), sigma (m,) float64, columns (H, d, 2) int32, onsets (K,) and k (n,) int64, U (n, S+1,\n"
+"p), rn (n, m) and gamma (m, m) float64; J and meat (H, K, d, d), h (H, K, d), rr (1,)\n"
+"float64 and n_eq (1,) int64 added to; work (2 m d) float64 scratch.");
+
+static PyObject *info_block(PyObject *self, PyObject *args)
+{
+    PyObject *o[15];
+    Py_ssize_t q, p, m, S, H, d, K, n;
+    held_buffer b[15];
+    int status;
+    const Py_ssize_t R = (Py_ssize_t)sizeof(cfdi_real);
+    (void)self;
+    memset(b, 0, sizeof b);
+
+    if (!PyArg_ParseTuple(args, "nnnnOOOnnOnOnOOOOOOOOOO", &q, &p, &m, &S, &o[0], &o[1], &o[2],
+                          &H, &d, &o[3], &K, &o[4], &n, &o[5], &o[6], &o[7], &o[8], &o[9],
+                          &o[10], &o[11], &o[12], &o[13], &o[14])) {
+        return NULL;
+    }
+    if (q <= 0 || p <= 0 || m <= 0 || S < 0 || H <= 0 || d <= 0 || K <= 0 || n < 0
+        || !sizes_ok(q + p, m, S + 1) || !sizes_ok(H * K, d, d) || !sizes_ok(n, S + 1, p)
+        || !sizes_ok(n, m, 1) || !sizes_ok(m, m, 1) || !sizes_ok(H, K, 1)) {
+        PyErr_SetString(PyExc_ValueError, "info_block: sizes do not fit (q, p, m, H, d, K > 0, "
+                                          "S, n >= 0)");
+        return NULL;
+    }
+    if (take(o[0], &b[0], 0, q * m * (S + 1) * R, "Gz") < 0
+        || take(o[1], &b[1], 0, p * m * (S + 1) * R, "Gu") < 0
+        || take(o[2], &b[2], 0, m * R, "sigma") < 0
+        || take(o[3], &b[3], 0, H * d * 2 * 4, "columns") < 0
+        || take(o[4], &b[4], 0, K * 8, "onsets") < 0
+        || take(o[5], &b[5], 0, n * 8, "k") < 0
+        || take(o[6], &b[6], 0, n * (S + 1) * p * R, "U") < 0
+        || take(o[7], &b[7], 0, n * m * R, "rn") < 0
+        || take(o[8], &b[8], 0, m * m * R, "gamma") < 0
+        || take(o[9], &b[9], 1, H * K * d * d * R, "J") < 0
+        || take(o[10], &b[10], 1, H * K * d * R, "h") < 0
+        || take(o[11], &b[11], 1, H * K * d * d * R, "meat") < 0
+        || take(o[12], &b[12], 1, R, "rr") < 0
+        || take(o[13], &b[13], 1, 8, "n_eq") < 0
+        || take(o[14], &b[14], 1, 2 * m * d * R, "work") < 0) {
+        release(b, 15);
+        return NULL;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    status = cfdi_info_block((size_t)q, (size_t)p, (size_t)m, (size_t)S,
+                             (const cfdi_real *)b[0].view.buf, (const cfdi_real *)b[1].view.buf,
+                             (const cfdi_real *)b[2].view.buf, (size_t)H, (size_t)d,
+                             (const int32_t *)b[3].view.buf, (size_t)K,
+                             (const int64_t *)b[4].view.buf, (size_t)n,
+                             (const int64_t *)b[5].view.buf, (const cfdi_real *)b[6].view.buf,
+                             (const cfdi_real *)b[7].view.buf, (const cfdi_real *)b[8].view.buf,
+                             (cfdi_real *)b[9].view.buf, (cfdi_real *)b[10].view.buf,
+                             (cfdi_real *)b[11].view.buf, (cfdi_real *)b[12].view.buf,
+                             (int64_t *)b[13].view.buf, (cfdi_real *)b[14].view.buf);
+    Py_END_ALLOW_THREADS
+    release(b, 15);
+    if (status != CFDI_OK) {
+        PyErr_Format(PyExc_ValueError, "info_block: status %d", status);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"fir_block", fir_block, METH_VARARGS, fir_block_doc},
     {"ph_block", ph_block, METH_VARARGS, ph_block_doc},
@@ -417,6 +485,7 @@ static PyMethodDef methods[] = {
     {"gate_block", gate_block, METH_VARARGS, gate_block_doc},
     {"latest_block", latest_block, METH_VARARGS, latest_block_doc},
     {"counter_run", counter_run, METH_VARARGS, counter_run_doc},
+    {"info_block", info_block, METH_VARARGS, info_block_doc},
     {NULL, NULL, 0, NULL}
 };
 

@@ -152,4 +152,34 @@ int cfdi_counter_close(int64_t *state, const double *buffer, size_t width, const
                        size_t n_slots, size_t cols, int64_t *ks, int64_t *done, int64_t *gaps,
                        double *samples, size_t *n_out);
 
+/* A diagnosis' least squares in information form absorbing n samples at once
+ * (canfdi.methods.parity.hypotheses.information_increments, ParityDiagnoser._accumulate): every
+ * hypothesis' normalised regressors at every candidate onset (block_regressors), and what they
+ * add to its fit: the information phi^T phi and the vector phi^T r over the residuals present,
+ * the sandwich's middle phi^T Gamma phi, the residuals' sum of squares and the equations.
+ *
+ * Gz : (q, m, S+1), Gu : (p, m, S+1) the bank's fault signatures; sigma : (m,) the noise the
+ *         residuals were normalised by.
+ * columns : (H, d, 2) each hypothesis' parameter columns: a source (CFDI_COL_*) and its
+ *         channel (canfdi.methods.parity.hypotheses.regressor_columns).
+ * onsets : (K,) the candidate fault onsets; k : (n,) the samples.
+ * U     : (n, S+1, p) each sample's command window (NaN read as 0, an infinity as the largest
+ *         finite value of its sign: numpy's nan_to_num); rn : (n, m) the normalised
+ *         residuals, NaN: no equation.
+ * gamma : (m, m) the residuals' long-run covariance.
+ * J, meat : (H, K, d, d), h : (H, K, d), rr : (1,), n_eq : (1,): the sums added to.
+ * work  : (2 m d) scratch.
+ * Returns CFDI_OK, or a negative status (nothing added) for a null pointer, a zero size or a
+ * column outside the bank. */
+#define CFDI_COL_NONE 0   /* beyond the hypothesis' parameters: a zero column */
+#define CFDI_COL_SENSOR 1 /* sensor j's bias: Gz[j] */
+#define CFDI_COL_SCALE 2  /* actuator j's eta - 1: Gu[j] times its command */
+#define CFDI_COL_BIAS 3   /* actuator j's lambda: Gu[j] */
+int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
+                    const cfdi_real *Gu, const cfdi_real *sigma, size_t H, size_t d,
+                    const int32_t *columns, size_t K, const int64_t *onsets, size_t n,
+                    const int64_t *k, const cfdi_real *U, const cfdi_real *rn,
+                    const cfdi_real *gamma, cfdi_real *J, cfdi_real *h, cfdi_real *meat,
+                    cfdi_real *rr, int64_t *n_eq, cfdi_real *work);
+
 #endif

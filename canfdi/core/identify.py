@@ -56,6 +56,7 @@ from numpy.typing import ArrayLike, NDArray
 from canfdi.core._check import check_shape
 
 __all__ = [
+    "InformationSums",
     "LeastSquaresFit",
     "RlsBatchResult",
     "RlsSolution",
@@ -63,6 +64,7 @@ __all__ = [
     "chi2_sigma",
     "least_squares",
     "rls_batch",
+    "rls_increments",
     "rls_init",
     "rls_solve",
     "rls_update",
@@ -226,6 +228,40 @@ def _rows(phi: ArrayLike, r: ArrayLike, d: int) -> tuple[FloatArray, FloatArray,
     return phi_a * valid[..., None], np.where(valid, r_a, 0.0), valid
 
 
+@dataclass(frozen=True, eq=False)
+class InformationSums:
+    """What samples add to estimators in information form (one per leading batch index), and
+    to the middle of their sandwich covariance: `rls_increments`, or a diagnosis' regressors
+    and sums at once (canfdi.methods.parity.hypotheses.information_increments, or the C
+    kernel's cfdi_info_block).
+
+    J : (..., d, d) sum phi^T phi; h : (..., d) sum phi^T r; rr : () sum |r|^2; n_eq : the
+    residual rows absorbed (missing ones not counted); meat : (..., d, d) sum phi^T Gamma phi
+    (zeros where no Gamma is given).
+    """
+
+    J: FloatArray
+    h: FloatArray
+    rr: FloatArray
+    n_eq: int
+    meat: FloatArray
+
+    def added_to(self, state: RlsState, samples: int) -> RlsState:
+        """``state`` with these sums absorbed (``samples`` time steps of them)."""
+        return RlsState(J=state.J + self.J, h=state.h + self.h, rr=state.rr + self.rr,
+                        n=state.n + samples, n_eq=state.n_eq + self.n_eq)
+
+
+def rls_increments(phi: ArrayLike, r: ArrayLike, d: int) -> InformationSums:
+    """The sums `rls_update` adds for rows ``r = phi theta + noise``: phi (..., m, d), r (m,)
+    or (..., m), NaN a missing row (no equation); no sandwich middle (``meat`` zeros)."""
+    phi_a, r_a, valid = _rows(phi, r, d)
+    J = np.einsum("...mi,...mj->...ij", phi_a, phi_a)
+    return InformationSums(J=J, h=np.einsum("...mi,...m->...i", phi_a, r_a),
+                           rr=np.einsum("...m,...m->...", r_a, r_a), n_eq=int(valid.sum()),
+                           meat=np.zeros_like(J))
+
+
 def rls_update(state: RlsState, phi: ArrayLike, r: ArrayLike, samples: int = 1) -> RlsState:
     """Absorb one sample: ``m`` residual rows ``r = phi theta + noise`` (or ``samples`` of
     them at once, their rows stacked: the information form is a sum, so one update of the
@@ -242,11 +278,7 @@ def rls_update(state: RlsState, phi: ArrayLike, r: ArrayLike, samples: int = 1) 
     -------
     RlsState with the sample absorbed (a new state; the input is not modified).
     """
-    phi_a, r_a, valid = _rows(phi, r, state.d)
-    J = state.J + np.einsum("...mi,...mj->...ij", phi_a, phi_a)
-    h = state.h + np.einsum("...mi,...m->...i", phi_a, r_a)
-    rr = state.rr + np.einsum("...m,...m->...", r_a, r_a)
-    return RlsState(J=J, h=h, rr=rr, n=state.n + samples, n_eq=state.n_eq + int(valid.sum()))
+    return rls_increments(phi, r, state.d).added_to(state, samples)
 
 
 def rls_solve(state: RlsState) -> RlsSolution:

@@ -2,11 +2,13 @@
 
 - ``python``: the numpy reference (canfdi.core.residuals.fir_rows,
   canfdi.core.detect.change_point_block, canfdi.bus.dbc.BusMap.decode_frames_reference,
-  canfdi.bus.timegate.TimeGate.apply_reference).
+  canfdi.bus.timegate.TimeGate.apply_reference, and a diagnoser's own
+  ``information_reference``: the parity diagnosis' regressors and sums).
 - ``c``: the C core (canfdi/_c, built as canfdi._ckernel by the package's own build where a
   compiler exists): the same functions over the same arrays. The detector's statistics are
   numpy's bit for bit (the same closed form, op for op); the residuals agree to rounding
-  (numpy's BLAS may order or fuse a row's sum otherwise); the frame decode's statuses,
+  (numpy's BLAS may order or fuse a row's sum otherwise), and so do a diagnosis' information
+  sums (einsum's order); the frame decode's statuses,
   slots, counters and values and the time gate's times, drops and steps are numpy's to the
   bit.
 
@@ -37,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from canfdi.core.detect import ChangePointBlock, change_point_block
+from canfdi.core.identify import InformationSums
 from canfdi.core.kernelchoice import ENV, KernelError, choose
 from canfdi.core.residuals import fir_rows
 
@@ -68,13 +71,17 @@ class Kernel:
     gate_apply: Callable[[Any, np.ndarray, np.ndarray], tuple]
     latest_values: Callable[..., np.ndarray] | None
     counter_machine: Callable[..., tuple] | None
+    information_block: Callable[..., InformationSums] | None = None
 
     def install(self, *, bank: Any = None, detectors: tuple[Any, ...] = (),
-                bus_map: Any = None, gate: Any = None, clock: Any = None) -> None:
+                bus_map: Any = None, gate: Any = None, clock: Any = None,
+                fits: Any = None) -> None:
         """Make ``bank`` (a ResidualBank), ``detectors`` (ChangePointDetector), ``bus_map``
-        (canfdi.bus.dbc.BusMap: its frame decode), ``gate`` (canfdi.bus.timegate.TimeGate)
-        and ``clock`` (a sample clock: a latest-value clock's samples, the counter clock's
-        state machine) run on this kernel."""
+        (canfdi.bus.dbc.BusMap: its frame decode), ``gate`` (canfdi.bus.timegate.TimeGate),
+        ``clock`` (a sample clock: a latest-value clock's samples, the counter clock's
+        state machine) and ``fits`` (a diagnosis' fits in information form: its regressors
+        and sums, ``information`` beside its numpy ``information_reference``) run on this
+        kernel."""
         if bank is not None:
             bank.fir_rows = self.fir_rows
         for det in detectors:
@@ -87,6 +94,8 @@ class Kernel:
             clock.latest_values = self.latest_values or clock.latest_values_reference
         if clock is not None and hasattr(clock, "machine"):
             clock.machine = self.counter_machine
+        if fits is not None:
+            fits.information = self.information_block or fits.information_reference
 
     def use_on(self, diagnoser: Any) -> Any:
         """``diagnoser`` (a method's) with its block forms on this kernel, where it has any
@@ -251,10 +260,36 @@ def _c_counter_machine(state: np.ndarray, buffer: np.ndarray, rows: np.ndarray,
     return (ks[:n_out], done[:n_out], gaps[:n_out], samples[:n_out]), used
 
 
+def _c_information_block(bank: Any, hypotheses: Any, columns: np.ndarray, d: int,
+                         onsets: np.ndarray, k: np.ndarray, u_windows: np.ndarray,
+                         rn: np.ndarray, gamma: np.ndarray) -> InformationSums:
+    """A diagnosis' regressors and information sums in C (cfdi_info_block), from the
+    hypotheses' ``columns`` (canfdi.methods.parity.hypotheses.regressor_columns)."""
+    del hypotheses  # numpy's form of ``columns``
+    Gz = np.ascontiguousarray(bank.Gz, dtype=np.float64)
+    Gu = np.ascontiguousarray(bank.Gu, dtype=np.float64)
+    (q, m, S1), p = Gz.shape, Gu.shape[0]
+    H, K = len(columns), len(onsets)
+    n = len(k)
+    J, meat = np.zeros((H, K, d, d)), np.zeros((H, K, d, d))
+    h, rr, n_eq = np.zeros((H, K, d)), np.zeros(1), np.zeros(1, dtype=np.int64)
+    _ckernel.info_block(q, p, m, S1 - 1, Gz, Gu, np.ascontiguousarray(bank.sigma,
+                                                                     dtype=np.float64),
+                        H, d, np.ascontiguousarray(columns, dtype=np.int32), K,
+                        np.ascontiguousarray(onsets, dtype=np.int64), n,
+                        np.ascontiguousarray(k, dtype=np.int64),
+                        np.ascontiguousarray(u_windows, dtype=np.float64).reshape(n, S1, p),
+                        np.ascontiguousarray(rn, dtype=np.float64).reshape(n, m),
+                        np.ascontiguousarray(gamma, dtype=np.float64), J, h, meat, rr, n_eq,
+                        np.empty(2 * m * d))
+    return InformationSums(J=J, h=h, rr=rr[0], n_eq=int(n_eq[0]), meat=meat)
+
+
 _KERNELS: dict[str, Kernel | None] = {
     "c": None if _ckernel is None else Kernel("c", _c_fir_rows, _c_change_point_block,
                                               _c_decode_frames, _c_gate_apply,
-                                              _c_latest_values, _c_counter_machine),
+                                              _c_latest_values, _c_counter_machine,
+                                              _c_information_block),
     "python": Kernel("python", fir_rows, change_point_block, _py_decode_frames,
                      _py_gate_apply, None, None),
 }

@@ -55,7 +55,7 @@ import numpy as np
 from canfdi.core.blockrun import BlockRows, continuity_breaks, has_values, run_block
 from canfdi.core.design import Design
 from canfdi.core.detect import ChangePointDetector, DetectorBacked, onset_candidates
-from canfdi.core.identify import RlsState, rls_init, rls_solve, rls_update
+from canfdi.core.identify import RlsState, rls_init, rls_solve
 from canfdi.core.protocol import DIAGNOSE, MONITOR, deepcopy_sharing
 from canfdi.core.records import (
     BlockResult,
@@ -69,10 +69,11 @@ from canfdi.core.records import (
 from canfdi.core.residuals import ResidualBank
 from canfdi.methods.parity.hypotheses import (
     Hypothesis,
-    block_regressors,
     independent_sensors,
+    information_increments,
     noise_units,
     proportional,
+    regressor_columns,
     row_regressors,
 )
 from canfdi.methods.parity.recent import RecentWindows
@@ -247,6 +248,10 @@ class ParityDiagnoser(DetectorBacked):
             self.hypotheses.append(Hypothesis("sensors", joint[0], "+".join(
                 design.output_names[j] for j in joint), members=tuple(joint)))
         self.d = max(h.n_params for h in self.hypotheses)
+        # A diagnosis' regressors and sums (hypotheses.information_increments), or the same on
+        # a kernel (use_kernel), from the hypotheses' columns.
+        self._columns = regressor_columns(self.hypotheses, self.d)
+        self.information = self.information_reference
         # Hypotheses whose bias signatures over the window are proportional (a sensor's Gz_j,
         # an actuator's lambda part Gu_j) fit a bias equally well forever: they are reported
         # together, never told apart. (The design's isolability table, which compares only
@@ -288,6 +293,10 @@ class ParityDiagnoser(DetectorBacked):
         self._absorbed: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
         self.reset()
 
+    information_reference = staticmethod(information_increments)
+    """A diagnosis' regressors and sums in numpy: what ``information`` runs unless a kernel
+    put its own there (`use_kernel`)."""
+
     # -- state ---------------------------------------------------------------------------
     def __deepcopy__(self, memo: dict) -> ParityDiagnoser:
         """A copy that runs apart from this one, sharing what update never changes: the
@@ -300,7 +309,7 @@ class ParityDiagnoser(DetectorBacked):
         memo[id(self._absorbed)] = list(self._absorbed)
         return deepcopy_sharing(
             self, memo, self.design, self.settings, self.hypotheses, self._twins,
-            self._column_residuals, self._sigma0, self._lagged, self._projection,
+            self._column_residuals, self._columns, self._sigma0, self._lagged, self._projection,
             bank.M, bank.blocks, bank.uses, bank._uses, bank.Gz, bank.Gu, bank.names,
             bank.kinds, bank.indices, self.tracker.gamma)
 
@@ -333,7 +342,7 @@ class ParityDiagnoser(DetectorBacked):
     def use_kernel(self, kernel) -> None:
         """Run the residual bank's and the detector's block forms on ``kernel``
         (canfdi.core.kernel.Kernel)."""
-        kernel.install(bank=self.bank, detectors=(self._detector,))
+        kernel.install(bank=self.bank, detectors=(self._detector,), fits=self)
 
     @property
     def noise_scale(self) -> np.ndarray:
@@ -502,20 +511,15 @@ class ParityDiagnoser(DetectorBacked):
         a sum: a block is absorbed at once, as sample by sample.)"""
         d = self._diag
         U = windows[:, :, self.q:]
-        phi = block_regressors(self.bank, self.hypotheses, self.d, k, d.onsets, U)
-        seen_r = ~np.isnan(rn)  # (N, m)
-        rows = phi * seen_r[:, None, None, :, None]
-        meat = d.meat + np.einsum("nhkmd,nhkme->hkde", rows, self.tracker.gamma @ rows)
+        sums = self.information(self.bank, self.hypotheses, self._columns, self.d, d.onsets, k,
+                                U, rn, self.tracker.gamma)
         if self._lagged is not None:
             sigma = self.bank.sigma.copy()
-            self._absorbed.extend(zip(k.tolist(), U.copy(), seen_r, [sigma] * len(k),
+            self._absorbed.extend(zip(k.tolist(), U.copy(), ~np.isnan(rn), [sigma] * len(k),
                                       strict=True))
-        n, H, K, m, dd = phi.shape
-        stacked = np.moveaxis(phi, 0, 2).reshape(H, K, n * m, dd)
         u_now = U[:, -1]
         seen = ~np.isnan(u_now)
-        self._diag = replace(d, info=rls_update(d.info, stacked, rn.reshape(n * m), samples=n),
-                             meat=meat,
+        self._diag = replace(d, info=sums.added_to(d.info, len(k)), meat=d.meat + sums.meat,
                              u_abs=d.u_abs + np.where(seen, np.abs(np.nan_to_num(u_now)),
                                                       0.0).sum(axis=0),
                              n_u=d.n_u + seen.sum(axis=0))

@@ -13,10 +13,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from canfdi.core.identify import InformationSums, rls_increments
 from canfdi.core.residuals import ResidualBank
 
-__all__ = ["Hypothesis", "block_regressors", "independent_sensors", "noise_units", "proportional",
+__all__ = ["COLUMN_SOURCES", "Hypothesis", "block_regressors", "independent_sensors",
+           "information_increments", "noise_units", "proportional", "regressor_columns",
            "regressors", "row_regressors", "steady_response"]
+
+COLUMN_SOURCES = {"none": 0, "sensor": 1, "scale": 2, "bias": 3}
+"""What a regressor column is made of (`regressor_columns`; the C core's CFDI_COL_*): nothing
+(beyond a hypothesis' parameters), a sensor's bias signature Gz[j], an actuator's signature
+Gu[j] times its command (eta - 1), or Gu[j] alone (lambda)."""
 
 
 @dataclass(frozen=True)
@@ -156,6 +163,57 @@ def block_regressors(bank: ResidualBank, hypotheses: list[Hypothesis], d: int, k
             out[:, h_i, :, :, 0] = ua[:, h.index]
             out[:, h_i, :, :, 1] = ub[:, h.index]
     return out / bank.sigma[None, None, None, :, None]
+
+
+def regressor_columns(hypotheses: list[Hypothesis], d: int) -> np.ndarray:
+    """(H, d, 2) int32: for each hypothesis and parameter, what `block_regressors` makes its
+    column of (a `COLUMN_SOURCES` code) and from which channel: the table the C kernel's
+    cfdi_info_block computes the regressors by.
+
+    Examples
+    --------
+    >>> hyps = [Hypothesis("actuator", 0, "V"), Hypothesis("sensor", 2, "y2")]
+    >>> regressor_columns(hyps, 2).tolist()  # (scale, V), (bias, V); (sensor, y2), none
+    [[[2, 0], [3, 0]], [[1, 2], [0, 0]]]
+    """
+    out = np.zeros((len(hypotheses), d, 2), dtype=np.int32)
+    for h_i, h in enumerate(hypotheses):
+        if h.target == "sensor":
+            cols = [("sensor", h.index)]
+        elif h.target == "sensors":
+            cols = [("sensor", j) for j in h.members]
+        elif h.target == "actuator_bias":
+            cols = [("bias", h.index)]
+        else:
+            cols = [("scale", h.index), ("bias", h.index)]
+        for c, (source, channel) in enumerate(cols):
+            out[h_i, c] = (COLUMN_SOURCES[source], channel)
+    return out
+
+
+def information_increments(bank: ResidualBank, hypotheses: list[Hypothesis],
+                           columns: np.ndarray, d: int, onsets: np.ndarray, k: np.ndarray,
+                           u_windows: np.ndarray, rn: np.ndarray, gamma: np.ndarray
+                           ) -> InformationSums:
+    """What N samples add to a diagnosis' fits (the numpy reference of the C kernel's
+    cfdi_info_block, which reads ``columns``, `regressor_columns`, where this reads
+    ``hypotheses``): every hypothesis' regressors at every onset (`block_regressors`), their
+    information and vector over the residuals present (`rls_increments`, batch shape (H, K)),
+    and the sandwich's middle sum phi^T Gamma phi.
+
+    Parameters
+    ----------
+    k : (N,) samples; u_windows : (N, S+1, p) their commands' windows; rn : (N, m) normalised
+        residuals, NaN: no equation; gamma : (m, m) the residuals' long-run covariance.
+    """
+    del columns  # the C kernel's form of ``hypotheses``
+    phi = block_regressors(bank, hypotheses, d, k, onsets, u_windows)  # (N, H, K, m, d)
+    rows = phi * (~np.isnan(rn))[:, None, None, :, None]
+    meat = np.einsum("nhkmd,nhkme->hkde", rows, gamma @ rows)
+    n, H, K, m, dd = phi.shape
+    stacked = np.moveaxis(phi, 0, 2).reshape(H, K, n * m, dd)
+    sums = rls_increments(stacked, rn.reshape(n * m), dd)
+    return InformationSums(J=sums.J, h=sums.h, rr=sums.rr, n_eq=sums.n_eq, meat=meat)
 
 
 def row_regressors(bank: ResidualBank, hypotheses: list[Hypothesis], onsets: list[int],

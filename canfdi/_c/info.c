@@ -1,0 +1,136 @@
+/* A diagnosis' least squares in information form, n samples at once: every fault hypothesis'
+ * regressors at every candidate onset, and the sums they add to its fit. Mirrors
+ * canfdi.methods.parity.hypotheses.information_increments (block_regressors, then the
+ * information, the sandwich's middle and the residuals' sum of squares); the sums agree to
+ * rounding (numpy's einsum may order a sum otherwise). */
+#include <float.h>
+#include <math.h>
+#include <string.h>
+
+#include "cfdi.h"
+
+#ifdef CFDI_FLOAT32
+#define REAL_MAX FLT_MAX
+#else
+#define REAL_MAX DBL_MAX
+#endif
+
+/* numpy's nan_to_num: a lost command (NaN) reads 0 (it enters only residuals that are missing
+ * anyway), an infinite one the largest finite value of its sign. */
+static cfdi_real finite(cfdi_real u)
+{
+    if (u != u) {
+        return 0;
+    }
+    if (u > REAL_MAX) {
+        return REAL_MAX;
+    }
+    if (u < -REAL_MAX) {
+        return -REAL_MAX;
+    }
+    return u;
+}
+
+/* The first lag s of the window of sample k (positions k - S + s) at or after the onset:
+ * S + 1 when none is (no int64 arithmetic that could wrap). */
+static size_t first_lag(int64_t k, int64_t onset, size_t S)
+{
+    uint64_t since;
+    if (k < onset) {
+        return S + 1;
+    }
+    since = (uint64_t)k - (uint64_t)onset;
+    return since >= (uint64_t)S ? 0 : S - (size_t)since;
+}
+
+int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
+                    const cfdi_real *Gu, const cfdi_real *sigma, size_t H, size_t d,
+                    const int32_t *columns, size_t K, const int64_t *onsets, size_t n,
+                    const int64_t *k, const cfdi_real *U, const cfdi_real *rn,
+                    const cfdi_real *gamma, cfdi_real *J, cfdi_real *h, cfdi_real *meat,
+                    cfdi_real *rr, int64_t *n_eq, cfdi_real *work)
+{
+    size_t i, hyp, c, o, row, s, a, b, W = S + 1;
+    cfdi_real *phi = work, *gphi = work + m * d;
+    if (Gz == NULL || Gu == NULL || sigma == NULL || columns == NULL || onsets == NULL
+        || gamma == NULL || J == NULL || h == NULL || meat == NULL || rr == NULL
+        || n_eq == NULL || work == NULL || (n && (k == NULL || U == NULL || rn == NULL))) {
+        return CFDI_EBADARG;
+    }
+    if (q == 0 || p == 0 || m == 0 || H == 0 || d == 0 || K == 0) {
+        return CFDI_EBADARG;
+    }
+    for (hyp = 0; hyp < H * d; hyp++) {
+        int32_t source = columns[2 * hyp], channel = columns[2 * hyp + 1];
+        if (source < CFDI_COL_NONE || source > CFDI_COL_BIAS || channel < 0
+            || (source == CFDI_COL_SENSOR && (size_t)channel >= q)
+            || ((source == CFDI_COL_SCALE || source == CFDI_COL_BIAS) && (size_t)channel >= p)) {
+            return CFDI_ESHAPE;
+        }
+    }
+    for (i = 0; i < n; i++) {
+        const cfdi_real *r = rn + i * m, *u = U + i * W * p;
+        int64_t present = 0;
+        for (row = 0; row < m; row++) {
+            if (r[row] == r[row]) {
+                present++;
+                *rr += r[row] * r[row];
+            }
+        }
+        *n_eq += present;
+        for (hyp = 0; hyp < H; hyp++) {
+            for (o = 0; o < K; o++) {
+                size_t first = first_lag(k[i], onsets[o], S), at = (hyp * K + o) * d;
+                cfdi_real *Jo = J + at * d, *ho = h + at, *mo = meat + at * d;
+                for (row = 0; row < m; row++) {
+                    int seen = r[row] == r[row];
+                    for (c = 0; c < d; c++) {
+                        const int32_t *col = columns + 2 * (hyp * d + c);
+                        size_t j = (size_t)col[1];
+                        cfdi_real sum = 0;
+                        if (seen && col[0] != CFDI_COL_NONE) {
+                            const cfdi_real *g = (col[0] == CFDI_COL_SENSOR ? Gz : Gu)
+                                                 + (j * m + row) * W;
+                            for (s = first; s < W; s++) {
+                                sum += col[0] == CFDI_COL_SCALE ? g[s] * finite(u[s * p + j])
+                                                                : g[s];
+                            }
+                            sum = sum / sigma[row];
+                        }
+                        phi[row * d + c] = sum;
+                    }
+                }
+                for (row = 0; row < m; row++) { /* Gamma phi */
+                    for (c = 0; c < d; c++) {
+                        cfdi_real sum = 0;
+                        for (a = 0; a < m; a++) {
+                            sum += gamma[row * m + a] * phi[a * d + c];
+                        }
+                        gphi[row * d + c] = sum;
+                    }
+                }
+                for (a = 0; a < d; a++) {
+                    for (b = 0; b < d; b++) {
+                        cfdi_real info = 0, mid = 0;
+                        for (row = 0; row < m; row++) {
+                            info += phi[row * d + a] * phi[row * d + b];
+                            mid += phi[row * d + a] * gphi[row * d + b];
+                        }
+                        Jo[a * d + b] += info;
+                        mo[a * d + b] += mid;
+                    }
+                    {
+                        cfdi_real dot = 0;
+                        for (row = 0; row < m; row++) {
+                            if (r[row] == r[row]) {
+                                dot += phi[row * d + a] * r[row];
+                            }
+                        }
+                        ho[a] += dot;
+                    }
+                }
+            }
+        }
+    }
+    return CFDI_OK;
+}
