@@ -1,6 +1,7 @@
-/* The E2E profiles' check and counter read of one payload, from a profile's compiled tables
- * (e2e.h): canfdi.bus.e2e's `profile.check(payload)` and `profile.counter(payload)`, answer
- * for answer. One routine for every profile; what differs between them is table data. */
+/* The E2E profiles' check and counter read of one payload, and the sender's protection, from
+ * a profile's compiled tables (e2e.h): canfdi.bus.e2e's `profile.check(payload)`,
+ * `profile.counter(payload)` and `profile.protect(payload, counter)`, answer for answer. One
+ * routine for every profile; what differs between them is table data. */
 #include "e2e.h"
 
 #define HALF_MAX 0xFFFF
@@ -77,6 +78,47 @@ static uint64_t field_read(const int32_t *spec, int count_at, int at, const uint
     return value;
 }
 
+/* The CRC byte a payload of len >= MIN_LEN bytes with this counter must carry (a KIND_CRC
+ * table, well formed): the register from seed[counter & SEED_MASK] over the covered bytes but
+ * the CRC's own, then (TRAIL) trail[counter & TRAIL_MASK], XORed with XOR_OUT. */
+static unsigned crc_of(const int32_t *spec, const uint8_t *bytes, const uint8_t *payload,
+                       size_t len, uint64_t counter)
+{
+    const uint8_t *table = bytes + CFDI_E2E_TABLE;
+    size_t j, crc_byte = (size_t)spec[CFDI_E2E_CRC_BYTE];  /* < MIN_LEN <= len */
+    size_t end = spec[CFDI_E2E_CRC_TO_LENGTH] ? len : (size_t)spec[CFDI_E2E_CRC_END]; /* <= len */
+    unsigned reg = bytes[CFDI_E2E_SEEDS + (size_t)(counter & (uint64_t)spec[CFDI_E2E_SEED_MASK])];
+
+    for (j = (size_t)spec[CFDI_E2E_CRC_FIRST]; j < end; j++) {
+        if (j != crc_byte) {
+            reg = table[reg ^ payload[j]];
+        }
+    }
+    if (spec[CFDI_E2E_TRAIL]) {
+        size_t trail = (size_t)(counter & (uint64_t)spec[CFDI_E2E_TRAIL_MASK]);
+        reg = table[reg ^ bytes[CFDI_E2E_TRAILS + trail]];
+    }
+    return reg ^ (unsigned)spec[CFDI_E2E_XOR_OUT];
+}
+
+/* Write value into the field (its bits only; bytes beyond len untouched, the field must be
+ * well formed and below MIN_LEN <= len). */
+static void field_write(const int32_t *spec, int count_at, int at, uint8_t *payload,
+                        uint64_t value)
+{
+    int32_t k;
+
+    for (k = 0; k < spec[count_at]; k++) {
+        const int32_t *piece = spec + at + k * CFDI_E2E_PIECE_INTS;
+        size_t byte = (size_t)piece[CFDI_E2E_PIECE_BYTE];
+        unsigned mask = (1u << piece[CFDI_E2E_PIECE_WIDTH]) - 1u;
+        unsigned bits = (unsigned)(value >> piece[CFDI_E2E_PIECE_SHIFT]) & mask;
+        unsigned bit = (unsigned)piece[CFDI_E2E_PIECE_BIT];
+
+        payload[byte] = (uint8_t)((payload[byte] & ~(mask << bit)) | (bits << bit));
+    }
+}
+
 int cfdi_e2e_spec_check(const int32_t *spec, const uint8_t *bytes)
 {
     int32_t kind, min_len;
@@ -137,10 +179,7 @@ int cfdi_e2e_check(const int32_t *spec, const uint8_t *bytes, const uint8_t *pay
 int cfdi_e2e_check_valid(const int32_t *spec, const uint8_t *bytes, const uint8_t *payload,
                          size_t len)
 {
-    const uint8_t *table;
     uint64_t counter;
-    size_t j, end, crc_byte;
-    unsigned reg;
 
     if (payload == NULL && len > 0) {
         return CFDI_EBADARG;
@@ -164,20 +203,8 @@ int cfdi_e2e_check_valid(const int32_t *spec, const uint8_t *bytes, const uint8_
     if (spec[CFDI_E2E_KIND] == CFDI_E2E_KIND_COUNTER) {
         return 1;
     }
-    table = bytes + CFDI_E2E_TABLE;
-    crc_byte = (size_t)spec[CFDI_E2E_CRC_BYTE];  /* < MIN_LEN <= len */
-    end = spec[CFDI_E2E_CRC_TO_LENGTH] ? len : (size_t)spec[CFDI_E2E_CRC_END];  /* <= len */
-    reg = bytes[CFDI_E2E_SEEDS + (size_t)(counter & (uint64_t)spec[CFDI_E2E_SEED_MASK])];
-    for (j = (size_t)spec[CFDI_E2E_CRC_FIRST]; j < end; j++) {
-        if (j != crc_byte) {
-            reg = table[reg ^ payload[j]];
-        }
-    }
-    if (spec[CFDI_E2E_TRAIL]) {
-        size_t trail = (size_t)(counter & (uint64_t)spec[CFDI_E2E_TRAIL_MASK]);
-        reg = table[reg ^ bytes[CFDI_E2E_TRAILS + trail]];
-    }
-    return payload[crc_byte] == (reg ^ (unsigned)spec[CFDI_E2E_XOR_OUT]);
+    return payload[(size_t)spec[CFDI_E2E_CRC_BYTE]]
+           == crc_of(spec, bytes, payload, len, counter);
 }
 
 int64_t cfdi_e2e_counter(const int32_t *spec, const uint8_t *bytes, const uint8_t *payload,
@@ -200,4 +227,32 @@ int64_t cfdi_e2e_counter_valid(const int32_t *spec, const uint8_t *bytes,
     }
     return (int64_t)field_read(spec, CFDI_E2E_COUNTER_PIECES, CFDI_E2E_COUNTER_AT, payload,
                                len);
+}
+
+int cfdi_e2e_protect(const int32_t *spec, const uint8_t *bytes, uint8_t *payload, size_t len,
+                     uint64_t counter)
+{
+    int status = cfdi_e2e_spec_check(spec, bytes);
+
+    if (status != CFDI_OK) {
+        return status;
+    }
+    if ((payload == NULL && len > 0) || len < (size_t)spec[CFDI_E2E_MIN_LEN]
+        || len > (size_t)spec[CFDI_E2E_MAX_LEN]) {
+        return CFDI_EBADARG;
+    }
+    if (spec[CFDI_E2E_KIND] == CFDI_E2E_KIND_NONE) {
+        return CFDI_OK;
+    }
+    counter %= halves(spec, CFDI_E2E_COUNTER_MAX_HI) + 1;
+    field_write(spec, CFDI_E2E_COUNTER_PIECES, CFDI_E2E_COUNTER_AT, payload, counter);
+    if (spec[CFDI_E2E_EXTRA_PIECES] > 0) {
+        field_write(spec, CFDI_E2E_EXTRA_PIECES, CFDI_E2E_EXTRA_AT, payload,
+                    halves(spec, CFDI_E2E_EXTRA_VALUE_HI));
+    }
+    if (spec[CFDI_E2E_KIND] == CFDI_E2E_KIND_CRC) {
+        payload[(size_t)spec[CFDI_E2E_CRC_BYTE]] = (uint8_t)crc_of(spec, bytes, payload, len,
+                                                                   counter);
+    }
+    return CFDI_OK;
 }

@@ -99,5 +99,11 @@ int cfdi_e2e_check_valid(const int32_t *spec, const uint8_t *bytes, const uint8_
                          size_t len);
 int64_t cfdi_e2e_counter_valid(const int32_t *spec, const uint8_t *bytes,
                                const uint8_t *payload, size_t len);
+/* The sender's side (the profile's `protect(payload, counter)`): write the counter (reduced
+ * modulo COUNTER_MAX + 1), the extra field's value and the CRC into a payload of len bytes,
+ * MIN_LEN <= len <= MAX_LEN, leaving every other bit as it is: CFDI_OK, or CFDI_EBADARG for a
+ * malformed table, a null pointer or a length the profile does not take (payload untouched). */
+int cfdi_e2e_protect(const int32_t *spec, const uint8_t *bytes, uint8_t *payload, size_t len,
+                     uint64_t counter);
 
 #endif

@@ -371,4 +371,46 @@ def test_the_untouched_tables_pass_the_spec_check(driver):
 def test_null_pointers_are_a_status(driver):
     spec, table = PROFILES["p01_both"].c_spec()
     out = _run(driver, "n", spec.tobytes() + table.tobytes())
-    assert out.tolist() == [EBADARG] * 7 + [0]
+    assert out.tolist() == [EBADARG] * 7 + [0] + [EBADARG] * 3
+
+
+@pytest.mark.parametrize("name", sorted(PROFILES))
+def test_the_c_protection_is_the_profiles(driver, name):
+    """cfdi_e2e_protect (the MCU monitor's frames) writes what the profile's ``protect``
+    writes, for random payloads of every length the profile takes and any counter (reduced by
+    its modulus); a length it does not take is refused, the payload untouched."""
+    profile = PROFILES[name]
+    spec, table = profile.c_spec()
+    rng = np.random.default_rng(sum(map(ord, name)))
+    low = int(spec[E2E_H["CFDI_E2E_MIN_LEN"]])
+    high = min(int(spec[E2E_H["CFDI_E2E_MAX_LEN"]]), ROW)
+    n = 400
+    rows = rng.integers(0, 256, (n, ROW), dtype=np.uint8)
+    fits = rng.random(n) < 0.85
+    lengths = np.where(fits & (low <= high), rng.integers(min(low, ROW), high + 1, n),
+                       rng.integers(0, ROW + 1, n))
+    counters = rng.integers(0, 2**63, n, dtype=np.uint64) >> rng.integers(0, 64, n).astype(
+        np.uint64)
+    record = np.dtype([("payload", np.uint8, ROW), ("length", "<i8"), ("counter", "<u8")])
+    data = np.zeros(n, record)
+    data["payload"], data["length"], data["counter"] = rows, lengths, counters
+    res = subprocess.run([str(driver), "p"], input=spec.tobytes() + table.tobytes()
+                         + np.int64(n).tobytes() + data.tobytes(), capture_output=True,
+                         timeout=120)
+    assert res.returncode == 0, res.stderr.decode(errors="replace")[-3000:]
+    out = np.frombuffer(res.stdout, np.dtype([("status", "<i8"), ("payload", np.uint8, ROW)]))
+    assert len(out) == n
+    protected = 0
+    for i in range(n):
+        length = int(lengths[i])
+        if low <= length <= high:
+            want = profile.protect(bytes(rows[i, :length]), int(counters[i]))
+            assert out["status"][i] == 0, (name, length)
+            assert out["payload"][i, :length].tobytes() == want, (name, length, int(counters[i]))
+            assert profile.check(want)
+            protected += 1
+            np.testing.assert_array_equal(out["payload"][i, length:], rows[i, length:])
+        else:
+            assert out["status"][i] == EBADARG, (name, length)
+            np.testing.assert_array_equal(out["payload"][i], rows[i])
+    assert protected >= (n // 2 if low <= ROW else 0)

@@ -10,10 +10,15 @@
  *        n x (uint8 payload[64], int64 length 0..64)
  *   out: int64 cfdi_e2e_spec_check, n x (int64 check, int64 counter)
  *   (a payload of length 0 is passed as NULL).
+ * Mode "p" (protect), cases until the end of the input, each:
+ *   in : int32 spec[CFDI_E2E_INTS], uint8 bytes[CFDI_E2E_BYTES], int64 n,
+ *        n x (uint8 payload[64], int64 length 0..64, uint64 counter)
+ *   out: n x (int64 cfdi_e2e_protect, uint8 payload[64]: the first length bytes protected)
  * Mode "n" (null pointers), one case:
  *   in : int32 spec[CFDI_E2E_INTS], uint8 bytes[CFDI_E2E_BYTES]
- *   out: int64 x 8: check and counter with spec NULL, with bytes NULL, with payload NULL and
- *        length 5, and spec_check(NULL, NULL), spec_check(spec, bytes).
+ *   out: int64 x 11: check and counter with spec NULL, with bytes NULL, with payload NULL
+ *        and length 5, spec_check(NULL, NULL), spec_check(spec, bytes), and protect with
+ *        spec NULL, bytes NULL, payload NULL and length 5.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -86,6 +91,46 @@ static int run_case(void)
     return 1;
 }
 
+/* One case of mode "p"; 0 at the end of the input. */
+static int protect_case(void)
+{
+    int32_t *spec = must_alloc(CFDI_E2E_INTS * sizeof *spec);
+    uint8_t *bytes = must_alloc(CFDI_E2E_BYTES);
+    uint8_t row[ROW];
+    int64_t n = 0, i, length = 0;
+    uint64_t counter = 0;
+
+    if (!read_exact(spec, sizeof *spec, CFDI_E2E_INTS, 1)) {
+        free(spec);
+        free(bytes);
+        return 0;
+    }
+    read_exact(bytes, 1, CFDI_E2E_BYTES, 0);
+    read_exact(&n, sizeof n, 1, 0);
+    for (i = 0; i < n; i++) {
+        uint8_t *payload = NULL;
+        read_exact(row, 1, ROW, 0);
+        read_exact(&length, sizeof length, 1, 0);
+        read_exact(&counter, sizeof counter, 1, 0);
+        if (length < 0 || length > ROW) {
+            exit(5);
+        }
+        if (length > 0) {
+            payload = must_alloc((size_t)length);
+            memcpy(payload, row, (size_t)length);
+        }
+        put(cfdi_e2e_protect(spec, bytes, payload, (size_t)length, counter));
+        if (length > 0) {
+            memcpy(row, payload, (size_t)length);
+        }
+        fwrite(row, 1, ROW, stdout);
+        free(payload);
+    }
+    free(spec);
+    free(bytes);
+    return 1;
+}
+
 static int run_nulls(void)
 {
     int32_t *spec = must_alloc(CFDI_E2E_INTS * sizeof *spec);
@@ -102,6 +147,9 @@ static int run_nulls(void)
     put(cfdi_e2e_counter(spec, bytes, NULL, 5));
     put(cfdi_e2e_spec_check(NULL, NULL));
     put(cfdi_e2e_spec_check(spec, bytes));
+    put(cfdi_e2e_protect(NULL, bytes, payload, 8, 1));
+    put(cfdi_e2e_protect(spec, NULL, payload, 8, 1));
+    put(cfdi_e2e_protect(spec, bytes, NULL, 5, 1));
     free(spec);
     free(bytes);
     return 0;
@@ -114,6 +162,11 @@ int main(int argc, char **argv)
     }
     if (argv[1][0] == 'r') {
         while (run_case()) {
+        }
+        return 0;
+    }
+    if (argv[1][0] == 'p') {
+        while (protect_case()) {
         }
         return 0;
     }
