@@ -235,7 +235,7 @@ class InformationSums:
     and sums at once (canfdi.methods.parity.hypotheses.information_increments, or the C
     kernel's cfdi_info_block).
 
-    J : (..., d, d) sum phi^T phi; h : (..., d) sum phi^T r; rr : () sum |r|^2; n_eq : the
+    J : (..., d, d) sum phi^T phi; h : (..., d) sum phi^T r; rr : () sum r^2; n_eq : the
     residual rows absorbed (missing ones not counted); meat : (..., d, d) sum phi^T Gamma phi
     (zeros where no Gamma is given).
     """
