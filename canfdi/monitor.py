@@ -441,10 +441,7 @@ class Monitor:
         index = (drive or self.drives[0]).index
         frames = []
         if event.kind in _STATE:  # a refinement updates the estimate of a fault already known
-            frames.append(self._encode("FDI_FAULT", {
-                "Kind": _KIND.get(event.target or "", 0), "State": _STATE[event.kind],
-                "Drive": index, "Index": event.index or 0, "Sample": event.sample & 0xFFFFFFFF,
-            }))
+            frames.append(self._encode("FDI_FAULT", self.fault_values(event, drive)))
         for key, value in event.estimates.items():
             param = _PARAM.get(key)
             if param is None:
@@ -458,6 +455,14 @@ class Monitor:
                     "Kind": _KIND[event.target], "Param": param + 3, "Drive": index,
                     "Index": event.index, "Value": float(np.sqrt(max(var, 0.0)))}))
         return [f for f in frames if f is not None]
+
+    def fault_values(self, event: FaultEvent, drive: Drive | None = None) -> dict[str, int]:
+        """FDI_FAULT's signal values announcing ``event`` (detected, named or accepted): the
+        channel's kind and index (0 for a detection, which names none), the state, the
+        drive's index and the sample modulo 2^32 (what `canfdi codegen`'s C loop sends too)."""
+        return {"Kind": _KIND.get(event.target or "", 0), "State": _STATE[event.kind],
+                "Drive": (drive or self.drives[0]).index, "Index": event.index or 0,
+                "Sample": event.sample & 0xFFFFFFFF}
 
     def record_status(self, timestamp_ns: int, state: str | None = None) -> None:
         """Record the status the heartbeat reports on the sink's ``/canfdi/status``: the

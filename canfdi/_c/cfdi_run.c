@@ -14,6 +14,7 @@
 #include "drive.h"
 
 #define LINE 512
+#define SENT_KEPT 8 /* the frames sent that the JSON lists (all are counted) */
 
 static int hex_digit(char c)
 {
@@ -294,6 +295,20 @@ static void out_i64(int64_t v)
     }
 }
 
+/* Bytes as lower-case hex, two digits each (canfdi's logs' spelling of a payload). */
+static void out_hex(const uint8_t *data, size_t n)
+{
+    static const char digits[] = "0123456789abcdef";
+    char pair[3];
+    size_t i;
+    pair[2] = '\0';
+    for (i = 0; i < n; i++) {
+        pair[0] = digits[data[i] >> 4];
+        pair[1] = digits[data[i] & 15];
+        cfdi_io_out(pair);
+    }
+}
+
 static void out_name(const char *name)
 {
     cfdi_io_out("\"");
@@ -361,6 +376,9 @@ int cfdi_run_main(void)
     uint32_t tick, worst = 0;
     uint64_t ticks = 0;
 #endif
+    static cfdi_tx_frame sent[SENT_KEPT];
+    cfdi_tx_frame out;
+    uint64_t n_sent = 0;
     char *argv[4];
     int argc = 0, rc, first, overlong, got, asc, base = 16;
     size_t i;
@@ -406,6 +424,13 @@ int cfdi_run_main(void)
             cfdi_io_err("cfdi_run: the drive refused a frame\n");
             cfdi_io_close(in.handle);
             return 1;
+        }
+        /* What the monitor sends, as the MCU would after each frame (here: printed). */
+        while (cfdi_drive_poll_tx(&drive, &out) == 1) {
+            if (n_sent < SENT_KEPT) {
+                sent[n_sent] = out;
+            }
+            n_sent++;
         }
     }
     cfdi_io_close(in.handle);
@@ -467,7 +492,20 @@ int cfdi_run_main(void)
         cfdi_io_out(i ? ", " : "");
         out_name(cfdi_residual_names[i]);
     }
-    cfdi_io_out("], \"lines\": ");
+    cfdi_io_out("], \"sent\": [");
+    for (i = 0; i < n_sent && i < SENT_KEPT; i++) {
+        cfdi_io_out(i ? ", {\"id\": " : "{\"id\": ");
+        out_u64(sent[i].id);
+        cfdi_io_out(sent[i].extended ? ", \"extended\": true" : ", \"extended\": false");
+        cfdi_io_out(", \"data\": \"");
+        out_hex(sent[i].data, sent[i].len);
+        cfdi_io_out("\"}");
+    }
+    cfdi_io_out("], \"frames_sent\": ");
+    out_u64(n_sent);
+    cfdi_io_out(", \"frames_not_sent\": ");
+    out_u64(drive.tx_dropped);
+    cfdi_io_out(", \"lines\": ");
     out_u64(lines);
     cfdi_io_out(", \"malformed_lines\": ");
     out_u64(malformed);

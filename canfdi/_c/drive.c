@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "drive.h"
+#include "e2e.h"
 
 static size_t width_of(const cfdi_drive_tables *t)
 {
@@ -22,7 +23,8 @@ int cfdi_drive_init(cfdi_drive *d, const cfdi_drive_tables *t, const cfdi_drive_
     }
     if (cfdi_bus_check(t->bus) != CFDI_OK || t->m == 0 || width_of(t) == 0 || t->mod <= 0
         || t->gate_bound <= 0 || t->gate_confirm < 1 || t->n_slots == 0 || t->cols == 0
-        || t->n_slots > t->bus->n_slots || t->n_slots > 62 || !(t->dt_ns > 0.0)) {
+        || t->n_slots > t->bus->n_slots || t->n_slots > 62 || !(t->dt_ns > 0.0)
+        || (t->fault != NULL && cfdi_message_check(t->fault) != CFDI_OK)) {
         return CFDI_ESHAPE;
     }
     for (i = 0; i < t->n_slots * t->cols; i++) {
@@ -69,6 +71,37 @@ static void ring_skip(cfdi_drive *d, int64_t count)
     for (i = keep * w; i < rows * w; i++) {
         ring[i] = (cfdi_real)NAN;
     }
+}
+
+/* The detection's FDI_FAULT queued (canfdi.monitor.Monitor.fault_frames of the "detected"
+ * event): the tables' values, the alarm's sample modulo 2^32, the message's alive counter. */
+static void queue_fault(cfdi_drive *d, int64_t k)
+{
+    const cfdi_message *msg = d->t->fault;
+    double roles[CFDI_N_ROLES];
+    cfdi_tx_frame *f;
+    if (msg == NULL) {
+        return;
+    }
+    if (d->tx_count == CFDI_TX_QUEUE) {
+        d->tx_dropped += 1;
+        return;
+    }
+    memcpy(roles, d->t->fault_roles, sizeof roles);
+    roles[CFDI_ROLE_SAMPLE] = (double)((uint64_t)k & 0xFFFFFFFFu);
+    f = &d->tx[(d->tx_head + d->tx_count) % CFDI_TX_QUEUE];
+    /* (the message was checked at init: neither can fail) */
+    if (cfdi_encode(msg, roles, f->data) != CFDI_OK
+        || cfdi_e2e_protect(msg->e2e_spec, msg->e2e_bytes, f->data, msg->length,
+                            d->fault_counter) != CFDI_OK) {
+        d->tx_dropped += 1;
+        return;
+    }
+    d->fault_counter += 1;
+    f->id = msg->id;
+    f->extended = msg->extended;
+    f->len = msg->length;
+    d->tx_count += 1;
 }
 
 /* One sample into the bank and, before the first alarm, the detectors
@@ -123,6 +156,7 @@ static int take_sample(cfdi_drive *d, int64_t k, const double *row)
         d->alarmed = 1;
         d->alarm_k = k;
         d->alarm_onset = onset + 1;
+        queue_fault(d, k);
     }
     return CFDI_OK;
 }
@@ -213,4 +247,18 @@ int cfdi_drive_finish(cfdi_drive *d)
     rc = cfdi_counter_close(d->ctr, d->mem.buffer, width_of(d->t), d->t->dest, d->t->n_slots,
                             d->t->cols, ks, times, gaps, d->mem.samples, &n_out);
     return rc != CFDI_OK ? rc : take_samples(d, ks, n_out);
+}
+
+int cfdi_drive_poll_tx(cfdi_drive *d, cfdi_tx_frame *out)
+{
+    if (!d || !out) {
+        return CFDI_EBADARG;
+    }
+    if (d->tx_count == 0) {
+        return 0;
+    }
+    *out = d->tx[d->tx_head];
+    d->tx_head = (d->tx_head + 1) % CFDI_TX_QUEUE;
+    d->tx_count -= 1;
+    return 1;
 }

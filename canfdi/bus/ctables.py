@@ -1,5 +1,6 @@
-"""A drive's bus map as the C core's flat tables (canfdi/_c/decode.h; the one place in Python
-that knows their layout).
+"""A drive's bus map as the C core's flat tables (canfdi/_c/decode.h), and the monitor's own
+messages as the tables it encodes them from (canfdi/_c/encode.h): the one place in Python that
+knows their layout.
 
 `BusTables` holds the arrays `cfdi_decode_block` reads: which entry each ID is, each entry's
 length, FD flag, E2E profile and compiled signals, each signal's place, conversion,
@@ -15,11 +16,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from canfdi.bus.codec import MessageLayout
+from canfdi.bus.codec import MessageLayout, _float_at_least, _float_at_most
 from canfdi.bus.e2e import E2EProfile
 from canfdi.bus.nodeid import MAX_STANDARD_ID
 
-__all__ = ["DECODE_H", "BusTables", "build_tables"]
+__all__ = ["DECODE_H", "ENCODE_H", "BusTables", "MessageTables", "build_tables",
+           "message_tables"]
 
 # decode.h's indices and sizes (a test reads them from the header and compares).
 DECODE_H = {
@@ -37,6 +39,15 @@ DECODE_H = {
     "CFDI_SIG_SCALE": 0, "CFDI_SIG_OFFSET": 1, "CFDI_SIG_LOW": 2, "CFDI_SIG_HIGH": 3,
     "CFDI_SIG_CLIP_LOW": 4, "CFDI_SIG_CLIP_HIGH": 5, "CFDI_SIG_REALS": 6,
     "CFDI_SLOT_SIGNALS": 64, "CFDI_MAX_PAYLOAD": 64,
+}
+# encode.h's indices and sizes (a test reads them from the header and compares).
+ENCODE_H = {
+    "CFDI_ENC_START": 0, "CFDI_ENC_LENGTH": 1, "CFDI_ENC_FLAGS": 2, "CFDI_ENC_ROLE": 3,
+    "CFDI_ENC_INTS": 4,
+    "CFDI_ENC_SCALE": 0, "CFDI_ENC_OFFSET": 1, "CFDI_ENC_LO": 2, "CFDI_ENC_HI": 3,
+    "CFDI_ENC_RAW_LO": 4, "CFDI_ENC_RAW_HI": 5, "CFDI_ENC_REALS": 6,
+    "CFDI_ROLE_NONE": 0, "CFDI_ROLE_KIND": 1, "CFDI_ROLE_STATE": 2, "CFDI_ROLE_DRIVE": 3,
+    "CFDI_ROLE_INDEX": 4, "CFDI_ROLE_SAMPLE": 5, "CFDI_N_ROLES": 6,
 }
 _H = DECODE_H
 _CONV = {"identity": _H["CFDI_CONV_IDENTITY"], "integer": _H["CFDI_CONV_INTEGER"],
@@ -206,3 +217,59 @@ def build_tables(entries: Sequence[EntrySpec], slots: Sequence[SlotSpec],
         sig_real=np.array(sig_real, dtype=np.float64).reshape(-1, _H["CFDI_SIG_REALS"]),
         ids_int=np.array(ids_int, dtype=np.int64), ids_real=np.array(ids_real),
         width=width)
+
+
+@dataclass(frozen=True)
+class MessageTables:
+    """A monitor message as cfdi_encode reads it (encode.h's cfdi_message): its ID, length,
+    E2E profile (e2e.h's two rows) and signals, (n, CFDI_ENC_INTS) int64 and (n,
+    CFDI_ENC_REALS) float64."""
+
+    frame_id: int
+    extended: bool
+    length: int
+    e2e_spec: np.ndarray
+    e2e_bytes: np.ndarray
+    sig_int: np.ndarray
+    sig_real: np.ndarray
+
+
+def message_tables(layout: MessageLayout, key: tuple[int, bool], profile: E2EProfile,
+                   roles: dict[str, str]) -> MessageTables:
+    """The tables cfdi_encode writes the message ``layout`` from: each signal's place, type,
+    scaling and ranges as canfdi.bus.codec encodes it, and its role (``roles``: signal name ->
+    an encode.h role without its prefix, "KIND", "STATE"...; a signal not named is raw 0).
+
+    Raises
+    ------
+    ValueError
+        For what cfdi_encode does not write: a multiplexed message, a 16-bit float, a role
+        that is none of encode.h's.
+    """
+    sig_int, sig_real = [], []
+    for sig in layout.signals:
+        if sig.is_multiplexer or sig.multiplexer_ids:
+            raise ValueError(f"{layout.name}.{sig.name}: the C core encodes no multiplexed "
+                             "signal")
+        if sig.is_float and sig.length == 16:
+            raise ValueError(f"{layout.name}.{sig.name}: the C core encodes 32- and 64-bit "
+                             "floats")
+        role = roles.get(sig.name, "NONE")
+        code = ENCODE_H.get(f"CFDI_ROLE_{role}")
+        if code is None or role == "N_ROLES":
+            raise ValueError(f"{layout.name}.{sig.name}: no role {role!r}")
+        flags = ((_H["CFDI_SIGF_BIG"] if sig.is_big_endian else 0)
+                 | (_H["CFDI_SIGF_SIGNED"] if sig.signed and not sig.is_float else 0)
+                 | (_H["CFDI_SIGF_FLOAT"] if sig.is_float else 0))
+        sig_int.append([sig.start, sig.length, flags, code])
+        lo, hi = sig.physical_limits()
+        raw_lo, raw_hi = sig.raw_limits()
+        if not sig.is_float:
+            raw_lo, raw_hi = _float_at_least(int(raw_lo)), _float_at_most(int(raw_hi))
+        sig_real.append([sig.scale, sig.offset, lo, hi, float(raw_lo), float(raw_hi)])
+    spec, table = profile.c_spec()
+    return MessageTables(
+        frame_id=int(key[0]), extended=bool(key[1]), length=int(layout.dlc), e2e_spec=spec,
+        e2e_bytes=table,
+        sig_int=np.array(sig_int, dtype=np.int64).reshape(-1, ENCODE_H["CFDI_ENC_INTS"]),
+        sig_real=np.array(sig_real, dtype=np.float64).reshape(-1, ENCODE_H["CFDI_ENC_REALS"]))

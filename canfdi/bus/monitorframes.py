@@ -115,6 +115,10 @@ class MonitorFrames:
         return {self.keys[name]: Known("monitor", layout.dlc, False, self._profiles[name])
                 for name, layout in self.layouts.items()}
 
+    def profile(self, name: str) -> E2EProfile:
+        """The E2E profile of monitor message ``name``."""
+        return self._profiles[name]
+
     def encode(self, name: str, values: Mapping[str, float]) -> tuple[MessageKey, bytes] | None:
         """The frame of one monitor message with those signal values (E2E applied), or None
         when listen-only."""

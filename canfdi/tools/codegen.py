@@ -29,8 +29,9 @@ from canfdi.core.settings import ConfigError, MonitorConfig
 __all__ = ["CORE_FILES", "CodegenRefused", "DriveTables", "drive_tables", "render",
            "write_project"]
 
-CORE_FILES = ("cfdi.h", "decode.h", "e2e.h", "drive.h", "bank.c", "counter.c", "decode.c",
-              "detect.c", "e2e.c", "gate.c", "drive.c", "cfdi_run.c", "cfdi_io.h",
+CORE_FILES = ("cfdi.h", "decode.h", "e2e.h", "encode.h", "drive.h", "bank.c", "counter.c",
+              "decode.c", "detect.c", "e2e.c", "encode.c", "gate.c", "drive.c", "cfdi_run.c",
+              "cfdi_io.h",
               "cfdi_io_host.c", "cfdi_io_semihost.c", "m4f_startup.c", "m4f.ld")
 """The C core's files a project holds (canfdi/_c; not _kernel.c, the CPython face), with the
 runner and its two I/O sides (host stdio, MCU semihosting) and the Cortex-M4F's startup and
@@ -57,6 +58,8 @@ class DriveTables:
     delta: np.ndarray  # (m,)
     h: np.ndarray  # (m,)
     residual_names: tuple[str, ...]
+    fault: object = None  # canfdi.bus.ctables.MessageTables of FDI_FAULT; None: listen-only
+    fault_roles: tuple[float, ...] = ()  # a detection's FDI_FAULT values by encode.h role
 
 
 def _refuse_unsupported(config: MonitorConfig, doc: dict) -> None:
@@ -102,8 +105,38 @@ def drive_tables(config: MonitorConfig, doc: dict | None = None) -> DriveTables:
     if not tables.fits:
         raise CodegenRefused("bus.dbc", "a message has more signals than the C core takes")
     detection = monitor.method.c_tables(config)
+    fault, roles = _fault_message(monitor, drive)
     return DriveTables(name=drive.name, bus=tables, clock=drive.clock.c_params(),
-                       p=len(config.inputs), q=len(config.outputs), **detection)
+                       p=len(config.inputs), q=len(config.outputs), fault=fault,
+                       fault_roles=roles, **detection)
+
+
+# FDI_FAULT's signals by the encode.h role the C loop fills them with.
+_FAULT_ROLES = {"Kind": "KIND", "State": "STATE", "Drive": "DRIVE", "Index": "INDEX",
+                "Sample": "SAMPLE"}
+
+
+def _fault_message(monitor, drive) -> tuple[object, tuple[float, ...]]:
+    """FDI_FAULT as the C loop encodes it (its tables) and the values a detection gives its
+    signals (Monitor.fault_values: the sample's its own at run time); (None, ()) for a
+    listen-only monitor, which sends nothing."""
+    from canfdi.bus.ctables import ENCODE_H, message_tables
+    from canfdi.core.records import FaultEvent
+
+    frames = monitor.frames
+    if not frames.transmit:
+        return None, ()
+    name = "FDI_FAULT"
+    try:
+        tables = message_tables(frames.layouts[name], frames.keys[name], frames.profile(name),
+                                _FAULT_ROLES)
+    except ValueError as exc:
+        raise CodegenRefused("bus.monitor.dbc", str(exc)) from None
+    values = monitor.fault_values(FaultEvent(kind="detected", sample=0, timestamp_ns=0), drive)
+    roles = [0.0] * ENCODE_H["CFDI_N_ROLES"]
+    for signal, role in _FAULT_ROLES.items():
+        roles[ENCODE_H[f"CFDI_ROLE_{role}"]] = float(values[signal])
+    return tables, tuple(roles)
 
 
 def _real(v: float) -> str:
@@ -179,6 +212,21 @@ extern const char *const cfdi_residual_names[CFDI_GEN_M];
     parts.append(_array("cfdi_real", "sigma", t.sigma, _real, 4))
     parts.append(_array("cfdi_real", "delta", t.delta, _real, 4))
     parts.append(_array("cfdi_real", "h", t.h, _real, 4))
+    f = t.fault
+    if f is not None:
+        parts.append(_array("int32_t", "fault_e2e_spec", f.e2e_spec, str, 16))
+        parts.append(_array("uint8_t", "fault_e2e_bytes", f.e2e_bytes, str, 16))
+        parts.append(_array("int64_t", "fault_sig_int", f.sig_int, _int64))
+        parts.append(_array("double", "fault_sig_real", f.sig_real, _real, 3))
+        parts.append(f"""
+/* FDI_FAULT, the frame announcing a detection (the monitor DBC's layout, its E2E). */
+static const cfdi_message fault = {{
+    {f.frame_id}u, {int(f.extended)}, {f.length},
+    fault_e2e_spec, fault_e2e_bytes,
+    fault_sig_int, fault_sig_real, {len(f.sig_int)}
+}};
+""")
+    roles = ", ".join(_real(v) for v in (t.fault_roles or (0.0,)))
     parts.append(f"""
 static const cfdi_bus bus = {{
     std_entry, ext_id, ext_entry, {len(b.ext_id)},
@@ -196,7 +244,8 @@ const cfdi_drive_tables cfdi_drive_tables_gen = {{
     {_int64(c["mod"])}, {_real(c["dt_ns"])}, {_real(c["slack"])},
     {t.p}, {t.q},
     coef, uses, {S1 - 1}, {m},
-    sigma, delta, h
+    sigma, delta, h,
+    {"&fault" if f is not None else "NULL"}, {{ {roles} }}
 }};
 
 const char *const cfdi_drive_name = {_string(t.name)};
@@ -227,8 +276,8 @@ ARM_CC ?= arm-none-eabi-gcc
 ARM_SIZE ?= arm-none-eabi-size
 QEMU ?= qemu-system-arm
 WARN = -std=c99 -Wall -Wextra -Werror -pedantic -ffp-contract=off
-CORE = bank.c counter.c decode.c detect.c e2e.c gate.c drive.c cfdi_tables.c cfdi_run.c
-HEADERS = cfdi.h decode.h e2e.h drive.h cfdi_io.h cfdi_tables.h
+CORE = bank.c counter.c decode.c detect.c e2e.c encode.c gate.c drive.c cfdi_tables.c cfdi_run.c
+HEADERS = cfdi.h decode.h e2e.h encode.h drive.h cfdi_io.h cfdi_tables.h
 M4F = -mcpu=cortex-m4 -mthumb -mfpu=fpv4-sp-d16 -mfloat-abi=hard
 BUILD = build/cortex-m4f
 ELF = $(BUILD)/cfdi_run.elf
@@ -286,6 +335,93 @@ clean:
 """
 
 
+PROJECT_README = """\
+# {name}: canfdi's drive monitor in C
+
+Generated by `canfdi codegen` from {config_name} ({real}). The C core (the files canfdi's own
+extension compiles) and this drive's tables as const data (`cfdi_tables.c`: data, never
+logic; generate again rather than edit). `make host`, `make run-host LOG=FILE`, `make
+cortex-m4f`, `make qemu LOG=FILE`, `make count LOG=FILE` and `make size`: see the Makefile.
+
+## The integration API
+
+```c
+#include "cfdi_tables.h"
+
+static double values[CFDI_GEN_VWIDTH], buffer[CFDI_GEN_WIDTH], samples[2 * CFDI_GEN_WIDTH];
+static cfdi_real ring[(CFDI_GEN_S + 1) * CFDI_GEN_WIDTH], r[CFDI_GEN_M], ph[2 * CFDI_GEN_M];
+static cfdi_real g_up[CFDI_GEN_M], g_down[CFDI_GEN_M];
+static int64_t last_zero[2 * CFDI_GEN_M];
+static int8_t alarm[CFDI_GEN_M];
+static cfdi_drive drive;
+static const cfdi_drive_memory mem = {{values, buffer, samples, ring, r, ph, last_zero, g_up,
+                                      g_down, alarm}};
+
+void can_send(uint32_t id, int extended, const uint8_t *data, uint8_t len); /* your driver */
+
+/* Once, at start: the tables and the memory checked against each other (CFDI_OK). */
+int monitor_start(void)
+{{
+    return cfdi_drive_init(&drive, &cfdi_drive_tables_gen, &mem);
+}}
+
+/* Every received CAN frame: its ID, payload length, flags (CFDI_FLAG_*), payload and time
+ * (ns); then what the monitor has to send, on the bus. */
+void monitor_on_frame(uint32_t id, uint8_t len, uint8_t flags, const uint8_t *data,
+                      int64_t t_ns)
+{{
+    cfdi_tx_frame tx;
+    cfdi_drive_on_frame(&drive, id, len, flags, data, t_ns); /* its status, >= 0 */
+    while (cfdi_drive_poll_tx(&drive, &tx) == 1) {{
+        can_send(tx.id, tx.extended, tx.data, tx.len);
+    }}
+}}
+```
+
+`cfdi_drive_finish(&drive)` closes a pending sample at the end of a stream (a replayed log).
+After the first alarm `drive.alarmed` is 1, `drive.alarm_k` its sample and
+`drive.alarm_onset` the change point it dates; the monitor then sends one {fault} frame
+(ID {fault_id}, state detected, the alarm's sample, its E2E), as canfdi's monitor does.
+The diagnosis after it (hypotheses, least squares, acceptance, compensation) still runs on
+the gateway (canfdi issue 43).
+
+## The memory each part needs
+
+| what | elements | bytes |
+|---|---|---|
+{memory}
+| `cfdi_drive` (state; a queue of `CFDI_TX_QUEUE` frames to send) | 1 | `sizeof(cfdi_drive)` |
+| the tables (const: flash) | | `make size` |
+
+No allocation, no global state in the core: everything is in the memory above, the caller's.
+`make size` prints the image's flash, static RAM and its largest stack frame.
+"""
+
+
+def project_readme(t: DriveTables, config_name: str, float32: bool) -> str:
+    """The generated project's README: the integration API and the memory each part needs,
+    in this drive's sizes."""
+    S1, _, m = t.coef.shape
+    width, vwidth = t.p + t.q, t.bus.width
+    real = 4 if float32 else 8
+    rows = [("`values` (double: one frame's fields)", vwidth, 8),
+            ("`buffer` (double: the clock's pending sample)", width, 8),
+            ("`samples` (double: the samples one frame delivers)", 2 * width, 8),
+            ("`ring` (cfdi_real: the residual bank's window)", S1 * width, real),
+            ("`r`, `g_up`, `g_down` (cfdi_real: residuals, statistics)", 3 * m, real),
+            ("`ph` (cfdi_real: the statistics g+ and g-)", 2 * m, real),
+            ("`last_zero` (int64_t)", 2 * m, 8),
+            ("`alarm` (int8_t)", m, 1)]
+    memory = "\n".join(f"| {what} | {n} | {n * size} |" for what, n, size in rows)
+    memory += f"\n| all of the above | | {sum(n * size for _, n, size in rows)} |"
+    fault = t.fault
+    return PROJECT_README.format(
+        name=t.name, config_name=config_name, real="float32" if float32 else "float64",
+        memory=memory,
+        fault="FDI_FAULT" if fault is not None else "(listen-only: no)",
+        fault_id=f"0x{fault.frame_id:X}" if fault is not None else "none")
+
+
 def write_project(config: MonitorConfig, doc: dict, out: Path, config_name: str,
                   float32: bool = False) -> list[Path]:
     """Write the project into ``out`` (created): the core's files, the generated tables, the
@@ -313,4 +449,6 @@ def write_project(config: MonitorConfig, doc: dict, out: Path, config_name: str,
                            define="-DCFDI_FLOAT32" if float32 else "")
     (out / "Makefile").write_text(make)
     written.append(out / "Makefile")
+    (out / "README.md").write_text(project_readme(tables, config_name, float32))
+    written.append(out / "README.md")
     return written

@@ -156,8 +156,12 @@ def _reference(config, log: Path) -> dict:
     detections = [] if first is None else [{"sample": first.sample,
                                             "onset_sample": first.onset_sample,
                                             "residuals": list(first.residuals)}]
+    # The frames the monitor sends announcing it (its first FDI_FAULT: counter 0).
+    fresh = Monitor(quiet, record_residuals=False, kernel=kernel.get("python"))
+    sent = [] if first is None else [{"id": f.frame_id, "extended": f.extended,
+                                      "data": f.data.hex()} for f in fresh.fault_frames(first)]
     return {"detections": detections, "samples": summary["samples"],
-            "frames": summary["frames"]}
+            "frames": summary["frames"], "sent": sent}
 
 
 def test_every_scenario_of_the_bus_is_covered(config, logs):
@@ -173,6 +177,8 @@ def test_the_c_loop_counts_and_detects_as_the_monitor_does(config, logs, project
         assert got["frames"] == want["frames"], name
         assert got["samples"] == want["samples"], name
         assert got["detections"] == want["detections"], name
+        assert got["sent"] == want["sent"], name  # byte for byte, E2E included
+        assert got["frames_sent"] == len(want["sent"]) and got["frames_not_sent"] == 0, name
         if "nominal" not in name and "clean" in name:
             assert got["detections"], name  # a fault scenario is detected
         if "timejump" in name:
@@ -243,6 +249,53 @@ def test_hostile_lines_under_the_sanitizers(logs, tmp_path_factory, tmp_path):
     got = _run(project, asc, env)
     assert got["malformed_lines"] >= 8
     assert got["frames"]["received"] >= 150  # the lines of at most 64 bytes
+
+
+@needs_cc
+def test_the_project_readme_api_compiles_and_runs(project, tmp_path):
+    """The integration API the generated README shows is the project's: its code, with a CAN
+    driver that counts, builds warning-free against the project's files and runs."""
+    from canfdi.tools.codegen import CORE_FILES
+
+    code = (project / "README.md").read_text().split("```c\n", 1)[1].split("```", 1)[0]
+    src = tmp_path / "api.c"
+    src.write_text(code + """
+static int sent;
+void can_send(uint32_t id, int extended, const uint8_t *data, uint8_t len)
+{
+    (void)id; (void)extended; (void)data; (void)len;
+    sent++;
+}
+
+int main(void)
+{
+    uint8_t data[8] = {0};
+    if (monitor_start() != CFDI_OK) {
+        return 1;
+    }
+    monitor_on_frame(0x7FF, 8, 0, data, 1000000); /* no drive's ID: counted, nothing sent */
+    return drive.status_count[CFDI_ST_UNKNOWN_ID] == 1 && sent == 0 ? 0 : 2;
+}
+""")
+    sources = [project / f for f in CORE_FILES if f.endswith(".c") and f not in
+               ("cfdi_run.c", "cfdi_io_host.c", "cfdi_io_semihost.c", "m4f_startup.c")]
+    exe = tmp_path / "api"
+    subprocess.run([CC, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic",
+                    f"-I{project}", str(src), *map(str, sources), str(project / "cfdi_tables.c"),
+                    "-lm", "-o", str(exe)], check=True, capture_output=True, text=True)
+    assert subprocess.run([str(exe)], timeout=60).returncode == 0
+
+
+@needs_cc
+def test_a_listen_only_drive_sends_nothing(config, logs, tmp_path_factory, tmp_path):
+    cfg = tmp_path / "dc_motor_listen_only.yaml"
+    cfg.write_text(CONFIG.read_text().replace("bus:\n", "bus:\n  transmit: false\n", 1))
+    project = tmp_path_factory.mktemp("dc_motor-listen")
+    assert main(["codegen", str(cfg), "-o", str(project)]) == 0
+    assert "NULL, {" in (project / "cfdi_tables.c").read_text()  # no FDI_FAULT tables
+    subprocess.run(["make", "-s", "-C", str(project), "host"], check=True, capture_output=True)
+    got = _run(project, logs["dc_motor_consecutive-clean.log"])
+    assert got["detections"] and got["sent"] == [] and got["frames_sent"] == 0
 
 
 @pytest.mark.parametrize(("config_name", "field"), [
