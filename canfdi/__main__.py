@@ -25,16 +25,16 @@ def _guarded(prog: str, module: str) -> None:
     sys.exit(code)
 
 
-DAEMON_VERBS = ("run", "capture")
-"""Long-running verbs that read and write no MF4 log: python-can's MF4 support is kept out of
-their process."""
+NO_MF4_VERBS = ("run", "capture", "codegen")
+"""Verbs that read and write no MF4 log: python-can's MF4 support is kept out of their process
+(the daemon's, and `canfdi codegen`, whose goal is a few seconds)."""
 
 
 def console() -> None:
     """`canfdi`: canfdi.cli.main, with Ctrl-C as one line and exit 130."""
-    if sys.argv[1:2] and sys.argv[1] in DAEMON_VERBS:
+    if sys.argv[1:2] and sys.argv[1] in NO_MF4_VERBS:
         # `import can` loads asammdf whenever it is installed (pip install 'canfdi[mf4]'),
-        # and with it pandas and pyarrow: about 100 MiB and a second of start for a daemon
+        # and with it pandas and pyarrow: about 100 MiB and a second of start for a verb
         # that never touches an MF4 file. A None entry makes that import fail, which
         # python-can takes as "no MF4 support" (can/io/mf4.py).
         sys.modules.setdefault("asammdf", None)  # type: ignore[assignment]

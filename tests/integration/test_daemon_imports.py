@@ -37,6 +37,16 @@ def test_the_daemon_verbs_load_none_of_the_heavy_packages(verb, tmp_path):
     assert heavy == []
 
 
+def test_codegen_loads_no_mf4_support(tmp_path):
+    """`canfdi codegen` reads a config and writes C: python-can's MF4 support (asammdf, with
+    pandas and pyarrow: a second and more of its few) stays out."""
+    pytest.importorskip("asammdf")
+    code, heavy = loaded("codegen", str(CONFIG_DIR / "dc_motor.yaml"), "-o",
+                         str(tmp_path / "project"))
+    assert code == 0 and (tmp_path / "project" / "cfdi_tables.c").exists()
+    assert not {"asammdf", "pandas", "pyarrow"} & set(heavy), heavy
+
+
 def test_version_imports_nothing_heavy():
     code, heavy = loaded("--version")
     assert code == 0 and heavy == []
@@ -46,7 +56,7 @@ def test_version_imports_nothing_heavy():
 
 
 def test_other_verbs_keep_python_cans_mf4_support(tmp_path):
-    """Only run and capture keep asammdf out: export writes .mf4 through it."""
+    """Only run, capture and codegen keep asammdf out: export writes .mf4 through it."""
     pytest.importorskip("asammdf")
     from tests.cli import canfdi_main as main
 
