@@ -340,8 +340,8 @@ class ParityDiagnoser(DetectorBacked):
         return self.bank.names
 
     def use_kernel(self, kernel) -> None:
-        """Run the residual bank's and the detector's block forms on ``kernel``
-        (canfdi.core.kernel.Kernel)."""
+        """Run the residual bank's and the detector's block forms, and a diagnosis'
+        regressors and sums (``information``), on ``kernel`` (canfdi.core.kernel.Kernel)."""
         kernel.install(bank=self.bank, detectors=(self._detector,), fits=self)
 
     @property
