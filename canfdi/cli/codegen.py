@@ -13,12 +13,14 @@ Write a self-contained C99 project that runs the drive's monitor on its own MCU:
 (the same files canfdi's extension compiles: decode and E2E, the time gate, the counter clock,
 the residual bank, the Page-Hinkley detectors, the drive loop) and the drive's tables as const
 data generated from the config (its signal table and E2E profiles, the clock and gate, the
-bank's FIR blocks, noise and thresholds), with a Makefile:
+bank's FIR blocks, noise and thresholds, the monitor's FDI_FAULT frame), a README of the
+integration API (init, on_frame, poll_tx for the frames to send, the memory each part
+needs) and a Makefile:
 
   make host                 a native build (float64; float32 with --float32)
   make run-host LOG=FILE    run it over a candump -L .log or a Vector .asc (CAN and CAN FD):
                             JSON with the detections, samples and frame counters, as
-                            `canfdi replay --json` gives them
+                            `canfdi replay --json` gives them, and the frames sent
   make cortex-m4f           arm-none-eabi-gcc, float32, newlib-nano, no allocation
   make qemu LOG=FILE        that image on qemu-system-arm -M mps2-an386, semihosting
   make count LOG=FILE       the same under qemu -icount: the loop's instructions per sample
@@ -26,13 +28,15 @@ bank's FIR blocks, noise and thresholds), with a Makefile:
 The Cortex-M4F targets need Debian's gcc-arm-none-eabi, libnewlib-arm-none-eabi and
 qemu-system-arm (in a clone of canfdi, deploy/install-mcu-toolchain installs them as root).
 
-So far the C loop detects (the first alarm, dated by its change point) and counts; the
-diagnosis after an alarm (hypotheses, least squares, acceptance, compensation, the monitor's
-frames) runs on the gateway. A config the C loop cannot run is refused with one line naming
-the field: a method with no C tables (of the built-ins only parity has them), several drives,
-a trigger or grid clock, signature
-CUSUMs, the noise watchdog asked for (it stays on the gateway: leave its section out or set
-watchdog.enabled: false), teach-in.
+So far the C loop counts, detects (the first alarm, dated by its change point) and says so on
+the bus as canfdi's monitor does (FDI_FAULT, state detected; nothing when bus.transmit is
+false); the diagnosis after an alarm (hypotheses, least squares, acceptance, compensation,
+the frames that name and size a fault) runs on the gateway. A config the C loop cannot run
+is refused with one line naming the field: a method with no C tables (of the built-ins only
+parity has them), several drives, a trigger or grid clock, signature CUSUMs, the noise
+watchdog asked for (it stays on the gateway: leave its section out or set
+watchdog.enabled: false), teach-in, a monitor DBC whose FDI_FAULT it cannot encode
+(multiplexed, 16-bit floats).
 
 Exit status: 0 written, 2 a bad or refused config (the field named), 1 the project could not
 be written."""

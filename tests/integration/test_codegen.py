@@ -326,6 +326,23 @@ def test_what_stays_on_the_gateway_is_refused(edit, field, tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_monitor_dbc_the_c_cannot_encode_is_refused(tmp_path, capsys):
+    """FDI_FAULT multiplexed: the C encoder writes no multiplexed signal (the Python monitor
+    would send it), so codegen says so in one line naming bus.monitor.dbc, exit 2."""
+    dbc = (REPO / "dbc" / "canfdi_monitor.dbc").read_text()
+    dbc = dbc.replace(' SG_ Kind : 16|2@1+', ' SG_ Kind M : 16|2@1+', 1).replace(
+        ' SG_ State : 18|2@1+', ' SG_ State m1 : 18|2@1+', 1)
+    (tmp_path / "monitor_mux.dbc").write_text(dbc)
+    cfg = tmp_path / "dc_motor_mux.yaml"
+    monitor = f"  monitor:\n    dbc: {tmp_path / 'monitor_mux.dbc'}\n"
+    cfg.write_text(CONFIG.read_text().replace("  dbc: motor_drive\n",
+                                              "  dbc: motor_drive\n" + monitor, 1))
+    assert main(["codegen", str(cfg), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "config error: bus.monitor.dbc:" in err
+    assert "multiplexed" in err and not (tmp_path / "out").exists()
+
+
 @needs_cc
 def test_the_cortex_m4f_image_on_qemu_prints_what_the_host_float32_build_does(
         logs, tmp_path_factory, mcu_toolchain):
