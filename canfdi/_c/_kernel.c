@@ -478,6 +478,56 @@ static PyObject *info_block(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(info_solve_doc,
+"info_solve(count, d, J, h, rr, theta, P, cost, lu, perm) -> status\n\n"
+"Every fit solved (cfdi_info_solve): J (count, d, d), h (count, d), rr (count,) float64;\n"
+"theta (count, d), P (count, d, d), cost (count,) float64 written; lu (d, d) float64 and\n"
+"perm (d,) size_t scratch. Returns 0, or -3 for a singular J.");
+
+static PyObject *info_solve(PyObject *self, PyObject *args)
+{
+    PyObject *o[8];
+    Py_ssize_t count, d;
+    held_buffer b[8];
+    int status;
+    const Py_ssize_t R = (Py_ssize_t)sizeof(cfdi_real);
+    (void)self;
+    memset(b, 0, sizeof b);
+
+    if (!PyArg_ParseTuple(args, "nnOOOOOOOO", &count, &d, &o[0], &o[1], &o[2], &o[3], &o[4],
+                          &o[5], &o[6], &o[7])) {
+        return NULL;
+    }
+    if (count < 0 || d <= 0 || !sizes_ok(count, d, d)) {
+        PyErr_SetString(PyExc_ValueError, "info_solve: sizes do not fit (count >= 0, d > 0)");
+        return NULL;
+    }
+    if (take(o[0], &b[0], 0, count * d * d * R, "J") < 0
+        || take(o[1], &b[1], 0, count * d * R, "h") < 0
+        || take(o[2], &b[2], 0, count * R, "rr") < 0
+        || take(o[3], &b[3], 1, count * d * R, "theta") < 0
+        || take(o[4], &b[4], 1, count * d * d * R, "P") < 0
+        || take(o[5], &b[5], 1, count * R, "cost") < 0
+        || take(o[6], &b[6], 1, d * d * R, "lu") < 0
+        || take(o[7], &b[7], 1, d * (Py_ssize_t)sizeof(size_t), "perm") < 0) {
+        release(b, 8);
+        return NULL;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    status = cfdi_info_solve((size_t)count, (size_t)d, (const cfdi_real *)b[0].view.buf,
+                             (const cfdi_real *)b[1].view.buf, (const cfdi_real *)b[2].view.buf,
+                             (cfdi_real *)b[3].view.buf, (cfdi_real *)b[4].view.buf,
+                             (cfdi_real *)b[5].view.buf, (cfdi_real *)b[6].view.buf,
+                             (size_t *)b[7].view.buf);
+    Py_END_ALLOW_THREADS
+    release(b, 8);
+    if (status != CFDI_OK && status != CFDI_ESINGULAR) {
+        PyErr_Format(PyExc_ValueError, "info_solve: status %d", status);
+        return NULL;
+    }
+    return PyLong_FromLong(status);
+}
+
 static PyMethodDef methods[] = {
     {"fir_block", fir_block, METH_VARARGS, fir_block_doc},
     {"ph_block", ph_block, METH_VARARGS, ph_block_doc},
@@ -486,6 +536,7 @@ static PyMethodDef methods[] = {
     {"latest_block", latest_block, METH_VARARGS, latest_block_doc},
     {"counter_run", counter_run, METH_VARARGS, counter_run_doc},
     {"info_block", info_block, METH_VARARGS, info_block_doc},
+    {"info_solve", info_solve, METH_VARARGS, info_solve_doc},
     {NULL, NULL, 0, NULL}
 };
 

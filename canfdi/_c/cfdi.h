@@ -21,7 +21,8 @@ typedef double cfdi_real;
 enum {
     CFDI_OK = 0,
     CFDI_EBADARG = -1,  /* a null pointer or a size of zero where one is needed */
-    CFDI_ESHAPE = -2    /* sizes that do not fit together */
+    CFDI_ESHAPE = -2,   /* sizes that do not fit together */
+    CFDI_ESINGULAR = -3 /* a matrix that has no inverse */
 };
 
 /* The residual bank as one FIR matrix (canfdi.core.residuals.ResidualBank.batch).
@@ -181,5 +182,17 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
                     const int64_t *k, const cfdi_real *U, const cfdi_real *rn,
                     const cfdi_real *gamma, cfdi_real *J, cfdi_real *h, cfdi_real *meat,
                     cfdi_real *rr, int64_t *n_eq, cfdi_real *work);
+/* Every fit of a diagnosis solved (canfdi.core.identify.rls_solve): for each of `count`
+ * estimators, theta = J^-1 h, P = J^-1 and the cost rr - theta.h, by LU with partial
+ * pivoting (LAPACK's getrf and getrs, which numpy's solve and inv call; to rounding).
+ *
+ * J : (count, d, d); h : (count, d); rr : (count,).
+ * theta : (count, d), P : (count, d, d), cost : (count,) written.
+ * lu : (d, d), perm : (d,) scratch.
+ * Returns CFDI_OK, CFDI_ESINGULAR at the first J with a zero pivot (numpy's LinAlgError;
+ * what is written of the others is not to be used), or CFDI_EBADARG. */
+int cfdi_info_solve(size_t count, size_t d, const cfdi_real *J, const cfdi_real *h,
+                    const cfdi_real *rr, cfdi_real *theta, cfdi_real *P, cfdi_real *cost,
+                    cfdi_real *lu, size_t *perm);
 
 #endif

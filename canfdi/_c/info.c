@@ -134,3 +134,83 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
     }
     return CFDI_OK;
 }
+
+int cfdi_info_solve(size_t count, size_t d, const cfdi_real *J, const cfdi_real *h,
+                    const cfdi_real *rr, cfdi_real *theta, cfdi_real *P, cfdi_real *cost,
+                    cfdi_real *lu, size_t *perm)
+{
+    size_t e, i, j, k, col;
+    if (J == NULL || h == NULL || rr == NULL || theta == NULL || P == NULL || cost == NULL
+        || lu == NULL || perm == NULL || d == 0) {
+        return CFDI_EBADARG;
+    }
+    for (e = 0; e < count; e++) {
+        const cfdi_real *A = J + e * d * d, *b = h + e * d;
+        cfdi_real *x = theta + e * d, *inv = P + e * d * d, dot = 0;
+        memcpy(lu, A, d * d * sizeof *lu);
+        /* LU with partial pivoting (LAPACK's getrf): the largest magnitude in the column
+         * below the diagonal, the first of equals, becomes the pivot. */
+        for (j = 0; j < d; j++) {
+            size_t p = j;
+            cfdi_real best = fabs(lu[j * d + j]);
+            for (i = j + 1; i < d; i++) {
+                if (fabs(lu[i * d + j]) > best) {
+                    best = fabs(lu[i * d + j]);
+                    p = i;
+                }
+            }
+            perm[j] = p;
+            if (lu[p * d + j] == 0) {
+                return CFDI_ESINGULAR;
+            }
+            if (p != j) {
+                for (k = 0; k < d; k++) {
+                    cfdi_real t = lu[j * d + k];
+                    lu[j * d + k] = lu[p * d + k];
+                    lu[p * d + k] = t;
+                }
+            }
+            for (i = j + 1; i < d; i++) {
+                cfdi_real l = lu[i * d + j] / lu[j * d + j];
+                lu[i * d + j] = l;
+                for (k = j + 1; k < d; k++) {
+                    lu[i * d + k] -= l * lu[j * d + k];
+                }
+            }
+        }
+        /* theta = J^-1 h, then each column of P = J^-1 (the identity's columns solved). */
+        for (col = 0; col <= d; col++) {
+            cfdi_real *y = col == 0 ? x : inv; /* inv's column col - 1, strided by d */
+            size_t step = col == 0 ? 1 : d, off = col == 0 ? 0 : col - 1;
+            for (i = 0; i < d; i++) {
+                y[i * step + off] = col == 0 ? b[i] : (cfdi_real)(i == col - 1);
+            }
+            for (j = 0; j < d; j++) { /* the row swaps, in order */
+                if (perm[j] != j) {
+                    cfdi_real t = y[j * step + off];
+                    y[j * step + off] = y[perm[j] * step + off];
+                    y[perm[j] * step + off] = t;
+                }
+            }
+            for (i = 1; i < d; i++) { /* L y = P b, L unit lower */
+                cfdi_real s = y[i * step + off];
+                for (k = 0; k < i; k++) {
+                    s -= lu[i * d + k] * y[k * step + off];
+                }
+                y[i * step + off] = s;
+            }
+            for (i = d; i-- > 0;) { /* U x = y */
+                cfdi_real s = y[i * step + off];
+                for (k = i + 1; k < d; k++) {
+                    s -= lu[i * d + k] * y[k * step + off];
+                }
+                y[i * step + off] = s / lu[i * d + i];
+            }
+        }
+        for (i = 0; i < d; i++) {
+            dot += x[i] * b[i];
+        }
+        cost[e] = rr[e] - dot;
+    }
+    return CFDI_OK;
+}

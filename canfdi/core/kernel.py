@@ -3,7 +3,8 @@
 - ``python``: the numpy reference (canfdi.core.residuals.fir_rows,
   canfdi.core.detect.change_point_block, canfdi.bus.dbc.BusMap.decode_frames_reference,
   canfdi.bus.timegate.TimeGate.apply_reference, and a diagnoser's own
-  ``information_reference``: the parity diagnosis' regressors and sums).
+  ``information_reference`` and ``solve_reference``: the parity diagnosis' regressors and
+  sums, and their solution).
 - ``c``: the C core (canfdi/_c, built as canfdi._ckernel by the package's own build where a
   compiler exists): the same functions over the same arrays. The detector's statistics are
   numpy's bit for bit (the same closed form, op for op); the residuals agree to rounding
@@ -39,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from canfdi.core.detect import ChangePointBlock, change_point_block
-from canfdi.core.identify import InformationSums
+from canfdi.core.identify import InformationSums, RlsSolution, RlsState
 from canfdi.core.kernelchoice import ENV, KernelError, choose
 from canfdi.core.residuals import fir_rows
 
@@ -72,6 +73,7 @@ class Kernel:
     latest_values: Callable[..., np.ndarray] | None
     counter_machine: Callable[..., tuple] | None
     information_block: Callable[..., InformationSums] | None = None
+    information_solve: Callable[[RlsState], RlsSolution] | None = None
 
     def install(self, *, bank: Any = None, detectors: tuple[Any, ...] = (),
                 bus_map: Any = None, gate: Any = None, clock: Any = None,
@@ -80,8 +82,8 @@ class Kernel:
         (canfdi.bus.dbc.BusMap: its frame decode), ``gate`` (canfdi.bus.timegate.TimeGate),
         ``clock`` (a sample clock: a latest-value clock's samples, the counter clock's
         state machine) and ``fits`` (a diagnosis' fits in information form: its regressors
-        and sums, ``information`` beside its numpy ``information_reference``) run on this
-        kernel."""
+        and sums, ``information``, and their solution, ``solve``, beside their numpy
+        ``information_reference`` and ``solve_reference``) run on this kernel."""
         if bank is not None:
             bank.fir_rows = self.fir_rows
         for det in detectors:
@@ -96,6 +98,7 @@ class Kernel:
             clock.machine = self.counter_machine
         if fits is not None:
             fits.information = self.information_block or fits.information_reference
+            fits.solve = self.information_solve or fits.solve_reference
 
     def use_on(self, diagnoser: Any) -> Any:
         """``diagnoser`` (a method's) with its block forms on this kernel, where it has any
@@ -285,11 +288,30 @@ def _c_information_block(bank: Any, hypotheses: Any, columns: np.ndarray, d: int
     return InformationSums(J=J, h=h, rr=rr[0], n_eq=int(n_eq[0]), meat=meat)
 
 
+def _c_information_solve(state: RlsState) -> RlsSolution:
+    """canfdi.core.identify.rls_solve in C (cfdi_info_solve): every estimator of the state
+    (any batch shape) solved by LU with partial pivoting; numpy.linalg.LinAlgError for a
+    singular information matrix, as numpy's solve raises."""
+    d = state.d
+    batch = state.h.shape[:-1]
+    count = int(np.prod(batch, dtype=np.int64))
+    J = np.ascontiguousarray(state.J, dtype=np.float64).reshape(count, d, d)
+    h = np.ascontiguousarray(state.h, dtype=np.float64).reshape(count, d)
+    rr = np.ascontiguousarray(np.broadcast_to(state.rr, batch), dtype=np.float64).reshape(count)
+    theta, P, cost = np.empty((count, d)), np.empty((count, d, d)), np.empty(count)
+    status = _ckernel.info_solve(count, d, J, h, rr, theta, P, cost, np.empty((d, d)),
+                                 np.empty(d, dtype=np.uintp))
+    if status != 0:
+        raise np.linalg.LinAlgError("Singular matrix")
+    return RlsSolution(theta=theta.reshape(*batch, d), P=P.reshape(*batch, d, d),
+                       cost=cost.reshape(batch), dof=max(state.n_eq - d, 1))
+
+
 _KERNELS: dict[str, Kernel | None] = {
     "c": None if _ckernel is None else Kernel("c", _c_fir_rows, _c_change_point_block,
                                               _c_decode_frames, _c_gate_apply,
                                               _c_latest_values, _c_counter_machine,
-                                              _c_information_block),
+                                              _c_information_block, _c_information_solve),
     "python": Kernel("python", fir_rows, change_point_block, _py_decode_frames,
                      _py_gate_apply, None, None),
 }

@@ -106,3 +106,37 @@ def test_buffers_of_the_wrong_size_are_refused():
     with pytest.raises(ValueError, match="sizes"):
         _ckernel.info_block(2, 1, 3, 2, bank.Gz, bank.Gu, bank.sigma, H, d, cols, K, onsets, -1,
                             k, U, rn, gamma, *out)
+
+
+@pytest.mark.parametrize(("shape", "d"), [((), 1), ((3,), 2), ((7, 16), 2), ((4, 5), 4),
+                                          ((2, 3), 6)])
+def test_the_c_solution_is_numpys(shape, d):
+    """cfdi_info_solve against rls_solve (numpy's LAPACK solve and inv): well-conditioned
+    information, as a diagnosis' is, to 1e-12; a cost that cancels to 1e-12 of rr."""
+    from canfdi.core.identify import RlsState, rls_solve
+
+    rng = np.random.default_rng(d * 100 + len(shape))
+    A = rng.standard_normal((*shape, d, 3 * d))
+    J = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(d)
+    state = RlsState(J=J, h=rng.standard_normal((*shape, d)) * 10,
+                     rr=rng.uniform(100, 1000, shape), n=5, n_eq=40)
+    got, want = kernel.get("c").information_solve(state), rls_solve(state)
+    assert got.dof == want.dof
+    np.testing.assert_allclose(got.theta, want.theta, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(got.P, want.P, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(got.cost, want.cost, rtol=0,
+                               atol=1e-12 * float(np.max(state.rr)))
+    assert np.shape(got.cost) == np.shape(want.cost) == shape
+
+
+def test_a_singular_information_raises_as_numpy_does():
+    from canfdi.core.identify import RlsState, rls_solve
+
+    J = np.zeros((2, 3, 2, 2))
+    J[...] = np.eye(2)
+    J[1, 2] = [[1.0, 2.0], [2.0, 4.0]]  # rank one: no inverse
+    state = RlsState(J=J, h=np.ones((2, 3, 2)), rr=np.ones((2, 3)))
+    with pytest.raises(np.linalg.LinAlgError):
+        rls_solve(state)
+    with pytest.raises(np.linalg.LinAlgError):
+        kernel.get("c").information_solve(state)

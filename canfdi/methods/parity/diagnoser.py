@@ -252,6 +252,7 @@ class ParityDiagnoser(DetectorBacked):
         # a kernel (use_kernel), from the hypotheses' columns.
         self._columns = regressor_columns(self.hypotheses, self.d)
         self.information = self.information_reference
+        self.solve = self.solve_reference
         # Hypotheses whose bias signatures over the window are proportional (a sensor's Gz_j,
         # an actuator's lambda part Gu_j) fit a bias equally well forever: they are reported
         # together, never told apart. (The design's isolability table, which compares only
@@ -296,6 +297,9 @@ class ParityDiagnoser(DetectorBacked):
     information_reference = staticmethod(information_increments)
     """A diagnosis' regressors and sums in numpy: what ``information`` runs unless a kernel
     put its own there (`use_kernel`)."""
+    solve_reference = staticmethod(rls_solve)
+    """Every fit of a diagnosis solved, in numpy: what ``solve`` runs unless a kernel put its
+    own there."""
 
     # -- state ---------------------------------------------------------------------------
     def __deepcopy__(self, memo: dict) -> ParityDiagnoser:
@@ -341,7 +345,8 @@ class ParityDiagnoser(DetectorBacked):
 
     def use_kernel(self, kernel) -> None:
         """Run the residual bank's and the detector's block forms, and a diagnosis'
-        regressors and sums (``information``), on ``kernel`` (canfdi.core.kernel.Kernel)."""
+        regressors and sums (``information``) and their solution (``solve``), on ``kernel``
+        (canfdi.core.kernel.Kernel)."""
         kernel.install(bank=self.bank, detectors=(self._detector,), fits=self)
 
     @property
@@ -531,7 +536,7 @@ class ParityDiagnoser(DetectorBacked):
         since = k - d.k_d
         if since < s.min_samples:
             return []
-        fit = rls_solve(d.info)
+        fit = self.solve(d.info)
         theta = fit.theta  # (H, K, d)
         cost = np.broadcast_to(fit.cost, theta.shape[:2])
         best_onset = np.argmin(cost, axis=1)  # (H,)
