@@ -223,7 +223,23 @@ def build_tables(entries: Sequence[EntrySpec], slots: Sequence[SlotSpec],
 class MessageTables:
     """A monitor message as cfdi_encode reads it (encode.h's cfdi_message): its ID, length,
     E2E profile (e2e.h's two rows) and signals, (n, CFDI_ENC_INTS) int64 and (n,
-    CFDI_ENC_REALS) float64."""
+    CFDI_ENC_REALS) float64.
+
+    Examples
+    --------
+    FDI_FAULT of the shipped monitor DBC, its sample signal given the SAMPLE role:
+
+    >>> import cantools
+    >>> from canfdi.bus.codec import compile_layout
+    >>> from canfdi.bus.e2e import make_profile
+    >>> from canfdi.dbc import DBC_DIR
+    >>> db = cantools.database.load_file(str(DBC_DIR / "canfdi_monitor.dbc"))
+    >>> layout = compile_layout(db.get_message_by_name("FDI_FAULT"))
+    >>> t = message_tables(layout, (0x80, False), make_profile("none", 0x80, False, 8, {}, "x"),
+    ...                    {"Sample": "SAMPLE"})
+    >>> t.length, t.sig_int.shape, int(t.sig_int[-1, ENCODE_H["CFDI_ENC_ROLE"]])
+    (8, (7, 4), 5)
+    """
 
     frame_id: int
     extended: bool

@@ -238,6 +238,15 @@ class InformationSums:
     J : (..., d, d) sum phi^T phi; h : (..., d) sum phi^T r; rr : () sum r^2; n_eq : the
     residual rows absorbed (missing ones not counted); meat : (..., d, d) sum phi^T Gamma phi
     (zeros where no Gamma is given).
+
+    Examples
+    --------
+    >>> sums = rls_increments(np.array([[1.0, 0.0], [0.0, 2.0]]), [3.0, np.nan], 2)
+    >>> sums.h.tolist(), float(sums.rr), sums.n_eq  # the missing row gives no equation
+    ([3.0, 0.0], 9.0, 1)
+    >>> state = sums.added_to(rls_init(2), samples=1)
+    >>> state.n, state.n_eq, state.h.tolist()
+    (1, 1, [3.0, 0.0])
     """
 
     J: FloatArray
