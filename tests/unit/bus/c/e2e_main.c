@@ -25,63 +25,59 @@
 #include <string.h>
 
 #include "e2e.h"
+#include "driver_io.h"
 
 #define ROW 64
 
-static void put(int64_t v)
+/* A case's profile (spec, bytes, each allocated at its size) and its row count n: 1, or 0 at
+ * a clean end of the input (nothing allocated). */
+static int read_profile(int32_t **spec, uint8_t **bytes, int64_t *n)
 {
-    fwrite(&v, sizeof v, 1, stdout);
-}
-
-/* 1 when count items were read, 0 at a clean end of the input; exits on a partial read. */
-static int read_exact(void *p, size_t size, size_t count, int may_end)
-{
-    size_t got = fread(p, size, count, stdin);
-    if (got == count) {
-        return 1;
-    }
-    if (may_end && got == 0 && feof(stdin)) {
+    *spec = must_alloc(CFDI_E2E_INTS * sizeof **spec);
+    *bytes = must_alloc(CFDI_E2E_BYTES);
+    if (!read_exact(*spec, sizeof **spec, CFDI_E2E_INTS, 1)) {
+        free(*spec);
+        free(*bytes);
         return 0;
     }
-    exit(3);
+    read_exact(*bytes, 1, CFDI_E2E_BYTES, 0);
+    read_exact(n, sizeof *n, 1, 0);
+    return 1;
 }
 
-static void *must_alloc(size_t size)
+/* The first length bytes of row (0..ROW, else the driver exits) in a buffer of exactly that
+ * size; NULL for length 0. */
+static uint8_t *exact_copy(const uint8_t *row, int64_t length)
 {
-    void *p = malloc(size > 0 ? size : 1);
-    if (p == NULL) {
-        exit(4);
+    uint8_t *payload;
+    if (length < 0 || length > ROW) {
+        exit(5);
     }
-    return p;
+    if (length == 0) {
+        return NULL;
+    }
+    payload = must_alloc((size_t)length);
+    memcpy(payload, row, (size_t)length);
+    return payload;
 }
 
 /* One case of mode "r"; 0 at the end of the input. */
 static int run_case(void)
 {
-    int32_t *spec = must_alloc(CFDI_E2E_INTS * sizeof *spec);
-    uint8_t *bytes = must_alloc(CFDI_E2E_BYTES);
+    int32_t *spec;
+    uint8_t *bytes;
     uint8_t row[ROW];
     int64_t n = 0, i, length = 0;
 
-    if (!read_exact(spec, sizeof *spec, CFDI_E2E_INTS, 1)) {
-        free(spec);
-        free(bytes);
+    if (!read_profile(&spec, &bytes, &n)) {
         return 0;
     }
-    read_exact(bytes, 1, CFDI_E2E_BYTES, 0);
-    read_exact(&n, sizeof n, 1, 0);
     put(cfdi_e2e_spec_check(spec, bytes));
     for (i = 0; i < n; i++) {
-        uint8_t *payload = NULL;
+        uint8_t *payload;
         read_exact(row, 1, ROW, 0);
         read_exact(&length, sizeof length, 1, 0);
-        if (length < 0 || length > ROW) {
-            exit(5);
-        }
-        if (length > 0) {
-            payload = must_alloc((size_t)length);
-            memcpy(payload, row, (size_t)length);
-        }
+        payload = exact_copy(row, length);
         put(cfdi_e2e_check(spec, bytes, payload, (size_t)length));
         put(cfdi_e2e_counter(spec, bytes, payload, (size_t)length));
         free(payload);
@@ -94,31 +90,21 @@ static int run_case(void)
 /* One case of mode "p"; 0 at the end of the input. */
 static int protect_case(void)
 {
-    int32_t *spec = must_alloc(CFDI_E2E_INTS * sizeof *spec);
-    uint8_t *bytes = must_alloc(CFDI_E2E_BYTES);
+    int32_t *spec;
+    uint8_t *bytes;
     uint8_t row[ROW];
     int64_t n = 0, i, length = 0;
     uint64_t counter = 0;
 
-    if (!read_exact(spec, sizeof *spec, CFDI_E2E_INTS, 1)) {
-        free(spec);
-        free(bytes);
+    if (!read_profile(&spec, &bytes, &n)) {
         return 0;
     }
-    read_exact(bytes, 1, CFDI_E2E_BYTES, 0);
-    read_exact(&n, sizeof n, 1, 0);
     for (i = 0; i < n; i++) {
-        uint8_t *payload = NULL;
+        uint8_t *payload;
         read_exact(row, 1, ROW, 0);
         read_exact(&length, sizeof length, 1, 0);
         read_exact(&counter, sizeof counter, 1, 0);
-        if (length < 0 || length > ROW) {
-            exit(5);
-        }
-        if (length > 0) {
-            payload = must_alloc((size_t)length);
-            memcpy(payload, row, (size_t)length);
-        }
+        payload = exact_copy(row, length);
         put(cfdi_e2e_protect(spec, bytes, payload, (size_t)length, counter));
         if (length > 0) {
             memcpy(row, payload, (size_t)length);

@@ -18,33 +18,7 @@
 
 #include "e2e.h"
 #include "encode.h"
-
-static void put(int64_t v)
-{
-    fwrite(&v, sizeof v, 1, stdout);
-}
-
-/* 1 when count items were read, 0 at a clean end of the input; exits on a partial read. */
-static int read_exact(void *p, size_t size, size_t count, int may_end)
-{
-    size_t got = fread(p, size, count, stdin);
-    if (got == count) {
-        return 1;
-    }
-    if (may_end && got == 0 && feof(stdin)) {
-        return 0;
-    }
-    exit(3);
-}
-
-static void *must_alloc(size_t size)
-{
-    void *p = malloc(size > 0 ? size : 1);
-    if (p == NULL) {
-        exit(4);
-    }
-    return p;
-}
+#include "driver_io.h"
 
 static int run_case(void)
 {
