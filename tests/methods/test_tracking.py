@@ -36,6 +36,15 @@ def _corrections(tracker: AcceptedFaultTracker) -> list[tuple[str, np.ndarray, n
     return [(c.tracked.hypothesis.label, c.delta, c.variances) for c in tracker.correction()]
 
 
+def _same_corrections(got: list, want: list, variances: bool = True) -> None:
+    """The same channels corrected (some), by the same amounts (and variances) to 1e-12."""
+    assert got and [g[0] for g in got] == [w[0] for w in want]
+    for (_, delta, var), (_, delta_w, var_w) in zip(got, want, strict=True):
+        np.testing.assert_allclose(delta, delta_w, rtol=1e-12)
+        if variances:
+            np.testing.assert_allclose(var, var_w, rtol=1e-12)
+
+
 def test_samples_absorbed_one_at_a_time_give_the_checkpoint_a_block_gives():
     n = 3 * PENDING + 17  # past several holds, ending part way into one
     bank, tracked, k, windows, rn = _setup(n)
@@ -48,11 +57,7 @@ def test_samples_absorbed_one_at_a_time_give_the_checkpoint_a_block_gives():
     together.absorb(k, windows, rn)
     assert alone.due and together.due
     assert alone.samples_to_check() == together.samples_to_check() == 0
-    got, want = _corrections(alone), _corrections(together)
-    assert [g[0] for g in got] == [w[0] for w in want] and got
-    for (_, delta, var), (_, delta_w, var_w) in zip(got, want, strict=True):
-        np.testing.assert_allclose(delta, delta_w, rtol=1e-12)
-        np.testing.assert_allclose(var, var_w, rtol=1e-12)
+    _same_corrections(_corrections(alone), _corrections(together))
 
 
 def test_the_noise_each_sample_was_normalised_by_is_kept_while_held():
@@ -70,11 +75,7 @@ def test_the_noise_each_sample_was_normalised_by_is_kept_while_held():
         eager.absorb(k[i:i + 1], windows[i:i + 1], rn[i:i + 1])
         eager._sum_pending()
     bank.sigma = sigma0
-    got, want = _corrections(held), _corrections(eager)
-    assert got
-    for (_, delta, var), (_, delta_w, var_w) in zip(got, want, strict=True):
-        np.testing.assert_allclose(delta, delta_w, rtol=1e-12)
-        np.testing.assert_allclose(var, var_w, rtol=1e-12)
+    _same_corrections(_corrections(held), _corrections(eager))
 
 
 def test_a_copy_holding_samples_runs_apart():
@@ -90,9 +91,8 @@ def test_a_copy_holding_samples_runs_apart():
     fresh = AcceptedFaultTracker(bank)
     fresh.restart(tracked)
     fresh.absorb(k, windows, rn)
-    got, want, other = _corrections(tracker), _corrections(fresh), _corrections(twin)
-    for (_, delta, _), (_, delta_w, _) in zip(got, want, strict=True):
-        np.testing.assert_allclose(delta, delta_w, rtol=1e-12)
+    got, other = _corrections(tracker), _corrections(twin)
+    _same_corrections(got, _corrections(fresh), variances=False)
     assert not [o for o in other if any(np.allclose(o[1], g[1]) for g in got)]
 
 
@@ -106,7 +106,4 @@ def test_a_restart_drops_what_was_held():
     fresh.restart(tracked)
     for t in (tracker, fresh):
         t.absorb(k[30:], windows[30:], rn[30:])
-    got, want = _corrections(tracker), _corrections(fresh)
-    assert got and [g[0] for g in got] == [w[0] for w in want]
-    for (_, delta, _), (_, delta_w, _) in zip(got, want, strict=True):
-        np.testing.assert_allclose(delta, delta_w, rtol=1e-12)
+    _same_corrections(_corrections(tracker), _corrections(fresh), variances=False)
