@@ -6,8 +6,9 @@ from setuptools import Extension, setup
 setup(ext_modules=[Extension(
     "canfdi._ckernel",
     sources=["canfdi/_c/_kernel.c", "canfdi/_c/bank.c", "canfdi/_c/counter.c",
-             "canfdi/_c/decode.c", "canfdi/_c/detect.c", "canfdi/_c/drive.c", "canfdi/_c/e2e.c",
-             "canfdi/_c/encode.c", "canfdi/_c/gate.c", "canfdi/_c/info.c", "canfdi/_c/latest.c"],
+             "canfdi/_c/decide.c", "canfdi/_c/decode.c", "canfdi/_c/detect.c",
+             "canfdi/_c/drive.c", "canfdi/_c/e2e.c", "canfdi/_c/encode.c", "canfdi/_c/gate.c",
+             "canfdi/_c/info.c", "canfdi/_c/latest.c"],
     depends=["canfdi/_c/cfdi.h", "canfdi/_c/decode.h", "canfdi/_c/drive.h", "canfdi/_c/e2e.h",
              "canfdi/_c/encode.h"],
     include_dirs=["canfdi/_c"],

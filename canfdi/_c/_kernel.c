@@ -528,6 +528,105 @@ static PyObject *info_solve(PyObject *self, PyObject *args)
     return PyLong_FromLong(status);
 }
 
+PyDoc_STRVAR(decide_doc,
+"decide(H, d, p, K, kind, index, n_params, full, name_key, twins, penalty, max_samples,\n"
+"       settings, theta, P, cost, rr, meat, u_abs, n_u, units, leftover, n_eq, since, named,\n"
+"       best_onset, cost_h, order, near, result) -> scale\n\n"
+"A diagnosis' decision at one sample (cfdi_decide). The hypotheses: kind (H,) int8, index,\n"
+"n_params, full (H,) int32, name_key (H,) int64, twins (H, H) uint8, penalty (H,) float64;\n"
+"settings (4,) float64: isolation_margin, settle_rel_std, settle_noise, max_fit_variance.\n"
+"The fits: theta (H, K, d), P and meat (H, K, d, d), cost and rr (H, K), u_abs and n_u (p,),\n"
+"units (H, d) float64, leftover (H,) int32. Written: best_onset, order (H,) int64, cost_h\n"
+"(H,) float64, near (H,) uint8, result (5,) int32: action, best, kb, size_known,\n"
+"form_known. Returns the best fit's noise scale.");
+
+static PyObject *decide(PyObject *self, PyObject *args)
+{
+    PyObject *o[22];
+    Py_ssize_t H, d, p, K;
+    long long max_samples, n_eq, since;
+    int named, status;
+    held_buffer b[22];
+    cfdi_hypotheses hy;
+    cfdi_decide_settings st;
+    cfdi_decision dec;
+    const double *set;
+    int32_t *result;
+    const Py_ssize_t R = (Py_ssize_t)sizeof(cfdi_real);
+    (void)self;
+    memset(b, 0, sizeof b);
+
+    if (!PyArg_ParseTuple(args, "nnnnOOOOOOOLOOOOOOOOOOLLiOOOOO", &H, &d, &p, &K, &o[0],
+                          &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &max_samples, &o[7],
+                          &o[8], &o[9], &o[10], &o[11], &o[12], &o[13], &o[14], &o[15],
+                          &o[16], &n_eq, &since, &named, &o[17], &o[18], &o[19], &o[20],
+                          &o[21])) {
+        return NULL;
+    }
+    if (H <= 0 || d <= 0 || p <= 0 || K <= 0 || !sizes_ok(H, K, d * d) || !sizes_ok(H, H, 1)) {
+        PyErr_SetString(PyExc_ValueError, "decide: sizes do not fit (H, d, p, K > 0)");
+        return NULL;
+    }
+    if (take(o[0], &b[0], 0, H, "kind") < 0 || take(o[1], &b[1], 0, H * 4, "index") < 0
+        || take(o[2], &b[2], 0, H * 4, "n_params") < 0 || take(o[3], &b[3], 0, H * 4, "full") < 0
+        || take(o[4], &b[4], 0, H * 8, "name_key") < 0 || take(o[5], &b[5], 0, H * H, "twins") < 0
+        || take(o[6], &b[6], 0, H * R, "penalty") < 0
+        || take(o[7], &b[7], 0, 4 * (Py_ssize_t)sizeof(double), "settings") < 0
+        || take(o[8], &b[8], 0, H * K * d * R, "theta") < 0
+        || take(o[9], &b[9], 0, H * K * d * d * R, "P") < 0
+        || take(o[10], &b[10], 0, H * K * R, "cost") < 0
+        || take(o[11], &b[11], 0, H * K * R, "rr") < 0
+        || take(o[12], &b[12], 0, H * K * d * d * R, "meat") < 0
+        || take(o[13], &b[13], 0, p * R, "u_abs") < 0 || take(o[14], &b[14], 0, p * R, "n_u") < 0
+        || take(o[15], &b[15], 0, H * d * R, "units") < 0
+        || take(o[16], &b[16], 0, H * 4, "leftover") < 0
+        || take(o[17], &b[17], 1, H * 8, "best_onset") < 0
+        || take(o[18], &b[18], 1, H * R, "cost_h") < 0
+        || take(o[19], &b[19], 1, H * 8, "order") < 0 || take(o[20], &b[20], 1, H, "near") < 0
+        || take(o[21], &b[21], 1, 5 * 4, "result") < 0) {
+        release(b, 22);
+        return NULL;
+    }
+    hy.H = (size_t)H;
+    hy.d = (size_t)d;
+    hy.p = (size_t)p;
+    hy.kind = (const int8_t *)b[0].view.buf;
+    hy.index = (const int32_t *)b[1].view.buf;
+    hy.n_params = (const int32_t *)b[2].view.buf;
+    hy.full = (const int32_t *)b[3].view.buf;
+    hy.name_key = (const int64_t *)b[4].view.buf;
+    hy.twins = (const uint8_t *)b[5].view.buf;
+    hy.penalty = (const cfdi_real *)b[6].view.buf;
+    set = (const double *)b[7].view.buf;
+    st.max_samples = (int64_t)max_samples;
+    st.isolation_margin = set[0];
+    st.settle_rel_std = set[1];
+    st.settle_noise = set[2];
+    st.max_fit_variance = set[3];
+    status = cfdi_decide(&hy, &st, (size_t)K, (const cfdi_real *)b[8].view.buf,
+                         (const cfdi_real *)b[9].view.buf, (const cfdi_real *)b[10].view.buf,
+                         (const cfdi_real *)b[11].view.buf, (int64_t)n_eq,
+                         (const cfdi_real *)b[12].view.buf, (const cfdi_real *)b[13].view.buf,
+                         (const cfdi_real *)b[14].view.buf, (const cfdi_real *)b[15].view.buf,
+                         (const int32_t *)b[16].view.buf, (int64_t)since, named,
+                         (int64_t *)b[17].view.buf, (cfdi_real *)b[18].view.buf,
+                         (int64_t *)b[19].view.buf, (uint8_t *)b[20].view.buf, &dec);
+    if (status == CFDI_OK) {
+        result = (int32_t *)b[21].view.buf;
+        result[0] = dec.action;
+        result[1] = dec.best;
+        result[2] = dec.kb;
+        result[3] = dec.size_known;
+        result[4] = dec.form_known;
+    }
+    release(b, 22);
+    if (status != CFDI_OK) {
+        PyErr_Format(PyExc_ValueError, "decide: status %d (a table entry out of range)", status);
+        return NULL;
+    }
+    return PyFloat_FromDouble((double)dec.scale);
+}
+
 static PyMethodDef methods[] = {
     {"fir_block", fir_block, METH_VARARGS, fir_block_doc},
     {"ph_block", ph_block, METH_VARARGS, ph_block_doc},
@@ -537,6 +636,7 @@ static PyMethodDef methods[] = {
     {"counter_run", counter_run, METH_VARARGS, counter_run_doc},
     {"info_block", info_block, METH_VARARGS, info_block_doc},
     {"info_solve", info_solve, METH_VARARGS, info_solve_doc},
+    {"decide", decide, METH_VARARGS, decide_doc},
     {NULL, NULL, 0, NULL}
 };
 

@@ -195,4 +195,61 @@ int cfdi_info_solve(size_t count, size_t d, const cfdi_real *J, const cfdi_real 
                     const cfdi_real *rr, cfdi_real *theta, cfdi_real *P, cfdi_real *cost,
                     cfdi_real *lu, size_t *perm);
 
+/* A diagnosis' decision at one sample, from its fits (canfdi.methods.parity.decide: the same
+ * rules, in the same order; decide.py's module text says them). */
+#define CFDI_HYP_ACTUATOR 0      /* eta - 1 and lambda */
+#define CFDI_HYP_ACTUATOR_BIAS 1 /* lambda alone */
+#define CFDI_HYP_SENSOR 2        /* a bias */
+#define CFDI_HYP_SENSORS 3       /* several sensors' biases, jointly */
+
+#define CFDI_DECIDE_WAIT 0
+#define CFDI_DECIDE_ACCEPT 1
+#define CFDI_DECIDE_NAME 2
+#define CFDI_DECIDE_ACCEPT_NEAR 3 /* max_samples: accepted, its near twins its candidates */
+#define CFDI_DECIDE_UNEXPLAINED 4
+
+/* The hypotheses as a decision reads them (decide.HypothesisTable), H of them, d parameters
+ * at most, over p commands. */
+typedef struct {
+    size_t H, d, p;
+    const int8_t *kind;       /* (H,) CFDI_HYP_* */
+    const int32_t *index;     /* (H,) its channel (an input's for the actuator kinds) */
+    const int32_t *n_params;  /* (H,) 1..d */
+    const int32_t *full;      /* (H,) a bias-only actuator's full hypothesis, else -1 */
+    const int64_t *name_key;  /* (H,) the order that names a group of twins */
+    const uint8_t *twins;     /* (H, H) 1: proportional signatures */
+    const cfdi_real *penalty; /* (H,) the cost of each hypothesis' extra parameters */
+} cfdi_hypotheses;
+
+/* The settings a decision reads (ParitySettings'). */
+typedef struct {
+    int64_t max_samples;
+    double isolation_margin, settle_rel_std, settle_noise, max_fit_variance;
+} cfdi_decide_settings;
+
+typedef struct {
+    int32_t action;           /* CFDI_DECIDE_* */
+    int32_t best, kb;         /* the best hypothesis (its group's name) and its onset position */
+    int32_t size_known, form_known;
+    cfdi_real scale;          /* its fit's cost per degree of freedom */
+} cfdi_decision;
+
+/* theta : (H, K, d), P : (H, K, d, d), cost, rr : (H, K) the fits (rls_solve) and the
+ *         no-fault cost; n_eq : residual rows absorbed; meat : (H, K, d, d) the long-run
+ *         sandwich's middle; u_abs, n_u : (p,) the sum of |u_c| and count of known commands
+ *         since the alarm; units : (H, d) the noise units (decide.unit_table); leftover :
+ *         (H,) the onset position of the latest accepted fault on each hypothesis' channel,
+ *         -1: none; since : samples since the alarm; named : 1 once the fault was named.
+ * best_onset : (H,) each hypothesis' cheapest onset position, cost_h : (H,) its penalised cost,
+ *         order : (H,) the hypotheses by cost_h (stable, NaN last), near : (H,) 1 outside the
+ *         best's group within the margin; all written, with *out.
+ * Returns CFDI_OK, or a negative status (nothing decided) for a null pointer, a zero size, or a
+ * table entry out of range. */
+int cfdi_decide(const cfdi_hypotheses *hy, const cfdi_decide_settings *s, size_t K,
+                const cfdi_real *theta, const cfdi_real *P, const cfdi_real *cost,
+                const cfdi_real *rr, int64_t n_eq, const cfdi_real *meat,
+                const cfdi_real *u_abs, const cfdi_real *n_u, const cfdi_real *units,
+                const int32_t *leftover, int64_t since, int named, int64_t *best_onset,
+                cfdi_real *cost_h, int64_t *order, uint8_t *near, cfdi_decision *out);
+
 #endif

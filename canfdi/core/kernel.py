@@ -3,13 +3,14 @@
 - ``python``: the numpy reference (canfdi.core.residuals.fir_rows,
   canfdi.core.detect.change_point_block, canfdi.bus.dbc.BusMap.decode_frames_reference,
   canfdi.bus.timegate.TimeGate.apply_reference, and a diagnoser's own
-  ``information_reference`` and ``solve_reference``: the parity diagnosis' regressors and
-  sums, and their solution).
+  ``information_reference``, ``solve_reference`` and ``decide_reference``: the parity
+  diagnosis' regressors and sums, their solution, and the decision at each sample).
 - ``c``: the C core (canfdi/_c, built as canfdi._ckernel by the package's own build where a
   compiler exists): the same functions over the same arrays. The detector's statistics are
   numpy's bit for bit (the same closed form, op for op); the residuals agree to rounding
   (numpy's BLAS may order or fuse a row's sum otherwise), and so do a diagnosis' information
-  sums (einsum's order); the frame decode's statuses,
+  sums (einsum's order); a diagnosis' decisions are numpy's but where a test sits within
+  rounding of its bound; the frame decode's statuses,
   slots, counters and values and the time gate's times, drops and steps are numpy's to the
   bit.
 
@@ -74,6 +75,7 @@ class Kernel:
     counter_machine: Callable[..., tuple] | None
     information_block: Callable[..., InformationSums] | None = None
     information_solve: Callable[[RlsState], RlsSolution] | None = None
+    decide: Callable[..., Any] | None = None
 
     def install(self, *, bank: Any = None, detectors: tuple[Any, ...] = (),
                 bus_map: Any = None, gate: Any = None, clock: Any = None,
@@ -82,8 +84,9 @@ class Kernel:
         (canfdi.bus.dbc.BusMap: its frame decode), ``gate`` (canfdi.bus.timegate.TimeGate),
         ``clock`` (a sample clock: a latest-value clock's samples, the counter clock's
         state machine) and ``fits`` (a diagnosis' fits in information form: its regressors
-        and sums, ``information``, and their solution, ``solve``, beside their numpy
-        ``information_reference`` and ``solve_reference``) run on this kernel."""
+        and sums, ``information``, their solution, ``solve``, and the decision over them,
+        ``decide``, beside their numpy ``information_reference``, ``solve_reference`` and
+        ``decide_reference``) run on this kernel."""
         if bank is not None:
             bank.fir_rows = self.fir_rows
         for det in detectors:
@@ -99,6 +102,7 @@ class Kernel:
         if fits is not None:
             fits.information = self.information_block or fits.information_reference
             fits.solve = self.information_solve or fits.solve_reference
+            fits.decide = self.decide or fits.decide_reference
 
     def use_on(self, diagnoser: Any) -> Any:
         """``diagnoser`` (a method's) with its block forms on this kernel, where it has any
@@ -307,11 +311,45 @@ def _c_information_solve(state: RlsState) -> RlsSolution:
                        cost=cost.reshape(batch), dof=max(state.n_eq - d, 1))
 
 
+def _c_decide(table: Any, settings: Any, fit: RlsSolution, rr: np.ndarray, n_eq: int,
+              meat: np.ndarray, u_abs: np.ndarray, n_u: np.ndarray, units: np.ndarray,
+              leftover: np.ndarray, since: int, named: bool) -> tuple:
+    """canfdi.methods.parity.decide.decide_reference in C (cfdi_decide): the fields of its
+    Decision, in their order."""
+    theta = np.ascontiguousarray(fit.theta, dtype=np.float64)
+    H, K, d = theta.shape
+    p = len(u_abs)
+    best_onset, order = np.empty(H, dtype=np.int64), np.empty(H, dtype=np.int64)
+    cost_h, near, result = np.empty(H), np.empty(H, dtype=np.uint8), np.empty(5, dtype=np.int32)
+    scale = _ckernel.decide(
+        H, d, p, K, np.ascontiguousarray(table.kind, dtype=np.int8),
+        np.ascontiguousarray(table.index, dtype=np.int32),
+        np.ascontiguousarray(table.n_params, dtype=np.int32),
+        np.ascontiguousarray(table.full, dtype=np.int32),
+        np.ascontiguousarray(table.name_key, dtype=np.int64),
+        np.ascontiguousarray(table.twins, dtype=np.uint8),
+        np.ascontiguousarray(table.penalty, dtype=np.float64), int(settings.max_samples),
+        np.array([settings.isolation_margin, settings.settle_rel_std, settings.settle_noise,
+                  settings.max_fit_variance], dtype=np.float64), theta,
+        np.ascontiguousarray(fit.P, dtype=np.float64),
+        np.ascontiguousarray(np.broadcast_to(fit.cost, (H, K)), dtype=np.float64),
+        np.ascontiguousarray(np.broadcast_to(rr, (H, K)), dtype=np.float64),
+        np.ascontiguousarray(meat, dtype=np.float64),
+        np.ascontiguousarray(u_abs, dtype=np.float64), np.ascontiguousarray(n_u, dtype=np.float64),
+        np.ascontiguousarray(units, dtype=np.float64),
+        np.ascontiguousarray(leftover, dtype=np.int32), int(n_eq), int(since), int(bool(named)),
+        best_onset, cost_h, order, near, result)
+    action, best, kb, size_known, form_known = (int(v) for v in result)
+    return (action, best, kb, scale, bool(size_known), bool(form_known), best_onset, cost_h,
+            order, near.astype(bool))
+
+
 _KERNELS: dict[str, Kernel | None] = {
     "c": None if _ckernel is None else Kernel("c", _c_fir_rows, _c_change_point_block,
                                               _c_decode_frames, _c_gate_apply,
                                               _c_latest_values, _c_counter_machine,
-                                              _c_information_block, _c_information_solve),
+                                              _c_information_block, _c_information_solve,
+                                              _c_decide),
     "python": Kernel("python", fir_rows, change_point_block, _py_decode_frames,
                      _py_gate_apply, None, None),
 }

@@ -23,7 +23,8 @@ CC = shutil.which("gcc")
 SUITES = ["tests/integration/test_hostile_logs.py", "tests/integration/test_damaged_logs.py",
           "tests/unit/io/test_damaged_logs.py", "tests/unit/core/test_kernel_decode.py",
           "tests/unit/core/test_kernel.py", "tests/unit/core/test_kernel_gate.py",
-          "tests/unit/core/test_kernel_clock.py", "tests/methods/test_information_kernel.py"]
+          "tests/unit/core/test_kernel_clock.py", "tests/methods/test_information_kernel.py",
+          "tests/methods/test_decide_kernel.py"]
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(CC is None, reason="no gcc: the sanitizers' runtime is gcc's")]
@@ -45,7 +46,7 @@ def test_the_hostile_suites_pass_through_the_sanitized_c_kernel(tmp_path):
          "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-std=c99", "-Wall",
          "-Wextra", "-Werror", "-ffp-contract=off", "-fno-strict-aliasing",
          "-DPy_LIMITED_API=0x030B0000", f"-I{sysconfig.get_paths()['include']}", f"-I{CORE}",
-         *(str(CORE / f) for f in ("_kernel.c", "bank.c", "counter.c", "decode.c",
+         *(str(CORE / f) for f in ("_kernel.c", "bank.c", "counter.c", "decide.c", "decode.c",
                                     "detect.c", "e2e.c", "gate.c", "info.c", "latest.c")),
          "-lm", "-o", str(kernel)], capture_output=True, text=True, timeout=300)
     assert build.returncode == 0, build.stderr

@@ -67,17 +67,27 @@ from canfdi.core.records import (
     fold,
 )
 from canfdi.core.residuals import ResidualBank
+from canfdi.methods.parity.decide import (
+    ACCEPT_NEAR,
+    NAME,
+    UNEXPLAINED,
+    WAIT,
+    Decision,
+    HypothesisTable,
+    decide_reference,
+    spread,
+    unit_table,
+)
 from canfdi.methods.parity.hypotheses import (
     Hypothesis,
     independent_sensors,
     information_increments,
-    noise_units,
     proportional,
     regressor_columns,
     row_regressors,
 )
 from canfdi.methods.parity.recent import RecentWindows
-from canfdi.methods.parity.settling import excitation_bound, settle_sizes, settled, within
+from canfdi.methods.parity.settling import excitation_bound
 from canfdi.methods.parity.signatures import SignatureColumns
 from canfdi.methods.parity.thresholds import lagged_middle
 from canfdi.methods.parity.tracking import AcceptedFaultTracker, Tracked
@@ -253,6 +263,7 @@ class ParityDiagnoser(DetectorBacked):
         self._columns = regressor_columns(self.hypotheses, self.d)
         self.information = self.information_reference
         self.solve = self.solve_reference
+        self.decide = self.decide_reference
         # Hypotheses whose bias signatures over the window are proportional (a sensor's Gz_j,
         # an actuator's lambda part Gu_j) fit a bias equally well forever: they are reported
         # together, never told apart. (The design's isolability table, which compares only
@@ -265,6 +276,12 @@ class ParityDiagnoser(DetectorBacked):
                            and proportional(signature[h], signature[g])} for h in single}
         for h in self.hypotheses:
             self._twins.setdefault(h, set())
+        # What a diagnosis' decision reads of the hypotheses (decide.py); the noise units are
+        # remade when the bank's noise changes (the watchdog).
+        self._table = HypothesisTable.of(self.hypotheses, self._twins, settings.isolation_margin)
+        self._units: np.ndarray | None = None
+        self._units_sigma: np.ndarray | None = None
+        self._leftover_at = np.full(len(self.hypotheses), -1, dtype=np.int32)
         m = self.bank.m
         if signatures is None:
             self._detector = ChangePointDetector(m, settings.drift, thresholds)
@@ -300,6 +317,9 @@ class ParityDiagnoser(DetectorBacked):
     solve_reference = staticmethod(rls_solve)
     """Every fit of a diagnosis solved, in numpy: what ``solve`` runs unless a kernel put its
     own there."""
+    decide_reference = staticmethod(decide_reference)
+    """A diagnosis' decision at one sample from its fits (decide.py), in numpy: what
+    ``decide`` runs unless a kernel put its own there."""
 
     # -- state ---------------------------------------------------------------------------
     def __deepcopy__(self, memo: dict) -> ParityDiagnoser:
@@ -315,7 +335,7 @@ class ParityDiagnoser(DetectorBacked):
             self, memo, self.design, self.settings, self.hypotheses, self._twins,
             self._column_residuals, self._columns, self._sigma0, self._lagged, self._projection,
             bank.M, bank.blocks, bank.uses, bank._uses, bank.Gz, bank.Gu, bank.names,
-            bank.kinds, bank.indices, self.tracker.gamma)
+            bank.kinds, bank.indices, self.tracker.gamma, self._table)
 
     def reset(self) -> None:
         """Back to the state after construction: monitoring, no compensation, no events, empty
@@ -345,8 +365,8 @@ class ParityDiagnoser(DetectorBacked):
 
     def use_kernel(self, kernel) -> None:
         """Run the residual bank's and the detector's block forms, and a diagnosis'
-        regressors and sums (``information``) and their solution (``solve``), on ``kernel``
-        (canfdi.core.kernel.Kernel)."""
+        regressors and sums (``information``), their solution (``solve``) and the decision
+        over them (``decide``), on ``kernel`` (canfdi.core.kernel.Kernel)."""
         kernel.install(bank=self.bank, detectors=(self._detector,), fits=self)
 
     @property
@@ -505,6 +525,11 @@ class ParityDiagnoser(DetectorBacked):
         H, K = len(self.hypotheses), len(onsets)
         self.mode = DIAGNOSE
         self._absorbed.clear()
+        # Each hypothesis' channel's latest accepted fault, dated at one of the onsets tried:
+        # a fit from there that costs about as little is what its estimate left (decide.py).
+        self._leftover_at = np.array(
+            [_position(onsets, fault_onset(self.compensation, _channel(h), h.index))
+             for h in self.hypotheses], dtype=np.int32)
         self._diag = Diagnosis(k_d=k, onsets=np.array(onsets),
                                info=rls_init(self.d, self.settings.prior_precision, shape=(H, K)),
                                meat=np.zeros((H, K, self.d, self.d)),
@@ -537,57 +562,29 @@ class ParityDiagnoser(DetectorBacked):
         if since < s.min_samples:
             return []
         fit = self.solve(d.info)
-        theta = fit.theta  # (H, K, d)
+        if self._units_sigma is None or not np.array_equal(self._units_sigma, self.bank.sigma):
+            self._units = unit_table(self.bank, self.hypotheses, self.d, self._projection)
+            self._units_sigma = self.bank.sigma.copy()
+        dec = Decision(*self.decide(self._table, s, fit, d.info.rr, d.info.n_eq, d.meat,
+                                    d.u_abs, d.n_u, self._units, self._leftover_at, since,
+                                    d.named))
+        if dec.action == WAIT:
+            return []
+        theta, best, kb = fit.theta, dec.best, dec.kb
         cost = np.broadcast_to(fit.cost, theta.shape[:2])
-        best_onset = np.argmin(cost, axis=1)  # (H,)
-        # Each parameter beyond the first must earn twice the isolation margin, so a richer
-        # model never wins on the noise it fits (a likelihood-ratio test in effect).
-        penalty = np.array([2.0 * s.isolation_margin * (h.n_params - 1) for h in self.hypotheses])
-        cost_h = cost[np.arange(len(cost)), best_onset] + penalty
-        order = np.argsort(cost_h, kind="stable")
-        best = self._named(int(order[0]), cost_h)
-        h_best = self.hypotheses[best]
-        twins = self._twins[h_best]
-        outside = [i for i in order if i != best and self.hypotheses[i] not in twins]
-        margin_ok = all(cost_h[i] - cost_h[best] >= s.isolation_margin for i in outside)
-        kb = int(best_onset[best])
-        var, scale = _spread(fit, cost, d, best, kb, h_best.n_params)
-        th = theta[best, kb]
-        n_b = h_best.n_params
-        sd = np.sqrt(var[:n_b])
-        u_mean = None
-        if h_best.target == "actuator":
-            u_mean = d.u_abs[h_best.index] / max(d.n_u[h_best.index], 1.0)
-        unit = noise_units(self.bank, h_best, u_mean, self._projection)
-        size_known = bool(settled(sd, settle_sizes(h_best, th[:n_b], u_mean), unit, s))
-        form_known = (h_best.target != "actuator_bias"
-                      or self._scale_ruled_out(fit, best_onset, cost, d, h_best.index))
-        known = size_known and form_known
-        # The fault against no fault at all, by the same margin in the fit's own noise (an F
-        # test): a burst of noise (a drive gone noisier) trips Page-Hinkley too, and a step
-        # fitted to it explains little of what it leaves.
-        rr = float(np.broadcast_to(d.info.rr, cost.shape)[best, kb])
-        fits = (scale <= s.max_fit_variance
-                and (rr - float(cost[best, kb])) / scale >= s.isolation_margin)
-        if margin_ok and fits and (known or since >= s.max_samples):
-            return self._accept(k, t, best, kb, theta, self._reported(fit, cost, best, kb), scale,
-                                best_onset, cost_h, cost[best],
-                                eta_var=self._bias_eta_variance(fit, cost, best_onset, h_best))
-        if (margin_ok and fits and not d.named and h_best.target != "sensors"
-                and not self._leftover(_channel(h_best), h_best.index, cost[best], kb)):
-            # (What an earlier estimate left is no new component to name: it is refined.)
-            return self._name(k, t, fit, cost, best_onset, best, size_known, form_known)
-        if fits and since >= s.max_samples:
-            # Near twins: what tells them apart (a transient) is buried in the noise, and
-            # max_samples of data did not decide. The fault is there and fits: name the best
-            # with every channel within the margin as its candidates rather than none.
-            near = [i for i in outside if cost_h[i] - cost_h[best] < s.isolation_margin]
-            return self._accept(k, t, best, kb, theta, self._reported(fit, cost, best, kb), scale,
-                                best_onset, cost_h, cost[best], near,
-                                self._bias_eta_variance(fit, cost, best_onset, h_best))
-        if since >= s.max_samples:
-            return self._unexplained(k, t, theta, best_onset, order)
-        return []
+        if dec.action == UNEXPLAINED:
+            return self._unexplained(k, t, theta, dec.best_onset, dec.order)
+        if dec.action == NAME:
+            return self._name(k, t, fit, cost, dec.best_onset, best, dec.size_known,
+                              dec.form_known)
+        # (ACCEPT_NEAR: what tells near twins apart, a transient, is buried in the noise and
+        # max_samples of data did not decide. The fault is there and fits: the best is named
+        # with every channel within the margin as its candidates rather than none.)
+        near = [int(i) for i in dec.order if dec.near[i]] if dec.action == ACCEPT_NEAR else []
+        return self._accept(k, t, best, kb, theta, self._reported(fit, cost, best, kb),
+                            dec.scale, dec.best_onset, dec.cost_h, cost[best], near,
+                            self._bias_eta_variance(fit, cost, dec.best_onset,
+                                                    self.hypotheses[best]))
 
     def _name(self, k: int, t: int, fit, cost: np.ndarray, best_onset: np.ndarray, best: int,
               size_known: bool, form_known: bool) -> list[FaultEvent]:
@@ -682,41 +679,6 @@ class ParityDiagnoser(DetectorBacked):
         """The index of actuator j's full hypothesis (eta and lambda), if it has one."""
         return next((i for i, h in enumerate(self.hypotheses)
                      if h.target == "actuator" and h.index == j), None)
-
-    def _scale_ruled_out(self, fit, best_onset: np.ndarray, cost: np.ndarray, d: Diagnosis,
-                         j: int) -> bool:
-        """Whether the data rule a scale out for actuator j: a bias alone (eta = 1) is the
-        full hypothesis with one parameter fixed, and a scale fault under a command that has
-        not yet varied enough looks like a bias. So the bias is accepted only once the full
-        fit knows eta - 1 as the settling test asks of any parameter, and finds it within 3
-        standard deviations of 0 (a scale that is there but has not yet earned its parameter's
-        penalty is waited for, not taken for a bias)."""
-        s = self.settings
-        full = self._full_actuator(j)
-        if full is None:
-            return True
-        kb = int(best_onset[full])
-        sd_eta = float(np.sqrt(_spread(fit, cost, d, full, kb, 2)[0][0]))
-        u_mean = d.u_abs[j] / max(d.n_u[j], 1.0)
-        unit = noise_units(self.bank, self.hypotheses[full], u_mean, self._projection)[0]
-        eta_minus_1 = float(fit.theta[full, kb, 0])
-        return bool((sd_eta <= s.settle_rel_std or within(sd_eta, s.settle_noise, unit))
-                    and abs(eta_minus_1) <= 3.0 * sd_eta)
-
-    def _named(self, best: int, cost_h: np.ndarray) -> int:
-        """The hypothesis that names the best fit's ambiguity group: twins (proportional
-        signatures) fit alike up to rounding, so the one whose cost came out lowest is the
-        floating point's choice, which a BLAS with other threads makes the other way. The
-        group is named by its first channel in config order (inputs, then outputs); the
-        others stay its candidates."""
-        h = self.hypotheses[best]
-        tol = 1e-6 * (1.0 + abs(float(cost_h[best])))
-        group = [best] + [i for i, g in enumerate(self.hypotheses)
-                          if g in self._twins[h] and g.n_params == h.n_params
-                          and abs(float(cost_h[i] - cost_h[best])) <= tol]
-        rank = {"actuator": 0, "actuator_bias": 1, "sensor": 2}
-        return min(group, key=lambda i: (rank.get(self.hypotheses[i].target, 3),
-                                         self.hypotheses[i].index))
 
     def _unexplained(self, k: int, t: int, theta: np.ndarray, best_onset: np.ndarray,
                      order: np.ndarray) -> list[FaultEvent]:
@@ -923,6 +885,11 @@ class ParityDiagnoser(DetectorBacked):
         return events
 
 
+def _position(onsets: list[int], onset: int | None) -> int:
+    """The first position of ``onset`` among ``onsets``; -1 when it is none of them."""
+    return onsets.index(onset) if onset is not None and onset in onsets else -1
+
+
 def _channel(h: Hypothesis) -> str:
     """The compensation's target of a hypothesis ("actuator" for a bias-only actuator)."""
     return "actuator" if h.target == "actuator_bias" else h.target
@@ -940,7 +907,5 @@ def _spread(fit, cost: np.ndarray, d: Diagnosis, h: int, kb: int, n_params: int,
     long-run form, which the shipped configs' settle_rel_std and settle_noise were set by: on
     the winding machine the lagged variances of a sensor bias 50 samples after its onset are
     40 times the long-run ones (and match the spread of the estimates over seeds)."""
-    P = fit.P[h, kb]
-    scale = max(float(cost[h, kb]) / max(d.info.n_eq - n_params, 1), 1e-300)
     meat = d.meat[h, kb] if lagged is None else lagged
-    return np.diag(P @ meat @ P) * scale, scale
+    return spread(fit.P[h, kb], cost[h, kb], d.info.n_eq, n_params, meat)
