@@ -416,7 +416,7 @@ PyDoc_STRVAR(info_block_doc,
 "A diagnosis' information sums over n samples (cfdi_info_block): Gz (q, m, S+1), Gu (p, m,\n"
 "S+1), sigma (m,) float64, columns (H, d, 2) int32, onsets (K,) and k (n,) int64, U (n, S+1,\n"
 "p), rn (n, m) and gamma (m, m) float64; J and meat (H, K, d, d), h (H, K, d), rr (1,)\n"
-"float64 and n_eq (1,) int64 added to; work (2 m d) float64 scratch.");
+"float64 and n_eq (1,) int64 added to; work ((3 m + 2 d + 1) d) float64 scratch.");
 
 static PyObject *info_block(PyObject *self, PyObject *args)
 {
@@ -454,7 +454,7 @@ static PyObject *info_block(PyObject *self, PyObject *args)
         || take(o[11], &b[11], 1, H * K * d * d * R, "meat") < 0
         || take(o[12], &b[12], 1, R, "rr") < 0
         || take(o[13], &b[13], 1, 8, "n_eq") < 0
-        || take(o[14], &b[14], 1, 2 * m * d * R, "work") < 0) {
+        || take(o[14], &b[14], 1, (3 * m + 2 * d + 1) * d * R, "work") < 0) {
         release(b, 15);
         return NULL;
     }

@@ -1,7 +1,7 @@
 /* canfdi's C core: the per-sample hot path of the monitor (see README.md in this folder).
  *
- * C99, no allocation, no global state, nothing from libc beyond <stdint.h>, <string.h> and
- * <math.h>. Every function works on memory its caller owns and sized; every index it derives
+ * C99, no allocation, no global state, nothing from libc beyond <stdint.h>, <string.h>,
+ * <float.h> and <math.h>. Every function works on memory its caller owns and sized; every index it derives
  * from data is checked where it is used. The numpy code in canfdi.core is the reference:
  * these functions give its numbers (see each one for how exactly).
  */
@@ -11,10 +11,14 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include <float.h>
+
 #ifdef CFDI_FLOAT32
 typedef float cfdi_real;
+#define CFDI_REAL_MAX FLT_MAX
 #else
 typedef double cfdi_real;
+#define CFDI_REAL_MAX DBL_MAX
 #endif
 
 /* Statuses: 0 is success; a negative value names what the caller got wrong. */
@@ -169,9 +173,10 @@ int cfdi_counter_close(int64_t *state, const double *buffer, size_t width, const
  *         residuals, NaN: no equation.
  * gamma : (m, m) the residuals' long-run covariance.
  * J, meat : (H, K, d, d), h : (H, K, d), rr : (1,), n_eq : (1,): the sums added to.
- * work  : (2 m d) scratch.
+ * work  : (CFDI_INFO_WORK(m, d)) scratch.
  * Returns CFDI_OK, or a negative status (nothing added) for a null pointer, a zero size or a
  * column outside the bank. */
+#define CFDI_INFO_WORK(m, d) ((3 * (m) + 2 * (d) + 1) * (d))
 #define CFDI_COL_NONE 0   /* beyond the hypothesis' parameters: a zero column */
 #define CFDI_COL_SENSOR 1 /* sensor j's bias: Gz[j] */
 #define CFDI_COL_SCALE 2  /* actuator j's eta - 1: Gu[j] times its command */
@@ -233,6 +238,10 @@ typedef struct {
     int32_t size_known, form_known;
     cfdi_real scale;          /* its fit's cost per degree of freedom */
 } cfdi_decision;
+
+/* One fit's sandwich variance of parameter i, diag(P M P)[i] unscaled, (P M) first as numpy's
+ * matmul associates: P, M (d, d). */
+cfdi_real cfdi_sandwich(const cfdi_real *P, const cfdi_real *M, size_t d, size_t i);
 
 /* theta : (H, K, d), P : (H, K, d, d), cost, rr : (H, K) the fits (rls_solve) and the
  *         no-fault cost; n_eq : residual rows absorbed; meat : (H, K, d, d) the long-run

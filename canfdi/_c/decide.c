@@ -19,9 +19,7 @@ static int after(cfdi_real a, cfdi_real b)
     return a > b || (a != a && b == b);
 }
 
-/* One fit's sandwich variance of parameter i, diag(P M P)[i], unscaled: (P M) first, as numpy's
- * matmul associates. */
-static cfdi_real sandwich(const cfdi_real *P, const cfdi_real *M, size_t d, size_t i)
+cfdi_real cfdi_sandwich(const cfdi_real *P, const cfdi_real *M, size_t d, size_t i)
 {
     cfdi_real v = 0;
     size_t a, b;
@@ -94,7 +92,7 @@ static int scale_ruled_out(const cfdi_hypotheses *hy, const cfdi_decide_settings
         return 1;
     }
     at = (size_t)full * K + (size_t)best_onset[full];
-    sd_eta = (cfdi_real)sqrt(sandwich(P + at * d * d, meat + at * d * d, d, 0)
+    sd_eta = (cfdi_real)sqrt(cfdi_sandwich(P + at * d * d, meat + at * d * d, d, 0)
                              * noise_scale(cost[at], n_eq, 2));
     u_mean = mean_command(u_abs, n_u, hy->index[full]);
     unit = u_mean > 0 ? units[(size_t)full * d] / u_mean : (cfdi_real)INFINITY;
@@ -168,7 +166,7 @@ int cfdi_decide(const cfdi_hypotheses *hy, const cfdi_decide_settings *s, size_t
         u_mean = mean_command(u_abs, n_u, hy->index[best]);
     }
     for (i = 0; i < (size_t)n_b; i++) {
-        cfdi_real sd = (cfdi_real)sqrt(sandwich(P + at * d * d, meat + at * d * d, d, i) * scale);
+        cfdi_real sd = (cfdi_real)sqrt(cfdi_sandwich(P + at * d * d, meat + at * d * d, d, i) * scale);
         cfdi_real size = (cfdi_real)fabs(theta[at * d + i]);
         cfdi_real unit = units[best * d + i];
         if (kind == CFDI_HYP_ACTUATOR && i == 0) {

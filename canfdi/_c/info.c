@@ -3,17 +3,10 @@
  * canfdi.methods.parity.hypotheses.information_increments (block_regressors, then the
  * information, the sandwich's middle and the residuals' sum of squares); the sums agree to
  * rounding (numpy's einsum may order a sum otherwise). */
-#include <float.h>
 #include <math.h>
 #include <string.h>
 
 #include "cfdi.h"
-
-#ifdef CFDI_FLOAT32
-#define REAL_MAX FLT_MAX
-#else
-#define REAL_MAX DBL_MAX
-#endif
 
 /* numpy's nan_to_num: a lost command (NaN) reads 0 (it enters only residuals that are missing
  * anyway), an infinite one the largest finite value of its sign. */
@@ -22,11 +15,11 @@ static cfdi_real finite(cfdi_real u)
     if (u != u) {
         return 0;
     }
-    if (u > REAL_MAX) {
-        return REAL_MAX;
+    if (u > CFDI_REAL_MAX) {
+        return CFDI_REAL_MAX;
     }
-    if (u < -REAL_MAX) {
-        return -REAL_MAX;
+    if (u < -CFDI_REAL_MAX) {
+        return -CFDI_REAL_MAX;
     }
     return u;
 }
@@ -43,6 +36,59 @@ static size_t first_lag(int64_t k, int64_t onset, size_t S)
     return since >= (uint64_t)S ? 0 : S - (size_t)since;
 }
 
+/* One regressor term: column col's signature at residual row and lag s, times the command
+ * for a scale. */
+static cfdi_real term(const int32_t *col, const cfdi_real *Gz, const cfdi_real *Gu, size_t m,
+                      size_t W, size_t row, size_t s, const cfdi_real *u, size_t p)
+{
+    size_t j = (size_t)col[1];
+    const cfdi_real *g = (col[0] == CFDI_COL_SENSOR ? Gz : Gu) + (j * m + row) * W;
+    return col[0] == CFDI_COL_SCALE ? g[s] * finite(u[s * p + j]) : g[s];
+}
+
+/* One sample's increments of one hypothesis' fit, from its regressors' sums over the window
+ * (raw: (m, used), lags first..S, before the noise): phi = raw / sigma on the rows seen, then
+ * inc = [phi^T phi (d, d), phi^T Gamma phi (d, d), phi^T r (d)] over its `used` columns (the
+ * others, zero columns, add zeros: inc holds zeros there). */
+static void increments(size_t m, size_t d, size_t used, const cfdi_real *raw,
+                       const cfdi_real *sigma, const cfdi_real *r, const cfdi_real *gamma,
+                       cfdi_real *phi, cfdi_real *gphi, cfdi_real *inc)
+{
+    size_t row, c, a, b;
+    for (row = 0; row < m; row++) {
+        for (c = 0; c < used; c++) {
+            phi[row * d + c] = r[row] == r[row] ? raw[row * d + c] / sigma[row] : 0;
+        }
+    }
+    for (row = 0; row < m; row++) { /* Gamma phi */
+        for (c = 0; c < used; c++) {
+            cfdi_real sum = 0;
+            for (a = 0; a < m; a++) {
+                sum += gamma[row * m + a] * phi[a * d + c];
+            }
+            gphi[row * d + c] = sum;
+        }
+    }
+    for (a = 0; a < used; a++) {
+        cfdi_real dot = 0;
+        for (b = 0; b < used; b++) {
+            cfdi_real info = 0, mid = 0;
+            for (row = 0; row < m; row++) {
+                info += phi[row * d + a] * phi[row * d + b];
+                mid += phi[row * d + a] * gphi[row * d + b];
+            }
+            inc[a * d + b] = info;
+            inc[d * d + a * d + b] = mid;
+        }
+        for (row = 0; row < m; row++) {
+            if (r[row] == r[row]) {
+                dot += phi[row * d + a] * r[row];
+            }
+        }
+        inc[2 * d * d + a] = dot;
+    }
+}
+
 int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
                     const cfdi_real *Gu, const cfdi_real *sigma, size_t H, size_t d,
                     const int32_t *columns, size_t K, const int64_t *onsets, size_t n,
@@ -50,8 +96,9 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
                     const cfdi_real *gamma, cfdi_real *J, cfdi_real *h, cfdi_real *meat,
                     cfdi_real *rr, int64_t *n_eq, cfdi_real *work)
 {
-    size_t i, hyp, c, o, row, s, a, b, W = S + 1;
-    cfdi_real *phi = work, *gphi = work + m * d;
+    size_t i, hyp, o, row, a, W = S + 1;
+    cfdi_real *phi = work, *gphi = work + m * d, *raw = work + 2 * m * d,
+              *inc = work + 3 * m * d;
     if (Gz == NULL || Gu == NULL || sigma == NULL || columns == NULL || onsets == NULL
         || gamma == NULL || J == NULL || h == NULL || meat == NULL || rr == NULL
         || n_eq == NULL || work == NULL || (n && (k == NULL || U == NULL || rn == NULL))) {
@@ -79,55 +126,50 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
         }
         *n_eq += present;
         for (hyp = 0; hyp < H; hyp++) {
-            for (o = 0; o < K; o++) {
+            const int32_t *cols = columns + 2 * hyp * d;
+            size_t used = 0, done = W, cached = W + 1, c;
+            while (used < d && cols[2 * used] != CFDI_COL_NONE) {
+                used++; /* (a hypothesis' columns come first, zero columns after) */
+            }
+            for (a = 0; a < 2 * d * d + d; a++) {
+                inc[a] = 0;
+            }
+            /* The increments depend on the onset only through the window's first lag at or
+             * after it: onsets sharing it (every one a window or more before the sample)
+             * share them, and the regressors' sums grow lag by lag from the window's end, so
+             * the onsets are taken latest first. */
+            for (o = K; o-- > 0;) {
                 size_t first = first_lag(k[i], onsets[o], S), at = (hyp * K + o) * d;
                 cfdi_real *Jo = J + at * d, *ho = h + at, *mo = meat + at * d;
-                for (row = 0; row < m; row++) {
-                    int seen = r[row] == r[row];
-                    for (c = 0; c < d; c++) {
-                        const int32_t *col = columns + 2 * (hyp * d + c);
-                        size_t j = (size_t)col[1];
-                        cfdi_real sum = 0;
-                        if (seen && col[0] != CFDI_COL_NONE) {
-                            const cfdi_real *g = (col[0] == CFDI_COL_SENSOR ? Gz : Gu)
-                                                 + (j * m + row) * W;
-                            for (s = first; s < W; s++) {
-                                sum += col[0] == CFDI_COL_SCALE ? g[s] * finite(u[s * p + j])
-                                                                : g[s];
-                            }
-                            sum = sum / sigma[row];
-                        }
-                        phi[row * d + c] = sum;
-                    }
+                if (first == W) {
+                    continue; /* an onset after the sample: no regressor, nothing to add */
                 }
-                for (row = 0; row < m; row++) { /* Gamma phi */
-                    for (c = 0; c < d; c++) {
-                        cfdi_real sum = 0;
-                        for (a = 0; a < m; a++) {
-                            sum += gamma[row * m + a] * phi[a * d + c];
-                        }
-                        gphi[row * d + c] = sum;
+                if (first != cached) {
+                    if (first > done) { /* (onsets out of order: start the sums again) */
+                        done = W;
                     }
+                    if (done == W) {
+                        for (a = 0; a < m * d; a++) {
+                            raw[a] = 0;
+                        }
+                    }
+                    for (; done > first; done--) {
+                        for (row = 0; row < m; row++) {
+                            for (c = 0; c < used; c++) {
+                                raw[row * d + c] += term(cols + 2 * c, Gz, Gu, m, W, row,
+                                                         done - 1, u, p);
+                            }
+                        }
+                    }
+                    increments(m, d, used, raw, sigma, r, gamma, phi, gphi, inc);
+                    cached = first;
+                }
+                for (a = 0; a < d * d; a++) {
+                    Jo[a] += inc[a];
+                    mo[a] += inc[d * d + a];
                 }
                 for (a = 0; a < d; a++) {
-                    for (b = 0; b < d; b++) {
-                        cfdi_real info = 0, mid = 0;
-                        for (row = 0; row < m; row++) {
-                            info += phi[row * d + a] * phi[row * d + b];
-                            mid += phi[row * d + a] * gphi[row * d + b];
-                        }
-                        Jo[a * d + b] += info;
-                        mo[a * d + b] += mid;
-                    }
-                    {
-                        cfdi_real dot = 0;
-                        for (row = 0; row < m; row++) {
-                            if (r[row] == r[row]) {
-                                dot += phi[row * d + a] * r[row];
-                            }
-                        }
-                        ho[a] += dot;
-                    }
+                    ho[a] += inc[2 * d * d + a];
                 }
             }
         }

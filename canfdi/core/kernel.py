@@ -288,7 +288,7 @@ def _c_information_block(bank: Any, hypotheses: Any, columns: np.ndarray, d: int
                         np.ascontiguousarray(u_windows, dtype=np.float64).reshape(n, S1, p),
                         np.ascontiguousarray(rn, dtype=np.float64).reshape(n, m),
                         np.ascontiguousarray(gamma, dtype=np.float64), J, h, meat, rr, n_eq,
-                        np.empty(2 * m * d))
+                        np.empty((3 * m + 2 * d + 1) * d))
     return InformationSums(J=J, h=h, rr=rr[0], n_eq=int(n_eq[0]), meat=meat)
 
 

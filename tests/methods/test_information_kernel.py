@@ -93,7 +93,7 @@ def test_buffers_of_the_wrong_size_are_refused():
     bank, _hyps, cols, d, onsets, k, U, rn, gamma = _case(3, 2, 1, 3, 2, 4)
     H, K, n = len(cols), len(onsets), len(k)
     out = [np.zeros((H, K, d, d)), np.zeros((H, K, d)), np.zeros((H, K, d, d)), np.zeros(1),
-           np.zeros(1, dtype=np.int64), np.zeros(2 * 3 * d)]
+           np.zeros(1, dtype=np.int64), np.zeros((3 * 3 + 2 * d + 1) * d)]
     args = [2, 1, 3, 2, bank.Gz, bank.Gu, bank.sigma, H, d, cols, K, onsets, n, k, U, rn, gamma]
     _ckernel.info_block(*args, *out)  # the right sizes pass
     for i, bad in ((4, bank.Gz[:1]), (15, rn[:1]), (16, gamma[:1])):
