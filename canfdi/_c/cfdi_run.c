@@ -6,6 +6,7 @@
  * needs nothing of the C library's I/O and never allocates.
  *
  * A harness, not the core. */
+#include <float.h>
 #include <stdint.h>
 #include <string.h>
 
@@ -273,7 +274,7 @@ static int parse_asc_line(const char *line, int *base, uint32_t *id, uint8_t *le
     return 1;
 }
 
-/* Text out: strings and integers, all the JSON here needs. */
+/* Text out: strings, integers and reals, all the JSON here needs. */
 static void out_u64(uint64_t v)
 {
     char buf[24], *p = buf + sizeof buf - 1;
@@ -307,6 +308,53 @@ static void out_hex(const uint8_t *data, size_t n)
         pair[1] = digits[data[i] & 15];
         cfdi_io_out(pair);
     }
+}
+
+/* A real to 16 significant digits in exponent form (null for NaN or an infinity: JSON has
+ * neither): what the estimates need, compared to 1e-6. */
+static void out_real(double v)
+{
+    char buf[40];
+    size_t n = 0;
+    int e10, i;
+    double mant;
+    if (v != v || v > DBL_MAX || v < -DBL_MAX) {
+        cfdi_io_out("null");
+        return;
+    }
+    if (v < 0) {
+        buf[n++] = '-';
+        v = -v;
+    }
+    if (v == 0) {
+        cfdi_io_out(n ? "-0.0" : "0.0");
+        return;
+    }
+    /* (by tens, not log10 and pow: the MCU's image keeps no libm for output; a few hundred
+     * roundings at most, far below the digits compared) */
+    e10 = 0;
+    mant = v;
+    while (mant >= 10.0) {
+        mant /= 10.0;
+        e10 += 1;
+    }
+    while (mant < 1.0) {
+        mant *= 10.0;
+        e10 -= 1;
+    }
+    for (i = 0; i < 16; i++) {
+        int digit = (int)mant;
+        digit = digit > 9 ? 9 : digit < 0 ? 0 : digit;
+        buf[n++] = (char)('0' + digit);
+        if (i == 0) {
+            buf[n++] = '.';
+        }
+        mant = (mant - digit) * 10.0;
+    }
+    buf[n++] = 'e';
+    buf[n] = '\0';
+    cfdi_io_out(buf);
+    out_i64(e10);
 }
 
 static void out_name(const char *name)
@@ -358,6 +406,39 @@ static int next_line(lines_t *in, char *line, size_t size, int *overlong)
     return n > 0 || *overlong ? 1 : 0;
 }
 
+/* A diagnosis' decision as `canfdi replay --json` lists its events: kind, sample, the
+ * channel (target, index, name), the onset and the estimates. */
+static void out_event(const cfdi_event *e, int first)
+{
+    static const char *const kinds[] = {"", "named", "accepted", "unexplained"};
+    cfdi_io_out(first ? "{\"kind\": " : ", {\"kind\": ");
+    out_name(kinds[e->event]);
+    cfdi_io_out(", \"sample\": ");
+    out_i64(e->sample);
+    if (e->target != 0) {
+        cfdi_io_out(e->target == 1 ? ", \"target\": \"actuator\", \"index\": "
+                                   : ", \"target\": \"sensor\", \"index\": ");
+        out_i64(e->index);
+        cfdi_io_out(", \"name\": ");
+        out_name(e->target == 1 ? cfdi_input_names[e->index] : cfdi_output_names[e->index]);
+        cfdi_io_out(", \"onset_sample\": ");
+        out_i64(e->onset);
+        cfdi_io_out(", \"estimates\": {");
+        if (e->target == 2) {
+            cfdi_io_out("\"bias\": ");
+        } else if (e->eta == e->eta) {
+            cfdi_io_out("\"eta\": ");
+            out_real((double)e->eta);
+            cfdi_io_out(", \"lambda\": ");
+        } else {
+            cfdi_io_out("\"lambda\": ");
+        }
+        out_real((double)e->value);
+        cfdi_io_out("}");
+    }
+    cfdi_io_out("}");
+}
+
 int cfdi_run_main(void)
 {
     static double values[CFDI_GEN_VWIDTH], buffer[CFDI_GEN_WIDTH], samples[2 * CFDI_GEN_WIDTH];
@@ -365,16 +446,36 @@ int cfdi_run_main(void)
     static cfdi_real g_up[CFDI_GEN_M], g_down[CFDI_GEN_M];
     static int64_t last_zero[2 * CFDI_GEN_M];
     static int8_t alarm[CFDI_GEN_M];
+    /* the diagnosis' */
+    static cfdi_real recent[(CFDI_GEN_LOOKBACK + CFDI_GEN_S + 1) * CFDI_GEN_WIDTH];
+    static cfdi_real window[(CFDI_GEN_S + 1) * CFDI_GEN_WIDTH], U[(CFDI_GEN_S + 1) * CFDI_GEN_P];
+    static cfdi_real rn[CFDI_GEN_M], work[CFDI_INFO_WORK(CFDI_GEN_M, CFDI_GEN_D)];
+    static int64_t onsets[CFDI_GEN_K], best_onset[CFDI_GEN_H], order[CFDI_GEN_H];
+    static cfdi_real J[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D * CFDI_GEN_D];
+    static cfdi_real meat[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D * CFDI_GEN_D];
+    static cfdi_real P[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D * CFDI_GEN_D];
+    static cfdi_real h[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D];
+    static cfdi_real theta[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D];
+    static cfdi_real rr[CFDI_GEN_H * CFDI_GEN_K], cost[CFDI_GEN_H * CFDI_GEN_K];
+    static cfdi_real lu[CFDI_GEN_D * CFDI_GEN_D], u_abs[CFDI_GEN_P], n_u[CFDI_GEN_P];
+    static cfdi_real cost_h[CFDI_GEN_H];
+    static size_t perm[CFDI_GEN_D];
+    static uint8_t near[CFDI_GEN_H];
+    static int32_t leftover[CFDI_GEN_H];
     static cfdi_drive drive;
     static lines_t in;
     static char line[LINE];
     const cfdi_drive_memory mem = {values, buffer, samples, ring, r, ph, last_zero, g_up,
-                                   g_down, alarm};
+                                   g_down, alarm,
+                                   {recent, window, U, rn, onsets, J, meat, P, h, theta, rr,
+                                    cost, lu, perm, work, u_abs, n_u, best_onset, order,
+                                    cost_h, near, leftover}};
     uint8_t data[CFDI_MAX_PAYLOAD];
     uint64_t lines = 0, malformed = 0, valid = 0, invalid = 0;
 #ifdef CFDI_TICK_INSNS
-    uint32_t tick, worst = 0;
-    uint64_t ticks = 0;
+    uint32_t tick, worst = 0, alarm_tick = 0, diag_worst = 0;
+    uint64_t ticks = 0, monitor_ticks = 0, monitor_samples = 0;
+    int was_alarmed, was_diagnosing;
 #endif
     static cfdi_tx_frame sent[SENT_KEPT];
     cfdi_tx_frame out;
@@ -412,11 +513,22 @@ int cfdi_run_main(void)
         }
         if (rc == 0) continue;
 #ifdef CFDI_TICK_INSNS
+        was_alarmed = drive.alarmed;
+        was_diagnosing = drive.diagnosing;
         tick = cfdi_io_ticks();
         rc = cfdi_drive_on_frame(&drive, id, len, flags, data, t_ns);
         tick = (cfdi_io_ticks() - tick) & 0xFFFFFFu;
         ticks += tick;
         worst = tick > worst ? tick : worst;
+        if (!was_alarmed && drive.alarmed) {
+            alarm_tick = tick;
+        } else if (was_diagnosing) {
+            diag_worst = tick > diag_worst ? tick : diag_worst;
+        }
+        if (!was_alarmed && !drive.alarmed) {
+            monitor_ticks += tick;
+            monitor_samples = drive.samples;
+        }
 #else
         rc = cfdi_drive_on_frame(&drive, id, len, flags, data, t_ns);
 #endif
@@ -460,6 +572,10 @@ int cfdi_run_main(void)
             }
         }
         cfdi_io_out("]}");
+    }
+    cfdi_io_out("], \"faults\": [");
+    for (i = 0; i < drive.n_events; i++) {
+        out_event(&drive.events[i], i == 0);
     }
     cfdi_io_out("], \"samples\": ");
     out_u64(drive.samples);
@@ -511,9 +627,17 @@ int cfdi_run_main(void)
     out_u64(malformed);
 #ifdef CFDI_TICK_INSNS
     /* instructions in the drive loop (ticks of CFDI_TICK_INSNS instructions each: qemu's
-     * -icount), per sample on average and in the costliest frame */
+     * -icount): per sample on average, and while monitoring (before the alarm); in the frame
+     * that raised the alarm (the diagnosis started: the kept samples fitted), in the costliest
+     * frame of the diagnosis after it, and in the costliest of all */
     cfdi_io_out(", \"instructions\": {\"per_sample\": ");
     out_u64(drive.samples ? ticks * CFDI_TICK_INSNS / drive.samples : 0);
+    cfdi_io_out(", \"per_monitored_sample\": ");
+    out_u64(monitor_samples ? monitor_ticks * CFDI_TICK_INSNS / monitor_samples : 0);
+    cfdi_io_out(", \"alarm_frame\": ");
+    out_u64((uint64_t)alarm_tick * CFDI_TICK_INSNS);
+    cfdi_io_out(", \"worst_diagnosed_frame\": ");
+    out_u64((uint64_t)diag_worst * CFDI_TICK_INSNS);
     cfdi_io_out(", \"worst_frame\": ");
     out_u64((uint64_t)worst * CFDI_TICK_INSNS);
     cfdi_io_out(", \"resolution\": ");

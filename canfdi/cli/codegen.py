@@ -28,10 +28,12 @@ needs) and a Makefile:
 The Cortex-M4F targets need Debian's gcc-arm-none-eabi, libnewlib-arm-none-eabi and
 qemu-system-arm (in a clone of canfdi, deploy/install-mcu-toolchain installs them as root).
 
-So far the C loop counts, detects (the first alarm, dated by its change point) and says so on
-the bus as canfdi's monitor does (FDI_FAULT, state detected; nothing when bus.transmit is
-false); the diagnosis after an alarm (hypotheses, least squares, acceptance, compensation,
-the frames that name and size a fault) runs on the gateway. A config the C loop cannot run
+So far the C loop counts, detects (the first alarm, dated by its change point) and diagnoses
+that first fault as canfdi's parity diagnoser does (every hypothesis fitted at every onset
+tried, then named, accepted, or the alarm unexplained), saying so on the bus as canfdi's
+monitor does (FDI_FAULT, state detected, named, accepted; nothing when bus.transmit is
+false). What follows an acceptance (compensation and the next fault) and the FDI_ESTIMATE
+frames run on the gateway. A config the C loop cannot run
 is refused with one line naming the field: a method with no C tables (of the built-ins only
 parity has them), several drives, a trigger or grid clock, signature CUSUMs, the noise
 watchdog asked for (it stays on the gateway: leave its section out or set

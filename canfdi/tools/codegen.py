@@ -3,14 +3,14 @@
 The project is the C core's own files (canfdi/_c, the ones the daemon's extension compiles)
 and the drive's tables as const data generated from its config: the signal table and E2E
 profiles (canfdi.bus.ctables), the counter clock's and time gate's parameters, the residual
-bank's FIR blocks, noise and Page-Hinkley thresholds (canfdi.methods.parity). Tables, never
-logic: every number comes from the objects the Python monitor runs with, so the two compute
-the same thing.
+bank's FIR blocks, noise and Page-Hinkley thresholds, the diagnosis' hypotheses and settings
+(canfdi.methods.parity). Tables, never logic: every number comes from the objects the Python
+monitor runs with, so the two compute the same thing.
 
-The drive loop in C (canfdi/_c/drive.c) goes as far as the first alarm: detection. The
-diagnosis that follows (hypotheses, least squares, acceptance, compensation, the monitor's
-frames) is issue 43's next step; until then a project detects and counts, and the gateway
-diagnoses.
+The drive loop in C (canfdi/_c/drive.c) detects and diagnoses its first fault: named,
+accepted or the alarm unexplained, each announced by FDI_FAULT. What follows an acceptance
+(compensation and reset for the next fault, the tracking of accepted faults), FDI_ESTIMATE
+and FDI_STATUS are issue 43's next steps; until then the gateway takes over there.
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ __all__ = ["CORE_FILES", "CodegenRefused", "DriveTables", "drive_tables", "rende
            "write_project"]
 
 CORE_FILES = ("cfdi.h", "decode.h", "e2e.h", "encode.h", "drive.h", "bank.c", "counter.c",
-              "decode.c", "detect.c", "e2e.c", "encode.c", "gate.c", "drive.c", "cfdi_run.c",
+              "decide.c", "decode.c", "detect.c", "e2e.c", "encode.c", "gate.c", "info.c",
+              "drive.c", "cfdi_run.c",
               "cfdi_io.h",
               "cfdi_io_host.c", "cfdi_io_semihost.c", "m4f_startup.c", "m4f.ld")
 """The C core's files a project holds (canfdi/_c; not _kernel.c, the CPython face), with the
@@ -60,6 +61,11 @@ class DriveTables:
     residual_names: tuple[str, ...]
     fault: object = None  # canfdi.bus.ctables.MessageTables of FDI_FAULT; None: listen-only
     fault_roles: tuple[float, ...] = ()  # a detection's FDI_FAULT values by encode.h role
+    fault_states: tuple[float, ...] = (0.0, 0.0, 0.0)  # its State: detected, named, accepted
+    fault_kinds: tuple[float, ...] = (0.0, 0.0, 0.0)  # its Kind: none, actuator, sensor
+    diag: dict | None = None  # the diagnosis' (ParityDiagnoser.c_tables); None: none in C
+    input_names: tuple[str, ...] = ()
+    output_names: tuple[str, ...] = ()
 
 
 def _refuse_unsupported(config: MonitorConfig, doc: dict) -> None:
@@ -105,10 +111,19 @@ def drive_tables(config: MonitorConfig, doc: dict | None = None) -> DriveTables:
     if not tables.fits:
         raise CodegenRefused("bus.dbc", "a message has more signals than the C core takes")
     detection = monitor.method.c_tables(config)
+    diag = detection.get("diag")
+    if diag is not None:
+        detection["diag"] = diag = {**diag, "lookback": min(LOOKBACK, diag["recent"])}
+    if diag is not None and diag["d"] > MAX_FAULTS:
+        raise CodegenRefused("signals.outputs", f"a joint fit of {diag['d']} sensors: the C "
+                                                f"diagnosis takes {MAX_FAULTS} at most")
     fault, roles = _fault_message(monitor, drive)
+    states, kinds = _fault_codes(monitor, drive)
     return DriveTables(name=drive.name, bus=tables, clock=drive.clock.c_params(),
                        p=len(config.inputs), q=len(config.outputs), fault=fault,
-                       fault_roles=roles, **detection)
+                       fault_roles=roles, fault_states=states, fault_kinds=kinds,
+                       input_names=tuple(config.inputs), output_names=tuple(config.outputs),
+                       **detection)
 
 
 # FDI_FAULT's signals by the encode.h role the C loop fills them with.
@@ -137,6 +152,30 @@ def _fault_message(monitor, drive) -> tuple[object, tuple[float, ...]]:
     for signal, role in _FAULT_ROLES.items():
         roles[ENCODE_H[f"CFDI_ROLE_{role}"]] = float(values[signal])
     return tables, tuple(roles)
+
+
+MAX_FAULTS = 4
+"""drive.h's CFDI_MAX_FAULTS: the members of a joint fit the C diagnosis accepts at once."""
+
+LOOKBACK = 192
+"""Samples a drive's diagnosis keeps before its alarm (the Python diagnoser keeps
+identification.max_samples of them): a fault whose change point lies further back is fitted
+from the oldest kept, so its onsets may differ. 192 keeps dc_motor's Cortex-M4F image, the
+runner's buffers included, within 16 KiB of static RAM."""
+
+
+def _fault_codes(monitor, drive) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """FDI_FAULT's State of a detection, a naming and an acceptance, and its Kind of none, an
+    actuator and a sensor (Monitor.fault_values: one place)."""
+    from canfdi.core.records import FaultEvent
+
+    def values(kind: str, target: str | None) -> dict:
+        return monitor.fault_values(FaultEvent(kind=kind, sample=0, timestamp_ns=0,
+                                               target=target), drive)
+
+    states = tuple(float(values(k, None)["State"]) for k in ("detected", "named", "accepted"))
+    kinds = tuple(float(values("detected", t)["Kind"]) for t in (None, "actuator", "sensor"))
+    return states, kinds
 
 
 def _real(v: float) -> str:
@@ -172,6 +211,12 @@ def render(t: DriveTables, config_name: str) -> dict[str, str]:
     cfdi_tables.c (the const data)."""
     b = t.bus
     S1, _, m = t.coef.shape
+    g = t.diag
+    diag_defines = "" if g is None else (
+        f"#define CFDI_GEN_H {len(g['table'].kind)}   /* fault hypotheses */\n"
+        f"#define CFDI_GEN_D {g['d']}   /* parameters of a hypothesis, at most */\n"
+        f"#define CFDI_GEN_K {g['settings'].max_onsets}   /* onsets a diagnosis tries */\n"
+        f"#define CFDI_GEN_LOOKBACK {g['lookback']}   /* samples kept before an alarm */\n")
     header = f"""/* Generated by `canfdi codegen` from {config_name}: the tables of drive {t.name}.
  * Data, not logic; do not edit (generate again). */
 #ifndef CFDI_TABLES_H
@@ -183,12 +228,16 @@ def render(t: DriveTables, config_name: str) -> dict[str, str]:
 #define CFDI_GEN_VWIDTH {b.width}  /* the most fields a message gives */
 #define CFDI_GEN_S {S1 - 1}        /* the residual bank's window, samples before */
 #define CFDI_GEN_M {m}             /* residuals */
-
+#define CFDI_GEN_P {t.p}             /* inputs */
+#define CFDI_GEN_Q {t.q}             /* outputs */
+{diag_defines}
 extern const cfdi_drive_tables cfdi_drive_tables_gen;
 extern const char *const cfdi_drive_name;
 extern const char *const cfdi_status_names[CFDI_N_STATUS];
 extern const uint8_t cfdi_status_valid[CFDI_N_STATUS];
 extern const char *const cfdi_residual_names[CFDI_GEN_M];
+extern const char *const cfdi_input_names[CFDI_GEN_P];
+extern const char *const cfdi_output_names[CFDI_GEN_Q];
 
 #endif
 """
@@ -226,6 +275,8 @@ static const cfdi_message fault = {{
     fault_sig_int, fault_sig_real, {len(f.sig_int)}
 }};
 """)
+    if g is not None:
+        parts.append(_diag_tables(g, t.p))
     roles = ", ".join(_real(v) for v in (t.fault_roles or (0.0,)))
     parts.append(f"""
 static const cfdi_bus bus = {{
@@ -245,7 +296,10 @@ const cfdi_drive_tables cfdi_drive_tables_gen = {{
     {t.p}, {t.q},
     coef, uses, {S1 - 1}, {m},
     sigma, delta, h,
-    {"&fault" if f is not None else "NULL"}, {{ {roles} }}
+    {"&fault" if f is not None else "NULL"}, {{ {roles} }},
+    {{ {", ".join(_real(v) for v in t.fault_states)} }},
+    {{ {", ".join(_real(v) for v in t.fault_kinds)} }},
+    {"&diag" if g is not None else "NULL"}
 }};
 
 const char *const cfdi_drive_name = {_string(t.name)};
@@ -258,8 +312,45 @@ const uint8_t cfdi_status_valid[CFDI_N_STATUS] = {{
 const char *const cfdi_residual_names[CFDI_GEN_M] = {{
     {", ".join(_string(s) for s in t.residual_names)}
 }};
+const char *const cfdi_input_names[CFDI_GEN_P] = {{
+    {", ".join(_string(s) for s in t.input_names)}
+}};
+const char *const cfdi_output_names[CFDI_GEN_Q] = {{
+    {", ".join(_string(s) for s in t.output_names)}
+}};
 """)
     return {"cfdi_tables.h": header, "cfdi_tables.c": "".join(parts)}
+
+
+def _diag_tables(g: dict, p: int) -> str:
+    """The diagnosis' const data (drive.h's cfdi_diag_tables)."""
+    table, st = g["table"], g["settings"]
+    H = len(table.kind)
+    parts = [_array("int8_t", "hyp_kind", table.kind, str, 16),
+             _array("int32_t", "hyp_index", table.index, str, 16),
+             _array("int32_t", "hyp_n_params", table.n_params, str, 16),
+             _array("int32_t", "hyp_full", table.full, str, 16),
+             _array("int64_t", "hyp_name_key", table.name_key, _int64, 4),
+             _array("uint8_t", "hyp_twins", table.twins, str, 16),
+             _array("cfdi_real", "hyp_penalty", table.penalty, _real, 4),
+             _array("int32_t", "diag_columns", g["columns"], str, 16),
+             _array("cfdi_real", "diag_Gz", g["Gz"], _real, 4),
+             _array("cfdi_real", "diag_Gu", g["Gu"], _real, 4),
+             _array("cfdi_real", "diag_gamma", g["gamma"], _real, 4),
+             _array("cfdi_real", "diag_units", g["units"], _real, 4)]
+    parts.append(f"""
+/* The diagnosis: its hypotheses, settings and what their fits are made of. */
+static const cfdi_diag_tables diag = {{
+    {{ {H}, {g["d"]}, {p}, hyp_kind, hyp_index, hyp_n_params, hyp_full, hyp_name_key,
+      hyp_twins, hyp_penalty }},
+    {{ {_int64(st.max_samples)}, {_real(st.isolation_margin)}, {_real(st.settle_rel_std)},
+      {_real(st.settle_noise)}, {_real(st.max_fit_variance)} }},
+    {_int64(st.min_samples)}, diag_columns, diag_Gz, diag_Gu, diag_gamma, diag_units,
+    {_real(st.prior_precision)},
+    {st.onset_before}, {st.max_onsets}, {g["lookback"]}
+}};
+""")
+    return "".join(parts)
 
 
 MAKEFILE = """\
@@ -276,7 +367,8 @@ ARM_CC ?= arm-none-eabi-gcc
 ARM_SIZE ?= arm-none-eabi-size
 QEMU ?= qemu-system-arm
 WARN = -std=c99 -Wall -Wextra -Werror -pedantic -ffp-contract=off
-CORE = bank.c counter.c decode.c detect.c e2e.c encode.c gate.c drive.c cfdi_tables.c cfdi_run.c
+CORE = bank.c counter.c decide.c decode.c detect.c e2e.c encode.c gate.c info.c drive.c \\
+  cfdi_tables.c cfdi_run.c
 HEADERS = cfdi.h decode.h e2e.h encode.h drive.h cfdi_io.h cfdi_tables.h
 M4F = -mcpu=cortex-m4 -mthumb -mfpu=fpv4-sp-d16 -mfloat-abi=hard
 BUILD = build/cortex-m4f
@@ -353,9 +445,28 @@ static cfdi_real ring[(CFDI_GEN_S + 1) * CFDI_GEN_WIDTH], r[CFDI_GEN_M], ph[2 * 
 static cfdi_real g_up[CFDI_GEN_M], g_down[CFDI_GEN_M];
 static int64_t last_zero[2 * CFDI_GEN_M];
 static int8_t alarm[CFDI_GEN_M];
+/* the diagnosis' (H hypotheses, K onsets, D parameters) */
+static cfdi_real recent[(CFDI_GEN_LOOKBACK + CFDI_GEN_S + 1) * CFDI_GEN_WIDTH];
+static cfdi_real window[(CFDI_GEN_S + 1) * CFDI_GEN_WIDTH], U[(CFDI_GEN_S + 1) * CFDI_GEN_P];
+static cfdi_real rn[CFDI_GEN_M], work[CFDI_INFO_WORK(CFDI_GEN_M, CFDI_GEN_D)];
+static int64_t onsets[CFDI_GEN_K], best_onset[CFDI_GEN_H], order[CFDI_GEN_H];
+static cfdi_real J[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D * CFDI_GEN_D];
+static cfdi_real meat[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D * CFDI_GEN_D];
+static cfdi_real P[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D * CFDI_GEN_D];
+static cfdi_real h[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D];
+static cfdi_real theta[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D];
+static cfdi_real rr[CFDI_GEN_H * CFDI_GEN_K], cost[CFDI_GEN_H * CFDI_GEN_K];
+static cfdi_real lu[CFDI_GEN_D * CFDI_GEN_D], u_abs[CFDI_GEN_P], n_u[CFDI_GEN_P];
+static cfdi_real cost_h[CFDI_GEN_H];
+static size_t perm[CFDI_GEN_D];
+static uint8_t near[CFDI_GEN_H];
+static int32_t leftover[CFDI_GEN_H];
 static cfdi_drive drive;
 static const cfdi_drive_memory mem = {{values, buffer, samples, ring, r, ph, last_zero, g_up,
-                                      g_down, alarm}};
+                                      g_down, alarm,
+                                      {{recent, window, U, rn, onsets, J, meat, P, h, theta,
+                                       rr, cost, lu, perm, work, u_abs, n_u, best_onset, order,
+                                       cost_h, near, leftover}}}};
 
 void can_send(uint32_t id, int extended, const uint8_t *data, uint8_t len); /* your driver */
 
@@ -380,10 +491,15 @@ void monitor_on_frame(uint32_t id, uint8_t len, uint8_t flags, const uint8_t *da
 
 `cfdi_drive_finish(&drive)` closes a pending sample at the end of a stream (a replayed log).
 After the first alarm `drive.alarmed` is 1, `drive.alarm_k` its sample and
-`drive.alarm_onset` the change point it dates; the monitor then sends one {fault} frame
+`drive.alarm_onset` the change point it dates; the monitor then sends a {fault} frame
 (ID {fault_id}, state detected, the alarm's sample, its E2E), as canfdi's monitor does.
-The diagnosis after it (hypotheses, least squares, acceptance, compensation) still runs on
-the gateway (canfdi issue 43).
+The alarm starts a diagnosis: every fault hypothesis fitted by least squares at every onset
+tried, from the change point on ({lookback} samples before the alarm are kept), and decided
+on at each sample as canfdi's diagnoser decides. Its decisions, `drive.events[0 ..
+drive.n_events - 1]` (a fault named, accepted, or the alarm unexplained), are announced the
+same way, state named or accepted, with the channel. What follows an acceptance
+(compensation, the next fault) and the estimates' FDI_ESTIMATE frames are still the
+gateway's (canfdi issue 43): the loop diagnoses its first fault.
 
 ## The memory each part needs
 
@@ -412,12 +528,27 @@ def project_readme(t: DriveTables, config_name: str, float32: bool) -> str:
             ("`ph` (cfdi_real: the statistics g+ and g-)", 2 * m, real),
             ("`last_zero` (int64_t)", 2 * m, 8),
             ("`alarm` (int8_t)", m, 1)]
+    g = t.diag
+    if g is not None:
+        H, d, K, p = len(g["table"].kind), g["d"], g["settings"].max_onsets, t.p
+        rows += [("`recent` (cfdi_real: the samples kept before an alarm)",
+                  (g["lookback"] + S1) * width, real),
+                 ("`window`, `U`, `rn`, `work` (cfdi_real: one kept sample's)",
+                  S1 * width + S1 * p + m + (3 * m + 2 * d + 1) * d, real),
+                 ("`J`, `meat`, `P` (cfdi_real: every fit's information, sandwich, inverse)",
+                  3 * H * K * d * d, real),
+                 ("`h`, `theta`, `rr`, `cost` (cfdi_real: every fit's)",
+                  2 * H * K * d + 2 * H * K, real),
+                 ("`lu`, `u_abs`, `n_u`, `cost_h` (cfdi_real)", d * d + 2 * p + H, real),
+                 ("`onsets`, `best_onset`, `order` (int64_t)", K + 2 * H, 8),
+                 ("`perm` (size_t: 8 bytes at most)", d, 8), ("`near` (uint8_t)", H, 1),
+                 ("`leftover` (int32_t)", H, 4)]
     memory = "\n".join(f"| {what} | {n} | {n * size} |" for what, n, size in rows)
     memory += f"\n| all of the above | | {sum(n * size for _, n, size in rows)} |"
     fault = t.fault
     return PROJECT_README.format(
         name=t.name, config_name=config_name, real="float32" if float32 else "float64",
-        memory=memory,
+        memory=memory, lookback=g["lookback"] if g is not None else 0,
         fault="FDI_FAULT" if fault is not None else "(listen-only: no)",
         fault_id=f"0x{fault.frame_id:X}" if fault is not None else "none")
 

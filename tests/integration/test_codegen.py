@@ -3,10 +3,12 @@ reference) on every shipped scenario that plays the config's bus, clean and dama
 float64 and float32 and under AddressSanitizer and UndefinedBehaviorSanitizer; and the configs
 the C loop cannot run, refused naming the field.
 
-So far the C loop detects (its first alarm) and counts (issue 43's first step): the frame
-counters, samples and the first detection (sample, change point, residuals) must be the
-monitor's. The Cortex-M4F image (arm-none-eabi-gcc, newlib-nano) runs on qemu's mps2-an386
-and must print what the host's float32 build prints, within the MCU's memory."""
+So far the C loop counts, detects (its first alarm) and diagnoses its first fault (issue 43):
+the frame counters, samples, the first detection (sample, change point, residuals), the first
+diagnosis' decisions (named, accepted or unexplained: samples, channels, onsets, estimates)
+and the FDI_FAULT frames sent must be the monitor's. The Cortex-M4F image (arm-none-eabi-gcc,
+newlib-nano) runs on qemu's mps2-an386 and must print what the host's float32 build prints,
+within the MCU's memory."""
 
 from __future__ import annotations
 
@@ -144,9 +146,34 @@ def mcu_toolchain():
         pytest.skip(f"no Cortex-M4F tool chain here ({done.stderr.strip()})")
 
 
+def _first_diagnosis(events: list) -> list:
+    """The events of the first diagnosis after the first detection, up to its decision (an
+    acceptance, with the other members of a joint one, or an alarm unexplained): what the C
+    loop decides so far."""
+    out = []
+    for e in events[next((i for i, e in enumerate(events) if e.kind == "detected"),
+                         len(events)) + 1:]:
+        if e.kind == "detected" or (out and out[-1].kind != "named"
+                                    and e.sample != out[-1].sample):
+            break
+        out.append(e)
+        if e.kind == "unexplained":
+            break
+    return out
+
+
+def _as_json(e) -> dict:
+    """A decision as cfdi_run prints it."""
+    if e.target is None:
+        return {"kind": e.kind, "sample": e.sample}
+    return {"kind": e.kind, "sample": e.sample, "target": e.target, "index": e.index,
+            "name": e.name, "onset_sample": e.onset_sample, "estimates": dict(e.estimates)}
+
+
 def _reference(config, log: Path) -> dict:
     """What canfdi's monitor (numpy kernel, no noise watchdog: it stays on the gateway)
-    finds: its replay's frame counters and samples, and its first detection."""
+    finds: its replay's frame counters and samples, its first detection and the first
+    diagnosis' decisions."""
     quiet = dataclasses.replace(config, watchdog=dataclasses.replace(config.watchdog,
                                                                      enabled=False))
     monitor = Monitor(quiet, record_residuals=False, kernel=kernel.get("python"))
@@ -156,12 +183,30 @@ def _reference(config, log: Path) -> dict:
     detections = [] if first is None else [{"sample": first.sample,
                                             "onset_sample": first.onset_sample,
                                             "residuals": list(first.residuals)}]
-    # The frames the monitor sends announcing it (its first FDI_FAULT: counter 0).
+    faults = _first_diagnosis(monitor.events)
+    # The FDI_FAULT frames the monitor sends announcing them (its counter from 0): the first
+    # of each event's frames (FDI_ESTIMATE's are the gateway's so far).
     fresh = Monitor(quiet, record_residuals=False, kernel=kernel.get("python"))
-    sent = [] if first is None else [{"id": f.frame_id, "extended": f.extended,
-                                      "data": f.data.hex()} for f in fresh.fault_frames(first)]
+    sent = [{"id": f[0].frame_id, "extended": f[0].extended, "data": f[0].data.hex()}
+            for e in ([first] if first else []) + faults
+            if (f := fresh.fault_frames(e)) and e.kind != "unexplained"]
     return {"detections": detections, "samples": summary["samples"],
-            "frames": summary["frames"], "sent": sent}
+            "frames": summary["frames"], "sent": sent,
+            "faults": [_as_json(e) for e in faults]}
+
+
+def _same_faults(got: list, want: list, name: str, rel: float, samples: int = 0) -> None:
+    """The C's decisions against the monitor's: the same kinds and channels, samples and
+    onsets within ``samples``, estimates within ``rel``."""
+    assert [(g["kind"], g.get("target"), g.get("index")) for g in got] == \
+        [(w["kind"], w.get("target"), w.get("index")) for w in want], name
+    for g, w in zip(got, want, strict=True):
+        assert abs(g["sample"] - w["sample"]) <= samples, name
+        if "onset_sample" in w:
+            assert abs(g["onset_sample"] - w["onset_sample"]) <= samples, name
+            assert g["estimates"].keys() == w["estimates"].keys(), name
+            for key, value in w["estimates"].items():
+                assert g["estimates"][key] == pytest.approx(value, rel=rel), (name, key)
 
 
 def test_every_scenario_of_the_bus_is_covered(config, logs):
@@ -177,10 +222,12 @@ def test_the_c_loop_counts_and_detects_as_the_monitor_does(config, logs, project
         assert got["frames"] == want["frames"], name
         assert got["samples"] == want["samples"], name
         assert got["detections"] == want["detections"], name
+        _same_faults(got["faults"], want["faults"], name, rel=1e-6)
         assert got["sent"] == want["sent"], name  # byte for byte, E2E included
         assert got["frames_sent"] == len(want["sent"]) and got["frames_not_sent"] == 0, name
         if "nominal" not in name and "clean" in name:
             assert got["detections"], name  # a fault scenario is detected
+            assert got["faults"][-1]["kind"] == "accepted", name  # and diagnosed
         if "timejump" in name:
             assert got["frames"]["clock_steps"] >= 1, name
             assert got["frames"]["invalid_by_reason"]["time_jump"] >= 1, name
@@ -190,7 +237,7 @@ def test_the_c_loop_counts_and_detects_as_the_monitor_does(config, logs, project
 
 
 @needs_cc
-def test_float32_detects_within_two_samples(config, logs, tmp_path_factory):
+def test_float32_detects_and_diagnoses_within_two_samples(config, logs, tmp_path_factory):
     project = _build(tmp_path_factory, "dc_motor-c32", "--float32")
     for name, log in logs.items():
         got, want = _run(project, log), _reference(config, log)
@@ -199,6 +246,7 @@ def test_float32_detects_within_two_samples(config, logs, tmp_path_factory):
         for g, w in zip(got["detections"], want["detections"], strict=True):
             assert abs(g["sample"] - w["sample"]) <= 2, name
             assert abs(g["onset_sample"] - w["onset_sample"]) <= 2, name
+        _same_faults(got["faults"], want["faults"], name, rel=0.01, samples=2)
 
 
 @needs_cc
@@ -363,7 +411,9 @@ def test_the_cortex_m4f_image_on_qemu_prints_what_the_host_float32_build_does(
                                         check=True, timeout=600).stdout)
     insns = counted.pop("instructions")
     assert counted["detections"] and counted["samples"] > 1000
-    assert insns["per_sample"] <= 20_000 and insns["worst_frame"] <= 200_000, insns
+    assert [f["kind"] for f in counted["faults"]] == ["named", "accepted"]  # diagnosed too
+    assert insns["per_monitored_sample"] <= 20_000, insns  # the steady state
+    assert insns["worst_frame"] <= 200_000, insns  # an alarm, a diagnosed sample
     symbols = subprocess.run(["arm-none-eabi-nm", str(project / "build" / "cortex-m4f" /
                                                      "cfdi_run.elf")],
                              capture_output=True, text=True, check=True).stdout.split()

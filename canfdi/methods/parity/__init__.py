@@ -85,7 +85,8 @@ def c_tables(config: MonitorConfig) -> dict:
             "sigma": np.asarray(bank.sigma, dtype=float),
             "delta": np.full(bank.m, float(diagnoser.settings.drift)),
             "h": np.asarray(diagnoser.thresholds, dtype=float).reshape(bank.m),
-            "residual_names": tuple(diagnoser.residual_names)}
+            "residual_names": tuple(diagnoser.residual_names),
+            "diag": diagnoser.c_tables()}
 
 
 def describe(config: MonitorConfig) -> dict:

@@ -670,6 +670,19 @@ class ParityDiagnoser(DetectorBacked):
         return excitation_bound(self.bank, self.settings, self.tracker.gamma, self._projection,
                                 h, np.asarray(theta, dtype=float), onset, U, noise_scale)
 
+    def c_tables(self) -> dict:
+        """What a diagnosis reads, for the C drive loop (canfdi codegen, drive.h's
+        cfdi_diag_tables): the hypotheses' decision table (decide.HypothesisTable) and
+        regressor columns, the bank's signatures, the long-run covariance, the noise units
+        at the configured noise, and the settings."""
+        s = self.settings
+        return {"table": self._table, "columns": self._columns, "d": self.d,
+                "Gz": np.asarray(self.bank.Gz, dtype=float),
+                "Gu": np.asarray(self.bank.Gu, dtype=float),
+                "gamma": np.asarray(self.tracker.gamma, dtype=float),
+                "units": unit_table(self.bank, self.hypotheses, self.d, self._projection),
+                "settings": s, "recent": self._recent.capacity}
+
     @property
     def named(self) -> bool:
         """Whether the diagnosis under way has named its fault (FDI_STATUS "named")."""
