@@ -1,6 +1,7 @@
 /* One drive's monitor frame by frame (drive.h): the block functions called with blocks of one,
  * in the order the daemon's Python calls them (canfdi.bus.assembler.SampleAssembler.push_batch,
- * then canfdi.methods.parity.diagnoser.ParityDiagnoser.update up to its first alarm). */
+ * then canfdi.methods.parity.diagnoser.ParityDiagnoser.update: monitoring up to its first
+ * alarm, then that alarm's diagnosis up to its decision). */
 #include <math.h>
 #include <string.h>
 

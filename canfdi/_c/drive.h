@@ -113,7 +113,7 @@ typedef struct {
     const cfdi_diag_tables *diag; /* the diagnosis; NULL: the loop stops at its alarm */
 } cfdi_drive_tables;
 
-/* The memory a drive works in, its caller's (sizes from the tables; cfdi_drive_memory_ok). */
+/* The memory a drive works in, its caller's (sizes: cfdi_tables.h's CFDI_GEN_*). */
 typedef struct {
     double *values;               /* (bus->width,) one frame's decoded fields */
     double *buffer;               /* (p+q,) the clock's pending sample */

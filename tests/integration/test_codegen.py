@@ -318,6 +318,16 @@ void can_send(uint32_t id, int extended, const uint8_t *data, uint8_t len)
 int main(void)
 {
     uint8_t data[8] = {0};
+    cfdi_drive_memory lacking = mem;
+    cfdi_drive_tables wider = cfdi_drive_tables_gen;
+    cfdi_diag_tables diag = *cfdi_drive_tables_gen.diag;
+    lacking.diag.recent = NULL; /* the diagnosis' memory is checked with the rest */
+    diag.hyp.p += 1;            /* and its tables against the drive's */
+    wider.diag = &diag;
+    if (cfdi_drive_init(&drive, &cfdi_drive_tables_gen, &lacking) != CFDI_EBADARG
+        || cfdi_drive_init(&drive, &wider, &mem) != CFDI_ESHAPE) {
+        return 3;
+    }
     if (monitor_start() != CFDI_OK) {
         return 1;
     }
