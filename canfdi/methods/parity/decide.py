@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from canfdi.methods.parity.hypotheses import Hypothesis, steady_response
+from canfdi.methods.parity.hypotheses import Hypothesis, noise_units
 
 if TYPE_CHECKING:
     from canfdi.core.identify import RlsSolution
@@ -121,23 +121,13 @@ def unit_table(bank: ResidualBank, hypotheses: list[Hypothesis], d: int,
     """(H, d) each hypothesis' noise units at the bank's noise (hypotheses.noise_units), inf
     beyond its parameters; an actuator's both columns hold lambda's unit (eta's is it over the
     command's mean size, known only during a diagnosis)."""
-    def unit(target: str, j: int) -> float:
-        mu = steady_response(bank, target, j)
-        gain = float(np.max(np.abs(mu)))
-        if projection is not None and projection.size:
-            gain = max(gain, float(np.max(np.abs(mu @ projection))))
-        return 1.0 / gain if gain > 0.0 else np.inf
-
     out = np.full((len(hypotheses), d), np.inf)
     for i, h in enumerate(hypotheses):
-        if h.target == "sensors":
-            out[i, : len(h.members)] = [unit("sensor", j) for j in h.members]
-        elif h.target == "sensor":
-            out[i, 0] = unit("sensor", h.index)
-        elif h.target == "actuator_bias":
-            out[i, 0] = unit("actuator", h.index)
+        units = noise_units(bank, h, None, projection)
+        if h.target == "actuator":
+            out[i, :2] = units[-1]  # lambda's (eta's needs the mean command)
         else:
-            out[i, :2] = unit("actuator", h.index)
+            out[i, : len(units)] = units
     return out
 
 
