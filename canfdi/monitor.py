@@ -58,9 +58,41 @@ __all__ = ["Drive", "Monitor", "OutFrame", "RecordSink", "Teacher", "summary_jso
 _KIND = {"actuator": 1, "sensor": 2}
 _STATE = {"detected": 1, "named": 2, "accepted": 3}
 _PARAM = {"eta": 0, "lambda": 1, "bias": 2}
+STD_PARAM = 3
+"""FDI_ESTIMATE's Param of an estimate's standard deviation: its estimate's plus this."""
 _STATUS = {"starting": 0, "monitoring": 1, "diagnosing": 2, "degraded": 3, "bus_error": 4,
            "teaching": 5, "mismatch": 6, "no_traffic": 7, "checking": 8, "quiet": 9,
            "named": 10}
+
+MONITOR_ROLES = {
+    "FDI_FAULT": {"Kind": "KIND", "State": "STATE", "Drive": "DRIVE", "Index": "INDEX",
+                  "Sample": "SAMPLE"},
+    "FDI_ESTIMATE": {"Kind": "KIND", "Param": "PARAM", "Drive": "DRIVE", "Index": "INDEX",
+                     "Value": "VALUE"},
+    "FDI_STATUS": {"State": "STATE", "Drive": "DRIVE", "ActiveFaults": "ACTIVE",
+                   "Samples": "SAMPLE", "InvalidFrames": "INVALID"},
+}
+"""Each monitor message's signals by what they carry (canfdi/_c/encode.h's CFDI_ROLE_*): the
+values `fault_values`, `estimate_values` and `status_values` give them, which `canfdi codegen`'s
+C loop fills in the same way."""
+
+WRAPS = {"FDI_FAULT": {"Sample": 1 << 32},
+         "FDI_STATUS": {"Samples": 1 << 21, "InvalidFrames": 1 << 16}}
+"""Counts a monitor message carries modulo its field (the rest are clipped to the DBC's range,
+as the codec clips); `canfdi codegen` writes these moduli for the C loop."""
+
+CAPS = {"FDI_STATUS": {"ActiveFaults": 15}}
+"""Counts a monitor message carries at most this large."""
+
+
+def _bounded(message: str, values: dict[str, int]) -> dict[str, int]:
+    """A monitor message's counts taken modulo `WRAPS` and capped by `CAPS`."""
+    out = dict(values)
+    for name, modulus in WRAPS.get(message, {}).items():
+        out[name] = out[name] % modulus
+    for name, cap in CAPS.get(message, {}).items():
+        out[name] = min(out[name], cap)
+    return out
 
 
 class RecordSink(Protocol):
@@ -438,31 +470,46 @@ class Monitor:
         sends only the channel's updated FDI_ESTIMATEs (none at all when listen-only)."""
         if event.kind not in _STATE and event.kind != "refined":
             return []
-        index = (drive or self.drives[0]).index
         frames = []
         if event.kind in _STATE:  # a refinement updates the estimate of a fault already known
             frames.append(self._encode("FDI_FAULT", self.fault_values(event, drive)))
         for key, value in event.estimates.items():
-            param = _PARAM.get(key)
-            if param is None:
+            if key not in _PARAM:
                 continue
-            frames.append(self._encode("FDI_ESTIMATE", {
-                "Kind": _KIND[event.target], "Param": param, "Drive": index,
-                "Index": event.index, "Value": value}))
+            frames.append(self._encode("FDI_ESTIMATE",
+                                       self.estimate_values(event, key, value, drive)))
             var = event.variances.get(key)
             if var is not None:
-                frames.append(self._encode("FDI_ESTIMATE", {
-                    "Kind": _KIND[event.target], "Param": param + 3, "Drive": index,
-                    "Index": event.index, "Value": float(np.sqrt(max(var, 0.0)))}))
+                std = float(np.sqrt(max(var, 0.0)))
+                frames.append(self._encode("FDI_ESTIMATE",
+                                           self.estimate_values(event, key, std, drive, True)))
         return [f for f in frames if f is not None]
 
     def fault_values(self, event: FaultEvent, drive: Drive | None = None) -> dict[str, int]:
         """FDI_FAULT's signal values announcing ``event`` (detected, named or accepted): the
         channel's kind and index (0 for a detection, which names none), the state, the
         drive's index and the sample modulo 2^32 (what `canfdi codegen`'s C loop sends too)."""
-        return {"Kind": _KIND.get(event.target or "", 0), "State": _STATE[event.kind],
-                "Drive": (drive or self.drives[0]).index, "Index": event.index or 0,
-                "Sample": event.sample & 0xFFFFFFFF}
+        return _bounded("FDI_FAULT", {
+            "Kind": _KIND.get(event.target or "", 0), "State": _STATE[event.kind],
+            "Drive": (drive or self.drives[0]).index, "Index": event.index or 0,
+            "Sample": event.sample})
+
+    def estimate_values(self, event: FaultEvent, key: str, value: float,
+                        drive: Drive | None = None, std: bool = False) -> dict[str, float]:
+        """FDI_ESTIMATE's signal values for the estimate ``key`` of ``event`` ("eta",
+        "lambda" or "bias"): ``value`` itself, or with ``std`` its standard deviation."""
+        return {"Kind": _KIND[event.target], "Param": _PARAM[key] + (STD_PARAM if std else 0),
+                "Drive": (drive or self.drives[0]).index, "Index": event.index,
+                "Value": value}
+
+    def status_values(self, drive: Drive, state: str | None = None) -> dict[str, int]:
+        """FDI_STATUS's signal values of one drive: its state (``state`` overrides it), the
+        channels compensated (at most 15), the samples modulo 2^21 and the invalid frames
+        modulo 2^16."""
+        return _bounded("FDI_STATUS", {
+            "State": _STATUS[state or drive.state], "Drive": drive.index,
+            "ActiveFaults": _active_faults(drive), "Samples": drive.samples,
+            "InvalidFrames": drive.clock.stats["frames_invalid"]})
 
     def record_status(self, timestamp_ns: int, state: str | None = None) -> None:
         """Record the status the heartbeat reports on the sink's ``/canfdi/status``: the
@@ -478,14 +525,7 @@ class Monitor:
         """The periodic FDI_STATUS heartbeat, one per drive (none when listen-only)."""
         out = []
         for drive in self.drives:
-            now = state or drive.state
-            stats = drive.clock.stats
-            frame = self._encode("FDI_STATUS", {
-                "State": _STATUS[now], "Drive": drive.index,
-                "ActiveFaults": min(_active_faults(drive), 15),
-                "Samples": drive.samples & 0x1FFFFF,
-                "InvalidFrames": stats["frames_invalid"] & 0xFFFF,
-            })
+            frame = self._encode("FDI_STATUS", self.status_values(drive, state))
             if frame is not None:
                 out.append(frame)
         return out

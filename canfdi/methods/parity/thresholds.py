@@ -20,7 +20,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "calibrate_thresholds", "instant_covariance", "lagged_covariance", "lagged_middle",
-    "long_run_covariance",
+    "long_run_covariance", "noise_factors",
 ]
 
 
@@ -133,6 +133,17 @@ def long_run_covariance(bank: ResidualBank, measurement_std: np.ndarray) -> np.n
     return (gain * var[None, :]) @ gain.T
 
 
+def noise_factors(bank: ResidualBank, measurement_std: np.ndarray) -> np.ndarray:
+    """(S+1, q, m) N[l, c, a]: normalised residual a's coefficient on measurement c at lag l
+    of its window, times c's noise standard deviation. The normalised residuals are
+    r(k) = sum_l N[l]^T e(k - S + l) of white unit noise e, which is what their
+    autocovariances (`lagged_covariance`) and the C core's lag-by-lag middle
+    (canfdi/_c/lagged.h: a sum of squares over measurement times) are made of."""
+    coef, var = _noise_coefficients(bank, measurement_std)
+    c = coef / bank.sigma[:, None, None]  # (m, S+1, q)
+    return np.transpose(c, (1, 2, 0)) * np.sqrt(var)[None, :, None]
+
+
 def lagged_covariance(bank: ResidualBank, measurement_std: np.ndarray) -> np.ndarray:
     """(S+1, m, m) autocovariances C[lag] = E[r(k) r(k - lag)^T] of the normalised residuals
     under white measurement noise, lag 0..S (none beyond: a window holds S+1 samples). A fit
@@ -148,11 +159,10 @@ def lagged_covariance(bank: ResidualBank, measurement_std: np.ndarray) -> np.nda
     >>> bool(np.allclose(total, long_run_covariance(bank, np.ones(2))))
     True
     """
-    coef, var = _noise_coefficients(bank, measurement_std)
-    c = coef / bank.sigma[:, None, None]
+    N = noise_factors(bank, measurement_std)
     width = bank.S + 1
-    # r_i(k) holds x(k - S + l) with c[i, l]; r_j(k - lag) holds it with c[j, l + lag].
-    return np.stack([np.einsum("ilc,jlc,c->ij", c[:, : width - lag], c[:, lag:], var)
+    # r_i(k) holds e(k - S + l) with N[l, :, i]; r_j(k - lag) holds it with N[l + lag, :, j].
+    return np.stack([np.einsum("lci,lcj->ij", N[: width - lag], N[lag:])
                      for lag in range(width)])
 
 

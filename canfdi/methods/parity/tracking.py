@@ -49,7 +49,7 @@ from canfdi.methods.parity.hypotheses import (
     steady_response,
 )
 
-__all__ = ["AcceptedFaultTracker", "Correction", "Tracked"]
+__all__ = ["AcceptedFaultTracker", "Correction", "Tracked", "steady_ratio"]
 
 FIRST_CHECK = 64
 """Residual samples after an acceptance before the first check; each later one doubles it."""
@@ -59,6 +59,24 @@ PENDING = 256
 absorbs one sample at a time, and one sample's regressors and sums cost about what 256 do
 together (numpy's fixed cost per call). Held samples are summed before a checkpoint reads the
 sums; a hold never grows past this, whatever the distance to the next checkpoint."""
+
+
+def steady_ratio(bank: ResidualBank, gamma: np.ndarray, target: str, index: int) -> float:
+    """How much a sum of residuals along a channel's steady bias signature (``target``
+    "sensor": sensor ``index``'s bias; otherwise actuator ``index``'s lambda) varies under the
+    long-run covariance ``gamma`` over what least squares assumes (1: white, independent
+    residuals): the factor an acceptance's information takes into its sandwich's middle.
+
+    >>> from canfdi.core.design import design_bank
+    >>> from canfdi.core.model import StateSpace
+    >>> bank = ResidualBank(design_bank(StateSpace(A=[[0.9]], B=[[1.0]], C=[[1.0], [1.0]]),
+    ...                                 ["u"], ["y0", "y1"]))
+    >>> steady_ratio(bank, np.eye(bank.m), "sensor", 0)
+    1.0
+    """
+    phi = steady_response(bank, target, index)
+    norm = float(phi @ phi)
+    return float(phi @ gamma @ phi) / norm if norm > 0.0 else 1.0
 
 
 @dataclass(frozen=True)
@@ -167,10 +185,8 @@ class AcceptedFaultTracker:
 
     def _ratio(self, h: Hypothesis) -> float:
         """How much a sum of residuals along the channel's steady bias signature varies over
-        what least squares assumes (1: white, independent residuals)."""
-        phi = steady_response(self.bank, h.target, h.index)
-        norm = float(phi @ phi)
-        return float(phi @ self.gamma @ phi) / norm if norm > 0.0 else 1.0
+        what least squares assumes (`steady_ratio`)."""
+        return steady_ratio(self.bank, self.gamma, h.target, h.index)
 
     def restart(self, tracked: list[Tracked]) -> None:
         """Fit these channels from now on, relative to the compensation as it now is, from
