@@ -454,7 +454,7 @@ static PyObject *info_block(PyObject *self, PyObject *args)
         || take(o[11], &b[11], 1, H * K * d * d * R, "meat") < 0
         || take(o[12], &b[12], 1, R, "rr") < 0
         || take(o[13], &b[13], 1, 8, "n_eq") < 0
-        || take(o[14], &b[14], 1, (3 * m + 2 * d + 1) * d * R, "work") < 0) {
+        || take(o[14], &b[14], 1, (Py_ssize_t)CFDI_INFO_WORK(m, d, S, p, H) * R, "work") < 0) {
         release(b, 15);
         return NULL;
     }

@@ -16,10 +16,18 @@
 #ifdef CFDI_FLOAT32
 typedef float cfdi_real;
 #define CFDI_REAL_MAX FLT_MAX
+#define CFDI_FABS fabsf /* the real type's own: an M4F's FPU does float, double in software */
+#define CFDI_SQRT sqrtf
 #else
 typedef double cfdi_real;
 #define CFDI_REAL_MAX DBL_MAX
+#define CFDI_FABS fabs
+#define CFDI_SQRT sqrt
 #endif
+
+/* A size rounded up to a multiple of 8 (each part of a memory block a caller gives starts
+ * there). */
+#define CFDI_ALIGN8(n) ((((size_t)(n)) + 7u) / 8u * 8u)
 
 /* Statuses: 0 is success; a negative value names what the caller got wrong. */
 enum {
@@ -173,10 +181,12 @@ int cfdi_counter_close(int64_t *state, const double *buffer, size_t width, const
  *         residuals, NaN: no equation.
  * gamma : (m, m) the residuals' long-run covariance.
  * J, meat : (H, K, d, d), h : (H, K, d), rr : (1,), n_eq : (1,): the sums added to.
- * work  : (CFDI_INFO_WORK(m, d)) scratch.
+ * work  : (CFDI_INFO_WORK(m, d, S, p, H)) scratch.
  * Returns CFDI_OK, or a negative status (nothing added) for a null pointer, a zero size or a
  * column outside the bank. */
-#define CFDI_INFO_WORK(m, d) ((3 * (m) + 2 * (d) + 1) * (d))
+#define CFDI_INFO_WORK(m, d, S, p, H) \
+    ((3 * (m) + 2 * (d) + 1) * (d) + ((S) + 1) * (p) + 2 * (m) * (H) * (d) \
+     + 2 * (H) * (d) * (H) * (d) + (H) * (d) + (2 * (H) * (d) * (H) * (d) + (H) * (d)) / 4 + 1)
 #define CFDI_COL_NONE 0   /* beyond the hypothesis' parameters: a zero column */
 #define CFDI_COL_SENSOR 1 /* sensor j's bias: Gz[j] */
 #define CFDI_COL_SCALE 2  /* actuator j's eta - 1: Gu[j] times its command */
@@ -187,6 +197,27 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
                     const int64_t *k, const cfdi_real *U, const cfdi_real *rn,
                     const cfdi_real *gamma, cfdi_real *J, cfdi_real *h, cfdi_real *meat,
                     cfdi_real *rr, int64_t *n_eq, cfdi_real *work);
+/* The bank's fault signatures as the regressors read them: Gz (q, m, S+1), Gu (p, m, S+1),
+ * each residual's noise sigma (m,) and the residuals' long-run covariance gamma (m, m). */
+typedef struct {
+    size_t q, p, m, S;
+    const cfdi_real *Gz, *Gu, *sigma, *gamma;
+} cfdi_signatures;
+
+/* One regressor column of sample k for a fault from `onset` on (hypotheses.row_regressors'
+ * column): out[a] = sum over the window's lags s at or after the onset of G[a][s] (times the
+ * command u[s][j] for a scale, nan_to_num'ed) over sigma[a], summed from the window's end as
+ * cfdi_info_block sums; zeros for an onset after the sample. source, channel: CFDI_COL_* and
+ * its channel (checked by the caller); U: (S+1, p) the sample's command window. */
+void cfdi_column(const cfdi_signatures *g, int32_t source, int32_t channel, int64_t k,
+                 int64_t onset, const cfdi_real *U, cfdi_real *out);
+
+/* One fit solved: theta = J^-1 h and, with P not NULL, P = J^-1 (LU with partial pivoting, as
+ * cfdi_info_solve); J (d, d), h (d,); lu (d, d), perm (d,) scratch. CFDI_OK or
+ * CFDI_ESINGULAR. */
+int cfdi_fit_solve(size_t d, const cfdi_real *J, const cfdi_real *h, cfdi_real *theta,
+                   cfdi_real *P, cfdi_real *lu, size_t *perm);
+
 /* Every fit of a diagnosis solved (canfdi.core.identify.rls_solve): for each of `count`
  * estimators, theta = J^-1 h, P = J^-1 and the cost rr - theta.h, by LU with partial
  * pivoting (LAPACK's getrf and getrs, which numpy's solve and inv call; to rounding).
@@ -238,6 +269,44 @@ typedef struct {
     int32_t size_known, form_known;
     cfdi_real scale;          /* its fit's cost per degree of freedom */
 } cfdi_decision;
+
+/* The tables' entries in range for K onsets (every kind, parameter count, channel and full
+ * hypothesis): CFDI_OK or CFDI_ESHAPE. cfdi_decide checks them at every call; a caller of the
+ * two halves below checks them once. */
+int cfdi_hypotheses_check(const cfdi_hypotheses *hy, size_t K);
+
+/* A decision's first half (decide_reference up to the margin): each hypothesis' cheapest onset
+ * (best_onset), its penalised cost (cost_h), the hypotheses ranked (order), the best group's
+ * name and onset, whether the margin holds and who lies within it (near); for a bias-only
+ * actuator, its full fit and that fit's cheapest onset, which the second half reads too. */
+typedef struct {
+    int32_t best, kb;         /* the best hypothesis (its group's name) and its onset position */
+    int32_t full, full_kb;    /* a bias-only best's full hypothesis and its onset; -1: none */
+    int margin_ok;
+} cfdi_rank;
+int cfdi_decide_rank(const cfdi_hypotheses *hy, const cfdi_decide_settings *s, size_t K,
+                     const cfdi_real *cost, int64_t *best_onset, cfdi_real *cost_h,
+                     int64_t *order, uint8_t *near, cfdi_rank *out);
+
+/* One fit as a decision's second half reads it: theta (d,), P = J^-1 and the long-run
+ * sandwich's middle (d, d), its cost and the no-fault cost. */
+typedef struct {
+    const cfdi_real *theta, *P, *meat;
+    cfdi_real cost, rr;
+} cfdi_fit_view;
+
+/* A decision's second half: the best fit's settling, its form (a bias-only actuator's full fit,
+ * `full`, NULL when rank->full is -1), the F test, then the action (cost: (H, K), for the
+ * leftover's onset). Returns CFDI_OK or CFDI_EBADARG. */
+int cfdi_decide_judge(const cfdi_hypotheses *hy, const cfdi_decide_settings *s, size_t K,
+                      const cfdi_rank *rank, const cfdi_fit_view *fit,
+                      const cfdi_fit_view *full, const cfdi_real *cost, int64_t n_eq,
+                      const cfdi_real *u_abs, const cfdi_real *n_u, const cfdi_real *units,
+                      const int32_t *leftover, int64_t since, int named, cfdi_decision *out);
+
+/* decide.spread's noise scale of a fit: its cost per degree of freedom (n_eq - n_params, at
+ * least 1), floored at the tiniest positive the real type holds. */
+cfdi_real cfdi_noise_scale(cfdi_real cost, int64_t n_eq, int32_t n_params);
 
 /* One fit's sandwich variance of parameter i, diag(P M P)[i] unscaled, (P M) first as numpy's
  * matmul associates: P, M (d, d). */

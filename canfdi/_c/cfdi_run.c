@@ -1,11 +1,15 @@
 /* The runner of a generated project (`canfdi codegen`): reads a candump -L log (can-utils'
- * format, as python-can reads it), feeds every frame to the drive's monitor (drive.h) and
- * prints what it found as JSON, in the form `canfdi replay --json` gives it (detections,
- * samples, frames). The same file runs on the host (cfdi_io_host.c) and on the MCU through
- * semihosting (cfdi_io_semihost.c); it parses and formats numbers itself, so the MCU's image
- * needs nothing of the C library's I/O and never allocates.
+ * format, as python-can reads it) or a Vector .asc, feeds every frame to the drive's monitor
+ * (drive.h), with its heartbeat every bus.status_period of the log's time, and prints what it
+ * found as JSON in the form `canfdi replay --json` gives it (faults, named, unexplained,
+ * refined, detections, samples, frames), then the frames the monitor sent. The same file runs
+ * on the host (cfdi_io_host.c) and on the MCU through semihosting (cfdi_io_semihost.c); it
+ * parses and formats numbers itself, so the MCU's image needs nothing of the C library's I/O
+ * and never allocates.
  *
- * A harness, not the core. */
+ * A harness, not the core, and one that keeps nothing of what it prints: it streams the frames
+ * sent as they go, then runs the log again for each list of events that has any, streaming
+ * that list (the drive is the same every time: the same frames give the same events). */
 #include <float.h>
 #include <stdint.h>
 #include <string.h>
@@ -14,8 +18,7 @@
 #include "cfdi_tables.h"
 #include "drive.h"
 
-#define LINE 512
-#define SENT_KEPT 8 /* the frames sent that the JSON lists (all are counted) */
+#define LINE 320
 
 static int hex_digit(char c)
 {
@@ -368,7 +371,7 @@ static void out_name(const char *name)
  * (returned as "" with *overlong set). 1 a line, 0 the end, -1 a read error. */
 typedef struct {
     long handle;
-    char chunk[1024];
+    char chunk[256];
     size_t at, have;
     int eof;
 } lines_t;
@@ -406,95 +409,234 @@ static int next_line(lines_t *in, char *line, size_t size, int *overlong)
     return n > 0 || *overlong ? 1 : 0;
 }
 
-/* A diagnosis' decision as `canfdi replay --json` lists its events: kind, sample, the
- * channel (target, index, name), the onset and the estimates. */
-static void out_event(const cfdi_event *e, int first)
+/* -- the events the JSON lists ---------------------------------------------------------- */
+
+/* What a list's entries read of the events before them: the latest detection's sample and
+ * time, and the latest naming and the detection it followed. */
+typedef struct {
+    int64_t detected, detected_ns, named, named_of;
+    uint64_t counts[5];           /* events by kind (CFDI_EVENT_*) */
+} run_events;
+
+static const char *channel_name(int target, int index)
 {
-    static const char *const kinds[] = {"", "named", "accepted", "unexplained"};
-    cfdi_io_out(first ? "{\"kind\": " : ", {\"kind\": ");
-    out_name(kinds[e->event]);
-    cfdi_io_out(", \"sample\": ");
-    out_i64(e->sample);
-    if (e->target != 0) {
-        cfdi_io_out(e->target == 1 ? ", \"target\": \"actuator\", \"index\": "
-                                   : ", \"target\": \"sensor\", \"index\": ");
-        out_i64(e->index);
-        cfdi_io_out(", \"name\": ");
-        out_name(e->target == 1 ? cfdi_input_names[e->index] : cfdi_output_names[e->index]);
-        cfdi_io_out(", \"onset_sample\": ");
-        out_i64(e->onset);
-        cfdi_io_out(", \"estimates\": {");
-        if (e->target == 2) {
-            cfdi_io_out("\"bias\": ");
-        } else if (e->eta == e->eta) {
-            cfdi_io_out("\"eta\": ");
-            out_real((double)e->eta);
-            cfdi_io_out(", \"lambda\": ");
-        } else {
-            cfdi_io_out("\"lambda\": ");
+    return target == CFDI_TARGET_ACTUATOR ? cfdi_input_names[index] : cfdi_output_names[index];
+}
+
+static const char *target_name(int target)
+{
+    return target == CFDI_TARGET_ACTUATOR ? "actuator" : target == CFDI_TARGET_SENSOR
+                                                         ? "sensor" : "sensors";
+}
+
+/* A channel's estimates as the replay names them: an actuator's eta and lambda (or lambda
+ * alone), a sensor's bias, a joint fit's members by name. */
+static void out_estimates(const cfdi_channel *c, const cfdi_real *values)
+{
+    const cfdi_diag_tables *g = cfdi_drive_tables_gen.diag;
+    int i;
+    cfdi_io_out("{");
+    if (c->target == CFDI_TARGET_SENSOR) {
+        cfdi_io_out("\"bias\": ");
+        out_real((double)values[0]);
+    } else if (c->target == CFDI_TARGET_ACTUATOR && c->n_est == 2) {
+        cfdi_io_out("\"eta\": ");
+        out_real((double)values[0]);
+        cfdi_io_out(", \"lambda\": ");
+        out_real((double)values[1]);
+    } else if (c->target == CFDI_TARGET_ACTUATOR) {
+        cfdi_io_out("\"lambda\": ");
+        out_real((double)values[1]);
+    } else if (g != NULL && c->hyp >= 0) {
+        for (i = 0; i < c->n_est; i++) {
+            int32_t member = g->columns[((size_t)c->hyp * g->hyp.d + (size_t)i) * 2 + 1];
+            cfdi_io_out(i ? ", " : "");
+            out_name(cfdi_output_names[member]);
+            cfdi_io_out(": ");
+            out_real((double)values[i]);
         }
-        out_real((double)e->value);
-        cfdi_io_out("}");
     }
     cfdi_io_out("}");
 }
 
-int cfdi_run_main(void)
+static void out_candidates(const cfdi_event *ev)
 {
-    static double values[CFDI_GEN_VWIDTH], buffer[CFDI_GEN_WIDTH], samples[2 * CFDI_GEN_WIDTH];
-    static cfdi_real ring[(CFDI_GEN_S + 1) * CFDI_GEN_WIDTH], r[CFDI_GEN_M], ph[2 * CFDI_GEN_M];
-    static cfdi_real g_up[CFDI_GEN_M], g_down[CFDI_GEN_M];
-    static int64_t last_zero[2 * CFDI_GEN_M];
-    static int8_t alarm[CFDI_GEN_M];
-    /* the diagnosis' */
-    static cfdi_real recent[(CFDI_GEN_LOOKBACK + CFDI_GEN_S + 1) * CFDI_GEN_WIDTH];
-    static cfdi_real window[(CFDI_GEN_S + 1) * CFDI_GEN_WIDTH], U[(CFDI_GEN_S + 1) * CFDI_GEN_P];
-    static cfdi_real rn[CFDI_GEN_M], work[CFDI_INFO_WORK(CFDI_GEN_M, CFDI_GEN_D)];
-    static int64_t onsets[CFDI_GEN_K], best_onset[CFDI_GEN_H], order[CFDI_GEN_H];
-    static cfdi_real J[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D * CFDI_GEN_D];
-    static cfdi_real meat[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D * CFDI_GEN_D];
-    static cfdi_real P[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D * CFDI_GEN_D];
-    static cfdi_real h[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D];
-    static cfdi_real theta[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D];
-    static cfdi_real rr[CFDI_GEN_H * CFDI_GEN_K], cost[CFDI_GEN_H * CFDI_GEN_K];
-    static cfdi_real lu[CFDI_GEN_D * CFDI_GEN_D], u_abs[CFDI_GEN_P], n_u[CFDI_GEN_P];
-    static cfdi_real cost_h[CFDI_GEN_H];
-    static size_t perm[CFDI_GEN_D];
-    static uint8_t near[CFDI_GEN_H];
-    static int32_t leftover[CFDI_GEN_H];
-    static cfdi_drive drive;
+    const cfdi_diag_tables *g = cfdi_drive_tables_gen.diag;
+    int i;
+    cfdi_io_out("[");
+    for (i = 0; i < ev->n_candidates; i++) {
+        const cfdi_channel *c = &ev->candidates[i];
+        cfdi_io_out(i ? ", {\"target\": " : "{\"target\": ");
+        out_name(target_name(c->target));
+        cfdi_io_out(", \"index\": ");
+        out_i64(c->index);
+        cfdi_io_out(", \"name\": ");
+        if (c->target == CFDI_TARGET_SENSORS && g != NULL && c->hyp >= 0) {
+            int32_t k;
+            cfdi_io_out("\"");
+            for (k = 0; k < g->hyp.n_params[c->hyp]; k++) {
+                int32_t member = g->columns[((size_t)c->hyp * g->hyp.d + (size_t)k) * 2 + 1];
+                cfdi_io_out(k ? "+" : "");
+                cfdi_io_out(cfdi_output_names[member]);
+            }
+            cfdi_io_out("\"");
+        } else {
+            out_name(channel_name(c->target, c->index));
+        }
+        cfdi_io_out(", \"estimates\": ");
+        out_estimates(c, c->est);
+        cfdi_io_out("}");
+    }
+    cfdi_io_out("]");
+}
+
+static void out_maybe(int64_t v)
+{
+    if (v < 0) {
+        cfdi_io_out("null");
+    } else {
+        out_i64(v);
+    }
+}
+
+/* One listed event in its list's form (canfdi.monitor.summary_json). */
+static void out_listed(const cfdi_event *ev, const run_events *rs, int first)
+{
+    cfdi_io_out(first ? "{" : ", {");
+    if (ev->kind == CFDI_EVENT_UNEXPLAINED) {
+        cfdi_io_out("\"kind\": \"unexplained\", \"sample\": ");
+        out_i64(ev->sample);
+        cfdi_io_out(", \"timestamp_ns\": ");
+        out_i64(ev->timestamp_ns);
+        cfdi_io_out(", \"target\": null, \"index\": null, \"name\": null, \"estimates\": {}, "
+                    "\"variances\": {}, \"onset_sample\": null, \"detected_sample\": ");
+        out_maybe(ev->detected);
+        cfdi_io_out(", \"accepted_sample\": null, \"candidates\": ");
+        out_candidates(ev);
+        cfdi_io_out(", \"residuals\": [], \"drive\": ");
+        out_name(cfdi_drive_name);
+        cfdi_io_out(", \"undecided\": []}");
+        return;
+    }
+    cfdi_io_out("\"kind\": ");
+    out_name(target_name(ev->ch.target));
+    cfdi_io_out(", \"index\": ");
+    out_i64(ev->ch.index);
+    cfdi_io_out(", \"name\": ");
+    out_name(channel_name(ev->ch.target, ev->ch.index));
+    cfdi_io_out(", \"drive\": ");
+    out_name(cfdi_drive_name);
+    if (ev->kind == CFDI_EVENT_NAMED) {
+        cfdi_io_out(", \"sample\": ");
+        out_i64(ev->sample);
+    }
+    cfdi_io_out(", \"onset_sample\": ");
+    out_maybe(ev->onset);
+    cfdi_io_out(", \"detected_sample\": ");
+    out_maybe(ev->detected);
+    if (ev->kind == CFDI_EVENT_ACCEPTED) {
+        cfdi_io_out(", \"named_sample\": ");
+        out_i64(rs->named_of == ev->detected && ev->detected >= 0 ? rs->named : ev->sample);
+    }
+    if (ev->kind != CFDI_EVENT_NAMED) {
+        cfdi_io_out(", \"accepted_sample\": ");
+        out_maybe(ev->accepted);
+    }
+    if (ev->kind == CFDI_EVENT_ACCEPTED) {
+        cfdi_io_out(", \"detected_time\": ");
+        if (rs->detected == ev->detected) {
+            out_real((double)rs->detected_ns / 1e9);
+        } else {
+            cfdi_io_out("null");
+        }
+    }
+    cfdi_io_out(", \"estimate\": ");
+    out_estimates(&ev->ch, ev->ch.est);
+    if (ev->kind != CFDI_EVENT_REFINED) {
+        cfdi_io_out(", \"variance\": ");
+        if (ev->has_var) {
+            out_estimates(&ev->ch, ev->var);
+        } else {
+            cfdi_io_out("{}");
+        }
+    }
+    if (ev->kind == CFDI_EVENT_NAMED) {
+        cfdi_io_out(", \"undecided\": [");
+        cfdi_io_out((ev->undecided & CFDI_UNDECIDED_FORM) ? "\"form\"" : "");
+        cfdi_io_out((ev->undecided & CFDI_UNDECIDED_FORM) && (ev->undecided & CFDI_UNDECIDED_SIZE)
+                    ? ", " : "");
+        cfdi_io_out((ev->undecided & CFDI_UNDECIDED_SIZE) ? "\"size\"" : "");
+        cfdi_io_out("]");
+    }
+    if (ev->kind != CFDI_EVENT_REFINED) {
+        cfdi_io_out(", \"candidates\": ");
+        out_candidates(ev);
+    }
+    cfdi_io_out("}");
+}
+
+static void out_sent(const cfdi_tx_frame *f, uint64_t n)
+{
+    cfdi_io_out(n ? ", {\"id\": " : "{\"id\": ");
+    out_u64(f->id);
+    cfdi_io_out(f->extended ? ", \"extended\": true" : ", \"extended\": false");
+    cfdi_io_out(", \"data\": \"");
+    out_hex(f->data, f->len);
+    cfdi_io_out("\"}");
+}
+
+/* What a run over the log counts. */
+typedef struct {
+    uint64_t lines, malformed, sent;
+#ifdef CFDI_TICK_INSNS
+    uint64_t ticks, monitor_ticks, monitor_samples, tracked_ticks, tracked_samples;
+    uint32_t worst, alarm_tick, diag_worst;
+#endif
+} run_counts;
+
+/* One event polled: the bookkeeping lists read, and printed when it is of `list`'s kind. */
+static void take_event(const cfdi_event *ev, run_events *rs, int32_t list, int *first)
+{
+    rs->counts[ev->kind] += 1;
+    if (ev->kind == list) {
+        out_listed(ev, rs, *first);
+        *first = 0;
+    }
+    if (ev->kind == CFDI_EVENT_DETECTED) {
+        rs->detected = ev->sample;
+        rs->detected_ns = ev->timestamp_ns;
+    } else if (ev->kind == CFDI_EVENT_NAMED) {
+        rs->named = ev->sample;
+        rs->named_of = ev->detected;
+    }
+}
+
+/* The log through the drive, from the start: the heartbeat every status period of the log's
+ * time; the frames sent printed (list < 0) or the events of kind `list`. 0, or 1 (said why). */
+static int run_log(cfdi_drive *drive, void *memory, size_t bytes, const char *path, int asc,
+                   int32_t list, run_events *rs, run_counts *n)
+{
     static lines_t in;
     static char line[LINE];
-    const cfdi_drive_memory mem = {values, buffer, samples, ring, r, ph, last_zero, g_up,
-                                   g_down, alarm,
-                                   {recent, window, U, rn, onsets, J, meat, P, h, theta, rr,
-                                    cost, lu, perm, work, u_abs, n_u, best_onset, order,
-                                    cost_h, near, leftover}};
     uint8_t data[CFDI_MAX_PAYLOAD];
-    uint64_t lines = 0, malformed = 0, valid = 0, invalid = 0;
-#ifdef CFDI_TICK_INSNS
-    uint32_t tick, worst = 0, alarm_tick = 0, diag_worst = 0;
-    uint64_t ticks = 0, monitor_ticks = 0, monitor_samples = 0;
-    int was_alarmed, was_diagnosing;
-#endif
-    static cfdi_tx_frame sent[SENT_KEPT];
     cfdi_tx_frame out;
-    uint64_t n_sent = 0;
-    char *argv[4];
-    int argc = 0, rc, first, overlong, got, asc, base = 16;
-    size_t i;
-    if (cfdi_io_args(&argc, argv, 4) != 0 || argc != 2) {
-        cfdi_io_err("usage: cfdi_run LOG (a candump -L .log, or a Vector .asc)\n");
-        return 2;
-    }
-    rc = cfdi_drive_init(&drive, &cfdi_drive_tables_gen, &mem);
-    if (rc != CFDI_OK) {
+    cfdi_event ev;
+    int rc, got, overlong, base = 16, beat_set = 0, first = 1;
+    int64_t next_beat = 0;
+#ifdef CFDI_TICK_INSNS
+    uint32_t tick;
+    uint64_t samples_before;
+    int was_alarmed, was_tracking;
+#endif
+    memset(rs, 0, sizeof *rs);
+    memset(n, 0, sizeof *n);
+    rs->detected = rs->named_of = -1;
+    if (cfdi_drive_init(drive, &cfdi_drive_tables_gen, memory, bytes) != CFDI_OK) {
         cfdi_io_err("cfdi_run: the generated tables do not check\n");
         return 1;
     }
-    got = (int)strlen(argv[1]);
-    asc = got >= 4 && strcmp(argv[1] + got - 4, ".asc") == 0;
-    in.handle = cfdi_io_open(argv[1]);
+    memset(&in, 0, sizeof in);
+    in.handle = cfdi_io_open(path);
     if (in.handle < 0) {
         cfdi_io_err("cfdi_run: cannot open the log\n");
         return 1;
@@ -503,82 +645,126 @@ int cfdi_run_main(void)
         uint32_t id = 0;
         uint8_t len = 0, flags = 0;
         int64_t t_ns = 0;
-        lines++;
+        n->lines++;
         rc = overlong ? -1
              : asc ? parse_asc_line(line, &base, &id, &len, &flags, data, &t_ns)
                    : parse_line(line, &id, &len, &flags, data, &t_ns);
         if (rc < 0) {
-            malformed++;
+            n->malformed++;
             continue;
         }
         if (rc == 0) continue;
-#ifdef CFDI_TICK_INSNS
-        was_alarmed = drive.alarmed;
-        was_diagnosing = drive.diagnosing;
-        tick = cfdi_io_ticks();
-        rc = cfdi_drive_on_frame(&drive, id, len, flags, data, t_ns);
-        tick = (cfdi_io_ticks() - tick) & 0xFFFFFFu;
-        ticks += tick;
-        worst = tick > worst ? tick : worst;
-        if (!was_alarmed && drive.alarmed) {
-            alarm_tick = tick;
-        } else if (was_diagnosing) {
-            diag_worst = tick > diag_worst ? tick : diag_worst;
+        /* The heartbeat: before the first frame at or after a status period past the first
+         * frame's time, then past the last one due. */
+        if (!beat_set) {
+            next_beat = t_ns + CFDI_GEN_STATUS_PERIOD_NS;
+            beat_set = 1;
+        } else if (t_ns >= next_beat) {
+            cfdi_drive_status(drive);
+            next_beat += CFDI_GEN_STATUS_PERIOD_NS
+                         * ((t_ns - next_beat) / CFDI_GEN_STATUS_PERIOD_NS + 1);
         }
-        if (!was_alarmed && !drive.alarmed) {
-            monitor_ticks += tick;
-            monitor_samples = drive.samples;
+#ifdef CFDI_TICK_INSNS
+        was_alarmed = drive->alarmed;
+        was_tracking = drive->track.n > 0;
+        samples_before = drive->samples_taken;
+        tick = cfdi_io_ticks();
+        rc = cfdi_drive_on_frame(drive, id, len, flags, data, t_ns);
+        tick = (cfdi_io_ticks() - tick) & 0xFFFFFFu;
+        n->ticks += tick;
+        n->worst = tick > n->worst ? tick : n->worst;
+        if (!was_alarmed && drive->alarmed) {
+            n->alarm_tick = tick > n->alarm_tick ? tick : n->alarm_tick;
+        } else if (was_alarmed) {
+            n->diag_worst = tick > n->diag_worst ? tick : n->diag_worst;
+        } else if (drive->detections == 0) {
+            n->monitor_ticks += tick;
+            n->monitor_samples = drive->samples_taken;
+        } else if (was_tracking) {
+            n->tracked_ticks += tick;
+            n->tracked_samples += drive->samples_taken - samples_before;
         }
 #else
-        rc = cfdi_drive_on_frame(&drive, id, len, flags, data, t_ns);
+        rc = cfdi_drive_on_frame(drive, id, len, flags, data, t_ns);
 #endif
         if (rc < 0) {
             cfdi_io_err("cfdi_run: the drive refused a frame\n");
             cfdi_io_close(in.handle);
             return 1;
         }
+        while (cfdi_drive_poll_event(drive, &ev) == 1) {
+            take_event(&ev, rs, list, &first);
+        }
         /* What the monitor sends, as the MCU would after each frame (here: printed). */
-        while (cfdi_drive_poll_tx(&drive, &out) == 1) {
-            if (n_sent < SENT_KEPT) {
-                sent[n_sent] = out;
+        while (cfdi_drive_poll_tx(drive, &out) == 1) {
+            if (list < 0) {
+                out_sent(&out, n->sent);
             }
-            n_sent++;
+            n->sent++;
         }
     }
     cfdi_io_close(in.handle);
-    if (got < 0 || cfdi_drive_finish(&drive) < 0) {
+    if (got < 0 || cfdi_drive_finish(drive) < 0) {
         cfdi_io_err(got < 0 ? "cfdi_run: reading the log failed\n"
                             : "cfdi_run: finishing failed\n");
         return 1;
     }
+    while (cfdi_drive_poll_event(drive, &ev) == 1) {
+        take_event(&ev, rs, list, &first);
+    }
+    while (cfdi_drive_poll_tx(drive, &out) == 1) {
+        if (list < 0) {
+            out_sent(&out, n->sent);
+        }
+        n->sent++;
+    }
+    return 0;
+}
+
+int cfdi_run_main(void)
+{
+    static uint64_t memory[(CFDI_GEN_MEMORY + 7) / 8];
+    static cfdi_drive drive;
+    static const char *const lists[] = {"faults", "named", "unexplained", "refined"};
+    static const int32_t kinds[] = {CFDI_EVENT_ACCEPTED, CFDI_EVENT_NAMED,
+                                    CFDI_EVENT_UNEXPLAINED, CFDI_EVENT_REFINED};
+    run_events rs, again;
+    run_counts n, n_again;
+    uint64_t valid = 0, invalid = 0;
+    char *argv[4];
+    int argc = 0, first, asc, len;
+    size_t i;
+    if (cfdi_io_args(&argc, argv, 4) != 0 || argc != 2) {
+        cfdi_io_err("usage: cfdi_run LOG (a candump -L .log, or a Vector .asc)\n");
+        return 2;
+    }
+    len = (int)strlen(argv[1]);
+    asc = len >= 4 && strcmp(argv[1] + len - 4, ".asc") == 0;
+    cfdi_io_out("{\"sent\": [");
+    if (run_log(&drive, memory, sizeof memory, argv[1], asc, -1, &rs, &n) != 0) {
+        return 1;
+    }
+    cfdi_io_out("], \"drive\": ");
+    out_name(cfdi_drive_name);
+    for (i = 0; i < 4; i++) {
+        cfdi_io_out(", ");
+        out_name(lists[i]);
+        cfdi_io_out(": [");
+        if (rs.counts[kinds[i]] > 0
+            && run_log(&drive, memory, sizeof memory, argv[1], asc, kinds[i], &again,
+                       &n_again) != 0) {
+            return 1;
+        }
+        cfdi_io_out("]");
+    }
     for (i = 0; i < CFDI_N_STATUS; i++) {
-        if (cfdi_status_valid[i]) valid += drive.status_count[i];
+        if (cfdi_drive_tables_gen.valid_status[i]) valid += drive.status_count[i];
         else invalid += drive.status_count[i];
     }
-    cfdi_io_out("{\"drive\": ");
-    out_name(cfdi_drive_name);
-    cfdi_io_out(", \"detections\": [");
-    if (drive.alarmed) {
-        cfdi_io_out("{\"sample\": ");
-        out_i64(drive.alarm_k);
-        cfdi_io_out(", \"onset_sample\": ");
-        out_i64(drive.alarm_onset);
-        cfdi_io_out(", \"residuals\": [");
-        for (i = 0, first = 1; i < CFDI_GEN_M; i++) {
-            if (alarm[i] != 0) {
-                cfdi_io_out(first ? "" : ", ");
-                out_name(cfdi_residual_names[i]);
-                first = 0;
-            }
-        }
-        cfdi_io_out("]}");
-    }
-    cfdi_io_out("], \"faults\": [");
-    for (i = 0; i < drive.n_events; i++) {
-        out_event(&drive.events[i], i == 0);
-    }
-    cfdi_io_out("], \"samples\": ");
-    out_u64(drive.samples);
+    cfdi_io_out(", \"mismatches\": [], \"quiet\": [], \"detections\": ");
+    out_u64(rs.counts[CFDI_EVENT_DETECTED]);
+    cfdi_io_out(", \"samples\": ");
+    out_u64(drive.samples_taken);
     cfdi_io_out(", \"frames\": {\"received\": ");
     out_u64(valid + invalid);
     cfdi_io_out(", \"valid\": ");
@@ -587,7 +773,7 @@ int cfdi_run_main(void)
     out_u64(invalid);
     cfdi_io_out(", \"invalid_by_reason\": {");
     for (i = 0, first = 1; i < CFDI_N_STATUS; i++) {
-        if (!cfdi_status_valid[i]) {
+        if (!cfdi_drive_tables_gen.valid_status[i]) {
             cfdi_io_out(first ? "" : ", ");
             out_name(cfdi_status_names[i]);
             cfdi_io_out(": ");
@@ -608,38 +794,36 @@ int cfdi_run_main(void)
         cfdi_io_out(i ? ", " : "");
         out_name(cfdi_residual_names[i]);
     }
-    cfdi_io_out("], \"sent\": [");
-    for (i = 0; i < n_sent && i < SENT_KEPT; i++) {
-        cfdi_io_out(i ? ", {\"id\": " : "{\"id\": ");
-        out_u64(sent[i].id);
-        cfdi_io_out(sent[i].extended ? ", \"extended\": true" : ", \"extended\": false");
-        cfdi_io_out(", \"data\": \"");
-        out_hex(sent[i].data, sent[i].len);
-        cfdi_io_out("\"}");
-    }
     cfdi_io_out("], \"frames_sent\": ");
-    out_u64(n_sent);
+    out_u64(n.sent);
     cfdi_io_out(", \"frames_not_sent\": ");
     out_u64(drive.tx_dropped);
+    cfdi_io_out(", \"events_not_listed\": ");
+    out_u64(drive.events_dropped);
     cfdi_io_out(", \"lines\": ");
-    out_u64(lines);
+    out_u64(n.lines);
     cfdi_io_out(", \"malformed_lines\": ");
-    out_u64(malformed);
+    out_u64(n.malformed);
+    cfdi_io_out(", \"memory\": ");
+    out_u64(cfdi_drive_memory_size(&cfdi_drive_tables_gen));
 #ifdef CFDI_TICK_INSNS
-    /* instructions in the drive loop (ticks of CFDI_TICK_INSNS instructions each: qemu's
-     * -icount): per sample on average, and while monitoring (before the alarm); in the frame
-     * that raised the alarm (the diagnosis started: the kept samples fitted), in the costliest
-     * frame of the diagnosis after it, and in the costliest of all */
+    /* instructions in the drive loop over the first run (ticks of CFDI_TICK_INSNS instructions
+     * each: qemu's -icount): per sample on average, while monitoring before the first alarm,
+     * while monitoring with accepted faults tracked; the costliest frame that raised an alarm
+     * (the diagnosis started: a share of the kept samples fitted), of a diagnosis after it,
+     * and of all */
     cfdi_io_out(", \"instructions\": {\"per_sample\": ");
-    out_u64(drive.samples ? ticks * CFDI_TICK_INSNS / drive.samples : 0);
+    out_u64(drive.samples_taken ? n.ticks * CFDI_TICK_INSNS / drive.samples_taken : 0);
     cfdi_io_out(", \"per_monitored_sample\": ");
-    out_u64(monitor_samples ? monitor_ticks * CFDI_TICK_INSNS / monitor_samples : 0);
+    out_u64(n.monitor_samples ? n.monitor_ticks * CFDI_TICK_INSNS / n.monitor_samples : 0);
+    cfdi_io_out(", \"per_tracked_sample\": ");
+    out_u64(n.tracked_samples ? n.tracked_ticks * CFDI_TICK_INSNS / n.tracked_samples : 0);
     cfdi_io_out(", \"alarm_frame\": ");
-    out_u64((uint64_t)alarm_tick * CFDI_TICK_INSNS);
+    out_u64((uint64_t)n.alarm_tick * CFDI_TICK_INSNS);
     cfdi_io_out(", \"worst_diagnosed_frame\": ");
-    out_u64((uint64_t)diag_worst * CFDI_TICK_INSNS);
+    out_u64((uint64_t)n.diag_worst * CFDI_TICK_INSNS);
     cfdi_io_out(", \"worst_frame\": ");
-    out_u64((uint64_t)worst * CFDI_TICK_INSNS);
+    out_u64((uint64_t)n.worst * CFDI_TICK_INSNS);
     cfdi_io_out(", \"resolution\": ");
     out_u64(CFDI_TICK_INSNS);
     cfdi_io_out("}");

@@ -33,8 +33,7 @@ cfdi_real cfdi_sandwich(const cfdi_real *P, const cfdi_real *M, size_t d, size_t
     return v;
 }
 
-/* decide.spread's noise scale: the cost per degree of freedom, floored. */
-static cfdi_real noise_scale(cfdi_real cost, int64_t n_eq, int32_t n_params)
+cfdi_real cfdi_noise_scale(cfdi_real cost, int64_t n_eq, int32_t n_params)
 {
     int64_t dof = n_eq - n_params;
     cfdi_real scale = cost / (cfdi_real)(dof > 1 ? dof : 1);
@@ -53,13 +52,13 @@ static int within(cfdi_real sd, double fraction, cfdi_real unit)
     return fraction > 0.0 && sd <= (cfdi_real)fraction * unit;
 }
 
-static int tables_ok(const cfdi_hypotheses *hy, size_t K, const int32_t *leftover)
+int cfdi_hypotheses_check(const cfdi_hypotheses *hy, size_t K)
 {
     size_t i;
-    if (hy->H == 0 || hy->d == 0 || hy->p == 0 || K == 0 || K > INT32_MAX || hy->H > INT32_MAX
-        || !hy->kind || !hy->index || !hy->n_params || !hy->full || !hy->name_key
-        || !hy->twins || !hy->penalty) {
-        return 0;
+    if (!hy || hy->H == 0 || hy->d == 0 || hy->p == 0 || K == 0 || K > INT32_MAX
+        || hy->H > INT32_MAX || !hy->kind || !hy->index || !hy->n_params || !hy->full
+        || !hy->name_key || !hy->twins || !hy->penalty) {
+        return CFDI_ESHAPE;
     }
     for (i = 0; i < hy->H; i++) {
         int actuator = hy->kind[i] == CFDI_HYP_ACTUATOR || hy->kind[i] == CFDI_HYP_ACTUATOR_BIAS;
@@ -69,8 +68,18 @@ static int tables_ok(const cfdi_hypotheses *hy, size_t K, const int32_t *leftove
             || (hy->kind[i] == CFDI_HYP_ACTUATOR && hy->n_params[i] != 2)
             || hy->full[i] < -1 || (hy->full[i] >= 0 && ((size_t)hy->full[i] >= hy->H
                                     || hy->kind[hy->full[i]] != CFDI_HYP_ACTUATOR
-                                    || hy->index[hy->full[i]] != hy->index[i]))
-            || leftover[i] < -1 || (leftover[i] >= 0 && (size_t)leftover[i] >= K)) {
+                                    || hy->index[hy->full[i]] != hy->index[i]))) {
+            return CFDI_ESHAPE;
+        }
+    }
+    return CFDI_OK;
+}
+
+static int leftover_ok(const cfdi_hypotheses *hy, size_t K, const int32_t *leftover)
+{
+    size_t i;
+    for (i = 0; i < hy->H; i++) {
+        if (leftover[i] < -1 || (leftover[i] >= 0 && (size_t)leftover[i] >= K)) {
             return 0;
         }
     }
@@ -78,48 +87,36 @@ static int tables_ok(const cfdi_hypotheses *hy, size_t K, const int32_t *leftove
 }
 
 /* Whether the data rule a scale out for a bias-only actuator fit (decide._scale_ruled_out):
- * its full fit knows eta - 1 as the settling test asks and finds it within 3 standard
- * deviations of 0. */
-static int scale_ruled_out(const cfdi_hypotheses *hy, const cfdi_decide_settings *s, size_t K,
-                           const cfdi_real *theta, const cfdi_real *P, const cfdi_real *cost,
-                           int64_t n_eq, const cfdi_real *meat, const cfdi_real *u_abs,
-                           const cfdi_real *n_u, const cfdi_real *units,
-                           const int64_t *best_onset, int32_t full)
+ * its full fit (at its own cheapest onset) knows eta - 1 as the settling test asks and finds it
+ * within 3 standard deviations of 0. */
+static int scale_ruled_out(const cfdi_hypotheses *hy, const cfdi_decide_settings *s,
+                           const cfdi_fit_view *full, int64_t n_eq, const cfdi_real *u_abs,
+                           const cfdi_real *n_u, const cfdi_real *units, int32_t which)
 {
-    size_t d = hy->d, at;
+    size_t d = hy->d;
     cfdi_real sd_eta, u_mean, unit;
-    if (full < 0) {
+    if (which < 0) {
         return 1;
     }
-    at = (size_t)full * K + (size_t)best_onset[full];
-    sd_eta = (cfdi_real)sqrt(cfdi_sandwich(P + at * d * d, meat + at * d * d, d, 0)
-                             * noise_scale(cost[at], n_eq, 2));
-    u_mean = mean_command(u_abs, n_u, hy->index[full]);
-    unit = u_mean > 0 ? units[(size_t)full * d] / u_mean : (cfdi_real)INFINITY;
+    sd_eta = CFDI_SQRT(cfdi_sandwich(full->P, full->meat, d, 0)
+                             * cfdi_noise_scale(full->cost, n_eq, 2));
+    u_mean = mean_command(u_abs, n_u, hy->index[which]);
+    unit = u_mean > 0 ? units[(size_t)which * d] / u_mean : (cfdi_real)INFINITY;
     return (sd_eta <= (cfdi_real)s->settle_rel_std || within(sd_eta, s->settle_noise, unit))
-           && fabs(theta[at * d]) <= 3 * sd_eta;
+           && CFDI_FABS(full->theta[0]) <= 3 * sd_eta;
 }
 
-int cfdi_decide(const cfdi_hypotheses *hy, const cfdi_decide_settings *s, size_t K,
-                const cfdi_real *theta, const cfdi_real *P, const cfdi_real *cost,
-                const cfdi_real *rr, int64_t n_eq, const cfdi_real *meat,
-                const cfdi_real *u_abs, const cfdi_real *n_u, const cfdi_real *units,
-                const int32_t *leftover, int64_t since, int named, int64_t *best_onset,
-                cfdi_real *cost_h, int64_t *order, uint8_t *near, cfdi_decision *out)
+int cfdi_decide_rank(const cfdi_hypotheses *hy, const cfdi_decide_settings *s, size_t K,
+                     const cfdi_real *cost, int64_t *best_onset, cfdi_real *cost_h,
+                     int64_t *order, uint8_t *near, cfdi_rank *out)
 {
-    size_t H, d, i, o, at, first, best;
-    int32_t n_b, kind;
-    cfdi_real tol, margin, scale, u_mean = 0;
-    int margin_ok = 1, size_known = 1, form_known, fits, at_end;
-    if (!hy || !s || !theta || !P || !cost || !rr || !meat || !u_abs || !n_u || !units
-        || !leftover || !best_onset || !cost_h || !order || !near || !out) {
+    size_t H, i, o, first, best;
+    cfdi_real tol, margin;
+    int margin_ok = 1;
+    if (!hy || !s || !cost || !best_onset || !cost_h || !order || !near || !out) {
         return CFDI_EBADARG;
     }
-    if (!tables_ok(hy, K, leftover)) {
-        return CFDI_ESHAPE;
-    }
     H = hy->H;
-    d = hy->d;
     margin = (cfdi_real)s->isolation_margin;
     /* Each hypothesis' cheapest onset (numpy's argmin: the first minimum, or the first NaN). */
     for (i = 0; i < H; i++) {
@@ -148,7 +145,7 @@ int cfdi_decide(const cfdi_hypotheses *hy, const cfdi_decide_settings *s, size_t
     tol = (cfdi_real)(1e-6 * (1.0 + fabs((double)cost_h[first])));
     for (i = 0; i < H; i++) {
         if (hy->twins[first * H + i] && hy->n_params[i] == hy->n_params[first]
-            && fabs(cost_h[i] - cost_h[first]) <= tol && hy->name_key[i] < hy->name_key[best]) {
+            && CFDI_FABS(cost_h[i] - cost_h[first]) <= tol && hy->name_key[i] < hy->name_key[best]) {
             best = i;
         }
     }
@@ -158,42 +155,66 @@ int cfdi_decide(const cfdi_hypotheses *hy, const cfdi_decide_settings *s, size_t
         margin_ok &= !outside || gap >= margin;
         near[i] = (uint8_t)(outside && gap < margin);
     }
-    at = best * K + (size_t)best_onset[best];
+    out->best = (int32_t)best;
+    out->kb = (int32_t)best_onset[best];
+    out->full = hy->kind[best] == CFDI_HYP_ACTUATOR_BIAS ? hy->full[best] : -1;
+    out->full_kb = out->full >= 0 ? (int32_t)best_onset[out->full] : -1;
+    out->margin_ok = margin_ok;
+    return CFDI_OK;
+}
+
+int cfdi_decide_judge(const cfdi_hypotheses *hy, const cfdi_decide_settings *s, size_t K,
+                      const cfdi_rank *rank, const cfdi_fit_view *fit,
+                      const cfdi_fit_view *full, const cfdi_real *cost, int64_t n_eq,
+                      const cfdi_real *u_abs, const cfdi_real *n_u, const cfdi_real *units,
+                      const int32_t *leftover, int64_t since, int named, cfdi_decision *out)
+{
+    size_t d, i, best;
+    int32_t n_b, kind;
+    cfdi_real margin, scale, u_mean = 0;
+    int size_known = 1, form_known, fits, at_end;
+    if (!hy || !s || !rank || !fit || !fit->theta || !fit->P || !fit->meat || !cost || !u_abs
+        || !n_u || !units || !leftover || !out
+        || (rank->full >= 0 && (!full || !full->theta || !full->P || !full->meat))) {
+        return CFDI_EBADARG;
+    }
+    d = hy->d;
+    best = (size_t)rank->best;
+    margin = (cfdi_real)s->isolation_margin;
     n_b = hy->n_params[best];
     kind = hy->kind[best];
-    scale = noise_scale(cost[at], n_eq, n_b);
+    scale = cfdi_noise_scale(fit->cost, n_eq, n_b);
     if (kind == CFDI_HYP_ACTUATOR) {
         u_mean = mean_command(u_abs, n_u, hy->index[best]);
     }
     for (i = 0; i < (size_t)n_b; i++) {
-        cfdi_real sd = (cfdi_real)sqrt(cfdi_sandwich(P + at * d * d, meat + at * d * d, d, i) * scale);
-        cfdi_real size = (cfdi_real)fabs(theta[at * d + i]);
+        cfdi_real sd = CFDI_SQRT(cfdi_sandwich(fit->P, fit->meat, d, i) * scale);
+        cfdi_real size = CFDI_FABS(fit->theta[i]);
         cfdi_real unit = units[best * d + i];
         if (kind == CFDI_HYP_ACTUATOR && i == 0) {
-            size = (cfdi_real)fabs(1 + theta[at * d]);
+            size = CFDI_FABS(1 + fit->theta[0]);
             unit = u_mean > 0 ? unit / u_mean : (cfdi_real)INFINITY;
         } else if (kind == CFDI_HYP_ACTUATOR) {
-            cfdi_real scaled = (cfdi_real)0.1 * (cfdi_real)fabs(theta[at * d]) * u_mean;
+            cfdi_real scaled = (cfdi_real)0.1 * CFDI_FABS(fit->theta[0]) * u_mean;
             size = scaled > size ? scaled : size;
         }
         size_known &= sd <= (cfdi_real)s->settle_rel_std * size
                       || within(sd, s->settle_noise, unit);
     }
     form_known = kind != CFDI_HYP_ACTUATOR_BIAS
-                 || scale_ruled_out(hy, s, K, theta, P, cost, n_eq, meat, u_abs, n_u, units,
-                                    best_onset, hy->full[best]);
-    fits = scale <= (cfdi_real)s->max_fit_variance && (rr[at] - cost[at]) / scale >= margin;
+                 || scale_ruled_out(hy, s, full, n_eq, u_abs, n_u, units, rank->full);
+    fits = scale <= (cfdi_real)s->max_fit_variance && (fit->rr - fit->cost) / scale >= margin;
     at_end = since >= s->max_samples;
-    out->best = (int32_t)best;
-    out->kb = (int32_t)best_onset[best];
+    out->best = rank->best;
+    out->kb = rank->kb;
     out->scale = scale;
     out->size_known = size_known;
     out->form_known = form_known;
-    if (margin_ok && fits && ((size_known && form_known) || at_end)) {
+    if (rank->margin_ok && fits && ((size_known && form_known) || at_end)) {
         out->action = CFDI_DECIDE_ACCEPT;
-    } else if (margin_ok && fits && !named && kind != CFDI_HYP_SENSORS
+    } else if (rank->margin_ok && fits && !named && kind != CFDI_HYP_SENSORS
                && !(leftover[best] >= 0
-                    && cost[best * K + (size_t)leftover[best]] - cost[at] < margin)) {
+                    && cost[best * K + (size_t)leftover[best]] - fit->cost < margin)) {
         out->action = CFDI_DECIDE_NAME;
     } else if (fits && at_end) {
         out->action = CFDI_DECIDE_ACCEPT_NEAR;
@@ -203,4 +224,45 @@ int cfdi_decide(const cfdi_hypotheses *hy, const cfdi_decide_settings *s, size_t
         out->action = CFDI_DECIDE_WAIT;
     }
     return CFDI_OK;
+}
+
+int cfdi_decide(const cfdi_hypotheses *hy, const cfdi_decide_settings *s, size_t K,
+                const cfdi_real *theta, const cfdi_real *P, const cfdi_real *cost,
+                const cfdi_real *rr, int64_t n_eq, const cfdi_real *meat,
+                const cfdi_real *u_abs, const cfdi_real *n_u, const cfdi_real *units,
+                const int32_t *leftover, int64_t since, int named, int64_t *best_onset,
+                cfdi_real *cost_h, int64_t *order, uint8_t *near, cfdi_decision *out)
+{
+    cfdi_rank rank;
+    cfdi_fit_view fit, full;
+    size_t d, at;
+    int status;
+    if (!hy || !s || !theta || !P || !cost || !rr || !meat || !u_abs || !n_u || !units
+        || !leftover || !best_onset || !cost_h || !order || !near || !out) {
+        return CFDI_EBADARG;
+    }
+    if (cfdi_hypotheses_check(hy, K) != CFDI_OK || !leftover_ok(hy, K, leftover)) {
+        return CFDI_ESHAPE;
+    }
+    status = cfdi_decide_rank(hy, s, K, cost, best_onset, cost_h, order, near, &rank);
+    if (status != CFDI_OK) {
+        return status;
+    }
+    d = hy->d;
+    at = (size_t)rank.best * K + (size_t)rank.kb;
+    fit.theta = theta + at * d;
+    fit.P = P + at * d * d;
+    fit.meat = meat + at * d * d;
+    fit.cost = cost[at];
+    fit.rr = rr[at];
+    if (rank.full >= 0) {
+        at = (size_t)rank.full * K + (size_t)rank.full_kb;
+        full.theta = theta + at * d;
+        full.P = P + at * d * d;
+        full.meat = meat + at * d * d;
+        full.cost = cost[at];
+        full.rr = rr[at];
+    }
+    return cfdi_decide_judge(hy, s, K, &rank, &fit, rank.full >= 0 ? &full : NULL, cost, n_eq,
+                             u_abs, n_u, units, leftover, since, named, out);
 }

@@ -27,14 +27,19 @@
 #define CFDI_ENC_RAW_HI 5  /*   raw value is clipped to it */
 #define CFDI_ENC_REALS 6
 
-/* What a signal of a monitor message carries (FDI_FAULT's; canfdi.monitor.fault_frames). */
-#define CFDI_ROLE_NONE 0   /* nothing: raw 0 (the E2E fields, written by the protection) */
-#define CFDI_ROLE_KIND 1   /* the faulty channel's kind (none, actuator, sensor) */
-#define CFDI_ROLE_STATE 2  /* detected, named, accepted */
-#define CFDI_ROLE_DRIVE 3  /* the drive's index on the bus */
-#define CFDI_ROLE_INDEX 4  /* the channel's index */
-#define CFDI_ROLE_SAMPLE 5 /* the sample, modulo 2^32 */
-#define CFDI_N_ROLES 6
+/* What a signal of a monitor message carries (canfdi.monitor's FDI_FAULT, FDI_ESTIMATE and
+ * FDI_STATUS values, canfdi.monitor.MONITOR_ROLES). */
+#define CFDI_ROLE_NONE 0    /* nothing: raw 0 (the E2E fields, written by the protection) */
+#define CFDI_ROLE_KIND 1    /* the faulty channel's kind (none, actuator, sensor) */
+#define CFDI_ROLE_STATE 2   /* detected, named, accepted; FDI_STATUS: the drive's state */
+#define CFDI_ROLE_DRIVE 3   /* the drive's index on the bus */
+#define CFDI_ROLE_INDEX 4   /* the channel's index */
+#define CFDI_ROLE_SAMPLE 5  /* the sample, modulo 2^32; FDI_STATUS: the samples, modulo 2^21 */
+#define CFDI_ROLE_PARAM 6   /* FDI_ESTIMATE: eta, lambda, bias, or their standard deviations */
+#define CFDI_ROLE_VALUE 7   /* FDI_ESTIMATE: the estimate */
+#define CFDI_ROLE_ACTIVE 8  /* FDI_STATUS: the channels compensated */
+#define CFDI_ROLE_INVALID 9 /* FDI_STATUS: the invalid frames, modulo 2^16 */
+#define CFDI_N_ROLES 10
 
 /* One message the monitor sends. */
 typedef struct {

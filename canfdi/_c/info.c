@@ -36,14 +36,33 @@ static size_t first_lag(int64_t k, int64_t onset, size_t S)
     return since >= (uint64_t)S ? 0 : S - (size_t)since;
 }
 
-/* One regressor term: column col's signature at residual row and lag s, times the command
- * for a scale. */
-static cfdi_real term(const int32_t *col, const cfdi_real *Gz, const cfdi_real *Gu, size_t m,
-                      size_t W, size_t row, size_t s, const cfdi_real *u, size_t p)
+/* The terms of `used` columns at lags first .. done - 1 added to raw (m, d), from the window's
+ * end as the sums grow: column c's signature at each residual row and lag s, times the
+ * command for a scale (uf: the window's commands, nan_to_num'ed). */
+static void grow(const int32_t *cols, size_t used, size_t d, const cfdi_real *Gz,
+                 const cfdi_real *Gu, size_t m, size_t W, const cfdi_real *uf, size_t p,
+                 size_t first, size_t done, cfdi_real *raw)
 {
-    size_t j = (size_t)col[1];
-    const cfdi_real *g = (col[0] == CFDI_COL_SENSOR ? Gz : Gu) + (j * m + row) * W;
-    return col[0] == CFDI_COL_SCALE ? g[s] * finite(u[s * p + j]) : g[s];
+    size_t c, row, s;
+    for (c = 0; c < used; c++) {
+        int32_t source = cols[2 * c];
+        size_t j = (size_t)cols[2 * c + 1];
+        const cfdi_real *g = (source == CFDI_COL_SENSOR ? Gz : Gu) + j * m * W;
+        for (row = 0; row < m; row++) {
+            const cfdi_real *gr = g + row * W;
+            cfdi_real acc = raw[row * d + c];
+            if (source == CFDI_COL_SCALE) {
+                for (s = done; s-- > first;) {
+                    acc += gr[s] * uf[s * p + j];
+                }
+            } else {
+                for (s = done; s-- > first;) {
+                    acc += gr[s];
+                }
+            }
+            raw[row * d + c] = acc;
+        }
+    }
 }
 
 /* One sample's increments of one hypothesis' fit, from its regressors' sums over the window
@@ -89,6 +108,42 @@ static void increments(size_t m, size_t d, size_t used, const cfdi_real *raw,
     }
 }
 
+/* The steady increments of every hypothesis at once (every onset a window or more before the
+ * sample: the first lag 0), from the distinct columns the hypotheses use: each column's sums
+ * over the whole window and Gamma times them once, each product of two columns once, the
+ * hypotheses' increments gathered from them. The same numbers as `grow` and `increments`
+ * hypothesis by hypothesis (the same sums in the same order), made once for all. */
+typedef struct {
+    size_t n;                     /* distinct columns */
+    const int32_t *of[64];        /* each one's (source, channel) */
+    unsigned char map[64];        /* each hypothesis parameter's column */
+} distinct_cols;
+
+static int distinct_of(const int32_t *columns, size_t H, size_t d, distinct_cols *dc)
+{
+    size_t hyp, c, j;
+    dc->n = 0;
+    if (H * d > 64) {
+        return 0;
+    }
+    for (hyp = 0; hyp < H; hyp++) {
+        for (c = 0; c < d; c++) {
+            const int32_t *col = columns + 2 * (hyp * d + c);
+            if (col[0] == CFDI_COL_NONE) {
+                dc->map[hyp * d + c] = 255;
+                continue;
+            }
+            for (j = 0; j < dc->n && (dc->of[j][0] != col[0] || dc->of[j][1] != col[1]); j++) {
+            }
+            if (j == dc->n) {
+                dc->of[dc->n++] = col;
+            }
+            dc->map[hyp * d + c] = (unsigned char)j;
+        }
+    }
+    return 1;
+}
+
 int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
                     const cfdi_real *Gu, const cfdi_real *sigma, size_t H, size_t d,
                     const int32_t *columns, size_t K, const int64_t *onsets, size_t n,
@@ -96,9 +151,14 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
                     const cfdi_real *gamma, cfdi_real *J, cfdi_real *h, cfdi_real *meat,
                     cfdi_real *rr, int64_t *n_eq, cfdi_real *work)
 {
-    size_t i, hyp, o, row, a, W = S + 1;
+    size_t i, hyp, o, row, a, b, W = S + 1, NC;
     cfdi_real *phi = work, *gphi = work + m * d, *raw = work + 2 * m * d,
-              *inc = work + 3 * m * d;
+              *inc = work + 3 * m * d, *uf = inc + 2 * d * d + d, *cphi = uf + W * p,
+              *cgphi, *cinfo, *cmid, *cdot;
+    unsigned char *known;
+    distinct_cols dc;
+    int64_t earliest;
+    int cached_cols, ascending;
     if (Gz == NULL || Gu == NULL || sigma == NULL || columns == NULL || onsets == NULL
         || gamma == NULL || J == NULL || h == NULL || meat == NULL || rr == NULL
         || n_eq == NULL || work == NULL || (n && (k == NULL || U == NULL || rn == NULL))) {
@@ -115,9 +175,33 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
             return CFDI_ESHAPE;
         }
     }
+    cached_cols = distinct_of(columns, H, d, &dc); /* (more than 64 columns: hypothesis by
+                                                     * hypothesis, as the transients are) */
+    NC = dc.n;
+    cgphi = cphi + m * NC;
+    cinfo = cgphi + m * NC;
+    cmid = cinfo + NC * NC;
+    cdot = cmid + NC * NC;
+    known = (unsigned char *)(cdot + NC);
+    earliest = onsets[0];
+    ascending = 1;
+    for (o = 1; o < K; o++) {
+        earliest = onsets[o] < earliest ? onsets[o] : earliest;
+        ascending &= onsets[o] > onsets[o - 1];
+    }
     for (i = 0; i < n; i++) {
         const cfdi_real *r = rn + i * m, *u = U + i * W * p;
         int64_t present = 0;
+        int steady = cached_cols && first_lag(k[i], earliest, S) == 0;
+        size_t upto = K; /* the onsets at or before the sample (the rest add nothing) */
+        if (ascending) {
+            while (upto > 0 && onsets[upto - 1] > k[i]) {
+                upto--;
+            }
+        }
+        for (a = 0; a < W * p; a++) {
+            uf[a] = finite(u[a]);
+        }
         for (row = 0; row < m; row++) {
             if (r[row] == r[row]) {
                 present++;
@@ -125,9 +209,30 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
             }
         }
         *n_eq += present;
+        if (steady) { /* every distinct column over the whole window, Gamma times it */
+            for (a = 0; a < NC; a++) {
+                for (row = 0; row < m; row++) {
+                    raw[row * d] = 0;
+                }
+                grow(dc.of[a], 1, d, Gz, Gu, m, W, uf, p, 0, W, raw);
+                for (row = 0; row < m; row++) {
+                    cphi[row * NC + a] = r[row] == r[row] ? raw[row * d] / sigma[row] : 0;
+                }
+            }
+            for (row = 0; row < m; row++) {
+                for (a = 0; a < NC; a++) {
+                    cfdi_real sum = 0;
+                    for (b = 0; b < m; b++) {
+                        sum += gamma[row * m + b] * cphi[b * NC + a];
+                    }
+                    cgphi[row * NC + a] = sum;
+                }
+            }
+            memset(known, 0, 2 * NC * NC + NC);
+        }
         for (hyp = 0; hyp < H; hyp++) {
             const int32_t *cols = columns + 2 * hyp * d;
-            size_t used = 0, done = W, cached = W + 1, c;
+            size_t used = 0, done = W, cached = W + 1;
             while (used < d && cols[2 * used] != CFDI_COL_NONE) {
                 used++; /* (a hypothesis' columns come first, zero columns after) */
             }
@@ -138,13 +243,52 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
              * after it: onsets sharing it (every one a window or more before the sample)
              * share them, and the regressors' sums grow lag by lag from the window's end, so
              * the onsets are taken latest first. */
-            for (o = K; o-- > 0;) {
+            for (o = upto; o-- > 0;) {
                 size_t first = first_lag(k[i], onsets[o], S), at = (hyp * K + o) * d;
                 cfdi_real *Jo = J + at * d, *ho = h + at, *mo = meat + at * d;
                 if (first == W) {
                     continue; /* an onset after the sample: no regressor, nothing to add */
                 }
-                if (first != cached) {
+                if (first != cached && first == 0 && steady) {
+                    /* the steady increments, gathered from the distinct columns' */
+                    for (a = 0; a < used; a++) {
+                        size_t ca = dc.map[hyp * d + a];
+                        cfdi_real dot = 0;
+                        for (b = 0; b < used; b++) {
+                            size_t cb = dc.map[hyp * d + b], lo = ca < cb ? ca : cb,
+                                   hi = ca < cb ? cb : ca;
+                            if (!known[lo * NC + hi]) {
+                                cfdi_real info = 0;
+                                for (row = 0; row < m; row++) {
+                                    info += cphi[row * NC + ca] * cphi[row * NC + cb];
+                                }
+                                cinfo[lo * NC + hi] = info;
+                                known[lo * NC + hi] = 1;
+                            }
+                            if (!known[NC * NC + ca * NC + cb]) {
+                                cfdi_real mid = 0;
+                                for (row = 0; row < m; row++) {
+                                    mid += cphi[row * NC + ca] * cgphi[row * NC + cb];
+                                }
+                                cmid[ca * NC + cb] = mid;
+                                known[NC * NC + ca * NC + cb] = 1;
+                            }
+                            inc[a * d + b] = cinfo[lo * NC + hi];
+                            inc[d * d + a * d + b] = cmid[ca * NC + cb];
+                        }
+                        if (!known[2 * NC * NC + ca]) {
+                            for (row = 0; row < m; row++) {
+                                if (r[row] == r[row]) {
+                                    dot += cphi[row * NC + ca] * r[row];
+                                }
+                            }
+                            cdot[ca] = dot;
+                            known[2 * NC * NC + ca] = 1;
+                        }
+                        inc[2 * d * d + a] = cdot[ca];
+                    }
+                    cached = 0;
+                } else if (first != cached) {
                     if (first > done) { /* (onsets out of order: start the sums again) */
                         done = W;
                     }
@@ -153,14 +297,8 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
                             raw[a] = 0;
                         }
                     }
-                    for (; done > first; done--) {
-                        for (row = 0; row < m; row++) {
-                            for (c = 0; c < used; c++) {
-                                raw[row * d + c] += term(cols + 2 * c, Gz, Gu, m, W, row,
-                                                         done - 1, u, p);
-                            }
-                        }
-                    }
+                    grow(cols, used, d, Gz, Gu, m, W, uf, p, first, done, raw);
+                    done = first;
                     increments(m, d, used, raw, sigma, r, gamma, phi, gphi, inc);
                     cached = first;
                 }
@@ -177,77 +315,88 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
     return CFDI_OK;
 }
 
+int cfdi_fit_solve(size_t d, const cfdi_real *J, const cfdi_real *h, cfdi_real *theta,
+                   cfdi_real *P, cfdi_real *lu, size_t *perm)
+{
+    size_t i, j, k, col;
+    memcpy(lu, J, d * d * sizeof *lu);
+    /* LU with partial pivoting (LAPACK's getrf): the largest magnitude in the column below
+     * the diagonal, the first of equals, becomes the pivot. */
+    for (j = 0; j < d; j++) {
+        size_t p = j;
+        cfdi_real best = CFDI_FABS(lu[j * d + j]);
+        for (i = j + 1; i < d; i++) {
+            if (CFDI_FABS(lu[i * d + j]) > best) {
+                best = CFDI_FABS(lu[i * d + j]);
+                p = i;
+            }
+        }
+        perm[j] = p;
+        if (lu[p * d + j] == 0) {
+            return CFDI_ESINGULAR;
+        }
+        if (p != j) {
+            for (k = 0; k < d; k++) {
+                cfdi_real t = lu[j * d + k];
+                lu[j * d + k] = lu[p * d + k];
+                lu[p * d + k] = t;
+            }
+        }
+        for (i = j + 1; i < d; i++) {
+            cfdi_real l = lu[i * d + j] / lu[j * d + j];
+            lu[i * d + j] = l;
+            for (k = j + 1; k < d; k++) {
+                lu[i * d + k] -= l * lu[j * d + k];
+            }
+        }
+    }
+    /* theta = J^-1 h, then each column of P = J^-1 (the identity's columns solved). */
+    for (col = 0; col <= (P ? d : 0); col++) {
+        cfdi_real *y = col == 0 ? theta : P; /* P's column col - 1, strided by d */
+        size_t step = col == 0 ? 1 : d, off = col == 0 ? 0 : col - 1;
+        for (i = 0; i < d; i++) {
+            y[i * step + off] = col == 0 ? h[i] : (cfdi_real)(i == col - 1);
+        }
+        for (j = 0; j < d; j++) { /* the row swaps, in order */
+            if (perm[j] != j) {
+                cfdi_real t = y[j * step + off];
+                y[j * step + off] = y[perm[j] * step + off];
+                y[perm[j] * step + off] = t;
+            }
+        }
+        for (i = 1; i < d; i++) { /* L y = P b, L unit lower */
+            cfdi_real s = y[i * step + off];
+            for (k = 0; k < i; k++) {
+                s -= lu[i * d + k] * y[k * step + off];
+            }
+            y[i * step + off] = s;
+        }
+        for (i = d; i-- > 0;) { /* U x = y */
+            cfdi_real s = y[i * step + off];
+            for (k = i + 1; k < d; k++) {
+                s -= lu[i * d + k] * y[k * step + off];
+            }
+            y[i * step + off] = s / lu[i * d + i];
+        }
+    }
+    return CFDI_OK;
+}
+
 int cfdi_info_solve(size_t count, size_t d, const cfdi_real *J, const cfdi_real *h,
                     const cfdi_real *rr, cfdi_real *theta, cfdi_real *P, cfdi_real *cost,
                     cfdi_real *lu, size_t *perm)
 {
-    size_t e, i, j, k, col;
+    size_t e, i;
     if (J == NULL || h == NULL || rr == NULL || theta == NULL || P == NULL || cost == NULL
         || lu == NULL || perm == NULL || d == 0) {
         return CFDI_EBADARG;
     }
     for (e = 0; e < count; e++) {
-        const cfdi_real *A = J + e * d * d, *b = h + e * d;
-        cfdi_real *x = theta + e * d, *inv = P + e * d * d, dot = 0;
-        memcpy(lu, A, d * d * sizeof *lu);
-        /* LU with partial pivoting (LAPACK's getrf): the largest magnitude in the column
-         * below the diagonal, the first of equals, becomes the pivot. */
-        for (j = 0; j < d; j++) {
-            size_t p = j;
-            cfdi_real best = fabs(lu[j * d + j]);
-            for (i = j + 1; i < d; i++) {
-                if (fabs(lu[i * d + j]) > best) {
-                    best = fabs(lu[i * d + j]);
-                    p = i;
-                }
-            }
-            perm[j] = p;
-            if (lu[p * d + j] == 0) {
-                return CFDI_ESINGULAR;
-            }
-            if (p != j) {
-                for (k = 0; k < d; k++) {
-                    cfdi_real t = lu[j * d + k];
-                    lu[j * d + k] = lu[p * d + k];
-                    lu[p * d + k] = t;
-                }
-            }
-            for (i = j + 1; i < d; i++) {
-                cfdi_real l = lu[i * d + j] / lu[j * d + j];
-                lu[i * d + j] = l;
-                for (k = j + 1; k < d; k++) {
-                    lu[i * d + k] -= l * lu[j * d + k];
-                }
-            }
-        }
-        /* theta = J^-1 h, then each column of P = J^-1 (the identity's columns solved). */
-        for (col = 0; col <= d; col++) {
-            cfdi_real *y = col == 0 ? x : inv; /* inv's column col - 1, strided by d */
-            size_t step = col == 0 ? 1 : d, off = col == 0 ? 0 : col - 1;
-            for (i = 0; i < d; i++) {
-                y[i * step + off] = col == 0 ? b[i] : (cfdi_real)(i == col - 1);
-            }
-            for (j = 0; j < d; j++) { /* the row swaps, in order */
-                if (perm[j] != j) {
-                    cfdi_real t = y[j * step + off];
-                    y[j * step + off] = y[perm[j] * step + off];
-                    y[perm[j] * step + off] = t;
-                }
-            }
-            for (i = 1; i < d; i++) { /* L y = P b, L unit lower */
-                cfdi_real s = y[i * step + off];
-                for (k = 0; k < i; k++) {
-                    s -= lu[i * d + k] * y[k * step + off];
-                }
-                y[i * step + off] = s;
-            }
-            for (i = d; i-- > 0;) { /* U x = y */
-                cfdi_real s = y[i * step + off];
-                for (k = i + 1; k < d; k++) {
-                    s -= lu[i * d + k] * y[k * step + off];
-                }
-                y[i * step + off] = s / lu[i * d + i];
-            }
+        const cfdi_real *b = h + e * d;
+        cfdi_real *x = theta + e * d, dot = 0;
+        int status = cfdi_fit_solve(d, J + e * d * d, b, x, P + e * d * d, lu, perm);
+        if (status != CFDI_OK) {
+            return status;
         }
         for (i = 0; i < d; i++) {
             dot += x[i] * b[i];
@@ -255,4 +404,32 @@ int cfdi_info_solve(size_t count, size_t d, const cfdi_real *J, const cfdi_real 
         cost[e] = rr[e] - dot;
     }
     return CFDI_OK;
+}
+
+void cfdi_column(const cfdi_signatures *g, int32_t source, int32_t channel, int64_t k,
+                 int64_t onset, const cfdi_real *U, cfdi_real *out)
+{
+    size_t W = g->S + 1, first = first_lag(k, onset, g->S), a, s;
+    const cfdi_real *G;
+    if (source == CFDI_COL_NONE || first == W) {
+        for (a = 0; a < g->m; a++) {
+            out[a] = 0;
+        }
+        return;
+    }
+    G = (source == CFDI_COL_SENSOR ? g->Gz : g->Gu) + (size_t)channel * g->m * W;
+    for (a = 0; a < g->m; a++) {
+        const cfdi_real *gr = G + a * W;
+        cfdi_real raw = 0;
+        if (source == CFDI_COL_SCALE) {
+            for (s = W; s-- > first;) {
+                raw += gr[s] * finite(U[s * g->p + (size_t)channel]);
+            }
+        } else {
+            for (s = W; s-- > first;) {
+                raw += gr[s];
+            }
+        }
+        out[a] = raw / g->sigma[a];
+    }
 }

@@ -267,6 +267,13 @@ def _c_counter_machine(state: np.ndarray, buffer: np.ndarray, rows: np.ndarray,
     return (ks[:n_out], done[:n_out], gaps[:n_out], samples[:n_out]), used
 
 
+def info_work(m: int, d: int, S: int, p: int, H: int) -> int:
+    """cfdi.h's CFDI_INFO_WORK: the reals of cfdi_info_block's scratch."""
+    hd = H * d
+    return ((3 * m + 2 * d + 1) * d + (S + 1) * p + 2 * m * hd + 2 * hd * hd + hd
+            + (2 * hd * hd + hd) // 4 + 1)
+
+
 def _c_information_block(bank: Any, hypotheses: Any, columns: np.ndarray, d: int,
                          onsets: np.ndarray, k: np.ndarray, u_windows: np.ndarray,
                          rn: np.ndarray, gamma: np.ndarray) -> InformationSums:
@@ -288,7 +295,7 @@ def _c_information_block(bank: Any, hypotheses: Any, columns: np.ndarray, d: int
                         np.ascontiguousarray(u_windows, dtype=np.float64).reshape(n, S1, p),
                         np.ascontiguousarray(rn, dtype=np.float64).reshape(n, m),
                         np.ascontiguousarray(gamma, dtype=np.float64), J, h, meat, rr, n_eq,
-                        np.empty((3 * m + 2 * d + 1) * d))
+                        np.empty(info_work(m, d, S1 - 1, p, H)))
     return InformationSums(J=J, h=h, rr=rr[0], n_eq=int(n_eq[0]), meat=meat)
 
 

@@ -7,17 +7,17 @@ bank's FIR blocks, noise and Page-Hinkley thresholds, the diagnosis' hypotheses 
 (canfdi.methods.parity). Tables, never logic: every number comes from the objects the Python
 monitor runs with, so the two compute the same thing.
 
-The drive loop in C (canfdi/_c/drive.c) detects and diagnoses its first fault: named,
-accepted or the alarm unexplained, each announced by FDI_FAULT. What follows an acceptance
-(compensation and reset for the next fault, the tracking of accepted faults), FDI_ESTIMATE
-and FDI_STATUS are issue 43's next steps; until then the gateway takes over there.
+The drive loop in C (canfdi/_c/drive.c, diagnose.c, compensate.c) detects and diagnoses
+every fault as the parity diagnoser does (named, accepted, refined, or the alarm unexplained;
+compensated and reset for the next; the accepted faults tracked), announced by FDI_FAULT and
+FDI_ESTIMATE, with FDI_STATUS when the caller's timer asks.
 """
 
 from __future__ import annotations
 
 import math
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
@@ -26,12 +26,13 @@ import numpy as np
 from canfdi.bus.frames import STATUS_NAMES, VALID_STATUSES
 from canfdi.core.settings import ConfigError, MonitorConfig
 
-__all__ = ["CORE_FILES", "CodegenRefused", "DriveTables", "drive_tables", "render",
-           "write_project"]
+__all__ = ["CORE_FILES", "CodegenRefused", "DriveTables", "MonitorMessage", "drive_tables",
+           "memory_sizes", "render", "write_project"]
 
-CORE_FILES = ("cfdi.h", "decode.h", "e2e.h", "encode.h", "drive.h", "bank.c", "counter.c",
-              "decide.c", "decode.c", "detect.c", "e2e.c", "encode.c", "gate.c", "info.c",
-              "drive.c", "cfdi_run.c",
+CORE_FILES = ("cfdi.h", "decode.h", "e2e.h", "encode.h", "drive.h", "drive_impl.h",
+              "lagged.h", "track.h", "bank.c", "counter.c", "decide.c", "decode.c", "detect.c",
+              "e2e.c", "encode.c", "gate.c", "info.c", "lagged.c", "track.c", "compensate.c",
+              "diagnose.c", "drive.c", "cfdi_run.c",
               "cfdi_io.h",
               "cfdi_io_host.c", "cfdi_io_semihost.c", "m4f_startup.c", "m4f.ld")
 """The C core's files a project holds (canfdi/_c; not _kernel.c, the CPython face), with the
@@ -44,9 +45,20 @@ class CodegenRefused(ConfigError):
 
 
 @dataclass(frozen=True)
+class MonitorMessage:
+    """One monitor message as the C loop sends it: its tables (canfdi.bus.ctables.message_tables)
+    and each encode.h role's modulus and cap (canfdi.monitor.WRAPS, CAPS; 0: none)."""
+
+    tables: object
+    wrap: tuple[float, ...]
+    cap: tuple[float, ...]
+
+
+@dataclass(frozen=True)
 class DriveTables:
     """Everything the generated tables hold, as arrays: the bus's (canfdi.bus.ctables), the
-    clock's and gate's (SampleAssembler.c_params), the bank's and detectors'."""
+    clock's and gate's (SampleAssembler.c_params), the bank's and detectors', the monitor's
+    messages and codes (canfdi.monitor), the diagnosis' (ParityDiagnoser.c_tables)."""
 
     name: str
     bus: object  # canfdi.bus.ctables.BusTables
@@ -59,13 +71,24 @@ class DriveTables:
     delta: np.ndarray  # (m,)
     h: np.ndarray  # (m,)
     residual_names: tuple[str, ...]
-    fault: object = None  # canfdi.bus.ctables.MessageTables of FDI_FAULT; None: listen-only
-    fault_roles: tuple[float, ...] = ()  # a detection's FDI_FAULT values by encode.h role
-    fault_states: tuple[float, ...] = (0.0, 0.0, 0.0)  # its State: detected, named, accepted
-    fault_kinds: tuple[float, ...] = (0.0, 0.0, 0.0)  # its Kind: none, actuator, sensor
+    messages: dict = field(default_factory=dict)  # FDI_FAULT, FDI_ESTIMATE, FDI_STATUS -> ...
+    codes: dict = field(default_factory=dict)  # the monitor's codes (`_monitor_codes`)
+    drive_index: int = 0
     diag: dict | None = None  # the diagnosis' (ParityDiagnoser.c_tables); None: none in C
     input_names: tuple[str, ...] = ()
     output_names: tuple[str, ...] = ()
+    status_period: float = 1.0
+
+    @property
+    def tx_frames(self) -> int:
+        """The frames the C loop's queue holds: the most one sample can announce (a decision's
+        or a tracker's checkpoint's, after a detection) and a heartbeat."""
+        worst = 1
+        if self.diag is not None:
+            members = int(self.diag["d"])
+            tracked = int(self.diag["track"]["max_params"])
+            worst = 1 + max(5 * members, 1 + 3 * members, 2 * tracked + 2)
+        return worst + 1
 
 
 def _refuse_unsupported(config: MonitorConfig, doc: dict) -> None:
@@ -117,65 +140,74 @@ def drive_tables(config: MonitorConfig, doc: dict | None = None) -> DriveTables:
     if diag is not None and diag["d"] > MAX_FAULTS:
         raise CodegenRefused("signals.outputs", f"a joint fit of {diag['d']} sensors: the C "
                                                 f"diagnosis takes {MAX_FAULTS} at most")
-    fault, roles = _fault_message(monitor, drive)
-    states, kinds = _fault_codes(monitor, drive)
     return DriveTables(name=drive.name, bus=tables, clock=drive.clock.c_params(),
-                       p=len(config.inputs), q=len(config.outputs), fault=fault,
-                       fault_roles=roles, fault_states=states, fault_kinds=kinds,
-                       input_names=tuple(config.inputs), output_names=tuple(config.outputs),
-                       **detection)
+                       p=len(config.inputs), q=len(config.outputs),
+                       messages=_messages(monitor), codes=_monitor_codes(monitor, drive),
+                       drive_index=drive.index, input_names=tuple(config.inputs),
+                       output_names=tuple(config.outputs),
+                       status_period=float(config.bus.status_period), **detection)
 
 
-# FDI_FAULT's signals by the encode.h role the C loop fills them with.
-_FAULT_ROLES = {"Kind": "KIND", "State": "STATE", "Drive": "DRIVE", "Index": "INDEX",
-                "Sample": "SAMPLE"}
-
-
-def _fault_message(monitor, drive) -> tuple[object, tuple[float, ...]]:
-    """FDI_FAULT as the C loop encodes it (its tables) and the values a detection gives its
-    signals (Monitor.fault_values: the sample's its own at run time); (None, ()) for a
+def _messages(monitor) -> dict[str, MonitorMessage]:
+    """FDI_FAULT, FDI_ESTIMATE and FDI_STATUS as the C loop encodes them (their tables, each
+    signal's role from canfdi.monitor.MONITOR_ROLES, the counts' moduli and caps); {} for a
     listen-only monitor, which sends nothing."""
     from canfdi.bus.ctables import ENCODE_H, message_tables
-    from canfdi.core.records import FaultEvent
+    from canfdi.monitor import CAPS, MONITOR_ROLES, WRAPS
 
     frames = monitor.frames
     if not frames.transmit:
-        return None, ()
-    name = "FDI_FAULT"
-    try:
-        tables = message_tables(frames.layouts[name], frames.keys[name], frames.profile(name),
-                                _FAULT_ROLES)
-    except ValueError as exc:
-        raise CodegenRefused("bus.monitor.dbc", str(exc)) from None
-    values = monitor.fault_values(FaultEvent(kind="detected", sample=0, timestamp_ns=0), drive)
-    roles = [0.0] * ENCODE_H["CFDI_N_ROLES"]
-    for signal, role in _FAULT_ROLES.items():
-        roles[ENCODE_H[f"CFDI_ROLE_{role}"]] = float(values[signal])
-    return tables, tuple(roles)
+        return {}
+    out = {}
+    for name, roles in MONITOR_ROLES.items():
+        try:
+            tables = message_tables(frames.layouts[name], frames.keys[name],
+                                    frames.profile(name), roles)
+        except ValueError as exc:
+            raise CodegenRefused("bus.monitor.dbc", str(exc)) from None
+        wrap, cap = [0.0] * ENCODE_H["CFDI_N_ROLES"], [0.0] * ENCODE_H["CFDI_N_ROLES"]
+        for signal, modulus in WRAPS.get(name, {}).items():
+            wrap[ENCODE_H[f"CFDI_ROLE_{roles[signal]}"]] = float(modulus)
+        for signal, most in CAPS.get(name, {}).items():
+            cap[ENCODE_H[f"CFDI_ROLE_{roles[signal]}"]] = float(most)
+        out[name] = MonitorMessage(tables, tuple(wrap), tuple(cap))
+    return out
+
+
+def _monitor_codes(monitor, drive) -> dict[str, tuple[float, ...]]:
+    """The codes the C loop writes, read off the monitor's own values (one place): FDI_FAULT's
+    State of a detection, a naming and an acceptance; the Kind of none, an actuator and a sensor;
+    FDI_ESTIMATE's Param of eta, lambda and bias and what a standard deviation adds; FDI_STATUS's
+    State of monitoring, diagnosing and named."""
+    from canfdi.core.records import FaultEvent
+
+    def fault(kind: str, target: str | None) -> dict:
+        return monitor.fault_values(FaultEvent(kind=kind, sample=0, timestamp_ns=0,
+                                               target=target), drive)
+
+    event = FaultEvent(kind="accepted", sample=0, timestamp_ns=0, target="sensor", index=0)
+    params = tuple(float(monitor.estimate_values(event, key, 0.0, drive)["Param"])
+                   for key in ("eta", "lambda", "bias"))
+    std = float(monitor.estimate_values(event, "eta", 0.0, drive, True)["Param"]) - params[0]
+    return {"fault_states": tuple(float(fault(k, None)["State"])
+                                  for k in ("detected", "named", "accepted")),
+            "kinds": tuple(float(fault("detected", t)["Kind"])
+                           for t in (None, "actuator", "sensor")),
+            "params": params, "std_param": (std,),
+            "status_states": tuple(float(monitor.status_values(drive, state)["State"])
+                                   for state in ("monitoring", "diagnosing", "named"))}
 
 
 MAX_FAULTS = 4
 """drive.h's CFDI_MAX_FAULTS: the members of a joint fit the C diagnosis accepts at once."""
 
-LOOKBACK = 192
+LOOKBACK = 267
 """Samples a drive's diagnosis keeps before its alarm (the Python diagnoser keeps
-identification.max_samples of them): a fault whose change point lies further back is fitted
-from the oldest kept, so its onsets may differ. 192 keeps dc_motor's Cortex-M4F image, the
-runner's buffers included, within 16 KiB of static RAM."""
-
-
-def _fault_codes(monitor, drive) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """FDI_FAULT's State of a detection, a naming and an acceptance, and its Kind of none, an
-    actuator and a sensor (Monitor.fault_values: one place)."""
-    from canfdi.core.records import FaultEvent
-
-    def values(kind: str, target: str | None) -> dict:
-        return monitor.fault_values(FaultEvent(kind=kind, sample=0, timestamp_ns=0,
-                                               target=target), drive)
-
-    states = tuple(float(values(k, None)["State"]) for k in ("detected", "named", "accepted"))
-    kinds = tuple(float(values("detected", t)["Kind"]) for t in (None, "actuator", "sensor"))
-    return states, kinds
+identification.max_samples of them): the change point and onset_before samples before it, and
+with channels compensated the 256 samples before those (diagnoser.LOOKBACK), for a fault
+detected within 8 samples of its change point. A fault whose change point lies further back is
+fitted from the oldest kept, so its onsets, and with compensated channels its fits' costs,
+may differ from the gateway's."""
 
 
 def _real(v: float) -> str:
@@ -206,17 +238,39 @@ def _string(s: str) -> str:
     return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
+def memory_sizes(t: DriveTables, float32: bool) -> dict[str, int]:
+    """The sizes drive.h's CFDI_DRIVE_MEMORY lays a drive's memory out by (cfdi_drive_init
+    carves the same), and the bytes of each part, as drive.c's carve takes them."""
+    S1, _, m = t.coef.shape
+    S, W, P = S1 - 1, t.p + t.q, t.p
+    g = t.diag
+    z = {"W": W, "VW": int(t.bus.width), "S": S, "M": m, "P": P, "X": t.tx_frames,
+         "L": max((msg.tables.length for msg in t.messages.values()), default=0)}
+    if g is not None:
+        st = g["settings"]
+        z.update(H=len(g["table"].kind), D=int(g["d"]),
+                 K=int(st.max_onsets) + int(g["max_earlier"]),
+                 R=int(g["lookback"]) + S + max(2 * S, int(st.min_samples)) + 1,
+                 Y=S + int(st.onset_before) + 1, NC=len(g["lagged"]["cols"]),
+                 NP=len(g["lagged"]["pairs"]), T=int(g["track"]["max_params"]))
+    return z
+
+
 def render(t: DriveTables, config_name: str) -> dict[str, str]:
     """{file name: text} of the generated tables: cfdi_tables.h (sizes, declarations) and
     cfdi_tables.c (the const data)."""
     b = t.bus
     S1, _, m = t.coef.shape
     g = t.diag
-    diag_defines = "" if g is None else (
-        f"#define CFDI_GEN_H {len(g['table'].kind)}   /* fault hypotheses */\n"
-        f"#define CFDI_GEN_D {g['d']}   /* parameters of a hypothesis, at most */\n"
-        f"#define CFDI_GEN_K {g['settings'].max_onsets}   /* onsets a diagnosis tries */\n"
-        f"#define CFDI_GEN_LOOKBACK {g['lookback']}   /* samples kept before an alarm */\n")
+    z = memory_sizes(t, False)
+    defines = "".join(f"#define CFDI_GEN_{key} {value}\n" for key, value in z.items())
+    if g is not None:
+        memory = ("CFDI_DRIVE_MEMORY(CFDI_GEN_W, CFDI_GEN_VW, CFDI_GEN_S, CFDI_GEN_M, CFDI_GEN_P, "
+                  "CFDI_GEN_H, CFDI_GEN_D, CFDI_GEN_K, CFDI_GEN_R, CFDI_GEN_Y, CFDI_GEN_NC, "
+                  "CFDI_GEN_NP, CFDI_GEN_T, CFDI_GEN_X, CFDI_GEN_L)")
+    else:
+        memory = ("CFDI_DRIVE_MEMORY_MONITOR(CFDI_GEN_W, CFDI_GEN_VW, CFDI_GEN_S, CFDI_GEN_M, "
+                  "CFDI_GEN_X, CFDI_GEN_L)")
     header = f"""/* Generated by `canfdi codegen` from {config_name}: the tables of drive {t.name}.
  * Data, not logic; do not edit (generate again). */
 #ifndef CFDI_TABLES_H
@@ -224,20 +278,19 @@ def render(t: DriveTables, config_name: str) -> dict[str, str]:
 
 #include "drive.h"
 
-#define CFDI_GEN_WIDTH {t.p + t.q}   /* a sample: p inputs, q outputs */
-#define CFDI_GEN_VWIDTH {b.width}  /* the most fields a message gives */
-#define CFDI_GEN_S {S1 - 1}        /* the residual bank's window, samples before */
-#define CFDI_GEN_M {m}             /* residuals */
-#define CFDI_GEN_P {t.p}             /* inputs */
-#define CFDI_GEN_Q {t.q}             /* outputs */
-{diag_defines}
+/* The drive's sizes (drive.h's CFDI_DRIVE_MEMORY names them): a sample's width W (P inputs,
+ * then outputs), the bus's value width VW, the bank's window S and residuals M; the diagnosis'
+ * hypotheses H, parameters D, onsets K, rows kept R and history Y, the lagged middles'
+ * columns NC and pairs NP, the tracker's parameters T; frames queued X of L bytes at most. */
+{defines}#define CFDI_GEN_MEMORY ({memory})  /* bytes */
+#define CFDI_GEN_STATUS_PERIOD_NS INT64_C({round(t.status_period * 1e9)})  /* the heartbeat */
+
 extern const cfdi_drive_tables cfdi_drive_tables_gen;
 extern const char *const cfdi_drive_name;
 extern const char *const cfdi_status_names[CFDI_N_STATUS];
-extern const uint8_t cfdi_status_valid[CFDI_N_STATUS];
 extern const char *const cfdi_residual_names[CFDI_GEN_M];
 extern const char *const cfdi_input_names[CFDI_GEN_P];
-extern const char *const cfdi_output_names[CFDI_GEN_Q];
+extern const char *const cfdi_output_names[{t.q}];
 
 #endif
 """
@@ -261,23 +314,38 @@ extern const char *const cfdi_output_names[CFDI_GEN_Q];
     parts.append(_array("cfdi_real", "sigma", t.sigma, _real, 4))
     parts.append(_array("cfdi_real", "delta", t.delta, _real, 4))
     parts.append(_array("cfdi_real", "h", t.h, _real, 4))
-    f = t.fault
-    if f is not None:
-        parts.append(_array("int32_t", "fault_e2e_spec", f.e2e_spec, str, 16))
-        parts.append(_array("uint8_t", "fault_e2e_bytes", f.e2e_bytes, str, 16))
-        parts.append(_array("int64_t", "fault_sig_int", f.sig_int, _int64))
-        parts.append(_array("double", "fault_sig_real", f.sig_real, _real, 3))
+    parts.append(_array("uint8_t", "valid_status",
+                        [1 if s in VALID_STATUSES else 0 for s in STATUS_NAMES], str, 16))
+    messages = {}
+    for name, tag in (("FDI_FAULT", "fault"), ("FDI_ESTIMATE", "estimate"),
+                      ("FDI_STATUS", "status")):
+        msg = t.messages.get(name)
+        if msg is None:
+            messages[tag] = "{ NULL, { 0 }, { 0 } }"
+            continue
+        f = msg.tables
+        parts.append(_array("int32_t", f"{tag}_e2e_spec", f.e2e_spec, str, 16))
+        parts.append(_array("uint8_t", f"{tag}_e2e_bytes", f.e2e_bytes, str, 16))
+        parts.append(_array("int64_t", f"{tag}_sig_int", f.sig_int, _int64))
+        parts.append(_array("double", f"{tag}_sig_real", f.sig_real, _real, 3))
         parts.append(f"""
-/* FDI_FAULT, the frame announcing a detection (the monitor DBC's layout, its E2E). */
-static const cfdi_message fault = {{
+/* {name} (the monitor DBC's layout, its E2E). */
+static const cfdi_message {tag}_msg = {{
     {f.frame_id}u, {int(f.extended)}, {f.length},
-    fault_e2e_spec, fault_e2e_bytes,
-    fault_sig_int, fault_sig_real, {len(f.sig_int)}
+    {tag}_e2e_spec, {tag}_e2e_bytes,
+    {tag}_sig_int, {tag}_sig_real, {len(f.sig_int)}
 }};
 """)
+        messages[tag] = (f"{{ &{tag}_msg, {{ {', '.join(_real(v) for v in msg.wrap)} }}, "
+                         f"{{ {', '.join(_real(v) for v in msg.cap)} }} }}")
     if g is not None:
-        parts.append(_diag_tables(g, t.p))
-    roles = ", ".join(_real(v) for v in (t.fault_roles or (0.0,)))
+        parts.append(_diag_tables(g, t))
+    codes = t.codes or {"fault_states": (0.0,) * 3, "kinds": (0.0,) * 3, "params": (0.0,) * 3,
+                        "std_param": (0.0,), "status_states": (0.0,) * 3}
+
+    def reals(key: str) -> str:
+        return ", ".join(_real(v) for v in codes[key])
+
     parts.append(f"""
 static const cfdi_bus bus = {{
     std_entry, ext_id, ext_entry, {len(b.ext_id)},
@@ -289,25 +357,30 @@ static const cfdi_bus bus = {{
 }};
 
 const cfdi_drive_tables cfdi_drive_tables_gen = {{
-    &bus,
-    {_int64(c["gate_bound"])}, {_int64(c["gate_confirm"])},
-    dest, {dest.shape[0]}, {dest.shape[1]},
-    {_int64(c["mod"])}, {_real(c["dt_ns"])}, {_real(c["slack"])},
-    {t.p}, {t.q},
-    coef, uses, {S1 - 1}, {m},
-    sigma, delta, h,
-    {"&fault" if f is not None else "NULL"}, {{ {roles} }},
-    {{ {", ".join(_real(v) for v in t.fault_states)} }},
-    {{ {", ".join(_real(v) for v in t.fault_kinds)} }},
-    {"&diag" if g is not None else "NULL"}
+    .bus = &bus,
+    .gate_bound = {_int64(c["gate_bound"])}, .gate_confirm = {_int64(c["gate_confirm"])},
+    .dest = dest, .n_slots = {dest.shape[0]}, .cols = {dest.shape[1]},
+    .mod = {_int64(c["mod"])}, .dt_ns = {_real(c["dt_ns"])}, .slack = {_real(c["slack"])},
+    .p = {t.p}, .q = {t.q},
+    .coef = coef, .uses = uses, .S = {S1 - 1}, .m = {m},
+    .sigma = sigma, .delta = delta, .h = h,
+    .fault = {messages["fault"]},
+    .estimate = {messages["estimate"]},
+    .status = {messages["status"]},
+    .drive_index = {float(t.drive_index)!r},
+    .fault_states = {{ {reals("fault_states")} }},
+    .kinds = {{ {reals("kinds")} }},
+    .params = {{ {reals("params")} }},
+    .std_param = {reals("std_param")},
+    .status_states = {{ {reals("status_states")} }},
+    .tx_frames = {t.tx_frames},
+    .valid_status = valid_status,
+    .diag = {"&diag" if g is not None else "NULL"}
 }};
 
 const char *const cfdi_drive_name = {_string(t.name)};
 const char *const cfdi_status_names[CFDI_N_STATUS] = {{
     {", ".join(_string(s) for s in STATUS_NAMES)}
-}};
-const uint8_t cfdi_status_valid[CFDI_N_STATUS] = {{
-    {", ".join("1" if s in VALID_STATUSES else "0" for s in STATUS_NAMES)}
 }};
 const char *const cfdi_residual_names[CFDI_GEN_M] = {{
     {", ".join(_string(s) for s in t.residual_names)}
@@ -315,17 +388,19 @@ const char *const cfdi_residual_names[CFDI_GEN_M] = {{
 const char *const cfdi_input_names[CFDI_GEN_P] = {{
     {", ".join(_string(s) for s in t.input_names)}
 }};
-const char *const cfdi_output_names[CFDI_GEN_Q] = {{
+const char *const cfdi_output_names[{t.q}] = {{
     {", ".join(_string(s) for s in t.output_names)}
 }};
 """)
     return {"cfdi_tables.h": header, "cfdi_tables.c": "".join(parts)}
 
 
-def _diag_tables(g: dict, p: int) -> str:
+def _diag_tables(g: dict, t: DriveTables) -> str:
     """The diagnosis' const data (drive.h's cfdi_diag_tables)."""
     table, st = g["table"], g["settings"]
+    lg, tk = g["lagged"], g["track"]
     H = len(table.kind)
+    S1, _, m = t.coef.shape
     parts = [_array("int8_t", "hyp_kind", table.kind, str, 16),
              _array("int32_t", "hyp_index", table.index, str, 16),
              _array("int32_t", "hyp_n_params", table.n_params, str, 16),
@@ -337,17 +412,40 @@ def _diag_tables(g: dict, p: int) -> str:
              _array("cfdi_real", "diag_Gz", g["Gz"], _real, 4),
              _array("cfdi_real", "diag_Gu", g["Gu"], _real, 4),
              _array("cfdi_real", "diag_gamma", g["gamma"], _real, 4),
-             _array("cfdi_real", "diag_units", g["units"], _real, 4)]
+             _array("cfdi_real", "diag_units", g["units"], _real, 4),
+             _array("int32_t", "lag_cols", lg["cols"], str, 16),
+             _array("int32_t", "lag_hyp_cols", lg["hyp_cols"], str, 16),
+             _array("int32_t", "lag_pairs", lg["pairs"], str, 16),
+             _array("int32_t", "lag_hyp_pairs", lg["hyp_pairs"], str, 16),
+             _array("cfdi_real", "lag_noise", g["noise"], _real, 4),
+             _array("cfdi_real", "lag_steady", lg["steady"], _real, 4),
+             _array("double", "track_chi2", tk["chi2"], _real, 4),
+             _array("cfdi_real", "track_ratio", tk["ratio"], _real, 4),
+             _array("cfdi_real", "track_unit", tk["unit"], _real, 4),
+             _array("int32_t", "twin_order", g["twin_order"], str, 16),
+             _array("cfdi_real", "twin_ratio", g["twin_ratio"], _real, 4)]
+    own = ", ".join(_real(v) for v in g["own_chi2"])
     parts.append(f"""
-/* The diagnosis: its hypotheses, settings and what their fits are made of. */
+/* The diagnosis: its hypotheses, settings and what their fits are made of; the events'
+ * variances lag by lag (lagged.h); the accepted faults' tracking (track.h). */
 static const cfdi_diag_tables diag = {{
-    {{ {H}, {g["d"]}, {p}, hyp_kind, hyp_index, hyp_n_params, hyp_full, hyp_name_key,
-      hyp_twins, hyp_penalty }},
-    {{ {_int64(st.max_samples)}, {_real(st.isolation_margin)}, {_real(st.settle_rel_std)},
-      {_real(st.settle_noise)}, {_real(st.max_fit_variance)} }},
-    {_int64(st.min_samples)}, diag_columns, diag_Gz, diag_Gu, diag_gamma, diag_units,
-    {_real(st.prior_precision)},
-    {st.onset_before}, {st.max_onsets}, {g["lookback"]}
+    .hyp = {{ {H}, {g["d"]}, {t.p}, hyp_kind, hyp_index, hyp_n_params, hyp_full,
+             hyp_name_key, hyp_twins, hyp_penalty }},
+    .settings = {{ {_int64(st.max_samples)}, {_real(st.isolation_margin)},
+                  {_real(st.settle_rel_std)}, {_real(st.settle_noise)},
+                  {_real(st.max_fit_variance)} }},
+    .min_samples = {_int64(st.min_samples)}, .columns = diag_columns,
+    .Gz = diag_Gz, .Gu = diag_Gu, .gamma = diag_gamma, .units = diag_units,
+    .prior_precision = {_real(st.prior_precision)},
+    .onset_before = {st.onset_before}, .max_onsets = {st.max_onsets},
+    .max_earlier = {g["max_earlier"]}, .lookback = {g["lookback"]},
+    .earlier_lookback = {g["earlier_lookback"]},
+    .lagged = {{ {S1 - 1}, {t.q}, {m}, {len(lg["cols"])}, lag_cols, lag_hyp_cols,
+                {len(lg["pairs"])}, lag_pairs, lag_hyp_pairs, lag_noise, lag_steady }},
+    .track = {{ {t.p}, {t.p + t.q}, {tk["max_params"]}, track_chi2, track_ratio, track_unit,
+               {_real(tk["precise"])}, {_int64(tk["first_check"])} }},
+    .own_chi2 = {{ {own} }},
+    .twin_order = twin_order, .twin_ratio = twin_ratio
 }};
 """)
     return "".join(parts)
@@ -367,9 +465,10 @@ ARM_CC ?= arm-none-eabi-gcc
 ARM_SIZE ?= arm-none-eabi-size
 QEMU ?= qemu-system-arm
 WARN = -std=c99 -Wall -Wextra -Werror -pedantic -ffp-contract=off
-CORE = bank.c counter.c decide.c decode.c detect.c e2e.c encode.c gate.c info.c drive.c \\
-  cfdi_tables.c cfdi_run.c
-HEADERS = cfdi.h decode.h e2e.h encode.h drive.h cfdi_io.h cfdi_tables.h
+CORE = bank.c counter.c decide.c decode.c detect.c e2e.c encode.c gate.c info.c lagged.c \\
+  track.c compensate.c diagnose.c drive.c cfdi_tables.c cfdi_run.c
+HEADERS = cfdi.h decode.h e2e.h encode.h drive.h drive_impl.h lagged.h track.h cfdi_io.h \\
+  cfdi_tables.h
 M4F = -mcpu=cortex-m4 -mthumb -mfpu=fpv4-sp-d16 -mfloat-abi=hard
 BUILD = build/cortex-m4f
 ELF = $(BUILD)/cfdi_run.elf
@@ -440,40 +539,23 @@ cortex-m4f`, `make qemu LOG=FILE`, `make count LOG=FILE` and `make size`: see th
 ```c
 #include "cfdi_tables.h"
 
-static double values[CFDI_GEN_VWIDTH], buffer[CFDI_GEN_WIDTH], samples[2 * CFDI_GEN_WIDTH];
-static cfdi_real ring[(CFDI_GEN_S + 1) * CFDI_GEN_WIDTH], r[CFDI_GEN_M], ph[2 * CFDI_GEN_M];
-static cfdi_real g_up[CFDI_GEN_M], g_down[CFDI_GEN_M];
-static int64_t last_zero[2 * CFDI_GEN_M];
-static int8_t alarm[CFDI_GEN_M];
-/* the diagnosis' (H hypotheses, K onsets, D parameters) */
-static cfdi_real recent[(CFDI_GEN_LOOKBACK + CFDI_GEN_S + 1) * CFDI_GEN_WIDTH];
-static cfdi_real window[(CFDI_GEN_S + 1) * CFDI_GEN_WIDTH], U[(CFDI_GEN_S + 1) * CFDI_GEN_P];
-static cfdi_real rn[CFDI_GEN_M], work[CFDI_INFO_WORK(CFDI_GEN_M, CFDI_GEN_D)];
-static int64_t onsets[CFDI_GEN_K], best_onset[CFDI_GEN_H], order[CFDI_GEN_H];
-static cfdi_real J[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D * CFDI_GEN_D];
-static cfdi_real meat[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D * CFDI_GEN_D];
-static cfdi_real P[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D * CFDI_GEN_D];
-static cfdi_real h[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D];
-static cfdi_real theta[CFDI_GEN_H * CFDI_GEN_K * CFDI_GEN_D];
-static cfdi_real rr[CFDI_GEN_H * CFDI_GEN_K], cost[CFDI_GEN_H * CFDI_GEN_K];
-static cfdi_real lu[CFDI_GEN_D * CFDI_GEN_D], u_abs[CFDI_GEN_P], n_u[CFDI_GEN_P];
-static cfdi_real cost_h[CFDI_GEN_H];
-static size_t perm[CFDI_GEN_D];
-static uint8_t near[CFDI_GEN_H];
-static int32_t leftover[CFDI_GEN_H];
+static uint64_t memory[(CFDI_GEN_MEMORY + 7) / 8]; /* the drive's: CFDI_GEN_MEMORY bytes */
 static cfdi_drive drive;
-static const cfdi_drive_memory mem = {{values, buffer, samples, ring, r, ph, last_zero, g_up,
-                                      g_down, alarm,
-                                      {{recent, window, U, rn, onsets, J, meat, P, h, theta,
-                                       rr, cost, lu, perm, work, u_abs, n_u, best_onset, order,
-                                       cost_h, near, leftover}}}};
 
 void can_send(uint32_t id, int extended, const uint8_t *data, uint8_t len); /* your driver */
 
-/* Once, at start: the tables and the memory checked against each other (CFDI_OK). */
+/* Once, at start: the tables checked, the memory laid out (CFDI_OK). */
 int monitor_start(void)
 {{
-    return cfdi_drive_init(&drive, &cfdi_drive_tables_gen, &mem);
+    return cfdi_drive_init(&drive, &cfdi_drive_tables_gen, memory, sizeof memory);
+}}
+
+static void send_pending(void)
+{{
+    cfdi_tx_frame tx;
+    while (cfdi_drive_poll_tx(&drive, &tx) == 1) {{
+        can_send(tx.id, tx.extended, tx.data, tx.len);
+    }}
 }}
 
 /* Every received CAN frame: its ID, payload length, flags (CFDI_FLAG_*), payload and time
@@ -481,76 +563,104 @@ int monitor_start(void)
 void monitor_on_frame(uint32_t id, uint8_t len, uint8_t flags, const uint8_t *data,
                       int64_t t_ns)
 {{
-    cfdi_tx_frame tx;
     cfdi_drive_on_frame(&drive, id, len, flags, data, t_ns); /* its status, >= 0 */
-    while (cfdi_drive_poll_tx(&drive, &tx) == 1) {{
-        can_send(tx.id, tx.extended, tx.data, tx.len);
-    }}
+    send_pending();
+}}
+
+/* Every {period} s (a timer): the heartbeat, FDI_STATUS. */
+void monitor_tick(void)
+{{
+    cfdi_drive_status(&drive);
+    send_pending();
 }}
 ```
 
 `cfdi_drive_finish(&drive)` closes a pending sample at the end of a stream (a replayed log).
-After the first alarm `drive.alarmed` is 1, `drive.alarm_k` its sample and
-`drive.alarm_onset` the change point it dates; the monitor then sends a {fault} frame
-(ID {fault_id}, state detected, the alarm's sample, its E2E), as canfdi's monitor does.
-The alarm starts a diagnosis: every fault hypothesis fitted by least squares at every onset
-tried, from the change point on ({lookback} samples before the alarm are kept), and decided
-on at each sample as canfdi's diagnoser decides. Its decisions, `drive.events[0 ..
-drive.n_events - 1]` (a fault named, accepted, or the alarm unexplained), are announced the
-same way, state named or accepted, with the channel. What follows an acceptance
-(compensation, the next fault) and the estimates' FDI_ESTIMATE frames are still the
-gateway's (canfdi issue 43): the loop diagnoses its first fault.
+`cfdi_drive_poll_event(&drive, &event)` hands over what the monitor concluded, oldest first
+(`cfdi_event`: a detection, a fault named, accepted or refined with its estimates and
+variances, an alarm unexplained), for a firmware that acts on it; events not polled are
+dropped after `CFDI_EVENT_QUEUE` and counted (`drive.events_dropped`).
 
-## The memory each part needs
+What the monitor sends, as canfdi's monitor does: at an alarm {fault} (ID {fault_id}, state
+detected, the alarm's sample); then the diagnosis, every fault hypothesis fitted by least
+squares at every onset tried ({lookback} samples before the alarm are kept) and decided on at
+each sample as canfdi's diagnoser decides: a fault named ({fault}, state named, and its
+offset or bias in FDI_ESTIMATE with its standard deviation), accepted ({fault}, state
+accepted, each estimate and its standard deviation in FDI_ESTIMATE), or the alarm left
+unexplained. An accepted fault is compensated from its onset on, the window rebuilt and the
+detector restarted, so the next fault is diagnosed on top of it; a diagnosis that finds what
+an earlier estimate left refines it (FDI_ESTIMATE alone), and the accepted faults go on being
+fitted between diagnoses, their significant corrections sent the same way. Nothing is sent by
+a listen-only drive (`bus.transmit: false`).
 
-| what | elements | bytes |
-|---|---|---|
+## The memory it needs
+
+`CFDI_GEN_MEMORY` = {total} bytes ({real}) in one block the caller owns, 8-byte aligned,
+laid out by `cfdi_drive_init`, and `sizeof(cfdi_drive)` for the drive's state (its queues of
+{frames} frames to send and `CFDI_EVENT_QUEUE` events, the compensation); the tables are const
+(flash: `make size`). Its parts:
+
+| what | bytes |
+|---|---|
 {memory}
-| `cfdi_drive` (state; a queue of `CFDI_TX_QUEUE` frames to send) | 1 | `sizeof(cfdi_drive)` |
-| the tables (const: flash) | | `make size` |
 
 No allocation, no global state in the core: everything is in the memory above, the caller's.
 `make size` prints the image's flash, static RAM and its largest stack frame.
 """
 
 
+def memory_parts(t: DriveTables, float32: bool) -> list[tuple[str, int]]:
+    """The parts of a drive's memory block and their bytes (drive.c's carve, in its order)."""
+    z = memory_sizes(t, float32)
+    R = 4 if float32 else 8
+
+    def a8(n: int) -> int:
+        return (n + 7) // 8 * 8
+
+    W, VW, S, M, P, X, L = (z[k] for k in ("W", "VW", "S", "M", "P", "X", "L"))
+    parts = [("the frame's fields, the clock's pending sample, the samples one frame gives",
+              a8(8 * VW) + a8(R * W) + a8(8 * W) + a8(16 * W)),
+             ("the residual bank's window", a8(R * (S + 1) * W)),
+             ("the residuals and the detectors' statistics",
+              4 * a8(R * M) + a8(R * 2 * M) + a8(16 * M) + a8(M)),
+             (f"the frames to send ({X})", a8(X * (6 + L))),
+             ("each channel's compensation", a8((32 + 8 * R) * W))]
+    if t.diag is not None:
+        H, D, K, Rw, Y, NC, NP, T = (z[k] for k in ("H", "D", "K", "R", "Y", "NC", "NP", "T"))
+        Q = W - P
+        work = (3 * M + 2 * D + 1) * D
+        track_item, correction = 16 + 4 * R, 8 + 4 * R
+        parts += [(f"the samples kept ({Rw} rows) and the history ({Y})",
+                   a8(R * (Rw + Y) * W)),
+                  ("a kept sample's window and commands, scratch",
+                   a8(R * (S + 1) * (W + P)) + a8(R * (work + 3 * D * D + 2 * D))),
+                  (f"the fits: {H} hypotheses at {K} onsets (information, sandwich, vector "
+                   "and cost; the tracking's scratch between diagnoses)",
+                   a8(8 * K) + a8(R * max(H * K * (2 * D * D + D + 1),
+                                          2 * M * T + M + 6 * T * T + 4 * T))),
+                  ("the decision's", a8(R * (2 * P + H)) + a8(8 * D) + 2 * a8(8 * H) + a8(H)
+                   + a8(4 * H)),
+                  ("the events' lagged middles (their squares, by onset)",
+                   a8(R * (S + 1) * Q * NC) + a8(R * K * NP) + a8(R * NP) + a8(R * M * NC)
+                   + a8(R * 2 * S * Q * D)),
+                  (f"the accepted faults' tracking ({T} parameters)",
+                   a8(track_item * T) + a8(correction * T) + a8(R * (4 * T * T + 2 * T + P)))]
+    return parts
+
+
 def project_readme(t: DriveTables, config_name: str, float32: bool) -> str:
     """The generated project's README: the integration API and the memory each part needs,
     in this drive's sizes."""
-    S1, _, m = t.coef.shape
-    width, vwidth = t.p + t.q, t.bus.width
-    real = 4 if float32 else 8
-    rows = [("`values` (double: one frame's fields)", vwidth, 8),
-            ("`buffer` (double: the clock's pending sample)", width, 8),
-            ("`samples` (double: the samples one frame delivers)", 2 * width, 8),
-            ("`ring` (cfdi_real: the residual bank's window)", S1 * width, real),
-            ("`r`, `g_up`, `g_down` (cfdi_real: residuals, statistics)", 3 * m, real),
-            ("`ph` (cfdi_real: the statistics g+ and g-)", 2 * m, real),
-            ("`last_zero` (int64_t)", 2 * m, 8),
-            ("`alarm` (int8_t)", m, 1)]
-    g = t.diag
-    if g is not None:
-        H, d, K, p = len(g["table"].kind), g["d"], g["settings"].max_onsets, t.p
-        rows += [("`recent` (cfdi_real: the samples kept before an alarm)",
-                  (g["lookback"] + S1) * width, real),
-                 ("`window`, `U`, `rn`, `work` (cfdi_real: one kept sample's)",
-                  S1 * width + S1 * p + m + (3 * m + 2 * d + 1) * d, real),
-                 ("`J`, `meat`, `P` (cfdi_real: every fit's information, sandwich, inverse)",
-                  3 * H * K * d * d, real),
-                 ("`h`, `theta`, `rr`, `cost` (cfdi_real: every fit's)",
-                  2 * H * K * d + 2 * H * K, real),
-                 ("`lu`, `u_abs`, `n_u`, `cost_h` (cfdi_real)", d * d + 2 * p + H, real),
-                 ("`onsets`, `best_onset`, `order` (int64_t)", K + 2 * H, 8),
-                 ("`perm` (size_t: 8 bytes at most)", d, 8), ("`near` (uint8_t)", H, 1),
-                 ("`leftover` (int32_t)", H, 4)]
-    memory = "\n".join(f"| {what} | {n} | {n * size} |" for what, n, size in rows)
-    memory += f"\n| all of the above | | {sum(n * size for _, n, size in rows)} |"
-    fault = t.fault
+    parts = memory_parts(t, float32)
+    fault = t.messages.get("FDI_FAULT")
     return PROJECT_README.format(
         name=t.name, config_name=config_name, real="float32" if float32 else "float64",
-        memory=memory, lookback=g["lookback"] if g is not None else 0,
-        fault="FDI_FAULT" if fault is not None else "(listen-only: no)",
-        fault_id=f"0x{fault.frame_id:X}" if fault is not None else "none")
+        memory="\n".join(f"| {what} | {n} |" for what, n in parts),
+        total=sum(n for _, n in parts), frames=t.tx_frames,
+        lookback=t.diag["lookback"] if t.diag is not None else 0,
+        period=f"{t.status_period:g}",
+        fault="FDI_FAULT" if fault is not None else "(listen-only: no) FDI_FAULT",
+        fault_id=f"0x{fault.tables.frame_id:X}" if fault is not None else "none")
 
 
 def write_project(config: MonitorConfig, doc: dict, out: Path, config_name: str,

@@ -3,12 +3,12 @@ reference) on every shipped scenario that plays the config's bus, clean and dama
 float64 and float32 and under AddressSanitizer and UndefinedBehaviorSanitizer; and the configs
 the C loop cannot run, refused naming the field.
 
-So far the C loop counts, detects (its first alarm) and diagnoses its first fault (issue 43):
-the frame counters, samples, the first detection (sample, change point, residuals), the first
-diagnosis' decisions (named, accepted or unexplained: samples, channels, onsets, estimates)
-and the FDI_FAULT frames sent must be the monitor's. The Cortex-M4F image (arm-none-eabi-gcc,
-newlib-nano) runs on qemu's mps2-an386 and must print what the host's float32 build prints,
-within the MCU's memory."""
+The C loop runs the whole diagnosis (issue 43): its replay JSON (every fault named, accepted,
+refined or unexplained, with onsets, estimates and variances; the detections, samples and
+frame counters) must be `canfdi replay --json`'s, and every frame it sends (FDI_FAULT,
+FDI_ESTIMATE, and the FDI_STATUS heartbeat every bus.status_period of the log's time) the
+monitor's, byte for byte. The Cortex-M4F image (arm-none-eabi-gcc, newlib-nano) runs on qemu's
+mps2-an386 and must print what the host's float32 build prints, within the MCU's memory."""
 
 from __future__ import annotations
 
@@ -146,67 +146,80 @@ def mcu_toolchain():
         pytest.skip(f"no Cortex-M4F tool chain here ({done.stderr.strip()})")
 
 
-def _first_diagnosis(events: list) -> list:
-    """The events of the first diagnosis after the first detection, up to its decision (an
-    acceptance, with the other members of a joint one, or an alarm unexplained): what the C
-    loop decides so far."""
-    out = []
-    for e in events[next((i for i, e in enumerate(events) if e.kind == "detected"),
-                         len(events)) + 1:]:
-        if e.kind == "detected" or (out and out[-1].kind != "named"
-                                    and e.sample != out[-1].sample):
-            break
-        out.append(e)
-        if e.kind == "unexplained":
-            break
+LISTS = ("faults", "named", "unexplained", "refined")
+
+
+def _heartbeats(t_ns: np.ndarray, period_ns: int) -> list[int]:
+    """The frames before which the runner's heartbeat falls (cfdi_run.c's rule): the first at
+    or after one period past the first frame's time, then one period past the last one due."""
+    out, next_beat = [], None
+    for i, t in enumerate(t_ns.tolist()):
+        if next_beat is None:
+            next_beat = t + period_ns
+        elif t >= next_beat:
+            out.append(i)
+            next_beat += period_ns * ((t - next_beat) // period_ns + 1)
     return out
-
-
-def _as_json(e) -> dict:
-    """A decision as cfdi_run prints it."""
-    if e.target is None:
-        return {"kind": e.kind, "sample": e.sample}
-    return {"kind": e.kind, "sample": e.sample, "target": e.target, "index": e.index,
-            "name": e.name, "onset_sample": e.onset_sample, "estimates": dict(e.estimates)}
 
 
 def _reference(config, log: Path) -> dict:
     """What canfdi's monitor (numpy kernel, no noise watchdog: it stays on the gateway)
-    finds: its replay's frame counters and samples, its first detection and the first
-    diagnosis' decisions."""
+    finds and sends: its replay JSON, and every frame it sends with the heartbeat the runner
+    times (FDI_STATUS before the frames where it falls)."""
+    from canfdi.bus.frames import FrameBlock
+    from canfdi.io.logs import frame_blocks
+
     quiet = dataclasses.replace(config, watchdog=dataclasses.replace(config.watchdog,
                                                                      enabled=False))
     monitor = Monitor(quiet, record_residuals=False, kernel=kernel.get("python"))
     replay_log(monitor, log)
     summary = monitor.summary()
-    first = next((e for e in monitor.events if e.kind == "detected"), None)
-    detections = [] if first is None else [{"sample": first.sample,
-                                            "onset_sample": first.onset_sample,
-                                            "residuals": list(first.residuals)}]
-    faults = _first_diagnosis(monitor.events)
-    # The FDI_FAULT frames the monitor sends announcing them (its counter from 0): the first
-    # of each event's frames (FDI_ESTIMATE's are the gateway's so far).
-    fresh = Monitor(quiet, record_residuals=False, kernel=kernel.get("python"))
-    sent = [{"id": f[0].frame_id, "extended": f[0].extended, "data": f[0].data.hex()}
-            for e in ([first] if first else []) + faults
-            if (f := fresh.fault_frames(e)) and e.kind != "unexplained"]
-    return {"detections": detections, "samples": summary["samples"],
-            "frames": summary["frames"], "sent": sent,
-            "faults": [_as_json(e) for e in faults]}
+    sender = Monitor(quiet, record_residuals=False, kernel=kernel.get("python"))
+    frames = FrameBlock.concat(frame_blocks(log))
+    beats = _heartbeats(frames.t_ns, round(config.bus.status_period * 1e9))
+    sent, at = [], 0
+    for stop in [*beats, frames.size]:
+        sent += sender.on_frames(frames.slice(at, stop))
+        if stop < frames.size:
+            sent += sender.status_frames()
+        at = stop
+    sent += sender.finish()
+    summary["sent"] = [{"id": f.frame_id, "extended": f.extended, "data": f.data.hex()}
+                       for f in sent]
+    return summary
 
 
-def _same_faults(got: list, want: list, name: str, rel: float, samples: int = 0) -> None:
-    """The C's decisions against the monitor's: the same kinds and channels, samples and
-    onsets within ``samples``, estimates within ``rel``."""
-    assert [(g["kind"], g.get("target"), g.get("index")) for g in got] == \
-        [(w["kind"], w.get("target"), w.get("index")) for w in want], name
-    for g, w in zip(got, want, strict=True):
-        assert abs(g["sample"] - w["sample"]) <= samples, name
-        if "onset_sample" in w:
-            assert abs(g["onset_sample"] - w["onset_sample"]) <= samples, name
-            assert g["estimates"].keys() == w["estimates"].keys(), name
-            for key, value in w["estimates"].items():
-                assert g["estimates"][key] == pytest.approx(value, rel=rel), (name, key)
+def _close(got, want, rel: float) -> bool:
+    """JSON values equal, floats within ``rel`` (relative)."""
+    if isinstance(want, dict):
+        return isinstance(got, dict) and got.keys() == want.keys() and all(
+            _close(got[k], want[k], rel) for k in want)
+    if isinstance(want, list):
+        return isinstance(got, list) and len(got) == len(want) and all(
+            _close(g, w, rel) for g, w in zip(got, want, strict=True))
+    if isinstance(want, float) or isinstance(got, float):
+        return (got is not None and want is not None
+                and abs(got - want) <= rel * max(abs(got), abs(want)))
+    return got == want
+
+
+def _same_decisions(got: dict, want: dict, name: str, rel: float, samples: int = 0,
+                    variances: bool = True) -> None:
+    """The C's events against the monitor's: the same kinds and channels in every list,
+    samples and onsets within ``samples``, estimates (and with ``variances`` their variances)
+    within ``rel``."""
+    for key in LISTS:
+        g, w = got[key], want[key]
+        assert [(e.get("kind"), e.get("index")) for e in g] == \
+            [(e.get("kind"), e.get("index")) for e in w], (name, key)
+        for ge, we in zip(g, w, strict=True):
+            for field in ("sample", "onset_sample", "detected_sample", "named_sample",
+                          "accepted_sample"):
+                if we.get(field) is not None:
+                    assert abs(ge[field] - we[field]) <= samples, (name, key, field)
+            for field in ("estimate", "variance", "estimates"):
+                if field in we and (variances or field != "variance"):
+                    assert _close(ge[field], we[field], rel), (name, key, field, ge, we)
 
 
 def test_every_scenario_of_the_bus_is_covered(config, logs):
@@ -216,37 +229,46 @@ def test_every_scenario_of_the_bus_is_covered(config, logs):
 
 
 @needs_cc
-def test_the_c_loop_counts_and_detects_as_the_monitor_does(config, logs, project):
+def test_the_c_loop_is_the_monitor(config, logs, project):
+    """float64: the replay JSON equal (estimates and variances to 1e-6, the rest exactly) and
+    every frame sent byte for byte, E2E included."""
+    diagnosed = set()
     for name, log in logs.items():
         got, want = _run(project, log), _reference(config, log)
         assert got["frames"] == want["frames"], name
         assert got["samples"] == want["samples"], name
         assert got["detections"] == want["detections"], name
-        _same_faults(got["faults"], want["faults"], name, rel=1e-6)
-        assert got["sent"] == want["sent"], name  # byte for byte, E2E included
-        assert got["frames_sent"] == len(want["sent"]) and got["frames_not_sent"] == 0, name
+        _same_decisions(got, want, name, rel=1e-6)
+        for key in LISTS:  # the rest of each event as replay prints it
+            assert _close(got[key], want[key], 1e-6), (name, key)
+        assert got["sent"] == want["sent"], name  # byte for byte
+        assert got["frames_not_sent"] == 0 and got["events_not_listed"] == 0, name
         if "nominal" not in name and "clean" in name:
-            assert got["detections"], name  # a fault scenario is detected
-            assert got["faults"][-1]["kind"] == "accepted", name  # and diagnosed
+            assert got["faults"], name  # a fault scenario is diagnosed
+            diagnosed.add(name.split("-")[0])
         if "timejump" in name:
             assert got["frames"]["clock_steps"] >= 1, name
             assert got["frames"]["invalid_by_reason"]["time_jump"] >= 1, name
         if "-fd" in name:  # CAN FD frames read, and counted as the monitor counts them
             assert got["frames"]["invalid_by_reason"]["fd"] >= 100, name
         assert got["malformed_lines"] == 0
+    # every kind of decision met on the way: consecutive faults, a refinement, twins
+    consecutive = _run(project, logs["dc_motor_consecutive-clean.log"])
+    assert len(consecutive["faults"]) == 3 and consecutive["refined"], consecutive
+    assert any(f["candidates"] for f in consecutive["faults"])
+    assert diagnosed >= {"dc_motor_consecutive", "dc_motor_actuator", "dc_motor_sensors_a"}
 
 
 @needs_cc
-def test_float32_detects_and_diagnoses_within_two_samples(config, logs, tmp_path_factory):
+def test_float32_diagnoses_within_two_samples(config, logs, tmp_path_factory):
     project = _build(tmp_path_factory, "dc_motor-c32", "--float32")
     for name, log in logs.items():
         got, want = _run(project, log), _reference(config, log)
         assert got["frames"] == want["frames"] and got["samples"] == want["samples"], name
-        assert len(got["detections"]) == len(want["detections"]), name
-        for g, w in zip(got["detections"], want["detections"], strict=True):
-            assert abs(g["sample"] - w["sample"]) <= 2, name
-            assert abs(g["onset_sample"] - w["onset_sample"]) <= 2, name
-        _same_faults(got["faults"], want["faults"], name, rel=0.01, samples=2)
+        assert got["detections"] == want["detections"], name
+        # (the variances are the fits' costs, rr - h.theta: in float32 a fault of hundreds of
+        # noise standard deviations leaves them to a few digits, so they are not compared here)
+        _same_decisions(got, want, name, rel=0.01, samples=2, variances=False)
 
 
 @needs_cc
@@ -318,21 +340,28 @@ void can_send(uint32_t id, int extended, const uint8_t *data, uint8_t len)
 int main(void)
 {
     uint8_t data[8] = {0};
-    cfdi_drive_memory lacking = mem;
     cfdi_drive_tables wider = cfdi_drive_tables_gen;
     cfdi_diag_tables diag = *cfdi_drive_tables_gen.diag;
-    lacking.diag.recent = NULL; /* the diagnosis' memory is checked with the rest */
-    diag.hyp.p += 1;            /* and its tables against the drive's */
-    wider.diag = &diag;
-    if (cfdi_drive_init(&drive, &cfdi_drive_tables_gen, &lacking) != CFDI_EBADARG
-        || cfdi_drive_init(&drive, &wider, &mem) != CFDI_ESHAPE) {
+    /* the memory is checked against the tables, and the diagnosis' tables against the drive */
+    if (cfdi_drive_memory_size(&cfdi_drive_tables_gen) != CFDI_GEN_MEMORY
+        || cfdi_drive_init(&drive, &cfdi_drive_tables_gen, memory, sizeof memory - 8)
+           != CFDI_ESHAPE) {
         return 3;
+    }
+    diag.hyp.p += 1;
+    wider.diag = &diag;
+    if (cfdi_drive_init(&drive, &wider, memory, sizeof memory) != CFDI_ESHAPE) {
+        return 4;
     }
     if (monitor_start() != CFDI_OK) {
         return 1;
     }
     monitor_on_frame(0x7FF, 8, 0, data, 1000000); /* no drive's ID: counted, nothing sent */
-    return drive.status_count[CFDI_ST_UNKNOWN_ID] == 1 && sent == 0 ? 0 : 2;
+    if (drive.status_count[CFDI_ST_UNKNOWN_ID] != 1 || sent != 0) {
+        return 2;
+    }
+    monitor_tick(); /* the heartbeat */
+    return sent == 1 ? 0 : 5;
 }
 """)
     sources = [project / f for f in CORE_FILES if f.endswith(".c") and f not in
@@ -350,10 +379,10 @@ def test_a_listen_only_drive_sends_nothing(config, logs, tmp_path_factory, tmp_p
     cfg.write_text(CONFIG.read_text().replace("bus:\n", "bus:\n  transmit: false\n", 1))
     project = tmp_path_factory.mktemp("dc_motor-listen")
     assert main(["codegen", str(cfg), "-o", str(project)]) == 0
-    assert "NULL, {" in (project / "cfdi_tables.c").read_text()  # no FDI_FAULT tables
+    assert ".fault = { NULL," in (project / "cfdi_tables.c").read_text()  # no tables to send
     subprocess.run(["make", "-s", "-C", str(project), "host"], check=True, capture_output=True)
     got = _run(project, logs["dc_motor_consecutive-clean.log"])
-    assert got["detections"] and got["sent"] == [] and got["frames_sent"] == 0
+    assert got["faults"] and got["sent"] == [] and got["frames_sent"] == 0
 
 
 @pytest.mark.parametrize(("config_name", "field"), [
@@ -420,8 +449,8 @@ def test_the_cortex_m4f_image_on_qemu_prints_what_the_host_float32_build_does(
                                          f"LOG={log}"], capture_output=True, text=True,
                                         check=True, timeout=600).stdout)
     insns = counted.pop("instructions")
-    assert counted["detections"] and counted["samples"] > 1000
-    assert [f["kind"] for f in counted["faults"]] == ["named", "accepted"]  # diagnosed too
+    assert counted["detections"] == 4 and counted["samples"] > 1000
+    assert [f["kind"] for f in counted["faults"]] == ["actuator", "sensor", "sensor"]
     assert insns["per_monitored_sample"] <= 20_000, insns  # the steady state
     assert insns["worst_frame"] <= 200_000, insns  # an alarm, a diagnosed sample
     symbols = subprocess.run(["arm-none-eabi-nm", str(project / "build" / "cortex-m4f" /

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from canfdi.core import kernel
+from canfdi.core.kernel import info_work
 from canfdi.methods.parity.hypotheses import (
     Hypothesis,
     information_increments,
@@ -93,7 +94,7 @@ def test_buffers_of_the_wrong_size_are_refused():
     bank, _hyps, cols, d, onsets, k, U, rn, gamma = _case(3, 2, 1, 3, 2, 4)
     H, K, n = len(cols), len(onsets), len(k)
     out = [np.zeros((H, K, d, d)), np.zeros((H, K, d)), np.zeros((H, K, d, d)), np.zeros(1),
-           np.zeros(1, dtype=np.int64), np.zeros((3 * 3 + 2 * d + 1) * d)]
+           np.zeros(1, dtype=np.int64), np.zeros(info_work(3, d, 2, 1, H))]
     args = [2, 1, 3, 2, bank.Gz, bank.Gu, bank.sigma, H, d, cols, K, onsets, n, k, U, rn, gamma]
     _ckernel.info_block(*args, *out)  # the right sizes pass
     for i, bad in ((4, bank.Gz[:1]), (15, rn[:1]), (16, gamma[:1])):

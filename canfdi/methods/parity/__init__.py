@@ -20,12 +20,14 @@ from canfdi.core.residuals import ResidualBank
 from canfdi.core.settings import ConfigError, MonitorConfig
 from canfdi.methods import EstimateHistory, Method
 from canfdi.methods.parity.diagnoser import ParityDiagnoser, ParitySettings
+from canfdi.methods.parity.ctables import lagged_steady
 from canfdi.methods.parity.history import estimate_history
 from canfdi.methods.parity.signatures import DRIFTS, signature_columns
 from canfdi.methods.parity.thresholds import (
     calibrate_thresholds,
     lagged_covariance,
     long_run_covariance,
+    noise_factors,
 )
 
 __all__ = ["METHOD", "ParityDiagnoser", "ParitySettings", "build", "calibrate_thresholds"]
@@ -80,13 +82,19 @@ def c_tables(config: MonitorConfig) -> dict:
                                                   "set it false for the MCU")
     diagnoser = build(config)
     bank = diagnoser.bank
+    meas = (config.design.measurement_std if config.design.measurement_std is not None
+            else np.ones(bank.q))
+    diag = diagnoser.c_tables()
+    noise = noise_factors(bank, meas)
+    diag["noise"] = noise
+    diag["lagged"]["steady"] = lagged_steady(bank, diag["lagged"]["cols"], noise)
     return {"coef": np.asarray(bank.blocks, dtype=float),
             "uses": np.asarray(bank.uses, dtype=np.uint8),
             "sigma": np.asarray(bank.sigma, dtype=float),
             "delta": np.full(bank.m, float(diagnoser.settings.drift)),
             "h": np.asarray(diagnoser.thresholds, dtype=float).reshape(bank.m),
             "residual_names": tuple(diagnoser.residual_names),
-            "diag": diagnoser.c_tables()}
+            "diag": diag}
 
 
 def describe(config: MonitorConfig) -> dict:

@@ -674,14 +674,35 @@ class ParityDiagnoser(DetectorBacked):
         """What a diagnosis reads, for the C drive loop (canfdi codegen, drive.h's
         cfdi_diag_tables): the hypotheses' decision table (decide.HypothesisTable) and
         regressor columns, the bank's signatures, the long-run covariance, the noise units
-        at the configured noise, and the settings."""
+        at the configured noise, and the settings; the columns and pairs the events' lagged
+        middles read (ctables.lagged_columns), the tracking's tables, each sensor's twins in
+        the order its events list them (`_twin_ratios`), the own-fault quantiles, and how far
+        back a diagnosis with compensated channels looks (LOOKBACK)."""
+        from canfdi.methods.parity import ctables
+
         s = self.settings
+        H = len(self.hypotheses)
+        position = {h: i for i, h in enumerate(self.hypotheses)}
+        twin_order = np.full((H, H), -1, dtype=np.int32)
+        twin_ratio = np.zeros((H, H))
+        for i, h in enumerate(self.hypotheses):
+            if h.target == "sensor":
+                for n, (g, ratio) in enumerate(self._twin_ratios(h.index)):
+                    twin_order[i, n], twin_ratio[i, n] = position[g], ratio
+        channels = {("actuator" if h.target == "actuator_bias" else h.target, h.index)
+                    for h in self.hypotheses if h.target != "sensors"}
         return {"table": self._table, "columns": self._columns, "d": self.d,
                 "Gz": np.asarray(self.bank.Gz, dtype=float),
                 "Gu": np.asarray(self.bank.Gu, dtype=float),
                 "gamma": np.asarray(self.tracker.gamma, dtype=float),
                 "units": unit_table(self.bank, self.hypotheses, self.d, self._projection),
-                "settings": s, "recent": self._recent.capacity}
+                "settings": s, "recent": self._recent.capacity,
+                "lagged": ctables.lagged_columns(self._columns, self._table.n_params),
+                "track": ctables.tracking_tables(self.bank, self.tracker.gamma, self.hypotheses,
+                                                 self.tracker.precise, self._projection),
+                "own_chi2": ctables.own_fault_chi2(), "twin_order": twin_order,
+                "twin_ratio": twin_ratio, "earlier_lookback": LOOKBACK,
+                "max_earlier": len(channels)}
 
     @property
     def named(self) -> bool:
@@ -733,22 +754,32 @@ class ParityDiagnoser(DetectorBacked):
     def _sensor_twins(self, j: int, bias: float) -> tuple[dict, ...]:
         """Sensors whose bias shows in the residuals exactly like sensor j's, with the bias
         that would explain the data (their signature is a multiple of sensor j's)."""
-        h = next((g for g in self.hypotheses if g.target == "sensor" and g.index == j), None)
-        if h is None or not self._twins[h]:
+        twins = self._twin_ratios(j)
+        if not twins:
             return ()
-        gj = self.bank.Gz[j].ravel()
         out = [{"target": "sensor", "index": j, "name": self.design.output_names[j],
                 "estimates": {"bias": bias}}]
-        # (An actuator's bias-only variant shares its signature: list the actuator once.)
+        for g, ratio in twins:
+            out.append({"target": g.target, "index": g.index, "name": g.name,
+                        "estimates": {"lambda" if g.target == "actuator" else "bias":
+                                      bias * ratio}})
+        return tuple(out)
+
+    def _twin_ratios(self, j: int) -> list[tuple[Hypothesis, float]]:
+        """Sensor j's twins by kind and index (an actuator once: its bias-only variant shares
+        its signature), each with the size per unit of sensor j's bias that explains the data
+        as well: an actuator twin's lambda enters through Gu as a sensor bias does through
+        Gz. [] when sensor j has no hypothesis or no twin."""
+        h = next((g for g in self.hypotheses if g.target == "sensor" and g.index == j), None)
+        if h is None or not self._twins[h]:
+            return []
+        gj = self.bank.Gz[j].ravel()
+        out = []
         for g in sorted((g for g in self._twins[h] if g.target != "actuator_bias"),
                         key=lambda g: (g.target, g.index)):
-            # An actuator twin's bias lambda enters through Gu as a sensor bias does through Gz.
-            actuator = g.target == "actuator"
-            gt = (self.bank.Gu if actuator else self.bank.Gz)[g.index].ravel()
-            ratio = float(gt @ gj) / float(gt @ gt)
-            out.append({"target": g.target, "index": g.index, "name": g.name,
-                        "estimates": {"lambda" if actuator else "bias": bias * ratio}})
-        return tuple(out)
+            gt = (self.bank.Gu if g.target == "actuator" else self.bank.Gz)[g.index].ravel()
+            out.append((g, float(gt @ gj) / float(gt @ gt)))
+        return out
 
     def _leftover(self, target: str, index: int, cost_k: np.ndarray, kb: int) -> bool:
         """Whether a diagnosis of a compensated channel finds what its latest fault's estimate
