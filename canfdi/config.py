@@ -49,6 +49,9 @@ Layout::
       isolation_margin: 50.0
       max_fit_variance: 2.25       # accept only fits leaving about noise (a spike or a
                                    # noisier drive: no; the watchdog's factor squared)
+      lookback: 256                # with channels compensated, samples before the change
+                                   # point a diagnosis fits too (a leftover acts from its
+                                   # fault's onset, a new fault from its own)
     output_error: {...}            # the output_error method's own section
     uio: {...}                     # the uio method's own section
     recording:                     # optional; MCAP logs of `canfdi run`
@@ -142,7 +145,8 @@ _IDENTIFICATION = {"min_samples": Option(int, 1, 10**7), "max_samples": Option(i
                    "settle_rel_std": Option(float, 1e-9, 1.0),
                    "settle_noise": Option(float, 0.0, 10.0),
                    "isolation_margin": Option(float, 0.0, 1e12),
-                   "max_fit_variance": Option(float, 1.0, 1e12)}
+                   "max_fit_variance": Option(float, 1.0, 1e12),
+                   "lookback": Option(int, 0, 10**7)}
 _WATCHDOG = {"enabled": Option(bool), "factor": Option(float, 1.01, 100.0),
              "block": Option(int, 10, 10**6), "blocks": Option(int, 1, 1000)}
 _RECORDING = {"directory": Option(str), "rotate_mib": Option(float, 0.01, 1e7),

@@ -472,6 +472,7 @@ class IdentificationConfig:
     settle_noise: float = 0.2
     isolation_margin: float = 50.0
     max_fit_variance: float = 2.25
+    lookback: int = 256
 
 
 @dataclass(frozen=True)

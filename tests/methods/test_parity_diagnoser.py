@@ -9,7 +9,7 @@ import pytest
 
 from canfdi.config import load_config
 from canfdi.core.protocol import DIAGNOSE
-from canfdi.core.records import Sample, compensated
+from canfdi.core.records import Sample, compensated, fault_onset
 from canfdi.firmware_sim.scenario import parse_scenario
 from canfdi.firmware_sim.simulate import simulate
 from canfdi.methods import build_diagnoser
@@ -337,3 +337,33 @@ def test_a_copy_runs_apart_from_its_original():
     events += feed(diagnoser, (run, n, run), cut, n)
     assert events == reference
     assert twin_events == spliced
+
+
+@pytest.mark.parametrize("lookback", [0, 40, 128, 256])
+def test_a_diagnosis_with_a_channel_compensated_looks_back_identification_lookback(lookback):
+    """identification.lookback sets how far before its first onset tried a diagnosis with a
+    channel compensated fits too: the samples it absorbs at its alarm are those kept from
+    max(the channel's fault's onset, the first onset - lookback) to the alarm, and no more."""
+    ident = dataclasses.replace(CONFIG.identification, lookback=lookback)
+    config = dataclasses.replace(_page_hinkley_alone(CONFIG), identification=ident)
+    faults = [{"target": "sensor", "index": 1, "onset": 5.0, "bias": 0.5},
+              {"target": "sensor", "index": 1, "onset": 14.0, "bias": 0.3}]
+    run = simulate(_scenario(faults, duration=20.0))
+    diagnoser = build_diagnoser(config)
+    assert diagnoser.settings.lookback == lookback
+    assert diagnoser.c_tables()["earlier_lookback"] == lookback
+    absorbed = []
+    for i in range(len(run.k)):
+        events = diagnoser.update(Sample(k=int(run.k[i]), timestamp_ns=int(run.t[i] * 1e9),
+                                         u=run.u_c[i], z=run.z[i]))
+        if any(e.kind == "detected" for e in events) and diagnoser.compensation:
+            d = diagnoser._diag
+            earlier = fault_onset(diagnoser.compensation, "sensor", 1)
+            assert int(d.onsets[0]) == earlier  # the one channel compensated, its onset first
+            first = int(d.onsets[1])
+            absorbed.append((int(d.info.n), earlier, first, int(run.k[i])))
+    assert absorbed, "the second fault was never detected"
+    n, earlier, first, k = absorbed[0]
+    start = max(earlier, first - lookback)
+    assert earlier < first
+    assert n == k - start + 1  # every sample from start to the alarm, both included

@@ -19,8 +19,8 @@ from canfdi.core.records import FaultEvent
 from canfdi.core.residuals import ResidualBank
 from canfdi.core.settings import ConfigError, MonitorConfig
 from canfdi.methods import EstimateHistory, Method
-from canfdi.methods.parity.diagnoser import ParityDiagnoser, ParitySettings
 from canfdi.methods.parity.ctables import lagged_steady
+from canfdi.methods.parity.diagnoser import ParityDiagnoser, ParitySettings
 from canfdi.methods.parity.history import estimate_history
 from canfdi.methods.parity.signatures import DRIFTS, signature_columns
 from canfdi.methods.parity.thresholds import (
@@ -43,7 +43,7 @@ def parse_options(section: Mapping[str, Any] | None, config: MonitorConfig) -> P
         min_samples=ident.min_samples, max_samples=ident.max_samples,
         settle_rel_std=ident.settle_rel_std, settle_noise=ident.settle_noise,
         isolation_margin=ident.isolation_margin,
-        max_fit_variance=ident.max_fit_variance,
+        max_fit_variance=ident.max_fit_variance, lookback=ident.lookback,
         signature_drifts=DRIFTS if config.detection.signatures else (),
     )
 

@@ -94,12 +94,6 @@ from canfdi.methods.parity.tracking import AcceptedFaultTracker, Tracked
 
 __all__ = ["Diagnosis", "ParityDiagnoser", "ParitySettings"]
 
-LOOKBACK = 256
-"""Samples before the change point a diagnosis also fits when channels are compensated: over
-them a compensated channel's leftover (acting from its fault's onset) and a new fault (acting
-from its own) differ."""
-
-
 @dataclass(frozen=True)
 class ParitySettings:
     """Detection and acceptance settings (the config's detection: and identification:).
@@ -125,6 +119,12 @@ class ParitySettings:
     signature_drifts : the drift ladder of the signature CUSUMs run beside the residuals'
         Page-Hinkley (canfdi.methods.parity.signatures, e.g. its DRIFTS); () (the default:
         the config's detection.signatures false) runs Page-Hinkley alone.
+    lookback : samples before the first onset tried that a diagnosis also fits when channels
+        are compensated (the config's identification.lookback): over them a compensated
+        channel's leftover (acting from its fault's onset) and a new fault (acting from its
+        own) differ. A drive's MCU keeps them all in its memory and absorbs them between the
+        alarm and the first decision, so a smaller value there buys memory and time
+        (docs/howto/mcu.md).
 
     Examples
     --------
@@ -145,6 +145,7 @@ class ParitySettings:
     prior_precision: float = 1e-8
     max_fit_variance: float = 2.25
     signature_drifts: tuple[float, ...] = ()
+    lookback: int = 256
 
 
 @dataclass(frozen=True)
@@ -508,7 +509,7 @@ class ParityDiagnoser(DetectorBacked):
         earlier = sorted({o for c in self.compensation
                           if (o := fault_onset(self.compensation, c.target, c.index)) is not None
                           and o < onsets[0]})
-        start = max(earlier[0], onsets[0] - LOOKBACK) if earlier else onsets[0]
+        start = max(earlier[0], onsets[0] - s.lookback) if earlier else onsets[0]
         self._start_diagnosis(k, earlier + onsets)
         kept = list(self._recent.since(start))
         if kept:
@@ -677,7 +678,7 @@ class ParityDiagnoser(DetectorBacked):
         at the configured noise, and the settings; the columns and pairs the events' lagged
         middles read (ctables.lagged_columns), the tracking's tables, each sensor's twins in
         the order its events list them (`_twin_ratios`), the own-fault quantiles, and how far
-        back a diagnosis with compensated channels looks (LOOKBACK)."""
+        back a diagnosis with compensated channels looks (settings.lookback)."""
         from canfdi.methods.parity import ctables
 
         s = self.settings
@@ -701,7 +702,7 @@ class ParityDiagnoser(DetectorBacked):
                 "track": ctables.tracking_tables(self.bank, self.tracker.gamma, self.hypotheses,
                                                  self.tracker.precise, self._projection),
                 "own_chi2": ctables.own_fault_chi2(), "twin_order": twin_order,
-                "twin_ratio": twin_ratio, "earlier_lookback": LOOKBACK,
+                "twin_ratio": twin_ratio, "earlier_lookback": s.lookback,
                 "max_earlier": len(channels)}
 
     @property
