@@ -144,8 +144,8 @@ PyDoc_STRVAR(decode_block_doc,
 "decode_block(tables, n, id, dlc, flags, data, long_row, longdata, n_long, status, slot,\n"
 "             values, counters)\n\n"
 "Check and decode n frames from a drive's tables (cfdi_decode_block). tables: the tuple\n"
-"(std_entry, ext_id, ext_entry, n_ext, entry, n_entries, n_slots, e2e_spec, e2e_bytes,\n"
-"n_profiles, sig_int, sig_real, n_signals, ids_int, ids_real, n_ids, width) of\n"
+"(std_id, std_entry, n_std, ext_id, ext_entry, n_ext, entry, n_entries, n_slots, e2e_spec,\n"
+"e2e_bytes, n_profiles, sig_int, sig_real, n_signals, ids_int, ids_real, n_ids, width) of\n"
 "canfdi.bus.ctables.BusTables; the frames' id (n,) uint32, dlc and flags (n,) uint8, data\n"
 "(n, 8) uint8, long_row (n,) int32, longdata (n_long, 64) uint8; status (n,) int8, slot (n,)\n"
 "int16, values (n, width) float64 and counters (n,) int64 written.");
@@ -153,9 +153,10 @@ PyDoc_STRVAR(decode_block_doc,
 static PyObject *decode_block(PyObject *self, PyObject *args)
 {
     PyObject *tables, *oid, *odlc, *oflags, *odata, *olr, *old, *ost, *osl, *ova, *oco;
-    PyObject *t_std, *t_eid, *t_eent, *t_ent, *t_spec, *t_bytes, *t_si, *t_sr, *t_ii, *t_ir;
-    Py_ssize_t n, n_long, n_ext, n_entries, n_slots, n_profiles, n_signals, n_ids, width;
-    held_buffer b[21];
+    PyObject *t_sid, *t_std, *t_eid, *t_eent, *t_ent, *t_spec, *t_bytes, *t_si, *t_sr, *t_ii;
+    PyObject *t_ir;
+    Py_ssize_t n, n_long, n_std, n_ext, n_entries, n_slots, n_profiles, n_signals, n_ids, width;
+    held_buffer b[22];
     cfdi_bus bus;
     int status;
     (void)self;
@@ -165,20 +166,22 @@ static PyObject *decode_block(PyObject *self, PyObject *args)
                           &oflags, &odata, &olr, &old, &n_long, &ost, &osl, &ova, &oco)) {
         return NULL;
     }
-    if (!PyArg_ParseTuple(tables, "OOOnOnnOOnOOnOOnn", &t_std, &t_eid, &t_eent, &n_ext, &t_ent,
-                          &n_entries, &n_slots, &t_spec, &t_bytes, &n_profiles, &t_si, &t_sr,
-                          &n_signals, &t_ii, &t_ir, &n_ids, &width)) {
+    if (!PyArg_ParseTuple(tables, "OOnOOnOnnOOnOOnOOnn", &t_sid, &t_std, &n_std, &t_eid, &t_eent,
+                          &n_ext, &t_ent, &n_entries, &n_slots, &t_spec, &t_bytes, &n_profiles,
+                          &t_si, &t_sr, &n_signals, &t_ii, &t_ir, &n_ids, &width)) {
         return NULL;
     }
     if (!sizes_ok(n, 64, 8) || !sizes_ok(n_long, 64, 1) || !sizes_ok(n, width, 8)
-        || !sizes_ok(n_ext, 8, 1) || !sizes_ok(n_entries, CFDI_ENTRY_INTS, 8)
+        || !sizes_ok(n_std, 8, 1) || !sizes_ok(n_ext, 8, 1)
+        || !sizes_ok(n_entries, CFDI_ENTRY_INTS, 8)
         || !sizes_ok(n_profiles, CFDI_E2E_INTS + CFDI_E2E_BYTES, 4)
         || !sizes_ok(n_signals, CFDI_SIG_INTS + CFDI_SIG_REALS, 8) || !sizes_ok(n_ids, 8, 1)
         || n_slots < 0 || n_slots > n_entries) {
         PyErr_SetString(PyExc_ValueError, "decode_block: sizes do not fit");
         return NULL;
     }
-    if (take(t_std, &b[0], 0, 2048 * 4, "std_entry") < 0
+    if (take(t_sid, &b[21], 0, n_std * 8, "std_id") < 0
+        || take(t_std, &b[0], 0, n_std * 4, "std_entry") < 0
         || take(t_eid, &b[1], 0, n_ext * 8, "ext_id") < 0
         || take(t_eent, &b[2], 0, n_ext * 4, "ext_entry") < 0
         || take(t_ent, &b[3], 0, n_entries * CFDI_ENTRY_INTS * 8, "entry") < 0
@@ -195,10 +198,12 @@ static PyObject *decode_block(PyObject *self, PyObject *args)
         || take(ost, &b[16], 1, n, "status") < 0 || take(osl, &b[17], 1, n * 2, "slot") < 0
         || take(ova, &b[18], 1, n * width * 8, "values") < 0
         || take(oco, &b[19], 1, n * 8, "counters") < 0) {
-        release(b, 21);
+        release(b, 22);
         return NULL;
     }
+    bus.std_id = (const int64_t *)b[21].view.buf;
     bus.std_entry = (const int32_t *)b[0].view.buf;
+    bus.n_std = (size_t)n_std;
     bus.ext_id = (const int64_t *)b[1].view.buf;
     bus.ext_entry = (const int32_t *)b[2].view.buf;
     bus.n_ext = (size_t)n_ext;
@@ -223,7 +228,7 @@ static PyObject *decode_block(PyObject *self, PyObject *args)
                                (int8_t *)b[16].view.buf, (int16_t *)b[17].view.buf,
                                (double *)b[18].view.buf, (int64_t *)b[19].view.buf);
     Py_END_ALLOW_THREADS
-    release(b, 21);
+    release(b, 22);
     if (status != CFDI_OK) {
         PyErr_Format(PyExc_ValueError, "decode_block: the tables are malformed (status %d)",
                      status);

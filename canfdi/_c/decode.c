@@ -30,7 +30,8 @@ static int64_t signal_end(int64_t start, int64_t n, int big)
 int cfdi_bus_check(const cfdi_bus *bus)
 {
     size_t e, s, i;
-    if (bus == NULL || bus->std_entry == NULL || bus->entry == NULL
+    if (bus == NULL || bus->entry == NULL
+        || (bus->n_std && (bus->std_id == NULL || bus->std_entry == NULL))
         || (bus->n_ext && (bus->ext_id == NULL || bus->ext_entry == NULL))
         || (bus->n_profiles && (bus->e2e_spec == NULL || bus->e2e_bytes == NULL))
         || (bus->n_signals && (bus->sig_int == NULL || bus->sig_real == NULL))
@@ -38,8 +39,9 @@ int cfdi_bus_check(const cfdi_bus *bus)
         || bus->n_slots > bus->n_entries || bus->n_entries > INT32_MAX) {
         return CFDI_EBADARG;
     }
-    for (i = 0; i < 2048; i++) {
-        if (bus->std_entry[i] < -1 || bus->std_entry[i] >= (int64_t)bus->n_entries) {
+    for (i = 0; i < bus->n_std; i++) {
+        if (bus->std_entry[i] < 0 || bus->std_entry[i] >= (int64_t)bus->n_entries
+            || (i > 0 && bus->std_id[i] <= bus->std_id[i - 1])) {
             return CFDI_ESHAPE;
         }
     }
@@ -309,19 +311,18 @@ static int8_t decode_slot(const cfdi_bus *bus, size_t e, const uint8_t *p, doubl
 
 static int32_t entry_of(const cfdi_bus *bus, uint32_t id, int extended)
 {
-    size_t lo = 0, hi = bus->n_ext;
-    if (!extended) {
-        return id < 2048 ? bus->std_entry[id] : -1;
-    }
+    const int64_t *ids = extended ? bus->ext_id : bus->std_id;
+    const int32_t *entries = extended ? bus->ext_entry : bus->std_entry;
+    size_t lo = 0, n = extended ? bus->n_ext : bus->n_std, hi = n;
     while (lo < hi) { /* the first known ID >= id */
         size_t mid = lo + (hi - lo) / 2;
-        if (bus->ext_id[mid] < (int64_t)id) {
+        if (ids[mid] < (int64_t)id) {
             lo = mid + 1;
         } else {
             hi = mid;
         }
     }
-    return lo < bus->n_ext && bus->ext_id[lo] == (int64_t)id ? bus->ext_entry[lo] : -1;
+    return lo < n && ids[lo] == (int64_t)id ? entries[lo] : -1;
 }
 
 int cfdi_decode_block(const cfdi_bus *bus, size_t n, const uint32_t *id, const uint8_t *dlc,

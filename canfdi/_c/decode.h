@@ -80,7 +80,9 @@ enum {
 
 /* A drive's tables. Every array is the caller's; sizes in rows. */
 typedef struct {
-    const int32_t *std_entry;  /* (2048,) the entry of each 11-bit ID, -1 none */
+    const int64_t *std_id;     /* (n_std,) the 11-bit IDs known, ascending */
+    const int32_t *std_entry;  /* (n_std,) their entries */
+    size_t n_std;
     const int64_t *ext_id;     /* (n_ext,) the 29-bit IDs known, ascending */
     const int32_t *ext_entry;  /* (n_ext,) their entries */
     size_t n_ext;

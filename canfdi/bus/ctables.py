@@ -18,7 +18,6 @@ import numpy as np
 
 from canfdi.bus.codec import MessageLayout, _float_at_least, _float_at_most
 from canfdi.bus.e2e import E2EProfile
-from canfdi.bus.nodeid import MAX_STANDARD_ID
 
 __all__ = ["DECODE_H", "ENCODE_H", "BusTables", "MessageTables", "build_tables",
            "message_tables"]
@@ -84,7 +83,8 @@ class EntrySpec:
 class BusTables:
     """The arrays of a ``cfdi_bus`` (canfdi/_c/decode.h names each column), C-contiguous.
 
-    std_entry (2048,) int32; ext_id (X,) int64 ascending, ext_entry (X,) int32; entry
+    std_id (N,) int64 ascending, std_entry (N,) int32: the 11-bit IDs and their entries; ext_id
+    (X,) int64 ascending, ext_entry (X,) int32: the 29-bit ones; entry
     (E, CFDI_ENTRY_INTS) int64 with n_slots of them slots; e2e_spec (P, CFDI_E2E_INTS) int32,
     e2e_bytes (P, CFDI_E2E_BYTES) uint8; sig_int (S, CFDI_SIG_INTS) int64, sig_real
     (S, CFDI_SIG_REALS) float64; ids_int (I,) int64, ids_real (I,) float64; width: the values'
@@ -109,6 +109,7 @@ class BusTables:
     True
     """
 
+    std_id: np.ndarray
     std_entry: np.ndarray
     ext_id: np.ndarray
     ext_entry: np.ndarray
@@ -125,7 +126,8 @@ class BusTables:
     @property
     def c_args(self) -> tuple:
         """The tables as canfdi._ckernel.decode_block takes them."""
-        return (self.std_entry, self.ext_id, self.ext_entry, len(self.ext_id), self.entry,
+        return (self.std_id, self.std_entry, len(self.std_id), self.ext_id, self.ext_entry,
+                len(self.ext_id), self.entry,
                 len(self.entry), self.n_slots, self.e2e_spec, self.e2e_bytes,
                 len(self.e2e_spec), self.sig_int, self.sig_real, len(self.sig_int),
                 self.ids_int, self.ids_real, len(self.ids_int), self.width)
@@ -149,14 +151,11 @@ def build_tables(entries: Sequence[EntrySpec], slots: Sequence[SlotSpec],
     >>> config = MonitorConfig.of_bus("dc_motor", ["V"], ["i_f", "i_a", "i_f_plus_i_a", "omega_r"],
     ...                               BusConfig(dbc="motor_drive"))
     >>> tables = BusMap.from_config(config).c_tables()
-    >>> int(tables.std_entry[0x105]), tables.n_slots, tables.width, tables.sig_int.shape
-    (1, 3, 3, (5, 11))
+    >>> int(tables.std_entry[list(tables.std_id).index(0x105)]), tables.n_slots, tables.width
+    (1, 3, 3)
     """
-    std = np.full(MAX_STANDARD_ID + 1, -1, dtype=np.int32)
+    std = sorted((fid, e) for (fid, extended), e in entry_of.items() if not extended)
     ext = sorted((fid, e) for (fid, extended), e in entry_of.items() if extended)
-    for (fid, extended), e in entry_of.items():
-        if not extended:
-            std[fid] = e
     profiles: list[tuple[np.ndarray, np.ndarray]] = []
     seen: dict[tuple[bytes, bytes], int] = {}
     entry = np.zeros((len(entries), _H["CFDI_ENTRY_INTS"]), dtype=np.int64)
@@ -208,7 +207,8 @@ def build_tables(entries: Sequence[EntrySpec], slots: Sequence[SlotSpec],
         row[_H["CFDI_ENTRY_COLUMNS"]] = len(slot.fields)
         row[_H["CFDI_ENTRY_CHECKED"]] = int(slot.checked)
     return BusTables(
-        std_entry=std,
+        std_id=np.array([fid for fid, _ in std], dtype=np.int64),
+        std_entry=np.array([e for _, e in std], dtype=np.int32),
         ext_id=np.array([fid for fid, _ in ext], dtype=np.int64),
         ext_entry=np.array([e for _, e in ext], dtype=np.int32),
         entry=entry, n_slots=len(slots),

@@ -90,11 +90,13 @@ static int run_ph(void)
 static int run_decode(void)
 {
     cfdi_bus bus;
-    size_t n_ext = (size_t)read_i64(), n_entries = (size_t)read_i64();
+    size_t n_std = (size_t)read_i64(), n_ext = (size_t)read_i64();
+    size_t n_entries = (size_t)read_i64();
     size_t n_slots = (size_t)read_i64(), n_profiles = (size_t)read_i64();
     size_t n_signals = (size_t)read_i64(), n_ids = (size_t)read_i64();
     size_t width = (size_t)read_i64(), n = (size_t)read_i64(), n_long = (size_t)read_i64();
-    int32_t *std_entry = read_block(2048, sizeof *std_entry);
+    int64_t *std_id = read_block(n_std, sizeof *std_id);
+    int32_t *std_entry = read_block(n_std, sizeof *std_entry);
     int64_t *ext_id = read_block(n_ext, sizeof *ext_id);
     int32_t *ext_entry = read_block(n_ext, sizeof *ext_entry);
     int64_t *entry = read_block(n_entries * CFDI_ENTRY_INTS, sizeof *entry);
@@ -113,7 +115,9 @@ static int run_decode(void)
     double *values = malloc(n * width > 0 ? n * width * sizeof *values : 1);
     int64_t *counters = malloc(n ? n * sizeof *counters : 1), rc;
 
+    bus.std_id = std_id;
     bus.std_entry = std_entry;
+    bus.n_std = n_std;
     bus.ext_id = ext_id;
     bus.ext_entry = ext_entry;
     bus.n_ext = n_ext;
@@ -139,6 +143,7 @@ static int run_decode(void)
         fwrite(values, sizeof *values, n * width, stdout);
         fwrite(counters, sizeof *counters, n, stdout);
     }
+    free(std_id);
     free(std_entry);
     free(ext_id);
     free(ext_entry);
