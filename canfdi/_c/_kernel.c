@@ -459,7 +459,8 @@ static PyObject *info_block(PyObject *self, PyObject *args)
         || take(o[11], &b[11], 1, H * K * d * d * R, "meat") < 0
         || take(o[12], &b[12], 1, R, "rr") < 0
         || take(o[13], &b[13], 1, 8, "n_eq") < 0
-        || take(o[14], &b[14], 1, (Py_ssize_t)CFDI_INFO_WORK(m, d, S, p, H) * R, "work") < 0) {
+        || take(o[14], &b[14], 1, (Py_ssize_t)CFDI_INFO_WORK(m, d, S, p, H, H * d) * R,
+                "work") < 0) {
         release(b, 15);
         return NULL;
     }
@@ -473,7 +474,8 @@ static PyObject *info_block(PyObject *self, PyObject *args)
                              (const cfdi_real *)b[7].view.buf, (const cfdi_real *)b[8].view.buf,
                              (cfdi_real *)b[9].view.buf, (cfdi_real *)b[10].view.buf,
                              (cfdi_real *)b[11].view.buf, (cfdi_real *)b[12].view.buf,
-                             (int64_t *)b[13].view.buf, (cfdi_real *)b[14].view.buf);
+                             (int64_t *)b[13].view.buf, (cfdi_real *)b[14].view.buf,
+                             (size_t)(b[14].view.len / R));
     Py_END_ALLOW_THREADS
     release(b, 15);
     if (status != CFDI_OK) {

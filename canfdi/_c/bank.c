@@ -110,6 +110,25 @@ static void tile(const cfdi_real *x, size_t width, const cfdi_real *coef, const 
     }
 }
 
+int cfdi_fir_row(const cfdi_real *x, size_t width, const cfdi_real *coef, const uint8_t *uses,
+                 size_t S, size_t m, cfdi_real *out)
+{
+    size_t e, last = (S + 1) * width;
+    int clean = 1;
+    if (x == NULL || coef == NULL || uses == NULL || out == NULL || width == 0 || m == 0) {
+        return CFDI_EBADARG;
+    }
+    for (e = 0; e < last && clean; e++) {
+        clean = !isnan(x[e]);
+    }
+    if (clean) {
+        clean_row(x, width, coef, S, m, out);
+    } else {
+        tile(x, width, coef, uses, S, m, 0, 1, 0, out);
+    }
+    return CFDI_OK;
+}
+
 int cfdi_fir_block(const cfdi_real *x, size_t rows, size_t width, const cfdi_real *coef,
                    const uint8_t *uses, size_t S, size_t m, cfdi_real *out)
 {
@@ -124,6 +143,9 @@ int cfdi_fir_block(const cfdi_real *x, size_t rows, size_t width, const cfdi_rea
         return CFDI_ESHAPE;
     }
     n = rows - S;
+    if (n == 1) {
+        return cfdi_fir_row(x, width, coef, uses, S, m, out);
+    }
     for (r = 0; r < n; r += count) {
         int clean = 1;
         count = n - r < CFDI_FIR_ROWS ? n - r : CFDI_FIR_ROWS;
@@ -131,9 +153,7 @@ int cfdi_fir_block(const cfdi_real *x, size_t rows, size_t width, const cfdi_rea
         for (e = r * width; e < last && clean; e++) {
             clean = !isnan(x[e]);
         }
-        if (clean && n == 1) {
-            clean_row(x, width, coef, S, m, out);
-        } else if (clean && staged && count == CFDI_FIR_ROWS) {
+        if (clean && staged && count == CFDI_FIR_ROWS) {
             for (row = 0; row < span; row++) {
                 for (col = 0; col < width; col++) {
                     xt[col * span + row] = x[(r + row) * width + col];

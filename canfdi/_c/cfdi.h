@@ -48,6 +48,12 @@ enum {
 int cfdi_fir_block(const cfdi_real *x, size_t rows, size_t width, const cfdi_real *coef,
                    const uint8_t *uses, size_t S, size_t m, cfdi_real *out);
 
+/* The one residual row of a window of S+1 rows (cfdi_fir_block with rows = S+1, the same
+ * sums): a drive loop's, sample by sample, without the block form's staging buffer on the
+ * stack. out: (m,). */
+int cfdi_fir_row(const cfdi_real *x, size_t width, const cfdi_real *coef, const uint8_t *uses,
+                 size_t S, size_t m, cfdi_real *out);
+
 /* The two-sided Page-Hinkley detectors over a block, with change dating
  * (canfdi.core.detect.ChangePointDetector.update_block).
  *
@@ -181,12 +187,13 @@ int cfdi_counter_close(int64_t *state, const double *buffer, size_t width, const
  *         residuals, NaN: no equation.
  * gamma : (m, m) the residuals' long-run covariance.
  * J, meat : (H, K, d, d), h : (H, K, d), rr : (1,), n_eq : (1,): the sums added to.
- * work  : (CFDI_INFO_WORK(m, d, S, p, H)) scratch.
+ * work  : (work_len,) scratch: CFDI_INFO_WORK(m, d, S, p, H, NC) reals at least, NC the distinct
+ *         columns the hypotheses use (H d bounds them; more than 64 parameters need NC 0).
  * Returns CFDI_OK, or a negative status (nothing added) for a null pointer, a zero size or a
  * column outside the bank. */
-#define CFDI_INFO_WORK(m, d, S, p, H) \
-    ((3 * (m) + 2 * (d) + 1) * (d) + ((S) + 1) * (p) + 2 * (m) * (H) * (d) \
-     + 2 * (H) * (d) * (H) * (d) + (H) * (d) + (2 * (H) * (d) * (H) * (d) + (H) * (d)) / 4 + 1)
+#define CFDI_INFO_WORK(m, d, S, p, H, NC) \
+    ((3 * (m) + 2 * (d) + 1) * (d) + ((S) + 1) * (p) + (H) * (2 * (d) * (d) + (d)) \
+     + 3 * (m) * (NC) + 2 * (NC) * (NC) + (NC) + (2 * (NC) * (NC) + (NC)) / 4 + 1)
 #define CFDI_COL_NONE 0   /* beyond the hypothesis' parameters: a zero column */
 #define CFDI_COL_SENSOR 1 /* sensor j's bias: Gz[j] */
 #define CFDI_COL_SCALE 2  /* actuator j's eta - 1: Gu[j] times its command */
@@ -196,7 +203,7 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
                     const int32_t *columns, size_t K, const int64_t *onsets, size_t n,
                     const int64_t *k, const cfdi_real *U, const cfdi_real *rn,
                     const cfdi_real *gamma, cfdi_real *J, cfdi_real *h, cfdi_real *meat,
-                    cfdi_real *rr, int64_t *n_eq, cfdi_real *work);
+                    cfdi_real *rr, int64_t *n_eq, cfdi_real *work, size_t work_len);
 /* The bank's fault signatures as the regressors read them: Gz (q, m, S+1), Gu (p, m, S+1),
  * each residual's noise sigma (m,) and the residuals' long-run covariance gamma (m, m). */
 typedef struct {

@@ -5,8 +5,8 @@
 
 #include "cfdi_io.h"
 
-enum { SYS_OPEN = 0x01, SYS_CLOSE = 0x02, SYS_WRITE0 = 0x04, SYS_READ = 0x06,
-       SYS_GET_CMDLINE = 0x15 };
+enum { SYS_OPEN = 0x01, SYS_CLOSE = 0x02, SYS_WRITE0 = 0x04, SYS_WRITE = 0x05,
+       SYS_READ = 0x06, SYS_GET_CMDLINE = 0x15 };
 
 #define SYST_CSR (*(volatile uint32_t *)0xE000E010u)
 #define SYST_RVR (*(volatile uint32_t *)0xE000E014u)
@@ -85,7 +85,23 @@ void cfdi_io_out(const char *text)
 
 void cfdi_io_err(const char *text)
 {
-    semihost(SYS_WRITE0, (void *)text);
+    /* the host's stderr: ":tt" opened for appending (the semihosting spec's mode 8) */
+    static long handle = -1;
+    uintptr_t block[3];
+    if (handle < 0) {
+        block[0] = (uintptr_t)":tt";
+        block[1] = 8;
+        block[2] = 3;
+        handle = semihost(SYS_OPEN, block);
+    }
+    if (handle < 0) {
+        semihost(SYS_WRITE0, (void *)text); /* (no stderr: the console) */
+        return;
+    }
+    block[0] = (uintptr_t)handle;
+    block[1] = (uintptr_t)text;
+    block[2] = strlen(text);
+    semihost(SYS_WRITE, block);
 }
 
 int cfdi_run_main(void);

@@ -733,13 +733,20 @@ int cfdi_run_main(void)
     uint64_t valid = 0, invalid = 0;
     char *argv[4];
     int argc = 0, first, asc, len;
+    long in_handle;
     size_t i;
     if (cfdi_io_args(&argc, argv, 4) != 0 || argc != 2) {
         cfdi_io_err("usage: cfdi_run LOG (a candump -L .log, or a Vector .asc)\n");
         return 2;
     }
     len = (int)strlen(argv[1]);
-    asc = len >= 4 && strcmp(argv[1] + len - 4, ".asc") == 0;
+    asc = len >= 4 && memcmp(argv[1] + len - 4, ".asc", 4) == 0;
+    in_handle = cfdi_io_open(argv[1]); /* (an error before any output: no half a JSON) */
+    if (in_handle < 0) {
+        cfdi_io_err("cfdi_run: cannot open the log\n");
+        return 2;
+    }
+    cfdi_io_close(in_handle);
     cfdi_io_out("{\"sent\": [");
     if (run_log(&drive, memory, sizeof memory, argv[1], asc, -1, &rs, &n) != 0) {
         return 1;

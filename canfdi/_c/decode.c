@@ -269,25 +269,27 @@ static int8_t decode_slot(const cfdi_bus *bus, size_t e, const uint8_t *p, doubl
     size_t at = (size_t)ENTRY(bus, e, CFDI_ENTRY_SIG_AT);
     size_t count = (size_t)ENTRY(bus, e, CFDI_ENTRY_SIG_COUNT);
     size_t k;
-    raw_value raw[CFDI_SLOT_SIGNALS];
-    uint8_t selected[CFDI_SLOT_SIGNALS];
+    /* (a bit a signal, count <= CFDI_SLOT_SIGNALS == 64; a multiplexer's raw value read again
+     * for each signal it selects: a stack of bytes, not of a raw value a signal, on an MCU) */
+    uint64_t selected = 0;
     for (k = 0; k < count; k++) {
         size_t s = at + k;
         int64_t flags = SIGI(bus, s, CFDI_SIG_FLAGS), parent = SIGI(bus, s, CFDI_SIG_PARENT);
         int64_t col = SIGI(bus, s, CFDI_SIG_COLUMN);
-        raw[k] = signal_raw(bus, s, p);
+        int on;
         if (flags & CFDI_SIGF_NEVER) {
-            selected[k] = 0;
+            on = 0;
         } else if (parent >= 0) {
-            selected[k] = (uint8_t)(selected[parent]
-                                    && mux_selects(bus, at + (size_t)parent, raw[parent],
-                                                   SIGI(bus, s, CFDI_SIG_IDS_AT),
-                                                   SIGI(bus, s, CFDI_SIG_IDS_COUNT)));
+            size_t mux = at + (size_t)parent;
+            on = ((selected >> parent) & 1u)
+                 && mux_selects(bus, mux, signal_raw(bus, mux, p), SIGI(bus, s, CFDI_SIG_IDS_AT),
+                                SIGI(bus, s, CFDI_SIG_IDS_COUNT));
         } else {
-            selected[k] = 1;
+            on = 1;
         }
+        selected |= (uint64_t)on << k;
         if (col >= 0) {
-            row[col] = selected[k] ? signal_physical(bus, s, raw[k]) : (double)NAN;
+            row[col] = on ? signal_physical(bus, s, signal_raw(bus, s, p)) : (double)NAN;
         }
     }
     if (ENTRY(bus, e, CFDI_ENTRY_CHECKED)) {

@@ -74,7 +74,7 @@ enum {
 #define CFDI_SIG_CLIP_HIGH 5
 #define CFDI_SIG_REALS 6
 
-/* The most compiled signals a slot may have (their state lives on the stack). */
+/* The most compiled signals a slot may have (a bit each of a uint64_t on the stack). */
 #define CFDI_SLOT_SIGNALS 64
 #define CFDI_MAX_PAYLOAD 64
 

@@ -166,17 +166,24 @@ typedef struct {
 #define CFDI_MEM_FITS(M, H, D, K, T) \
     (CFDI_FITS_ONLY(H, D, K) > CFDI_TRACK_WORK(M, T) ? CFDI_FITS_ONLY(H, D, K) \
                                                      : CFDI_TRACK_WORK(M, T))
-#define CFDI_MEM_DIAG(W, S, M, P, H, D, K, R, Y, T) \
+/* the scratch of a sample's sums, which an event's walk borrows */
+#define CFDI_MEM_LEND(W, S, M, P, D, NC) \
+    (2u * (S) * ((W) - (P)) * (D) + (M) * ((NC) > (D) ? (NC) : (D)) + 2u * (M) + (D))
+#define CFDI_MEM_WORK(W, S, M, P, H, D, NC) \
+    (CFDI_INFO_WORK(M, D, S, P, H, NC) > CFDI_MEM_LEND(W, S, M, P, D, NC) \
+         ? CFDI_INFO_WORK(M, D, S, P, H, NC) : CFDI_MEM_LEND(W, S, M, P, D, NC))
+#define CFDI_MEM_DIAG(W, S, M, P, H, D, K, R, Y, T, NC) \
     (CFDI_ALIGN8(sizeof(cfdi_real) * ((size_t)(R) + (size_t)(Y)) * (W)) \
      + CFDI_ALIGN8(sizeof(cfdi_real) * ((S) + 1u) * ((W) + (P))) \
-     + CFDI_ALIGN8(sizeof(cfdi_real) * (CFDI_INFO_WORK(M, D, S, P, H) + (D) * (D) * 3u + (D) * 2u)) \
+     + CFDI_ALIGN8(sizeof(cfdi_real) * (CFDI_MEM_WORK(W, S, M, P, H, D, NC) + (D) * (D) * 3u \
+                                        + (D) * 2u)) \
      + CFDI_ALIGN8(8u * (K)) + CFDI_ALIGN8(sizeof(cfdi_real) * CFDI_MEM_FITS(M, H, D, K, T)) \
      + CFDI_ALIGN8(sizeof(cfdi_real) * (2u * (P) + (H))) + CFDI_ALIGN8(8u * (D)) \
      + 2u * CFDI_ALIGN8(8u * (H)) + CFDI_ALIGN8(H) + CFDI_ALIGN8(4u * (H)))
 #define CFDI_DRIVE_MEMORY(W, VW, S, M, P, H, D, K, R, Y, NC, NP, T, X, L) \
     (CFDI_MEM_MONITOR(W, VW, S, M) + CFDI_MEM_TX(X, L) + CFDI_MEM_CHANNELS(W) \
-     + CFDI_MEM_DIAG(W, S, M, P, H, D, K, R, Y, T) \
-     + CFDI_LAGGED_MEMORY(S, (W) - (P), M, NC, NP, K, D) + CFDI_TRACK_MEMORY(M, T, P))
+     + CFDI_MEM_DIAG(W, S, M, P, H, D, K, R, Y, T, NC) \
+     + CFDI_LAGGED_MEMORY(S, (W) - (P), NC, NP, K) + CFDI_TRACK_MEMORY(M, T, P))
 
 /* The compensation: the accepted faults folded in, oldest first (canfdi.core.records'). */
 typedef struct {
@@ -212,6 +219,7 @@ typedef struct {
     int8_t *alarm;
     uint8_t *tx;
     cfdi_real *recent, *history, *window, *U, *work, *fit_scratch;
+    size_t work_len;              /* reals of work */
     int64_t *onsets;
     cfdi_real *J, *meat, *hc; /* (H, K, d, d) twice; (H, K, d + 1): h then the cost */
     cfdi_real *u_abs, *n_u, *cost_h;
@@ -232,7 +240,7 @@ typedef struct {
     uint64_t samples_taken;       /* samples delivered by the clock */
     uint64_t detections;
     /* the queues */
-    size_t tx_head, tx_count;
+    size_t tx_head, tx_count, tx_stride;
     uint64_t tx_dropped;          /* frames the queue had no room for */
     uint64_t counters[3];         /* FDI_FAULT's, FDI_ESTIMATE's, FDI_STATUS's E2E counters */
     cfdi_event events[CFDI_EVENT_QUEUE];
@@ -244,6 +252,7 @@ typedef struct {
     size_t rec_rows, rec_count, rec_next;
     int rec_wrapped, rec_frozen;
     int64_t rec_last_k, rec_offer_k;
+    int64_t win_k;                /* the sample whose window d->window holds (-1: none) */
     size_t hist_rows, hist_count, hist_next;
     int64_t hist_last_k;
     /* the compensation */

@@ -108,13 +108,10 @@ static void increments(size_t m, size_t d, size_t used, const cfdi_real *raw,
     }
 }
 
-/* The steady increments of every hypothesis at once (every onset a window or more before the
- * sample: the first lag 0), from the distinct columns the hypotheses use: each column's sums
- * over the whole window and Gamma times them once, each product of two columns once, the
- * hypotheses' increments gathered from them. The same numbers as `grow` and `increments`
- * hypothesis by hypothesis (the same sums in the same order), made once for all. */
+/* The distinct columns the hypotheses use (at most 64 parameters in all: else hypothesis by
+ * hypothesis), and each hypothesis parameter's. */
 typedef struct {
-    size_t n;                     /* distinct columns */
+    size_t n;
     const int32_t *of[64];        /* each one's (source, channel) */
     unsigned char map[64];        /* each hypothesis parameter's column */
 } distinct_cols;
@@ -144,21 +141,106 @@ static int distinct_of(const int32_t *columns, size_t H, size_t d, distinct_cols
     return 1;
 }
 
+/* The scratch of one sample's increments from the distinct columns at one first lag. */
+typedef struct {
+    size_t NC, m, d;
+    cfdi_real *raw, *phi, *gphi;  /* (m, NC) the columns' sums, regressors, Gamma times them */
+    cfdi_real *info, *mid, *dot;  /* (NC, NC), (NC, NC), (NC,) their products, made once */
+    unsigned char *known;         /* (2 NC NC + NC) which products are made */
+} column_sums;
+
+/* The distinct columns' regressors at the first lag the sums have reached (phi = raw / sigma
+ * on the rows seen, 0 elsewhere) and Gamma times them; no product made yet. */
+static void columns_at(column_sums *cs, const cfdi_real *sigma, const cfdi_real *r,
+                       const cfdi_real *gamma)
+{
+    size_t NC = cs->NC, m = cs->m, row, a, b;
+    for (row = 0; row < m; row++) {
+        for (a = 0; a < NC; a++) {
+            cs->phi[row * NC + a] = r[row] == r[row] ? cs->raw[row * NC + a] / sigma[row] : 0;
+        }
+    }
+    for (row = 0; row < m; row++) {
+        for (a = 0; a < NC; a++) {
+            cfdi_real sum = 0;
+            for (b = 0; b < m; b++) {
+                sum += gamma[row * m + b] * cs->phi[b * NC + a];
+            }
+            cs->gphi[row * NC + a] = sum;
+        }
+    }
+    memset(cs->known, 0, 2 * NC * NC + NC);
+}
+
+/* One hypothesis' increments (inc: [phi^T phi, phi^T Gamma phi, phi^T r], as `increments`
+ * makes them) gathered from the distinct columns' products, each made once. */
+static void gather(column_sums *cs, const unsigned char *map, size_t used, const cfdi_real *r,
+                   cfdi_real *inc)
+{
+    size_t NC = cs->NC, m = cs->m, d = cs->d, a, b, row;
+    for (a = 0; a < used; a++) {
+        size_t ca = map[a];
+        for (b = 0; b < used; b++) {
+            size_t cb = map[b], lo = ca < cb ? ca : cb, hi = ca < cb ? cb : ca;
+            if (!cs->known[lo * NC + hi]) {
+                cfdi_real info = 0;
+                for (row = 0; row < m; row++) {
+                    info += cs->phi[row * NC + ca] * cs->phi[row * NC + cb];
+                }
+                cs->info[lo * NC + hi] = info;
+                cs->known[lo * NC + hi] = 1;
+            }
+            if (!cs->known[NC * NC + ca * NC + cb]) {
+                cfdi_real mid = 0;
+                for (row = 0; row < m; row++) {
+                    mid += cs->phi[row * NC + ca] * cs->gphi[row * NC + cb];
+                }
+                cs->mid[ca * NC + cb] = mid;
+                cs->known[NC * NC + ca * NC + cb] = 1;
+            }
+            inc[a * d + b] = cs->info[lo * NC + hi];
+            inc[d * d + a * d + b] = cs->mid[ca * NC + cb];
+        }
+        if (!cs->known[2 * NC * NC + ca]) {
+            cfdi_real dot = 0;
+            for (row = 0; row < m; row++) {
+                if (r[row] == r[row]) {
+                    dot += cs->phi[row * NC + ca] * r[row];
+                }
+            }
+            cs->dot[ca] = dot;
+            cs->known[2 * NC * NC + ca] = 1;
+        }
+        inc[2 * d * d + a] = cs->dot[ca];
+    }
+}
+
+static void add_to_fit(size_t d, const cfdi_real *inc, cfdi_real *Jo, cfdi_real *mo,
+                       cfdi_real *ho)
+{
+    size_t a;
+    for (a = 0; a < d * d; a++) {
+        Jo[a] += inc[a];
+        mo[a] += inc[d * d + a];
+    }
+    for (a = 0; a < d; a++) {
+        ho[a] += inc[2 * d * d + a];
+    }
+}
+
 int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
                     const cfdi_real *Gu, const cfdi_real *sigma, size_t H, size_t d,
                     const int32_t *columns, size_t K, const int64_t *onsets, size_t n,
                     const int64_t *k, const cfdi_real *U, const cfdi_real *rn,
                     const cfdi_real *gamma, cfdi_real *J, cfdi_real *h, cfdi_real *meat,
-                    cfdi_real *rr, int64_t *n_eq, cfdi_real *work)
+                    cfdi_real *rr, int64_t *n_eq, cfdi_real *work, size_t work_len)
 {
-    size_t i, hyp, o, row, a, b, W = S + 1, NC;
+    size_t i, hyp, o, row, a, W = S + 1, per = 2 * d * d + d;
     cfdi_real *phi = work, *gphi = work + m * d, *raw = work + 2 * m * d,
-              *inc = work + 3 * m * d, *uf = inc + 2 * d * d + d, *cphi = uf + W * p,
-              *cgphi, *cinfo, *cmid, *cdot;
-    unsigned char *known;
+              *inc = work + 3 * m * d, *uf = inc + per, *hinc = uf + W * p, *rest = hinc + H * per;
+    column_sums cs;
     distinct_cols dc;
-    int64_t earliest;
-    int cached_cols, ascending;
+    int ascending = 1, distinct;
     if (Gz == NULL || Gu == NULL || sigma == NULL || columns == NULL || onsets == NULL
         || gamma == NULL || J == NULL || h == NULL || meat == NULL || rr == NULL
         || n_eq == NULL || work == NULL || (n && (k == NULL || U == NULL || rn == NULL))) {
@@ -175,30 +257,31 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
             return CFDI_ESHAPE;
         }
     }
-    cached_cols = distinct_of(columns, H, d, &dc); /* (more than 64 columns: hypothesis by
-                                                     * hypothesis, as the transients are) */
-    NC = dc.n;
-    cgphi = cphi + m * NC;
-    cinfo = cgphi + m * NC;
-    cmid = cinfo + NC * NC;
-    cdot = cmid + NC * NC;
-    known = (unsigned char *)(cdot + NC);
-    earliest = onsets[0];
-    ascending = 1;
     for (o = 1; o < K; o++) {
-        earliest = onsets[o] < earliest ? onsets[o] : earliest;
         ascending &= onsets[o] > onsets[o - 1];
     }
+    /* With the onsets ascending and at most 64 hypothesis parameters, the increments come
+     * from the distinct columns the hypotheses share, made once a first lag for all of them;
+     * otherwise hypothesis by hypothesis. The same sums either way, in the same order. */
+    dc.n = 0;
+    distinct = ascending && distinct_of(columns, H, d, &dc);
+    if (work_len < CFDI_INFO_WORK(m, d, S, p, H, dc.n)) {
+        return CFDI_ESHAPE;
+    }
+    cs.NC = dc.n;
+    cs.m = m;
+    cs.d = d;
+    cs.raw = rest;
+    cs.phi = cs.raw + m * cs.NC;
+    cs.gphi = cs.phi + m * cs.NC;
+    cs.info = cs.gphi + m * cs.NC;
+    cs.mid = cs.info + cs.NC * cs.NC;
+    cs.dot = cs.mid + cs.NC * cs.NC;
+    cs.known = (unsigned char *)(cs.dot + cs.NC);
     for (i = 0; i < n; i++) {
         const cfdi_real *r = rn + i * m, *u = U + i * W * p;
         int64_t present = 0;
-        int steady = cached_cols && first_lag(k[i], earliest, S) == 0;
         size_t upto = K; /* the onsets at or before the sample (the rest add nothing) */
-        if (ascending) {
-            while (upto > 0 && onsets[upto - 1] > k[i]) {
-                upto--;
-            }
-        }
         for (a = 0; a < W * p; a++) {
             uf[a] = finite(u[a]);
         }
@@ -209,26 +292,54 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
             }
         }
         *n_eq += present;
-        if (steady) { /* every distinct column over the whole window, Gamma times it */
-            for (a = 0; a < NC; a++) {
-                for (row = 0; row < m; row++) {
-                    raw[row * d] = 0;
-                }
-                grow(dc.of[a], 1, d, Gz, Gu, m, W, uf, p, 0, W, raw);
-                for (row = 0; row < m; row++) {
-                    cphi[row * NC + a] = r[row] == r[row] ? raw[row * d] / sigma[row] : 0;
-                }
+        if (ascending) {
+            while (upto > 0 && onsets[upto - 1] > k[i]) {
+                upto--;
             }
-            for (row = 0; row < m; row++) {
-                for (a = 0; a < NC; a++) {
-                    cfdi_real sum = 0;
-                    for (b = 0; b < m; b++) {
-                        sum += gamma[row * m + b] * cphi[b * NC + a];
+        }
+        if (distinct) {
+            /* The onsets latest first: their first lags fall, so the columns' sums grow lag
+             * by lag from the window's end; onsets sharing a first lag share the
+             * increments. */
+            size_t done = W, cached = W + 1, c;
+            for (a = 0; a < m * cs.NC; a++) {
+                cs.raw[a] = 0;
+            }
+            for (o = upto; o-- > 0;) {
+                size_t first = first_lag(k[i], onsets[o], S);
+                if (first == W) {
+                    continue;
+                }
+                if (first != cached) {
+                    for (c = 0; c < cs.NC; c++) {
+                        for (row = 0; row < m; row++) {
+                            raw[row * d] = cs.raw[row * cs.NC + c];
+                        }
+                        grow(dc.of[c], 1, d, Gz, Gu, m, W, uf, p, first, done, raw);
+                        for (row = 0; row < m; row++) {
+                            cs.raw[row * cs.NC + c] = raw[row * d];
+                        }
                     }
-                    cgphi[row * NC + a] = sum;
+                    done = first;
+                    columns_at(&cs, sigma, r, gamma);
+                    for (hyp = 0; hyp < H; hyp++) {
+                        size_t used = 0;
+                        while (used < d && columns[2 * (hyp * d + used)] != CFDI_COL_NONE) {
+                            used++;
+                        }
+                        for (a = 0; a < per; a++) {
+                            hinc[hyp * per + a] = 0;
+                        }
+                        gather(&cs, dc.map + hyp * d, used, r, hinc + hyp * per);
+                    }
+                    cached = first;
+                }
+                for (hyp = 0; hyp < H; hyp++) {
+                    size_t at = (hyp * K + o) * d;
+                    add_to_fit(d, hinc + hyp * per, J + at * d, meat + at * d, h + at);
                 }
             }
-            memset(known, 0, 2 * NC * NC + NC);
+            continue;
         }
         for (hyp = 0; hyp < H; hyp++) {
             const int32_t *cols = columns + 2 * hyp * d;
@@ -236,7 +347,7 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
             while (used < d && cols[2 * used] != CFDI_COL_NONE) {
                 used++; /* (a hypothesis' columns come first, zero columns after) */
             }
-            for (a = 0; a < 2 * d * d + d; a++) {
+            for (a = 0; a < per; a++) {
                 inc[a] = 0;
             }
             /* The increments depend on the onset only through the window's first lag at or
@@ -245,50 +356,10 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
              * the onsets are taken latest first. */
             for (o = upto; o-- > 0;) {
                 size_t first = first_lag(k[i], onsets[o], S), at = (hyp * K + o) * d;
-                cfdi_real *Jo = J + at * d, *ho = h + at, *mo = meat + at * d;
                 if (first == W) {
                     continue; /* an onset after the sample: no regressor, nothing to add */
                 }
-                if (first != cached && first == 0 && steady) {
-                    /* the steady increments, gathered from the distinct columns' */
-                    for (a = 0; a < used; a++) {
-                        size_t ca = dc.map[hyp * d + a];
-                        cfdi_real dot = 0;
-                        for (b = 0; b < used; b++) {
-                            size_t cb = dc.map[hyp * d + b], lo = ca < cb ? ca : cb,
-                                   hi = ca < cb ? cb : ca;
-                            if (!known[lo * NC + hi]) {
-                                cfdi_real info = 0;
-                                for (row = 0; row < m; row++) {
-                                    info += cphi[row * NC + ca] * cphi[row * NC + cb];
-                                }
-                                cinfo[lo * NC + hi] = info;
-                                known[lo * NC + hi] = 1;
-                            }
-                            if (!known[NC * NC + ca * NC + cb]) {
-                                cfdi_real mid = 0;
-                                for (row = 0; row < m; row++) {
-                                    mid += cphi[row * NC + ca] * cgphi[row * NC + cb];
-                                }
-                                cmid[ca * NC + cb] = mid;
-                                known[NC * NC + ca * NC + cb] = 1;
-                            }
-                            inc[a * d + b] = cinfo[lo * NC + hi];
-                            inc[d * d + a * d + b] = cmid[ca * NC + cb];
-                        }
-                        if (!known[2 * NC * NC + ca]) {
-                            for (row = 0; row < m; row++) {
-                                if (r[row] == r[row]) {
-                                    dot += cphi[row * NC + ca] * r[row];
-                                }
-                            }
-                            cdot[ca] = dot;
-                            known[2 * NC * NC + ca] = 1;
-                        }
-                        inc[2 * d * d + a] = cdot[ca];
-                    }
-                    cached = 0;
-                } else if (first != cached) {
+                if (first != cached) {
                     if (first > done) { /* (onsets out of order: start the sums again) */
                         done = W;
                     }
@@ -302,13 +373,7 @@ int cfdi_info_block(size_t q, size_t p, size_t m, size_t S, const cfdi_real *Gz,
                     increments(m, d, used, raw, sigma, r, gamma, phi, gphi, inc);
                     cached = first;
                 }
-                for (a = 0; a < d * d; a++) {
-                    Jo[a] += inc[a];
-                    mo[a] += inc[d * d + a];
-                }
-                for (a = 0; a < d; a++) {
-                    ho[a] += inc[2 * d * d + a];
-                }
+                add_to_fit(d, inc, J + at * d, meat + at * d, h + at);
             }
         }
     }

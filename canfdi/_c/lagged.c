@@ -129,9 +129,9 @@ void cfdi_lagged_middle(const cfdi_lagged *lg, const cfdi_lagged_tables *t, size
             cfdi_real sum = 0;
             size_t i;
             for (i = 0; i < 2 * S; i++) { /* the times before onset + S */
-                const cfdi_real *psi = psi_local + i * t->q * d;
+                const cfdi_real *psi = psi_local + i * t->q * n;
                 for (c = 0; c < t->q; c++) {
-                    sum += psi[c * d + a] * psi[c * d + b];
+                    sum += psi[c * n + a] * psi[c * n + b];
                 }
             }
             if (lg->started) {

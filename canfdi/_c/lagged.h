@@ -42,18 +42,17 @@ typedef struct {
                                    * onset + S on */
     cfdi_real *gram;              /* (NP,) scratch */
     cfdi_real *rows;              /* (m, NC) scratch: a sample's steady regressors */
-    cfdi_real *local;             /* (2S, q, d) scratch: a fit's times before its onset + S */
+    cfdi_real *local;             /* (2S, q, d) scratch: a fit's times before its onset + S
+                                   * (both the drive's scratch, lent) */
     int64_t next;                 /* the first time not final */
     int64_t newest;               /* the newest time a sample reached */
     int64_t origin;               /* the first time (slots count from it) */
     int started;
 } cfdi_lagged;
 
-#define CFDI_LAGGED_MEMORY(S, Q, M, NC, NP, K, D) \
+#define CFDI_LAGGED_MEMORY(S, Q, NC, NP, K) \
     (CFDI_ALIGN8(sizeof(cfdi_real) * ((S) + 1u) * (Q) * (NC)) \
-     + CFDI_ALIGN8(sizeof(cfdi_real) * (size_t)(K) * (NP)) + CFDI_ALIGN8(sizeof(cfdi_real) * (NP)) \
-     + CFDI_ALIGN8(sizeof(cfdi_real) * (M) * (NC)) \
-     + CFDI_ALIGN8(sizeof(cfdi_real) * 2u * (S) * (Q) * (D)))
+     + CFDI_ALIGN8(sizeof(cfdi_real) * (size_t)(K) * (NP)) + CFDI_ALIGN8(sizeof(cfdi_real) * (NP)))
 
 /* Nothing absorbed yet, for a diagnosis over K onsets. */
 void cfdi_lagged_reset(cfdi_lagged *lg, const cfdi_lagged_tables *t, size_t K);
@@ -65,15 +64,15 @@ void cfdi_lagged_reset(cfdi_lagged *lg, const cfdi_lagged_tables *t, size_t K);
 void cfdi_lagged_absorb(cfdi_lagged *lg, const cfdi_lagged_tables *t, size_t K,
                         const int64_t *onsets, int64_t k, const cfdi_real *rows, int all_seen);
 
-/* One sample k within 2S of `onset` (onset <= k < onset + 2S) with its d regressors at that
- * onset, rows (m, d), added to psi_local (2S, q, d): the times onset - S .. onset + S - 1. */
+/* One sample k within 2S of `onset` (onset <= k < onset + 2S) with a fit's n regressors at
+ * that onset, rows (m, n), added to psi_local (2S, q, n): the times onset - S .. onset + S - 1. */
 void cfdi_lagged_local(const cfdi_lagged_tables *t, int64_t onset, int64_t k,
                        const cfdi_real *rows, size_t d, cfdi_real *psi_local);
 
-/* Hypothesis hyp's middle at onset position kb (its onset `onset`) over every sample absorbed,
- * (d, d) into out: psi_local (2S, q, d) holds its samples from the onset to onset + 2S - 1
- * (cfdi_lagged_local; zeros to start), the rest comes from the steady sums and the times not
- * final. Entries beyond its n parameters are zero. */
+/* Hypothesis hyp's middle at onset position kb (its onset `onset`, its n of d parameters) over
+ * every sample absorbed, (d, d) into out: psi_local (2S, q, n) holds its samples from the onset
+ * to onset + 2S - 1 (cfdi_lagged_local; zeros to start), the rest comes from the steady sums
+ * and the times not final. Entries beyond its n parameters are zero. */
 void cfdi_lagged_middle(const cfdi_lagged *lg, const cfdi_lagged_tables *t, size_t kb,
                         int64_t onset, size_t hyp, size_t n, size_t d,
                         const cfdi_real *psi_local, cfdi_real *out);

@@ -268,10 +268,11 @@ def _c_counter_machine(state: np.ndarray, buffer: np.ndarray, rows: np.ndarray,
 
 
 def info_work(m: int, d: int, S: int, p: int, H: int) -> int:
-    """cfdi.h's CFDI_INFO_WORK: the reals of cfdi_info_block's scratch."""
-    hd = H * d
-    return ((3 * m + 2 * d + 1) * d + (S + 1) * p + 2 * m * hd + 2 * hd * hd + hd
-            + (2 * hd * hd + hd) // 4 + 1)
+    """cfdi.h's CFDI_INFO_WORK with its bound on the distinct columns (H d): the reals of
+    cfdi_info_block's scratch."""
+    nc = H * d
+    return ((3 * m + 2 * d + 1) * d + (S + 1) * p + H * (2 * d * d + d) + 3 * m * nc
+            + 2 * nc * nc + nc + (2 * nc * nc + nc) // 4 + 1)
 
 
 def _c_information_block(bank: Any, hypotheses: Any, columns: np.ndarray, d: int,

@@ -31,10 +31,11 @@ __all__ = ["CORE_FILES", "CodegenRefused", "DriveTables", "MonitorMessage", "dri
 
 CORE_FILES = ("cfdi.h", "decode.h", "e2e.h", "encode.h", "drive.h", "drive_impl.h",
               "lagged.h", "track.h", "bank.c", "counter.c", "decide.c", "decode.c", "detect.c",
-              "e2e.c", "encode.c", "gate.c", "info.c", "lagged.c", "track.c", "compensate.c",
-              "diagnose.c", "drive.c", "cfdi_run.c",
+              "e2e.c", "encode.c", "gate.c", "info.c", "lagged.c", "track.c", "track_check.c",
+              "compensate.c", "diagnose.c", "decisions.c", "drive.c", "drive_init.c",
+              "announce.c", "cfdi_run.c",
               "cfdi_io.h",
-              "cfdi_io_host.c", "cfdi_io_semihost.c", "m4f_startup.c", "m4f.ld")
+              "cfdi_io_host.c", "cfdi_io_semihost.c", "m4f_startup.c", "m4f.ld", "stack.awk")
 """The C core's files a project holds (canfdi/_c; not _kernel.c, the CPython face), with the
 runner and its two I/O sides (host stdio, MCU semihosting) and the Cortex-M4F's startup and
 memory map."""
@@ -136,7 +137,9 @@ def drive_tables(config: MonitorConfig, doc: dict | None = None) -> DriveTables:
     detection = monitor.method.c_tables(config)
     diag = detection.get("diag")
     if diag is not None:
-        detection["diag"] = diag = {**diag, "lookback": min(LOOKBACK, diag["recent"])}
+        st = diag["settings"]
+        kept = int(st.lookback) + int(st.onset_before) + DETECTION_DELAY
+        detection["diag"] = diag = {**diag, "lookback": min(kept, diag["recent"])}
     if diag is not None and diag["d"] > MAX_FAULTS:
         raise CodegenRefused("signals.outputs", f"a joint fit of {diag['d']} sensors: the C "
                                                 f"diagnosis takes {MAX_FAULTS} at most")
@@ -201,13 +204,12 @@ def _monitor_codes(monitor, drive) -> dict[str, tuple[float, ...]]:
 MAX_FAULTS = 4
 """drive.h's CFDI_MAX_FAULTS: the members of a joint fit the C diagnosis accepts at once."""
 
-LOOKBACK = 267
-"""Samples a drive's diagnosis keeps before its alarm (the Python diagnoser keeps
-identification.max_samples of them): the change point and onset_before samples before it, and
-with channels compensated the 256 samples before those (diagnoser.LOOKBACK), for a fault
-detected within 8 samples of its change point. A fault whose change point lies further back is
-fitted from the oldest kept, so its onsets, and with compensated channels its fits' costs,
-may differ from the gateway's."""
+DETECTION_DELAY = 8
+"""Samples after its change point a fault is detected within, for which a drive's diagnosis
+keeps the samples its onsets and look-back need (identification.lookback and onset_before
+before the change point, and these): a fault detected later is fitted from the oldest kept,
+so its onsets, and with compensated channels its fits' costs, may differ from the gateway's,
+which keeps identification.max_samples of them."""
 
 
 def _real(v: float) -> str:
@@ -460,14 +462,17 @@ MAKEFILE = """\
 #                           build/cortex-m4f/cfdi_run.elf
 #   make qemu LOG=FILE      run that image on qemu-system-arm -M mps2-an386 (semihosting)
 #   make count LOG=FILE     the same under qemu -icount: the loop's instructions per sample
-#   make size               flash, static RAM and stack frames of the image
+#   make size               flash, static RAM and the worst stack of the image
 CC ?= cc
 ARM_CC ?= arm-none-eabi-gcc
 ARM_SIZE ?= arm-none-eabi-size
 QEMU ?= qemu-system-arm
 WARN = -std=c99 -Wall -Wextra -Werror -pedantic -ffp-contract=off
-CORE = bank.c counter.c decide.c decode.c detect.c e2e.c encode.c gate.c info.c lagged.c \\
-  track.c compensate.c diagnose.c drive.c cfdi_tables.c cfdi_run.c
+HOT = bank.c counter.c decide.c decode.c detect.c e2e.c gate.c info.c lagged.c track.c \\
+  compensate.c diagnose.c drive.c
+# what runs once, at an event or at a heartbeat: built for size on the MCU
+COLD = drive_init.c announce.c decisions.c track_check.c encode.c cfdi_tables.c cfdi_run.c
+CORE = $(HOT) $(COLD)
 HEADERS = cfdi.h decode.h e2e.h encode.h drive.h drive_impl.h lagged.h track.h cfdi_io.h \\
   cfdi_tables.h
 M4F = -mcpu=cortex-m4 -mthumb -mfpu=fpv4-sp-d16 -mfloat-abi=hard
@@ -488,16 +493,22 @@ run-host: build/host/cfdi_run
 
 cortex-m4f: $(ELF)
 
-# (semihosting's bkpt needs GNU asm: the two I/O files are compiled as gnu99)
+# One link-time optimised unit (its stack usage and call graph its own: lto-ltrans0.ltrans.su,
+# .ci; stack.awk walks the graphs for `make size`). The
+# semihosting's bkpt needs GNU asm: the two I/O files are compiled as gnu99.
+M4F_C = $(ARM_CC) $(WARN) $(M4F) -DCFDI_FLOAT32 $(EXTRA) -flto -ffunction-sections \\
+  -fdata-sections -I$(CURDIR)
 $(ELF): $(CORE) cfdi_io_semihost.c m4f_startup.c m4f.ld $(HEADERS)
 \tmkdir -p $(BUILD)
-\tcd $(BUILD) && for f in $(CORE); do \\
-\t  $(ARM_CC) $(WARN) $(M4F) -O2 -DCFDI_FLOAT32 $(EXTRA) -ffunction-sections \\
-\t    -fdata-sections -fstack-usage -I$(CURDIR) -c $(CURDIR)/$$f || exit 1; done
+\tcd $(BUILD) && for f in $(HOT); do $(M4F_C) -O2 -c $(CURDIR)/$$f || exit 1; done
+\tcd $(BUILD) && for f in $(COLD); do $(M4F_C) -Os -c $(CURDIR)/$$f || exit 1; done
 \tcd $(BUILD) && for f in cfdi_io_semihost.c m4f_startup.c; do \\
 \t  $(ARM_CC) -std=gnu99 -Wall -Wextra -Werror $(M4F) -O2 -ffunction-sections \\
-\t    -fdata-sections -fstack-usage -I$(CURDIR) -c $(CURDIR)/$$f || exit 1; done
-\t$(ARM_CC) $(M4F) -specs=nano.specs -nostartfiles -Wl,--gc-sections -T m4f.ld \\
+\t    -fdata-sections -fstack-usage -fcallgraph-info=su -I$(CURDIR) -c $(CURDIR)/$$f \\
+\t    || exit 1; done
+\t$(ARM_CC) $(M4F) -O2 -flto -flto-partition=one -fstack-usage -fcallgraph-info=su \\
+\t  -dumpdir $(BUILD)/lto- \\
+\t  -specs=nano.specs -nostartfiles -Wl,--gc-sections -T m4f.ld \\
 \t  -Wl,-Map=$(BUILD)/cfdi_run.map -o $@ $(BUILD)/*.o -lm
 
 QEMU_RUN = $(QEMU) -M mps2-an386 -nographic -monitor none -serial none \\
@@ -519,8 +530,8 @@ size: $(ELF)
 \t  /^\\.data/ {{f += $$2; r += $$2}} /^\\.bss/ {{r += $$2}} \\
 \t  END {{printf "flash %d bytes\\nstatic RAM %d bytes\\n", f, r}}'
 \t@cat $(BUILD)/*.su | sort -t'\t' -k2 -n -r | awk -F'\t' \\
-\t  'NR == 1 {{printf "largest stack frame %d bytes (%s)\\n", $$2, $$1}} {{s += $$2}} \\
-\t   END {{printf "all stack frames together %d bytes (a bound on any call chain)\\n", s}}'
+\t  'NR == 1 {{printf "largest stack frame %d bytes (%s)\\n", $$2, $$1}}'
+\t@awk -v roots="cfdi_reset cfdi_drive_on_frame" -f stack.awk $(BUILD)/*.ci
 
 clean:
 \trm -rf build
@@ -606,7 +617,10 @@ laid out by `cfdi_drive_init`, and `sizeof(cfdi_drive)` for the drive's state (i
 {memory}
 
 No allocation, no global state in the core: everything is in the memory above, the caller's.
-`make size` prints the image's flash, static RAM and its largest stack frame.
+`make size` prints the image's flash, static RAM, its largest stack frame and its worst stack
+(the deepest call chain in gcc's call graphs, from the reset handler and from
+`cfdi_drive_on_frame`, the C library's few functions not counted); `make qemu` says on
+stderr how deep the stack went in that run (measured: the free RAM painted at reset).
 """
 
 
@@ -629,12 +643,14 @@ def memory_parts(t: DriveTables, float32: bool) -> list[tuple[str, int]]:
     if t.diag is not None:
         H, D, K, Rw, Y, NC, NP, T = (z[k] for k in ("H", "D", "K", "R", "Y", "NC", "NP", "T"))
         Q = W - P
-        work = (3 * M + 2 * D + 1) * D
+        work = ((3 * M + 2 * D + 1) * D + (S + 1) * P + H * (2 * D * D + D) + 3 * M * NC
+                + 2 * NC * NC + NC + (2 * NC * NC + NC) // 4 + 1)
+        lend = 2 * S * Q * D + M * max(NC, D) + 2 * M + D
         track_item, correction = 16 + 4 * R, 8 + 4 * R
         parts += [(f"the samples kept ({Rw} rows) and the history ({Y})",
                    a8(R * (Rw + Y) * W)),
-                  ("a kept sample's window and commands, scratch",
-                   a8(R * (S + 1) * (W + P)) + a8(R * (work + 3 * D * D + 2 * D))),
+                  ("a kept sample's window and commands; the sums' scratch",
+                   a8(R * (S + 1) * (W + P)) + a8(R * (max(work, lend) + 3 * D * D + 2 * D))),
                   (f"the fits: {H} hypotheses at {K} onsets (information, sandwich, vector "
                    "and cost; the tracking's scratch between diagnoses)",
                    a8(8 * K) + a8(R * max(H * K * (2 * D * D + D + 1),
@@ -642,8 +658,7 @@ def memory_parts(t: DriveTables, float32: bool) -> list[tuple[str, int]]:
                   ("the decision's", a8(R * (2 * P + H)) + a8(8 * D) + 2 * a8(8 * H) + a8(H)
                    + a8(4 * H)),
                   ("the events' lagged middles (their squares, by onset)",
-                   a8(R * (S + 1) * Q * NC) + a8(R * K * NP) + a8(R * NP) + a8(R * M * NC)
-                   + a8(R * 2 * S * Q * D)),
+                   a8(R * (S + 1) * Q * NC) + a8(R * K * NP) + a8(R * NP)),
                   (f"the accepted faults' tracking ({T} parameters)",
                    a8(track_item * T) + a8(correction * T) + a8(R * (4 * T * T + 2 * T + P)))]
     return parts
