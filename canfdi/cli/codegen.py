@@ -11,33 +11,38 @@ from canfdi.cli.common import config_error, load_config_or_exit
 HELP = """\
 Write a self-contained C99 project that runs the drive's monitor on its own MCU: the C core
 (the same files canfdi's extension compiles: decode and E2E, the time gate, the counter clock,
-the residual bank, the Page-Hinkley detectors, the drive loop) and the drive's tables as const
-data generated from the config (its signal table and E2E profiles, the clock and gate, the
-bank's FIR blocks, noise and thresholds, the monitor's FDI_FAULT frame), a README of the
-integration API (init, on_frame, poll_tx for the frames to send, the memory each part
-needs) and a Makefile:
+the residual bank, the Page-Hinkley detectors, the parity diagnoser and the drive loop) and
+the drive's tables as const data generated from the config (its signal table and E2E
+profiles, the clock and gate, the bank's FIR blocks, noise and thresholds, the hypotheses and
+identification settings, the monitor's FDI_FAULT, FDI_ESTIMATE and FDI_STATUS frames), a
+README of the integration API (init, on_frame, poll_tx for the frames to send, status for the
+heartbeat, poll_event, the memory each part needs) and a Makefile:
 
   make host                 a native build (float64; float32 with --float32)
   make run-host LOG=FILE    run it over a candump -L .log or a Vector .asc (CAN and CAN FD):
-                            JSON with the detections, samples and frame counters, as
-                            `canfdi replay --json` gives them, and the frames sent
+                            the JSON `canfdi replay --json` prints (faults, named,
+                            unexplained, refined, detections, samples, frame counters), and
+                            the frames sent
   make cortex-m4f           arm-none-eabi-gcc, float32, newlib-nano, no allocation
   make qemu LOG=FILE        that image on qemu-system-arm -M mps2-an386, semihosting
   make count LOG=FILE       the same under qemu -icount: the loop's instructions per sample
-  make size                 the image's flash, static RAM and stack frames
+                            and in its costliest frame
+  make size                 the image's flash, static RAM and worst stack
 The Cortex-M4F targets need Debian's gcc-arm-none-eabi, libnewlib-arm-none-eabi and
 qemu-system-arm (in a clone of canfdi, deploy/install-mcu-toolchain installs them as root).
 
-So far the C loop counts, detects (the first alarm, dated by its change point) and diagnoses
-that first fault as canfdi's parity diagnoser does (every hypothesis fitted at every onset
-tried, then named, accepted, or the alarm unexplained), saying so on the bus as canfdi's
-monitor does (FDI_FAULT, state detected, named, accepted; nothing when bus.transmit is
-false). What follows an acceptance (compensation and the next fault) and the FDI_ESTIMATE
-frames run on the gateway. A config the C loop cannot run
-is refused with one line naming the field: a method with no C tables (of the built-ins only
-parity has them), several drives, a trigger or grid clock, signature CUSUMs, the noise
-watchdog asked for (it stays on the gateway: leave its section out or set
-watchdog.enabled: false), teach-in, a monitor DBC whose FDI_FAULT it cannot encode
+The C loop detects and diagnoses every fault as canfdi's parity diagnoser does: each alarm
+dated by its change point, every hypothesis fitted at every onset tried, then named,
+accepted, or the alarm unexplained; an accepted fault compensated, the window rebuilt and
+the detector restarted for the next; what an estimate left refined; the accepted faults
+tracked between diagnoses. It says so on the bus as canfdi's monitor does (FDI_FAULT,
+FDI_ESTIMATE; FDI_STATUS when the caller's timer asks; nothing when bus.transmit is false).
+The samples a diagnosis fits from before its alarm live in the MCU's RAM:
+identification.lookback (with channels compensated) and onset_before set how many.
+A config the C loop cannot run is refused with one line naming the field: a method with no
+C tables (of the built-ins only parity has them), several drives, a trigger or grid clock,
+signature CUSUMs, the noise watchdog asked for (it stays on the gateway: leave its section
+out or set watchdog.enabled: false), teach-in, a monitor DBC whose frames it cannot encode
 (multiplexed, 16-bit floats).
 
 Exit status: 0 written, 2 a bad or refused config (the field named), 1 the project could not
