@@ -7,8 +7,10 @@ The C loop runs the whole diagnosis (issue 43): its replay JSON (every fault nam
 refined or unexplained, with onsets, estimates and variances; the detections, samples and
 frame counters) must be `canfdi replay --json`'s, and every frame it sends (FDI_FAULT,
 FDI_ESTIMATE, and the FDI_STATUS heartbeat every bus.status_period of the log's time) the
-monitor's, byte for byte. The Cortex-M4F image (arm-none-eabi-gcc, newlib-nano) runs on qemu's
-mps2-an386 and must print what the host's float32 build prints, within the MCU's memory."""
+monitor's, byte for byte. The other shipped configs the C loop takes (vtol, winding_machine)
+are checked the same way on their plants' scenarios. The Cortex-M4F image (arm-none-eabi-gcc,
+newlib-nano) runs on qemu's mps2-an386 and must print what the host's float32 build prints,
+within the MCU's memory."""
 
 from __future__ import annotations
 
@@ -117,9 +119,10 @@ def logs(tmp_path_factory, config):
     return made
 
 
-def _build(tmp_path_factory, name: str, *extra: str, cflags: str = "") -> Path:
+def _build(tmp_path_factory, name: str, *extra: str, cflags: str = "",
+           config: Path = CONFIG) -> Path:
     project = tmp_path_factory.mktemp(name)
-    assert main(["codegen", str(CONFIG), "-o", str(project), *extra]) == 0
+    assert main(["codegen", str(config), "-o", str(project), *extra]) == 0
     subprocess.run(["make", "-s", "-C", str(project), "host", f"CFLAGS={cflags}"], check=True,
                    capture_output=True, text=True)
     return project
@@ -269,6 +272,73 @@ def test_float32_diagnoses_within_two_samples(config, logs, tmp_path_factory):
         # (the variances are the fits' costs, rr - h.theta: in float32 a fault of hundreds of
         # noise standard deviations leaves them to a few digits, so they are not compared here)
         _same_decisions(got, want, name, rel=0.01, samples=2, variances=False)
+
+
+def _c_configs() -> list[str]:
+    """The shipped configs the C loop runs (codegen refuses the others, naming the field)."""
+    from canfdi.core.settings import ConfigError
+    from canfdi.tools.codegen import drive_tables
+
+    names = []
+    for path in sorted((REPO / "deploy" / "config").glob("*.yaml")):
+        try:
+            drive_tables(load_config(path))
+        except ConfigError:
+            continue
+        names.append(path.name)
+    return names
+
+
+OTHER_CONFIGS = ["vtol.yaml", "winding_machine.yaml"]
+
+
+def test_the_c_loop_runs_these_shipped_configs():
+    """Every shipped config the C loop takes is checked here: dc_motor.yaml on every log
+    above, the others on their plants' scenarios below."""
+    assert _c_configs() == sorted(["dc_motor.yaml", *OTHER_CONFIGS])
+
+
+@needs_cc
+@pytest.mark.parametrize("config_name", OTHER_CONFIGS)
+def test_every_other_shipped_config_is_its_monitor_in_c(config_name, tmp_path_factory,
+                                                        request):
+    """The other plants' parity configs on every shipped scenario of their buses: float64 the
+    replay JSON and every frame sent, as for the DC motor; float32 the same decisions within
+    two samples and 1 %; and with the tool chain, the Cortex-M4F image on qemu printing what
+    the host's float32 build prints."""
+    path = REPO / "deploy" / "config" / config_name
+    config = load_config(path)
+    stem = path.stem
+    out = tmp_path_factory.mktemp(f"{stem}-logs")
+    logs = {}
+    for name in _scenarios(config):
+        logs[name] = out / f"{name}.log"
+        write_frames(logs[name], [frame_log(load_scenario(name)).frames])
+    assert len(logs) >= 3, logs
+    p64 = _build(tmp_path_factory, f"{stem}-c", config=path)
+    p32 = _build(tmp_path_factory, f"{stem}-c32", "--float32", config=path)
+    diagnosed = 0
+    for name, log in logs.items():
+        want, got = _reference(config, log), _run(p64, log)
+        for key in ("frames", "samples", "detections", "sent"):
+            assert got[key] == want[key], (name, key)
+        _same_decisions(got, want, name, rel=1e-6)
+        for key in LISTS:
+            assert _close(got[key], want[key], 1e-6), (name, key)
+        diagnosed += bool(got["faults"])
+        got32 = _run(p32, log)
+        assert got32["frames"] == want["frames"] and got32["detections"] == want["detections"]
+        _same_decisions(got32, want, name, rel=0.01, samples=2, variances=False)
+    assert diagnosed >= 2
+    request.getfixturevalue("mcu_toolchain")  # (installs it, or skips saying why)
+    subprocess.run(["make", "-s", "-C", str(p32), "cortex-m4f"], check=True,
+                   capture_output=True, text=True, timeout=600)
+    for name, log in logs.items():
+        host = subprocess.run(["make", "-s", "-C", str(p32), "run-host", f"LOG={log}"],
+                              capture_output=True, text=True, check=True, timeout=300)
+        mcu = subprocess.run(["make", "-s", "-C", str(p32), "qemu", f"LOG={log}"],
+                             capture_output=True, text=True, check=True, timeout=600)
+        assert mcu.stdout == host.stdout, name
 
 
 @needs_cc
