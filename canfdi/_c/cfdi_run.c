@@ -152,17 +152,39 @@ static const char *asc_token(const char *p, const char **next)
     return end;
 }
 
+/* Up to `want` bytes in the log's base from p into data (the rest zeros), as python-can's
+ * _process_data_string takes them: the next `want` tokens, each a byte; the frame as long as
+ * the line has tokens. A line cut short (`cut`: longer than the runner's buffer) must hold
+ * all of them. The count, or -1. */
+static int asc_bytes(const char *p, int base, size_t want, int cut, uint8_t *data)
+{
+    const char *end;
+    uint32_t value;
+    size_t n = 0;
+    while (n < want && *p != '\0' && *p != '\r') {
+        if (!parse_uint(p, base, &end, &value) || value > 255
+            || (*end != '\0' && *end != ' ' && *end != '\t' && *end != '\r')) {
+            return -1;
+        }
+        data[n++] = (uint8_t)value;
+        p = skip_blank(end);
+    }
+    if (cut && n < want) return -1;
+    memset(data + n, 0, CFDI_MAX_PAYLOAD - n);
+    return (int)n;
+}
+
 /* An ASC CAN FD line after "CANFD", as python-can's _process_fd_can_frame reads it: channel,
  * direction, "ErrorFrame" or the ID (x: extended), a symbolic name unless the next token is a
  * number, BRS, ESI, the DLC (in the log's base), the data length (decimal: 0 for a remote
- * request, whose length is then its DLC; else the frame's length, whatever the DLC says) and
- * that many bytes. 1 parsed, -1 malformed. */
-static int parse_asc_fd(const char *p, int base, uint32_t *id, uint8_t *len, uint8_t *flags,
-                        uint8_t *data)
+ * request, whose length is then its DLC) and up to that many bytes (asc_bytes). 1 parsed, -1
+ * malformed. */
+static int parse_asc_fd(const char *p, int base, int cut, uint32_t *id, uint8_t *len,
+                        uint8_t *flags, uint8_t *data)
 {
     const char *end, *next, *brs;
     uint32_t value, dlc, length;
-    size_t n = 0;
+    int n;
     if (!parse_uint(p, 10, &end, &value) || (*end != ' ' && *end != '\t')) return -1;
     p = skip_blank(end);
     if (strncmp(p, "Rx", 2) != 0 && strncmp(p, "Tx", 2) != 0) return -1;
@@ -202,28 +224,41 @@ static int parse_asc_fd(const char *p, int base, uint32_t *id, uint8_t *len, uin
         return 1;
     }
     if (length > CFDI_MAX_PAYLOAD) return -1;
-    *len = (uint8_t)length;
-    while (n < length && parse_uint(p, base, &end, &value)) {
-        if (value > 255) return -1;
-        data[n++] = (uint8_t)value;
-        p = skip_blank(end);
-    }
-    for (; n < CFDI_MAX_PAYLOAD; n++) data[n] = 0;
+    n = asc_bytes(p, base, length, cut, data);
+    if (n < 0) return -1;
+    *len = (uint8_t)n;
     return 1;
+}
+
+/* Whether p starts a word (letters, digits, _), blanks, then Tx or Rx, in any case: the frame
+ * lines python-can's ASC_MESSAGE_REGEX takes ("1  Statistic: ...", "1  J1939TP ..." are not). */
+static int asc_word_then_direction(const char *p)
+{
+    const char *q = p;
+    while ((*q >= '0' && *q <= '9') || (*q >= 'a' && *q <= 'z') || (*q >= 'A' && *q <= 'Z')
+           || *q == '_') {
+        q++;
+    }
+    if (q == p || (*q != ' ' && *q != '\t')) return 0;
+    q = skip_blank(q);
+    return (q[0] == 'T' || q[0] == 't' || q[0] == 'R' || q[0] == 'r')
+           && (q[1] == 'x' || q[1] == 'X');
 }
 
 /* One line of a Vector ASC log, as python-can's ASCReader takes it: "<seconds> <channel> <ID>[x]
  * Rx|Tx d <DLC> <bytes>", "... r [DLC]" for a remote request, "<seconds> <channel>
  * ErrorFrame"; a CAN FD frame "<seconds> CANFD <channel> Rx|Tx <ID>[x] [<name>] <BRS> <ESI>
  * <DLC> <data length> <bytes>" (parse_asc_fd); the header's "base hex|dec" sets *base. Every
- * other line (the header, comments, events, statistics) is no frame, as it is to python-can.
- * 1 parsed, 0 no frame, -1 malformed. */
-static int parse_asc_line(const char *line, int *base, uint32_t *id, uint8_t *len,
+ * other line (the header, comments, events, statistics, J1939 transport) is no frame, as it is
+ * to python-can. A data frame is as long as the bytes it lists, up to its DLC's length (8 at
+ * most in classic CAN), as python-can reads it. `cut`: the line is longer than the runner's
+ * buffer, and what it needs must lie in the part read. 1 parsed, 0 no frame, -1 malformed. */
+static int parse_asc_line(const char *line, int *base, int cut, uint32_t *id, uint8_t *len,
                           uint8_t *flags, uint8_t *data, int64_t *t_ns)
 {
     const char *p = skip_blank(line), *end;
     uint32_t value, dlc;
-    size_t n = 0;
+    int n;
     if (strncmp(p, "base ", 5) == 0) {
         p = skip_blank(p + 5);
         *base = strncmp(p, "dec", 3) == 0 ? 10 : 16;
@@ -232,7 +267,7 @@ static int parse_asc_line(const char *line, int *base, uint32_t *id, uint8_t *le
     if (!parse_time(p, &end, t_ns) || (*end != ' ' && *end != '\t')) return 0;
     p = skip_blank(end);
     if (strncmp(p, "CANFD", 5) == 0 && (p[5] == ' ' || p[5] == '\t')) {
-        return parse_asc_fd(skip_blank(p + 5), *base, id, len, flags, data);
+        return parse_asc_fd(skip_blank(p + 5), *base, cut, id, len, flags, data);
     }
     if (*p < '0' || *p > '9') return 0; /* "Start of measurement", statistics, J1939 ... */
     while (*p >= '0' && *p <= '9') p++; /* the channel */
@@ -244,6 +279,7 @@ static int parse_asc_line(const char *line, int *base, uint32_t *id, uint8_t *le
         *len = 0;
         return 1;
     }
+    if (!asc_word_then_direction(p)) return 0;
     if (!parse_uint(p, *base, &end, &value)) return -1;
     if (*end == 'x' || *end == 'X') {
         *flags |= CFDI_FLAG_EXTENDED;
@@ -266,14 +302,9 @@ static int parse_asc_line(const char *line, int *base, uint32_t *id, uint8_t *le
     if (*p != 'd' && *p != 'D') return -1;
     p = skip_blank(p + 1);
     if (!parse_uint(p, *base, &end, &dlc)) return -1;
-    *len = dlc_length(dlc);
-    p = skip_blank(end);
-    while (n < (*len < 8 ? *len : 8) && parse_uint(p, *base, &end, &value)) {
-        if (value > 255) return -1;
-        data[n++] = (uint8_t)value;
-        p = skip_blank(end);
-    }
-    for (; n < CFDI_MAX_PAYLOAD; n++) data[n] = 0;
+    n = asc_bytes(skip_blank(end), *base, dlc_length(dlc) < 8 ? dlc_length(dlc) : 8, cut, data);
+    if (n < 0) return -1;
+    *len = (uint8_t)n;
     return 1;
 }
 
@@ -367,8 +398,10 @@ static void out_name(const char *name)
     cfdi_io_out("\"");
 }
 
-/* The log's lines one by one, from chunks: a line longer than the buffer is skipped whole
- * (returned as "" with *overlong set). 1 a line, 0 the end, -1 a read error. */
+/* The log's lines one by one, from chunks. A line longer than the buffer sets *overlong and
+ * is returned up to its last blank in the buffer (whole tokens): an ASC line's trailing
+ * fields (lengths, bit counts) may lie past what the frame needs. 1 a line, 0 the end, -1 a
+ * read error. */
 typedef struct {
     long handle;
     char chunk[256];
@@ -379,6 +412,7 @@ typedef struct {
 static int next_line(lines_t *in, char *line, size_t size, int *overlong)
 {
     size_t n = 0;
+    int newline = 0;
     *overlong = 0;
     for (;;) {
         char c;
@@ -396,8 +430,8 @@ static int next_line(lines_t *in, char *line, size_t size, int *overlong)
         }
         c = in->chunk[in->at++];
         if (c == '\n') {
-            line[*overlong ? 0 : n] = '\0';
-            return 1;
+            newline = 1;
+            break;
         }
         if (n + 1 < size) {
             line[n++] = c;
@@ -405,8 +439,11 @@ static int next_line(lines_t *in, char *line, size_t size, int *overlong)
             *overlong = 1;
         }
     }
-    line[*overlong ? 0 : n] = '\0';
-    return n > 0 || *overlong ? 1 : 0;
+    if (*overlong) {
+        while (n > 0 && line[n - 1] != ' ' && line[n - 1] != '\t') n--;
+    }
+    line[n] = '\0';
+    return n > 0 || *overlong || newline ? 1 : 0;
 }
 
 /* -- the events the JSON lists ---------------------------------------------------------- */
@@ -646,8 +683,9 @@ static int run_log(cfdi_drive *drive, void *memory, size_t bytes, const char *pa
         uint8_t len = 0, flags = 0;
         int64_t t_ns = 0;
         n->lines++;
-        rc = overlong ? -1
-             : asc ? parse_asc_line(line, &base, &id, &len, &flags, data, &t_ns)
+        /* (a candump line has no trailing fields: one cut short is malformed) */
+        rc = overlong && (!asc || line[0] == '\0') ? -1
+             : asc ? parse_asc_line(line, &base, overlong, &id, &len, &flags, data, &t_ns)
                    : parse_line(line, &id, &len, &flags, data, &t_ns);
         if (rc < 0) {
             n->malformed++;

@@ -341,6 +341,46 @@ def test_every_other_shipped_config_is_its_monitor_in_c(config_name, tmp_path_fa
         assert mcu.stdout == host.stdout, name
 
 
+PYTHON_CAN_ASC = sorted((REPO / "tests" / "data" / "python-can").glob("*.asc"))
+
+
+@needs_cc
+@pytest.mark.parametrize("log", PYTHON_CAN_ASC, ids=lambda p: p.name)
+def test_python_can_asc_logs_are_read_as_canfdi_reads_them(config, project, log):
+    """Vector ASC files no one here wrote (python-can's own test logs: error, remote and CAN
+    FD frames, 64-byte lines with Vector's trailing fields, statistics and J1939 lines, a DLC
+    above 8 on classic CAN) through the runner: every frame counted as canfdi replay, which
+    reads them with python-can's ASCReader, counts it; no line taken for malformed."""
+    got, want = _run(project, log), _reference(config, log)
+    assert got["frames"] == want["frames"]
+    assert got["frames"]["received"] > 0
+    assert got["sent"] == want["sent"] and got["samples"] == want["samples"]
+    assert got["malformed_lines"] == 0
+
+
+@needs_cc
+def test_an_asc_frame_is_as_long_as_the_bytes_its_line_lists(config, project, tmp_path):
+    """python-can's ASCReader makes a classic frame of the bytes its line lists, at most 8
+    whatever the DLC says (issue_1299.asc's "d D"): the drive's frames written so, an 8-byte
+    one with DLC D (13), a 4-byte one with DLC 8 (and then no trailing fields: python-can
+    would read them as bytes), are the drive's frames to canfdi and to the runner alike."""
+    frames = frame_log(load_scenario("dc_motor_nominal")).frames.slice(0, 600)
+    lines = ["base hex  timestamps absolute", "internal events logged",
+             "Begin Triggerblock Thu Apr 28 10:44:52.480 am 2022"]
+    for k, (t, i, d) in enumerate(zip(frames.t_ns.tolist(), frames.id.tolist(),
+                                      frames.payloads(), strict=True)):
+        dlc = "D" if len(d) == 8 and k % 2 else "8" if len(d) == 4 else f"{len(d)}"
+        trailer = "" if dlc == "8" else "  Length = 0 BitCount = 0"  # (it would be bytes)
+        lines.append(f"{t / 1e9:11.6f} 1  {i:X}  Rx   d {dlc} "
+                     + " ".join(f"{b:02X}" for b in d) + trailer)
+    lines.append("End TriggerBlock")
+    log = tmp_path / "dlcs.asc"
+    log.write_text("\n".join(lines) + "\n")
+    got, want = _run(project, log), _reference(config, log)
+    assert want["frames"]["valid"] == 600 and want["samples"] == 200
+    assert got["frames"] == want["frames"] and got["samples"] == want["samples"]
+
+
 @needs_cc
 def test_hostile_lines_under_the_sanitizers(logs, tmp_path_factory, tmp_path):
     """Every damaged log, and a file of lines no candump writes, through the loop built with
