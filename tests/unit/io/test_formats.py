@@ -350,3 +350,59 @@ def test_an_exported_mcap_reads_back_as_the_mcap(tmp_path):
     assert written == (keep.sum(), (~keep).sum())
     back = FrameBlock.concat(list(frame_blocks(out)))
     assert back.payloads() == read_frames(path).select(keep).payloads()
+
+
+# ------------------------------------------------------------------------------------------
+# a line python-can cannot parse
+# ------------------------------------------------------------------------------------------
+
+# A line of each text format python-can's reader raises on (a byte that is not hex, a field
+# missing), put among the frames.
+BAD_LINES = {
+    "asc": "   0.123456 1  104             Rx   d 8 01 02 ZZ 04 05 06 07 08",
+    "log": "(1795000000.5) can0 1Z4#0011",
+    "trc": "      9        13.234 DT  1     0105 Tx -  3    ED ZZ 2D",
+    "csv": "1795000000.5,104,0",
+}
+
+
+@pytest.mark.parametrize("name", ["asc", "log", "trc", "csv", "asc.gz", "log.gz"])
+@pytest.mark.parametrize("where", ["middle", "first frame"])
+def test_a_line_python_can_cannot_read_is_skipped_and_counted(name, where, tmp_path):
+    """A text log with bad lines loses those lines only: the frames before and after each are
+    read (a reader started again after it, given the header again: the ASC's base, the TRC's
+    columns), and the damage says how many lines and where. Without a Damage to report in,
+    the read ends with python-can's error, as before."""
+    from canfdi.io.damage import Damage
+
+    fmt = format_named(name)
+    src = frames(300)
+    src = src.select(held(src, fmt))
+    plain = tmp_path / f"good.{name.removesuffix('.gz')}"
+    format_named(name.removesuffix(".gz")).write_frames(plain, [src])
+    lines = plain.read_text().splitlines(keepends=True)
+    firsts = [i for i, line in enumerate(lines)  # the frames' lines
+              if line.lstrip()[:1] == "(" or line[:12].strip()[:1].isdigit()]
+    bad = BAD_LINES[name.removesuffix(".gz")] + "\n"
+    spots = ([firsts[len(firsts) // 3], firsts[2 * len(firsts) // 3], firsts[-1]]
+             if where == "middle" else [firsts[1] if name.startswith("csv") else firsts[0]])
+    for at in sorted(spots, reverse=True):
+        lines.insert(at, bad)
+    text = "".join(lines)
+    path = tmp_path / f"bad.{name}"
+    if name.endswith(".gz"):
+        path.write_bytes(gzip.compress(text.encode()))
+    else:
+        path.write_text(text)
+    want = FrameBlock.concat(list(frame_blocks(plain)))
+    damage = Damage()
+    got = FrameBlock.concat(list(frame_blocks(path, 64, damage=damage)))
+    assert got.size == want.size == src.size
+    assert got.payloads() == want.payloads() and (got.t_ns == want.t_ns).all()
+    assert (got.id == want.id).all() and (got.flags == want.flags).all()
+    (line,) = damage.lines()
+    count = len(spots)
+    assert f"{count} line{'s' if count > 1 else ''} python-can could not read skipped" in line
+    assert f"line {spots[0] + 1}:" in line and str(path) in line
+    with pytest.raises(LogReadError):
+        list(frame_blocks(path))
