@@ -31,8 +31,7 @@ frames are replayed with their timestamps, or any log python-can reads (candump 
 Replaying a live run's MCAP gives the live run's diagnoses. A truncated MCAP (a killed process)
 is read up to its last complete record; a damaged one around its damage: chunks that fail their
 CRC are skipped and what was lost (bytes, log time, messages per topic) is said on stderr, one
-line per damaged file, and in the JSON's "damage". In a text log (.asc, .log, .trc, .csv), a
-line python-can cannot parse is skipped and counted the same way, the rest read.
+line per damaged file, and in the JSON's "damage".
 
 Exit status: 0 replayed (also a damaged log, with its loss said); 1 no frame of an intact log
 made a sample (the summary says why: "0 samples: no frame matched ...") or the log cannot be

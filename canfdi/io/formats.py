@@ -99,8 +99,7 @@ class LogFormat:
         that its reader reads too.
     reports_damage : bool
         The reader skips damaged parts of a log and records them in a canfdi.io.damage
-        `Damage` it takes as a fourth argument (canfdi's MCAP: CRC-checked chunks; the text
-        logs python-can reads: the lines it cannot parse; BLF: a file cut short).
+        `Damage` it takes as a fourth argument (canfdi's MCAP: CRC-checked chunks).
     requires : str or None
         A module that must be importable to use the format (``"asammdf"``), and
     extra : str or None
@@ -338,11 +337,6 @@ register(LogFormat(
     directions=True, resolution_ns=1, segments=True, reports_damage=True))
 
 
-# python-can's formats read line by line: a line it cannot parse is skipped and counted
-# (canfdi.io.pycan), the rest of the log read.
-_TEXT = (".asc", ".log", ".trc", ".csv")
-
-
 def _python_can(name: str, description: str, *, compressed: bool = False, write: bool = True,
                 directions: bool = True, absolute_time: bool = True, resolution_ns: int = 1000,
                 holds: Iterable[str] = ("remote", "error", "fd"), requires: str | None = None,
@@ -362,7 +356,7 @@ def _python_can(name: str, description: str, *, compressed: bool = False, write:
     return LogFormat(name, "." + name, description, read, writer if write else None,
                      directions=directions, absolute_time=absolute_time,
                      resolution_ns=resolution_ns, holds=held, requires=requires, extra=extra,
-                     reports_damage=inner in (".blf", *_TEXT))
+                     reports_damage=name == "blf")
 
 
 _ASC = "Vector ASCII (CANalyzer, CANoe, SavvyCAN)"

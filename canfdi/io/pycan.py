@@ -86,90 +86,6 @@ def _open_reader(path: Path, suffix: str, compressed: bool) -> Any:
     return cls(gzip.open(path, "rt" if _is_text(cls) else "rb"))
 
 
-# What a python-can text reader may have read before its first frame that a reader started
-# after a bad line needs again (an ASC's base, a TRC's columns): at most these many lines.
-_HEADER_LINES = 256
-
-
-class _Lines:
-    """A text log's lines as python-can's text readers take them (iterated, closed), counted,
-    with the good lines before the first frame kept (up to _HEADER_LINES): after a line the
-    reader could not parse, another reader is given them again (`replay`), then the lines
-    after the bad one."""
-
-    def __init__(self, handle: Any) -> None:
-        self.handle = handle
-        self.count = 0  # lines read from the file; the last one is the line being parsed
-        self._header: list[tuple[int, str]] = []
-        self._keeping = True
-        self._again: list[str] = []
-
-    def __iter__(self) -> _Lines:
-        return self
-
-    def __next__(self) -> str:
-        if self._again:
-            return self._again.pop()
-        line = next(self.handle)
-        self.count += 1
-        if self._keeping and len(self._header) < _HEADER_LINES:
-            self._header.append((self.count, line))
-        return line
-
-    def framed(self) -> None:
-        """A frame came from the line read last: the lines before it are the header."""
-        if self._keeping:
-            self._header = [(n, line) for n, line in self._header if n < self.count]
-            self._keeping = False
-
-    def replay(self) -> None:
-        """The line read last could not be parsed: the header again, without it."""
-        self._header = [(n, line) for n, line in self._header if n != self.count]
-        self._again = [line for _, line in reversed(self._header)]
-
-    def close(self) -> None:
-        self.handle.close()
-
-
-def _text_messages(path: Path, suffix: str, compressed: bool, damage: Any) -> Iterator[Any]:
-    """python-can's messages of a text log (ASC, candump, TRC, CSV), a line python-can
-    cannot parse skipped: its reader stops at it, so another one goes on after it, given
-    the header again. Each such line is counted in ``damage`` (the first three with what
-    python-can said); the log's frames are all the others'."""
-    import locale
-
-    cls = _reader_class(suffix)
-    handle = (gzip.open(path, "rt") if compressed
-              else path.open(encoding=locale.getpreferredencoding(False)))
-    lines = _Lines(handle)
-    bad: list[tuple[int, str]] = []
-    try:
-        while True:
-            at = lines.count
-            try:
-                for message in cls(lines):
-                    lines.framed()
-                    yield message
-                break
-            except (UnicodeDecodeError, OSError):
-                raise
-            except Exception as exc:  # python-can raises anything for a line it cannot read
-                if lines.count == at:  # nothing read since the last restart: no way on
-                    raise
-                what = str(exc).strip().splitlines()[0] if str(exc).strip() else \
-                    type(exc).__name__
-                bad.append((lines.count, what))
-                lines.replay()
-    finally:
-        lines.close()
-        if bad:
-            shown = "; ".join(f"line {n}: {what}" for n, what in bad[:3])
-            more = f"; {len(bad) - 3:,} more" if len(bad) > 3 else ""
-            damage.file(path, path.stat().st_size).notes.append(
-                f"{len(bad):,} line{'s' if len(bad) != 1 else ''} python-can could not read "
-                f"skipped ({shown}{more})")
-
-
 def _open_writer(path: Path, suffix: str, compressed: bool) -> Any:
     cls = _writer_class(suffix)
     if not compressed:
@@ -253,9 +169,7 @@ def read_blocks(path: Path, suffix: str, compressed: bool = False,
         Frames per block (the last one may hold fewer).
     damage : canfdi.io.damage.Damage, optional
         Where a log shorter than its own header says is recorded (a BLF's header holds its
-        file size and object count: a cut copy reads to its cut without an error otherwise),
-        and a text log's lines python-can cannot parse, skipped (`_text_messages`). Without
-        one, such a line ends the read with python-can's error.
+        file size and object count: a cut copy reads to its cut without an error otherwise).
 
     Yields
     ------
@@ -268,13 +182,17 @@ def read_blocks(path: Path, suffix: str, compressed: bool = False,
     Whatever python-can's reader raises for a file it cannot parse (canfdi.io.formats turns
     it into one LogReadError).
     """
-    if damage is not None and _is_text(_reader_class(suffix)):
-        yield from _blocks(_text_messages(path, suffix, compressed, damage), frames_per_block)
-        return
     with _open_reader(path, suffix, compressed) as reader:
-        counted = _Counted(reader)
-        yield from _blocks(counted, frames_per_block)
-        frames = counted.count
+        pending: list[Any] = []
+        frames = 0
+        for message in reader:
+            pending.append(message)
+            frames += 1
+            if len(pending) >= frames_per_block:
+                yield messages_block(pending)
+                pending = []
+        if pending:
+            yield messages_block(pending)
         announced = int(getattr(reader, "file_size", 0) or 0) if suffix == ".blf" else 0
         size = path.stat().st_size if damage is not None and announced else 0
         if damage is not None and not compressed and announced > size:
@@ -282,33 +200,6 @@ def read_blocks(path: Path, suffix: str, compressed: bool = False,
             damage.file(path, size).notes.append(
                 f"cut short: {size:,} of the {announced:,} bytes its header announces "
                 f"({objects:,} objects); {frames:,} frames read")
-
-
-class _Counted:
-    """Messages, counted as they pass."""
-
-    def __init__(self, messages: Iterable[Any]) -> None:
-        self.messages, self.count = iter(messages), 0
-
-    def __iter__(self) -> _Counted:
-        return self
-
-    def __next__(self) -> Any:
-        message = next(self.messages)
-        self.count += 1
-        return message
-
-
-def _blocks(messages: Iterable[Any], frames_per_block: int) -> Iterator[FrameBlock]:
-    """python-can messages in FrameBlocks of ``frames_per_block`` (the last may hold fewer)."""
-    pending: list[Any] = []
-    for message in messages:
-        pending.append(message)
-        if len(pending) >= frames_per_block:
-            yield messages_block(pending)
-            pending = []
-    if pending:
-        yield messages_block(pending)
 
 
 def write_blocks(path: Path, suffix: str, blocks: Iterable[FrameBlock], compressed: bool = False,
